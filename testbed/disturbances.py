@@ -1,0 +1,138 @@
+"""Disturbances in the paper's units, applied to a rig's joints as generalized forces.
+
+A :class:`Disturbance` describes ``G w(t) dt + b dW`` in the state equation
+``dx = (A x + B u + G w) dt + b dW`` with ``x = [positions, velocities]``. Only velocity rows
+may be non-zero (a force cannot move a position directly); they are joint accelerations in
+rad/s^2, which the environment turns into generalized forces ``M(q) a`` (through the mass
+matrix) so that the nonlinear rig feels exactly the acceleration the paper's model does at
+the current pose.
+
+The white noise ``b dW`` (``W`` a standard Wiener process: unit intensity) is applied by
+Euler-Maruyama on the control period ``dt``: ``a = b xi / sqrt(dt)``, ``xi ~ N(0, I)``, held
+over the period, so the velocity increment has covariance ``b b^T dt``. ``w(t)`` is evaluated
+at the start of each control period and held (zero-order hold).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def seed000_w(t_s: float) -> np.ndarray:
+    """seed-000's deterministic disturbance ``w(t)``, shape (4,).
+
+    ``w1 = 1/(1+t)``, ``w2 = 0.1 (1 - exp(-0.3 t))``, ``w3 = 0.1745/(1+t)``,
+    ``w4 = 0.0873 (1 - exp(-0.3 t))``. ``w2`` and ``w4`` do not decay, so ``||w||_2`` grows
+    with the horizon (PAPER_NOTES).
+    """
+    rise = 1.0 - np.exp(-0.3 * t_s)
+    return np.array([1.0 / (1.0 + t_s), 0.1 * rise, 0.1745 / (1.0 + t_s), 0.0873 * rise])
+
+
+@dataclass
+class Disturbance:
+    """Deterministic signal ``G w(t)`` plus white noise ``b dW`` on the velocity rows.
+
+    Parameters
+    ----------
+    G : ndarray, shape (n, s), optional
+        Input matrix of the deterministic disturbance (paper units: rad/s^2 per unit of w).
+    w : callable ``t_s -> ndarray (s,)``, optional
+        The disturbance signal; required with ``G``.
+    b : ndarray, shape (n, p), optional
+        White-noise input matrix; the process-noise intensity is ``b b^T``.
+    n_positions : int
+        Number of position states (rows of ``G`` and ``b`` that must be zero).
+    """
+
+    G: np.ndarray | None = None
+    w: Callable[[float], np.ndarray] | None = None
+    b: np.ndarray | None = None
+    n_positions: int = 2
+
+    def __post_init__(self) -> None:
+        if (self.G is None) != (self.w is None):
+            raise ValueError("G and w must be given together (deterministic disturbance G w(t))")
+        for name in ("G", "b"):
+            M = getattr(self, name)
+            if M is None:
+                continue
+            M = np.atleast_2d(np.asarray(M, dtype=float))
+            if M.ndim != 2 or not np.all(np.isfinite(M)):
+                raise ValueError(f"{name} must be a finite 2-D matrix, got {M!r}")
+            if np.any(M[: self.n_positions] != 0):
+                raise ValueError(f"{name}: rows of position states must be zero; a disturbance "
+                                 "acts as a force (velocity rows only)")
+            setattr(self, name, M)
+        if self.G is not None:
+            w0 = np.asarray(self.w(0.0), dtype=float)
+            if w0.shape != (self.G.shape[1],):
+                raise ValueError(f"w(t) must return shape ({self.G.shape[1]},) to match G, "
+                                 f"got {w0.shape}")
+
+    @property
+    def has_deterministic(self) -> bool:
+        """True when a deterministic ``G w(t)`` is present (the T ratio is then defined)."""
+        return self.G is not None
+
+    @property
+    def intensity(self) -> np.ndarray | None:
+        """Process-noise intensity ``b b^T``, shape (n, n), or None."""
+        return None if self.b is None else self.b @ self.b.T
+
+    def signal(self, t_s: float) -> np.ndarray:
+        """``w(t)``, shape (s,); empty when there is no deterministic part."""
+        if self.w is None:
+            return np.zeros(0)
+        return np.asarray(self.w(t_s), dtype=float)
+
+    def acceleration(self, t_s: float, dt_s: float, rng: np.random.Generator,
+                     w: np.ndarray | None = None) -> np.ndarray:
+        """Joint accelerations to apply over ``[t, t + dt)``, shape (n - n_positions,).
+
+        Parameters
+        ----------
+        t_s : float
+            Start of the control period.
+        dt_s : float
+            Control period (Euler-Maruyama step of the white noise).
+        rng : numpy.random.Generator
+            Source of the white noise (the environment's ``np_random``).
+        w : ndarray, shape (s,), optional
+            Pre-computed ``w(t_s)``.
+        """
+        n_vel = None
+        accel = 0.0
+        if self.G is not None:
+            w = self.signal(t_s) if w is None else w
+            accel = self.G[self.n_positions:] @ w
+            n_vel = self.G.shape[0] - self.n_positions
+        if self.b is not None:
+            xi = rng.standard_normal(self.b.shape[1])
+            accel = accel + self.b[self.n_positions:] @ xi / np.sqrt(dt_s)
+            n_vel = self.b.shape[0] - self.n_positions
+        if n_vel is None:
+            return np.zeros(0)
+        return np.asarray(accel, dtype=float)
+
+
+def seed000_disturbance(noise_scale: float = 1.0, deterministic: bool = True) -> Disturbance:
+    """seed-000's disturbance: ``G w(t)`` with the printed ``G`` and ``w``, and ``b dW``.
+
+    Parameters
+    ----------
+    noise_scale : float
+        Multiplies the printed ``b`` (0 removes the white noise).
+    deterministic : bool
+        Include ``G w(t)``.
+    """
+    from testbed.rigs.helicopter import paper_model
+
+    pm = paper_model()
+    if not (np.isfinite(noise_scale) and noise_scale >= 0):
+        raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
+    return Disturbance(G=pm.G if deterministic else None, w=seed000_w if deterministic else None,
+                       b=pm.b * noise_scale if noise_scale > 0 else None)

@@ -1,0 +1,1 @@
+"""Gymnasium environments of the testbed (registered when :mod:`testbed` is imported)."""

@@ -1,0 +1,88 @@
+"""The record of one simulated run: what the viewer, the plots and the JSON summary read.
+
+A :class:`Trajectory` is filled by :func:`testbed.runner.run_episode` (or by hand) and is
+consumed by :mod:`testbed.viz` (Rerun ``.rrd``), :mod:`testbed.plots` (PNG) and the CLI.
+All arrays share the leading time axis of length ``T`` (one row per control step, the
+initial reset included as row 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Trajectory:
+    """Time series of one episode.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (T,)
+        Time of each row in seconds.
+    state : ndarray, shape (T, n)
+        True state (e.g. ``[pitch, yaw, pitch_rate, yaw_rate]`` in rad, rad/s).
+    state_names : list of str, length n
+        Names of the state components, used as entity/legend names.
+    estimate : ndarray, shape (T, n) or None
+        Estimator output, when an estimator ran.
+    covariance : ndarray, shape (T, n, n) or None
+        Estimator error covariance, when the estimator has one.
+    measurement : ndarray, shape (T, m)
+        Sensor output at each row.
+    measurement_names : list of str, length m
+        Names of the measurement components.
+    measured_state_index : list of int or None, length m
+        For each measurement component, the index of the state it measures directly
+        (``None`` where it measures no single state); lets plots overlay measurements
+        on the state they observe.
+    action : ndarray, shape (T, k)
+        Applied (clipped) action; row 0 is zeros (no action before the first step).
+    action_names : list of str, length k
+        Names (with units) of the action components.
+    setpoint : ndarray, shape (T, n_ref) or None
+        Reference tracked by the controller (e.g. pitch and yaw in rad).
+    body_pos : ndarray, shape (T, nbody, 3) or None
+        World positions of the MuJoCo bodies (``data.xpos``), for the 3D view.
+    body_quat_wxyz : ndarray, shape (T, nbody, 4) or None
+        World orientations of the bodies (``data.xquat``), MuJoCo order w, x, y, z.
+    meta : dict
+        Free-form run description (rig, filter, seed, dt...).
+    """
+
+    t_s: np.ndarray
+    state: np.ndarray
+    state_names: list[str]
+    measurement: np.ndarray
+    measurement_names: list[str]
+    action: np.ndarray
+    action_names: list[str]
+    estimate: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    measured_state_index: list[int | None] | None = None
+    setpoint: np.ndarray | None = None
+    body_pos: np.ndarray | None = None
+    body_quat_wxyz: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n_rows = len(self.t_s)
+        for name in ("state", "measurement", "action", "estimate", "covariance", "setpoint",
+                     "body_pos", "body_quat_wxyz"):
+            value = getattr(self, name)
+            if value is not None and len(value) != n_rows:
+                raise ValueError(
+                    f"Trajectory.{name} has {len(value)} rows, expected {n_rows} (len(t_s))"
+                )
+
+    @property
+    def n_steps(self) -> int:
+        """Number of control steps (rows minus the initial one)."""
+        return len(self.t_s) - 1
+
+    def std(self) -> np.ndarray | None:
+        """Standard deviation of each state's estimate, shape (T, n), or None."""
+        if self.covariance is None:
+            return None
+        return np.sqrt(np.clip(np.diagonal(self.covariance, axis1=1, axis2=2), 0.0, None))
