@@ -74,6 +74,11 @@ class Disturbance:
                                  f"got {w0.shape}")
 
     @property
+    def active(self) -> bool:
+        """True when any disturbance (deterministic or white noise) is configured."""
+        return self.G is not None or self.b is not None
+
+    @property
     def has_deterministic(self) -> bool:
         """True when a deterministic ``G w(t)`` is present (the T ratio is then defined)."""
         return self.G is not None

@@ -58,6 +58,7 @@ class EncoderSuite:
                              f"got {self.counts_per_rev}")
         self._quantum = 2 * np.pi / counts.astype(float)
         self._angle_std = _as_pair(self.noise_std_rad, "noise_std_rad")
+        self._angle_noise = bool(np.any(self._angle_std > 0))
         self._gyro_std = _as_pair(self.gyro_noise_std_rad_s, "gyro_noise_std_rad_s")
 
     @property
@@ -95,7 +96,7 @@ class EncoderSuite:
         ndarray, shape (dim,)
         """
         angles = np.round(x[:2] / self._quantum) * self._quantum
-        if np.any(self._angle_std > 0):
+        if self._angle_noise:
             angles = angles + self._angle_std * rng.standard_normal(2)
         if not self.gyros:
             return angles

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Sequence
 from typing import Any
 
@@ -141,6 +142,7 @@ class Helicopter2DOFEnv(gym.Env):
         self.disturbance = disturbance or Disturbance()
         self._default_setpoints = _validate_setpoints(setpoints)
         self._setpoints = self._default_setpoints
+        self._setpoint_times = self._setpoints[:, 0].tolist()
 
         self.action_space = spaces.Box(-VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V, (2,), np.float64)
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.sensors.dim,), np.float64)
@@ -169,7 +171,7 @@ class Helicopter2DOFEnv(gym.Env):
 
     def setpoint(self, t_s: float) -> np.ndarray:
         """Reference ``[pitch, yaw]`` (rad) active at time ``t_s``, shape (2,)."""
-        row = np.searchsorted(self._setpoints[:, 0], t_s, side="right") - 1
+        row = bisect.bisect_right(self._setpoint_times, t_s) - 1
         return self._setpoints[max(row, 0), 1:].copy()
 
     def _validate_action(self, action: Any) -> np.ndarray:
@@ -181,16 +183,17 @@ class Helicopter2DOFEnv(gym.Env):
         if u.shape != (2,):
             raise ValueError(f"action must have shape (2,) (V_pitch, V_yaw in volts), got "
                              f"shape {u.shape}")
-        if not np.all(np.isfinite(u)):
+        if not np.isfinite(u).all():
             raise ValueError(f"action must be finite (no NaN/inf), got {u}")
         return u
 
-    def _info(self, u: np.ndarray, clipped: np.ndarray, accel: np.ndarray) -> dict[str, Any]:
+    def _info(self, x: np.ndarray, ref: np.ndarray, u: np.ndarray, clipped: np.ndarray,
+              accel: np.ndarray) -> dict[str, Any]:
         return {
-            "state": self.rig.get_state(),
+            "state": x,
             "t": self._t_s,
-            "disturbance": self._w.copy(),
-            "setpoint": self.setpoint(self._t_s),
+            "disturbance": self._w,
+            "setpoint": ref,
             "action_applied": u,
             "action_clipped": clipped,
             "process_accel": accel,
@@ -223,26 +226,29 @@ class Helicopter2DOFEnv(gym.Env):
         model, data = self._model_data
         mujoco.mj_resetData(model, data)
         self._setpoints = setpoints
+        self._setpoint_times = setpoints[:, 0].tolist()
         self._steps = 0
         self._x0 = x0.copy()
         self.rig.set_state(x0)
         self._w = self.disturbance.signal(0.0)
         obs = self.sensors.measure(x0, 0.0, self.np_random, self._w)
-        return obs, self._info(np.zeros(2), np.zeros(2, bool), np.zeros(2))
+        return obs, self._info(self.rig.get_state(), self.setpoint(0.0), np.zeros(2),
+                               np.zeros(2, bool), np.zeros(2))
 
     def step(self, action):
         """Apply motor voltages for one control period; see the class docstring."""
         u = self._validate_action(action)
-        clipped_u = np.clip(u, -VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V)
+        clipped_u = u.clip(-VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V)
         clipped = clipped_u != u
         model, data = self._model_data
 
-        w = self.disturbance.signal(self._t_s)
-        accel = self.disturbance.acceleration(self._t_s, self.dt_s, self.np_random, w)
-        if accel.size:
+        disturbance = self.disturbance
+        if disturbance.active:
+            w = disturbance.signal(self._t_s)
+            accel = disturbance.acceleration(self._t_s, self.dt_s, self.np_random, w)
             data.qfrc_applied[:] = self.rig.joint_accel_to_force(accel)
         else:
-            accel = np.zeros(2)
+            w, accel = self._w, np.zeros(2)
         data.ctrl[:] = clipped_u
         mujoco.mj_step(model, data, nstep=self.frame_skip)
         self._steps += 1
@@ -250,10 +256,11 @@ class Helicopter2DOFEnv(gym.Env):
 
         x = self.rig.get_state()
         ref = self.setpoint(self._t_s)
-        reward = -float(np.sum((x[:2] - ref) ** 2))
-        obs = self.sensors.measure(x, self._t_s, self.np_random, self.disturbance.signal(
-            self._t_s) if self.disturbance.has_deterministic else None)
-        return obs, reward, False, False, self._info(clipped_u, clipped, accel)
+        e0, e1 = x[0] - ref[0], x[1] - ref[1]
+        reward = -(e0 * e0 + e1 * e1)
+        w_now = disturbance.signal(self._t_s) if disturbance.has_deterministic else None
+        obs = self.sensors.measure(x, self._t_s, self.np_random, w_now)
+        return obs, reward, False, False, self._info(x, ref, clipped_u, clipped, accel)
 
     # ------------------------------------------------------------------ for viz
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:

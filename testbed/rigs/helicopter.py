@@ -267,6 +267,8 @@ class HelicopterRig:
                                             "pitch_motor")
         self._act_yaw = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, "yaw_motor")
         self._mass_matrix = np.zeros((self.model.nv, self.model.nv))
+        # [pitch, yaw, pitch_rate, yaw_rate] as one gather from concatenate(qpos, qvel)
+        self._state_gather = np.concatenate([self._qpos_adr, self.model.nq + self._dof_adr])
         self.params = HelicopterParams()
         self.set_params(params or HelicopterParams())
 
@@ -305,8 +307,7 @@ class HelicopterRig:
     # ------------------------------------------------------------------ state
     def get_state(self) -> np.ndarray:
         """True state ``[pitch, yaw, pitch_rate, yaw_rate]``, shape (4,), rad and rad/s."""
-        d = self.data
-        return np.concatenate([d.qpos[self._qpos_adr], d.qvel[self._dof_adr]])
+        return np.concatenate((self.data.qpos, self.data.qvel))[self._state_gather]
 
     def set_state(self, x: np.ndarray) -> None:
         """Set the MuJoCo state from ``x`` (shape (4,)) and recompute derived quantities."""

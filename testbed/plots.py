@@ -1,0 +1,178 @@
+"""Static PNG summary of one run (matplotlib, Agg canvas, no pyplot global state).
+
+Layout: one row per state, left the state (truth in black, estimate in color,
+measurements of that state as dots, setpoint dashed), right the estimation error with a
++-3 sigma band when a covariance exists; a last row with the actions. States are plotted
+in degrees (deg/s for names containing ``rate``): radians inside, degrees at the edges.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from testbed.io import atomic_path
+from testbed.trajectory import Trajectory
+
+_COLORS = [f"C{i}" for i in range(10)]
+
+
+def _angle_scale(name: str) -> tuple[float, str]:
+    """Factor and unit taking a state from rad (rad/s for names with 'rate') to deg (deg/s)."""
+    return math.degrees(1.0), "deg/s" if "rate" in name.lower() else "deg"
+
+
+def _setpoint_names(traj: Trajectory) -> list[str]:
+    """Names of the setpoint components (same rule as :mod:`testbed.viz`).
+
+    ``traj.meta["setpoint_names"]`` when given with the right length, else the leading
+    state names (the setpoint tracks the first ``n_ref`` states), else the indices.
+    """
+    if traj.setpoint is None:
+        return []
+    n_ref = np.asarray(traj.setpoint).reshape(len(traj.t_s), -1).shape[1]
+    names = traj.meta.get("setpoint_names") if isinstance(traj.meta, dict) else None
+    if names is not None and len(names) == n_ref:
+        return [str(n) for n in names]
+    if n_ref <= len(traj.state_names):
+        return list(traj.state_names[:n_ref])
+    return [str(i) for i in range(n_ref)]
+
+
+def _check_shapes(traj: Trajectory) -> None:
+    """Raise ``ValueError`` when names, estimate or covariance do not match the state."""
+    n_rows = len(traj.t_s)
+    n = np.asarray(traj.state).reshape(n_rows, -1).shape[1]
+    checks = [("state_names", len(traj.state_names), n),
+              ("measurement_names", len(traj.measurement_names),
+               np.asarray(traj.measurement).reshape(n_rows, -1).shape[1]),
+              ("action_names", len(traj.action_names),
+               np.asarray(traj.action).reshape(n_rows, -1).shape[1])]
+    for label, got, expected in checks:
+        if got != expected:
+            raise ValueError(f"Trajectory.{label} has {got} names for {expected} columns")
+    if traj.estimate is not None and np.shape(traj.estimate) != (n_rows, n):
+        raise ValueError(f"Trajectory.estimate has shape {np.shape(traj.estimate)}, "
+                         f"expected {(n_rows, n)}")
+    if traj.covariance is not None and np.shape(traj.covariance) != (n_rows, n, n):
+        raise ValueError(f"Trajectory.covariance has shape {np.shape(traj.covariance)}, "
+                         f"expected {(n_rows, n, n)}")
+
+
+def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | None = None,
+                    dpi: int = 100) -> Path:
+    """Plot a run to a PNG file, atomically.
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The run: ``t_s`` (T,), ``state`` (T, n), optional ``estimate`` (T, n) and
+        ``covariance`` (T, n, n), ``measurement`` (T, m) with ``measured_state_index``,
+        ``action`` (T, k), optional ``setpoint`` (T, n_ref). NaN samples (e.g. sensor
+        dropouts) show as gaps.
+    path : str or PathLike
+        Destination ``.png`` (parent directories are created).
+    title : str, optional
+        Figure title; defaults to ``rig`` / ``filter`` from ``traj.meta`` when present.
+    dpi : int
+        Resolution of the PNG.
+
+    Returns
+    -------
+    Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        If a names list, ``estimate`` or ``covariance`` does not match ``state``.
+    """
+    _check_shapes(traj)
+    n_rows = len(traj.t_s)
+
+    def rows(value: np.ndarray) -> np.ndarray:
+        return np.asarray(value, dtype=float).reshape(n_rows, -1)
+
+    t = np.asarray(traj.t_s, dtype=float)
+    state = rows(traj.state)
+    meas = rows(traj.measurement)
+    action = rows(traj.action)
+    estimate = None if traj.estimate is None else rows(traj.estimate)
+    std = traj.std() if estimate is not None else None
+    n_states = state.shape[1]
+    msi = list(traj.measured_state_index or [])
+    sp_names = _setpoint_names(traj)
+    setpoint = None if traj.setpoint is None else rows(traj.setpoint)
+
+    n_cols = 2 if estimate is not None else 1  # no error column without an estimate
+    fig = Figure(figsize=(6.0 * n_cols, 2.2 * (n_states + 1) + 0.8), layout="constrained")
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(n_states + 1, n_cols)
+    left0 = None
+    for i, name in enumerate(traj.state_names):
+        factor, unit = _angle_scale(name)
+        color = _COLORS[i % len(_COLORS)]
+        ax = fig.add_subplot(grid[i, 0], sharex=left0)
+        left0 = left0 or ax
+        ax.plot(t, factor * state[:, i], color="black", lw=1.2, label="truth")
+        if estimate is not None:
+            ax.plot(t, factor * estimate[:, i], color=color, lw=1.0, label="estimate")
+        for j, idx in enumerate(msi):
+            if idx == i and j < meas.shape[1]:
+                ax.plot(t, factor * meas[:, j], ".", color="0.45", ms=2.5, alpha=0.6,
+                        label="measurement")
+        if setpoint is not None and name in sp_names:
+            ax.plot(t, factor * setpoint[:, sp_names.index(name)], "--", color="0.4", lw=1.0,
+                    label="setpoint")
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(True, alpha=0.3)
+        last = i == n_states - 1  # time tick labels on the last state row only
+        ax.tick_params(labelbottom=last)
+
+        if estimate is None:
+            continue
+        ax_err = fig.add_subplot(grid[i, 1], sharex=left0)
+        ax_err.tick_params(labelbottom=last)
+        if std is not None:
+            bound = 3.0 * factor * std[:, i]
+            ax_err.fill_between(t, -bound, bound, color=color, alpha=0.2, lw=0,
+                                label="±3σ")
+        ax_err.plot(t, factor * (estimate[:, i] - state[:, i]), color=color, lw=1.0,
+                    label="error (estimate − truth)")
+        ax_err.axhline(0.0, color="black", lw=0.5)
+        ax_err.set_ylabel(f"{name} error [{unit}]")
+        ax_err.grid(True, alpha=0.3)
+
+    ax_act = fig.add_subplot(grid[n_states, :], sharex=left0)
+    for k, name in enumerate(traj.action_names):
+        ax_act.plot(t, action[:, k], lw=1.0, color=_COLORS[k % len(_COLORS)], label=name)
+    ax_act.set_ylabel("action")
+    ax_act.set_xlabel("time [s]")
+    ax_act.grid(True, alpha=0.3)
+    if traj.action_names:
+        ax_act.legend(loc="upper right", fontsize="small", ncols=min(4, len(traj.action_names)))
+
+    # One legend for the state/error styles: first occurrence of each label.
+    handles: dict[str, object] = {}
+    for ax in fig.axes:
+        if ax is ax_act:
+            continue
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, handle)
+    if handles:
+        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
+                   ncols=len(handles), fontsize="small")
+    if title is None and isinstance(traj.meta, dict):
+        parts = [str(traj.meta[k]) for k in ("rig", "filter") if traj.meta.get(k)]
+        title = " / ".join(parts) or None
+    if title:
+        fig.suptitle(title)
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi)
+    return Path(path)
