@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from filters import FilterError
 from testbed.experiment import CONTROLLERS, DISTURBANCES, FILTERS, build_helicopter, run_episode
 from testbed.io import write_json
 from testbed.sensors import SENSOR_SUITES
@@ -136,6 +137,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"testbed: error: {exc}", file=sys.stderr)
         return 2
+    except FilterError as exc:
+        print(f"testbed: numerical failure of the filter: {exc}", file=sys.stderr)
+        return 3
     return 1
 
 

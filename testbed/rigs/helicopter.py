@@ -253,7 +253,8 @@ class HelicopterRig:
 
     def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001):
         if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
-            raise ValueError(f"physics_dt_s must be a positive finite time in s, got {physics_dt_s}")
+            raise ValueError(f"physics_dt_s must be a positive finite time in s, "
+                             f"got {physics_dt_s}")
         self.model = mujoco.MjModel.from_xml_path(str(model_path(self.XML_FILE)))
         self.model.opt.timestep = physics_dt_s
         self.data = mujoco.MjData(self.model)

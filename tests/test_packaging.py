@@ -1,0 +1,35 @@
+"""The MJCF files ship in the wheel and load from an installed copy."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_wheel_contains_models_and_loads_them(tmp_path):
+    wheel_dir = tmp_path / "wheel"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                    "--quiet", "-w", str(wheel_dir), str(ROOT)], check=True,
+                   capture_output=True)
+    (wheel,) = wheel_dir.glob("testbed-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "testbed/models/helicopter_2dof.xml" in names
+    assert any(n.startswith("filters/") for n in names)
+
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet",
+                    "--target", str(target), str(wheel)], check=True, capture_output=True)
+    code = ("import testbed.rigs.assets as a, mujoco;"
+            "p = a.model_path('helicopter_2dof.xml'); assert 'site' in str(p), p;"
+            "print(mujoco.MjModel.from_xml_path(str(p)).nq)")
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True,
+                            capture_output=True, text=True,
+                            env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"})
+    assert result.stdout.strip() == "2"
