@@ -22,46 +22,42 @@ from testbed.trajectory import Trajectory
 _COLORS = [f"C{i}" for i in range(10)]
 
 
+
+
 def _angle_scale(name: str) -> tuple[float, str]:
     """Factor and unit taking a state from rad (rad/s for names with 'rate') to deg (deg/s)."""
     return math.degrees(1.0), "deg/s" if "rate" in name.lower() else "deg"
 
 
-def _setpoint_names(traj: Trajectory) -> list[str]:
-    """Names of the setpoint components (same rule as :mod:`testbed.viz`).
 
-    ``traj.meta["setpoint_names"]`` when given with the right length, else the leading
-    state names (the setpoint tracks the first ``n_ref`` states), else the indices.
+
+
+
+def _error_ylim(error: np.ndarray, bound: np.ndarray | None) -> tuple[float, float]:
+    """Symmetric y-limits showing the bulk of the error and of the 3-sigma band.
+
+    Percentiles rather than extremes, so that a large initial covariance (or one outlier)
+    does not flatten the rest of the run.
+
+    Parameters
+    ----------
+    error : ndarray, shape (T,)
+        Estimation error (NaN allowed).
+    bound : ndarray, shape (T,) or None
+        3-sigma bound.
+
+    Returns
+    -------
+    tuple of float
+        (lower, upper) limits.
     """
-    if traj.setpoint is None:
-        return []
-    n_ref = np.asarray(traj.setpoint).reshape(len(traj.t_s), -1).shape[1]
-    names = traj.meta.get("setpoint_names") if isinstance(traj.meta, dict) else None
-    if names is not None and len(names) == n_ref:
-        return [str(n) for n in names]
-    if n_ref <= len(traj.state_names):
-        return list(traj.state_names[:n_ref])
-    return [str(i) for i in range(n_ref)]
-
-
-def _check_shapes(traj: Trajectory) -> None:
-    """Raise ``ValueError`` when names, estimate or covariance do not match the state."""
-    n_rows = len(traj.t_s)
-    n = np.asarray(traj.state).reshape(n_rows, -1).shape[1]
-    checks = [("state_names", len(traj.state_names), n),
-              ("measurement_names", len(traj.measurement_names),
-               np.asarray(traj.measurement).reshape(n_rows, -1).shape[1]),
-              ("action_names", len(traj.action_names),
-               np.asarray(traj.action).reshape(n_rows, -1).shape[1])]
-    for label, got, expected in checks:
-        if got != expected:
-            raise ValueError(f"Trajectory.{label} has {got} names for {expected} columns")
-    if traj.estimate is not None and np.shape(traj.estimate) != (n_rows, n):
-        raise ValueError(f"Trajectory.estimate has shape {np.shape(traj.estimate)}, "
-                         f"expected {(n_rows, n)}")
-    if traj.covariance is not None and np.shape(traj.covariance) != (n_rows, n, n):
-        raise ValueError(f"Trajectory.covariance has shape {np.shape(traj.covariance)}, "
-                         f"expected {(n_rows, n, n)}")
+    candidates = [np.nanpercentile(np.abs(error), 99.5)] if np.any(np.isfinite(error)) else []
+    if bound is not None and np.any(np.isfinite(bound)):
+        candidates.append(np.nanpercentile(bound, 95.0))
+    lim = 1.15 * max(candidates, default=1.0)
+    if not np.isfinite(lim) or lim <= 0.0:
+        lim = 1.0
+    return -lim, lim
 
 
 def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | None = None,
@@ -92,22 +88,16 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
     ValueError
         If a names list, ``estimate`` or ``covariance`` does not match ``state``.
     """
-    _check_shapes(traj)
-    n_rows = len(traj.t_s)
-
-    def rows(value: np.ndarray) -> np.ndarray:
-        return np.asarray(value, dtype=float).reshape(n_rows, -1)
-
     t = np.asarray(traj.t_s, dtype=float)
-    state = rows(traj.state)
-    meas = rows(traj.measurement)
-    action = rows(traj.action)
-    estimate = None if traj.estimate is None else rows(traj.estimate)
+    state = traj.state
+    meas = traj.measurement
+    action = traj.action
+    estimate = None if traj.estimate is None else traj.estimate
     std = traj.std() if estimate is not None else None
     n_states = state.shape[1]
     msi = list(traj.measured_state_index or [])
-    sp_names = _setpoint_names(traj)
-    setpoint = None if traj.setpoint is None else rows(traj.setpoint)
+    sp_names = traj.setpoint_names()
+    setpoint = None if traj.setpoint is None else traj.setpoint
 
     n_cols = 2 if estimate is not None else 1  # no error column without an estimate
     fig = Figure(figsize=(6.0 * n_cols, 2.2 * (n_states + 1) + 0.8), layout="constrained")
@@ -119,16 +109,18 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
         color = _COLORS[i % len(_COLORS)]
         ax = fig.add_subplot(grid[i, 0], sharex=left0)
         left0 = left0 or ax
-        ax.plot(t, factor * state[:, i], color="black", lw=1.2, label="truth")
+        # Drawing order: measurements below, then setpoint, truth, estimate on top.
+        ax.plot(t, factor * state[:, i], color="black", lw=1.2, label="truth", zorder=3)
         if estimate is not None:
-            ax.plot(t, factor * estimate[:, i], color=color, lw=1.0, label="estimate")
+            ax.plot(t, factor * estimate[:, i], color=color, lw=1.0, label="estimate",
+                    zorder=4)
         for j, idx in enumerate(msi):
             if idx == i and j < meas.shape[1]:
-                ax.plot(t, factor * meas[:, j], ".", color="0.45", ms=2.5, alpha=0.6,
-                        label="measurement")
+                ax.plot(t, factor * meas[:, j], ".", color="0.55", ms=2.5, alpha=0.5,
+                        label="measurement", zorder=1)
         if setpoint is not None and name in sp_names:
-            ax.plot(t, factor * setpoint[:, sp_names.index(name)], "--", color="0.4", lw=1.0,
-                    label="setpoint")
+            ax.plot(t, factor * setpoint[:, sp_names.index(name)], "--", color="0.3", lw=1.0,
+                    label="setpoint", zorder=2)
         ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(True, alpha=0.3)
         last = i == n_states - 1  # time tick labels on the last state row only
@@ -138,12 +130,13 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
             continue
         ax_err = fig.add_subplot(grid[i, 1], sharex=left0)
         ax_err.tick_params(labelbottom=last)
-        if std is not None:
-            bound = 3.0 * factor * std[:, i]
+        error = factor * (estimate[:, i] - state[:, i])
+        bound = None if std is None else 3.0 * factor * std[:, i]
+        if bound is not None:
             ax_err.fill_between(t, -bound, bound, color=color, alpha=0.2, lw=0,
                                 label="±3σ")
-        ax_err.plot(t, factor * (estimate[:, i] - state[:, i]), color=color, lw=1.0,
-                    label="error (estimate − truth)")
+        ax_err.plot(t, error, color=color, lw=1.0, label="error (estimate − truth)")
+        ax_err.set_ylim(*_error_ylim(error, bound))
         ax_err.axhline(0.0, color="black", lw=0.5)
         ax_err.set_ylabel(f"{name} error [{unit}]")
         ax_err.grid(True, alpha=0.3)

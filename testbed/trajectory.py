@@ -67,7 +67,13 @@ class Trajectory:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        self.t_s = np.asarray(self.t_s, dtype=float)
         n_rows = len(self.t_s)
+        for name in ("state", "measurement", "action", "estimate", "setpoint"):
+            value = getattr(self, name)
+            if value is not None:  # (T, k) float; a 1-D series becomes one column
+                value = np.asarray(value, dtype=float)
+                setattr(self, name, value[:, None] if value.ndim == 1 else value)
         for name in ("state", "measurement", "action", "estimate", "covariance", "setpoint",
                      "body_pos", "body_quat_wxyz"):
             value = getattr(self, name)
@@ -75,6 +81,37 @@ class Trajectory:
                 raise ValueError(
                     f"Trajectory.{name} has {len(value)} rows, expected {n_rows} (len(t_s))"
                 )
+        for label, names, arr in (("state_names", self.state_names, self.state),
+                                  ("measurement_names", self.measurement_names,
+                                   self.measurement),
+                                  ("action_names", self.action_names, self.action)):
+            if len(names) != arr.shape[1]:
+                raise ValueError(f"Trajectory.{label} has {len(names)} names for "
+                                 f"{arr.shape[1]} columns")
+        n = self.state.shape[1]
+        if self.estimate is not None and self.estimate.shape != (n_rows, n):
+            raise ValueError(f"Trajectory.estimate has shape {self.estimate.shape}, "
+                             f"expected {(n_rows, n)}")
+        if self.covariance is not None and np.shape(self.covariance) != (n_rows, n, n):
+            raise ValueError(f"Trajectory.covariance has shape {np.shape(self.covariance)}, "
+                             f"expected {(n_rows, n, n)}")
+
+    def setpoint_names(self) -> list[str]:
+        """Names of the setpoint components.
+
+        ``meta["setpoint_names"]`` when given with the right length, else the leading state
+        names (a setpoint tracks the first ``n_ref`` states, e.g. pitch and yaw), else the
+        component indices; empty without a setpoint.
+        """
+        if self.setpoint is None:
+            return []
+        n_ref = self.setpoint.shape[1]
+        names = self.meta.get("setpoint_names")
+        if names is not None and len(names) == n_ref:
+            return [str(n) for n in names]
+        if n_ref <= len(self.state_names):
+            return list(self.state_names[:n_ref])
+        return [str(i) for i in range(n_ref)]
 
     @property
     def n_steps(self) -> int:

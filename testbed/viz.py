@@ -22,6 +22,15 @@ the measurements that observe a state directly are logged in degrees (deg/s for 
 whose name contains ``rate``), like the PNG plots, unless ``degrees=False``. Actions and
 measurements that observe no single state are logged unchanged. Series names carry the
 unit.
+
+Entity names come from the trajectory's names with a trailing bracketed unit dropped and
+other characters than letters, digits, ``_ - .`` replaced by ``_`` (``"pitch_voltage [V]"``
+-> ``action/pitch_voltage``); body names from ``mj_id2name`` (``body_<id>`` if unnamed).
+Geom entities are numbered by MuJoCo geom id; geoms of group 3 and above (collision-only
+by MuJoCo convention) are not drawn.
+
+Caveat (rerun 0.41, rerun-io/rerun#2116): each :func:`write_rrd` call leaves two idle
+threads behind (the recording stream Rerun builds internally for the blueprint).
 """
 
 from __future__ import annotations
@@ -79,6 +88,8 @@ def quat_wxyz_to_xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
     return quat[..., [1, 2, 3, 0]].copy()
 
 
+
+
 def _check_finite(traj: Trajectory) -> None:
     """Raise ``ValueError`` naming the first field of ``traj`` holding NaN or inf."""
     for name in _FIELDS:
@@ -94,23 +105,6 @@ def _check_finite(traj: Trajectory) -> None:
             )
 
 
-def _check_shapes(traj: Trajectory) -> None:
-    """Raise ``ValueError`` when names, estimate or covariance do not match their arrays."""
-    n_rows = len(traj.t_s)
-    n = np.asarray(traj.state).reshape(n_rows, -1).shape[1]
-    pairs = [("state_names", traj.state_names, traj.state),
-             ("measurement_names", traj.measurement_names, traj.measurement),
-             ("action_names", traj.action_names, traj.action)]
-    for label, names, arr in pairs:
-        width = np.asarray(arr).reshape(n_rows, -1).shape[1]
-        if len(names) != width:
-            raise ValueError(f"Trajectory.{label} has {len(names)} names for {width} columns")
-    if traj.estimate is not None and np.shape(traj.estimate) != (n_rows, n):
-        raise ValueError(f"Trajectory.estimate has shape {np.shape(traj.estimate)}, "
-                         f"expected {(n_rows, n)}")
-    if traj.covariance is not None and np.shape(traj.covariance) != (n_rows, n, n):
-        raise ValueError(f"Trajectory.covariance has shape {np.shape(traj.covariance)}, "
-                         f"expected {(n_rows, n, n)}")
 
 
 def _entity_part(name: str) -> str:
@@ -145,22 +139,6 @@ def _angle_scale(name: str, degrees: bool) -> tuple[float, str]:
     return 1.0, "rad/s" if rate else "rad"
 
 
-def _setpoint_names(traj: Trajectory) -> list[str]:
-    """Names of the setpoint components.
-
-    ``traj.meta["setpoint_names"]`` when given with the right length, else the leading
-    state names (the setpoint tracks the first ``n_ref`` states, e.g. pitch and yaw), else
-    the component indices.
-    """
-    if traj.setpoint is None:
-        return []
-    n_ref = np.asarray(traj.setpoint).reshape(len(traj.t_s), -1).shape[1]
-    names = traj.meta.get("setpoint_names") if isinstance(traj.meta, dict) else None
-    if names is not None and len(names) == n_ref:
-        return [str(n) for n in names]
-    if n_ref <= len(traj.state_names):
-        return list(traj.state_names[:n_ref])
-    return [str(i) for i in range(n_ref)]
 
 
 def _geom_rgba(model: mujoco.MjModel, geom: int) -> np.ndarray:
@@ -265,7 +243,7 @@ class _Layout:
         msi = list(traj.measured_state_index or [])
         msi += [None] * (len(traj.measurement_names) - len(msi))
         meas_state = [int(i) if i is not None and 0 <= int(i) < n else None for i in msi]
-        sp_labels = _setpoint_names(traj)
+        sp_labels = traj.setpoint_names()
         sp_state = [traj.state_names.index(s) if s in traj.state_names else None
                     for s in sp_labels]
         state_parts = _entity_parts(traj.state_names)
@@ -329,6 +307,8 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
         ``traj.body_pos`` and ``traj.body_quat_wxyz``, with ``nbody`` matching the model).
     application_id : str
         Rerun application id; the viewer keeps one active layout per application id.
+        ``/`` and ``.`` become ``-`` (``"testbed/helicopter"`` -> ``"testbed-helicopter"``):
+        Rerun 0.41 would otherwise rename the id with a hash suffix and warn.
     degrees : bool
         Log angles (states, errors, sigma bounds, setpoints of a state, direct
         measurements of a state) in deg and deg/s instead of rad and rad/s.
@@ -350,7 +330,6 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
     import rerun as rr
 
     _check_finite(traj)
-    _check_shapes(traj)
     n_rows = len(traj.t_s)
     with_rig = (model is not None and traj.body_pos is not None
                 and traj.body_quat_wxyz is not None)
@@ -361,21 +340,69 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
                 f"body_pos {shape_p} / body_quat_wxyz {shape_q} do not match "
                 f"(T={n_rows}, nbody={model.nbody}, 3 / 4)")
 
-    def rows(value: np.ndarray) -> np.ndarray:
-        return np.asarray(value, dtype=float).reshape(n_rows, -1)
-
-    state, meas, action = rows(traj.state), rows(traj.measurement), rows(traj.action)
-    estimate = None if traj.estimate is None else rows(traj.estimate)
-    std = traj.std() if estimate is not None else None
-    scales = [_angle_scale(n, degrees) for n in traj.state_names]
     layout = _Layout.of(traj)
     bodies = _rig_bodies(model) if with_rig else []
     blueprint = _blueprint(traj, layout, with_rig=bool(bodies))
 
-    rec = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-    if not rec.is_enabled():
-        raise RuntimeError("Rerun logging is disabled (RERUN env var?); cannot write .rrd")
-    index = [rr.TimeColumn(TIMELINE, duration=np.asarray(traj.t_s, dtype=float))]
+    rec = rr.RecordingStream(re.sub(r"[/\\.]", "-", application_id),
+                             recording_id=uuid.uuid4())
+    try:
+        if not rec.is_enabled():
+            raise RuntimeError("Rerun logging is disabled (RERUN env var?); cannot write .rrd")
+        with atomic_path(path) as tmp:
+            rec.save(tmp, default_blueprint=blueprint)
+            try:
+                index = [rr.TimeColumn(TIMELINE, duration=np.asarray(traj.t_s, dtype=float))]
+                _log_series(rec, traj, layout, index, degrees=degrees)
+                if bodies:
+                    _log_rig(rec, model, bodies, index, np.asarray(traj.body_pos, dtype=float),
+                             np.asarray(traj.body_quat_wxyz, dtype=float))
+                rec.flush()
+            finally:
+                rec.disconnect()  # closes the file before it is renamed (or removed)
+    finally:
+        del rec
+        _release_recordings()
+    return Path(path)
+
+
+def _release_recordings() -> None:
+    """Stop the threads of dropped recording streams.
+
+    Rerun keeps the batcher and forwarding threads of a Python ``RecordingStream`` alive
+    after it is dropped (rerun-io/rerun#2116). ``rr.init`` clears them with this internal
+    binding; calling it after each file frees the data stream's two threads. The stream
+    Rerun creates internally for the blueprint is not released by it (rerun 0.41), so each
+    :func:`write_rrd` call still leaves two idle threads behind. Only recordings nothing
+    references any more are touched.
+    """
+    try:
+        import rerun_bindings
+    except ImportError:  # pragma: no cover - layout of the rerun package changed
+        return
+    cleanup = getattr(rerun_bindings, "flush_and_cleanup_orphaned_recordings", None)
+    if cleanup is not None:
+        cleanup()
+
+
+def _log_series(rec: rr.RecordingStream, traj: Trajectory, layout: _Layout,
+                index: list[rr.TimeColumn], *, degrees: bool) -> None:
+    """Log the state, estimate, error, measurement, action and setpoint series.
+
+    Parameters
+    ----------
+    rec : rerun.RecordingStream
+        Open recording.
+    traj : Trajectory
+        The run, already checked (finite, consistent shapes).
+    layout : _Layout
+        Entity names and state associations of ``traj``.
+    index : list of rerun.TimeColumn
+        The ``time`` column, length T.
+    degrees : bool
+        Convert angles to deg (deg/s).
+    """
+    import rerun as rr
 
     def series(entity: str, values: np.ndarray, style: rr.AsComponents) -> None:
         rec.log(entity, style, static=True)
@@ -384,54 +411,46 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
     def lines(label: str, color: tuple[int, int, int], width: float = 1.5) -> rr.SeriesLines:
         return rr.SeriesLines(names=[label], colors=[color], widths=[width])
 
-    with atomic_path(path) as tmp:
-        rec.save(tmp, default_blueprint=blueprint)
-        try:
-            for i, (name, part) in enumerate(zip(traj.state_names, layout.state, strict=True)):
-                factor, unit = scales[i]
-                color = _PALETTE[i % len(_PALETTE)]
-                series(f"state/{part}/truth", factor * state[:, i],
-                       lines(f"{name} truth [{unit}]", _TRUTH_COLOR))
-                if estimate is None:
-                    continue
-                series(f"state/{part}/estimate", factor * estimate[:, i],
-                       lines(f"{name} estimate [{unit}]", color))
-                series(f"error/{part}/value", factor * (estimate[:, i] - state[:, i]),
-                       lines(f"{name} error [{unit}]", color))
-                if std is not None:
-                    bound = 3.0 * factor * std[:, i]
-                    series(f"error/{part}/plus_3sigma", bound,
-                           lines(f"+3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
-                    series(f"error/{part}/minus_3sigma", -bound,
-                           lines(f"-3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
-            for j, (name, part) in enumerate(zip(traj.measurement_names, layout.measurement,
-                                                 strict=True)):
-                i = layout.meas_state[j]
-                factor, unit = scales[i] if i is not None else (1.0, "")
-                color = _PALETTE[(i if i is not None else len(layout.state) + j)
-                                 % len(_PALETTE)]
-                style = rr.SeriesPoints(names=[f"{name} [{unit}]" if unit else name],
-                                        colors=[color], markers=["circle"], marker_sizes=[1.5])
-                series(f"measurement/{part}", factor * meas[:, j], style)
-            for k, (name, part) in enumerate(zip(traj.action_names, layout.action,
-                                                 strict=True)):
-                series(f"action/{part}", action[:, k], lines(name, _PALETTE[k % len(_PALETTE)]))
-            if traj.setpoint is not None:
-                setpoint = rows(traj.setpoint)
-                for r, (name, part) in enumerate(zip(layout.setpoint_labels, layout.setpoint,
-                                                     strict=True)):
-                    i = layout.setpoint_state[r]
-                    factor, unit = scales[i] if i is not None else (1.0, "")
-                    label = f"{name} setpoint [{unit}]" if unit else f"{name} setpoint"
-                    series(f"setpoint/{part}", factor * setpoint[:, r],
-                           lines(label, _SETPOINT_COLOR, 1.0))
-            if bodies:
-                _log_rig(rec, model, bodies, index, np.asarray(traj.body_pos, dtype=float),
-                         np.asarray(traj.body_quat_wxyz, dtype=float))
-            rec.flush()
-        finally:
-            rec.disconnect()
-    return Path(path)
+    state, meas, action = traj.state, traj.measurement, traj.action
+    estimate = None if traj.estimate is None else traj.estimate
+    std = traj.std() if estimate is not None else None
+    scales = [_angle_scale(n, degrees) for n in traj.state_names]
+    for i, (name, part) in enumerate(zip(traj.state_names, layout.state, strict=True)):
+        factor, unit = scales[i]
+        color = _PALETTE[i % len(_PALETTE)]
+        series(f"state/{part}/truth", factor * state[:, i],
+               lines(f"{name} truth [{unit}]", _TRUTH_COLOR))
+        if estimate is None:
+            continue
+        series(f"state/{part}/estimate", factor * estimate[:, i],
+               lines(f"{name} estimate [{unit}]", color))
+        series(f"error/{part}/value", factor * (estimate[:, i] - state[:, i]),
+               lines(f"{name} error [{unit}]", color))
+        if std is not None:
+            bound = 3.0 * factor * std[:, i]
+            series(f"error/{part}/plus_3sigma", bound,
+                   lines(f"+3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
+            series(f"error/{part}/minus_3sigma", -bound,
+                   lines(f"-3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
+    for j, (name, part) in enumerate(zip(traj.measurement_names, layout.measurement,
+                                         strict=True)):
+        i = layout.meas_state[j]
+        factor, unit = scales[i] if i is not None else (1.0, "")
+        color = _PALETTE[(i if i is not None else len(layout.state) + j) % len(_PALETTE)]
+        style = rr.SeriesPoints(names=[f"{name} [{unit}]" if unit else name],
+                                colors=[color], markers=["circle"], marker_sizes=[1.5])
+        series(f"measurement/{part}", factor * meas[:, j], style)
+    for k, (name, part) in enumerate(zip(traj.action_names, layout.action, strict=True)):
+        series(f"action/{part}", action[:, k], lines(name, _PALETTE[k % len(_PALETTE)]))
+    if traj.setpoint is not None:
+        setpoint = traj.setpoint
+        for r, (name, part) in enumerate(zip(layout.setpoint_labels, layout.setpoint,
+                                             strict=True)):
+            i = layout.setpoint_state[r]
+            factor, unit = scales[i] if i is not None else (1.0, "")
+            label = f"{name} setpoint [{unit}]" if unit else f"{name} setpoint"
+            series(f"setpoint/{part}", factor * setpoint[:, r],
+                   lines(label, _SETPOINT_COLOR, 1.0))
 
 
 def _log_rig(rec: rr.RecordingStream, model: mujoco.MjModel,

@@ -1,0 +1,97 @@
+"""Tests of the PNG summary (testbed.plots)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testbed.plots import plot_trajectory
+from testbed.trajectory import Trajectory
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+T = 200
+
+
+def make_trajectory(*, covariance: bool = True, estimate: bool = True,
+                    setpoint: bool = True) -> Trajectory:
+    """Synthetic 4-state run (pitch, yaw and their rates, in rad and rad/s)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(T) * 0.01
+    state = np.column_stack([0.3 * np.sin(2.0 * t), 0.5 * np.sin(1.3 * t),
+                             0.6 * np.cos(2.0 * t), 0.65 * np.cos(1.3 * t)])
+    action = np.column_stack([np.sin(t), np.cos(t)])
+    action[0] = 0.0
+    return Trajectory(
+        t_s=t, state=state, state_names=["pitch", "yaw", "pitch_rate", "yaw_rate"],
+        measurement=state[:, :2] + 0.005 * rng.standard_normal((T, 2)),
+        measurement_names=["pitch_enc", "yaw_enc"], action=action,
+        action_names=["pitch_voltage [V]", "yaw_voltage [V]"],
+        estimate=state + 0.01 * rng.standard_normal(state.shape) if estimate else None,
+        covariance=(np.tile(np.diag([1e-4, 1e-4, 4e-4, 4e-4]), (T, 1, 1))
+                    if covariance and estimate else None),
+        measured_state_index=[0, 1],
+        setpoint=np.tile([0.3, -0.2], (T, 1)) if setpoint else None,
+        meta={"rig": "toy", "filter": "ekf"},
+    )
+
+
+def _check_png(path, min_bytes: int = 10_000) -> None:
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert len(data) > min_bytes
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]  # no temp files
+
+
+def test_full_trajectory_png(tmp_path):
+    path = plot_trajectory(make_trajectory(), tmp_path / "out" / "run.png", title="toy")
+    assert path == tmp_path / "out" / "run.png"
+    _check_png(path, min_bytes=50_000)
+
+
+@pytest.mark.parametrize(("covariance", "estimate"), [(False, True), (False, False)])
+def test_png_without_covariance_or_estimate(tmp_path, covariance, estimate):
+    traj = make_trajectory(covariance=covariance, estimate=estimate, setpoint=False)
+    _check_png(plot_trajectory(traj, tmp_path / "run.png", dpi=50))
+
+
+def test_nan_dropouts_are_gaps(tmp_path):
+    traj = make_trajectory()
+    traj.measurement[10:20, 0] = np.nan
+    _check_png(plot_trajectory(traj, tmp_path / "run.png", dpi=50))
+
+
+def test_overwrite_replaces_existing_file(tmp_path):
+    path = tmp_path / "run.png"
+    path.write_bytes(b"old")
+    plot_trajectory(make_trajectory(), path, dpi=50)
+    _check_png(path)
+
+
+def test_mismatched_names_are_refused_at_construction():
+    import dataclasses
+
+    traj = make_trajectory()
+    with pytest.raises(ValueError, match="state_names"):
+        dataclasses.replace(traj, state_names=["pitch", "yaw"])
+
+
+def test_failed_save_leaves_no_file(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    def broken_savefig(self, fname, **kwargs):
+        with open(fname, "wb") as fh:
+            fh.write(PNG_SIGNATURE)  # a truncated file...
+        raise OSError("disk full")  # ...then a failure
+
+    monkeypatch.setattr(Figure, "savefig", broken_savefig)
+    with pytest.raises(OSError, match="disk full"):
+        plot_trajectory(make_trajectory(), tmp_path / "run.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_actions_no_measurements(tmp_path):
+    traj = make_trajectory(setpoint=False)
+    traj.action, traj.action_names = np.zeros((T, 0)), []
+    traj.measurement, traj.measurement_names = np.zeros((T, 0)), []
+    traj.measured_state_index = None
+    _check_png(plot_trajectory(traj, tmp_path / "run.png", dpi=50))

@@ -1,0 +1,273 @@
+"""Tests of the Rerun export (testbed.viz): entity layout, sample counts, atomicity."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from testbed.trajectory import Trajectory
+from testbed.viz import quat_wxyz_to_xyzw, rrd_summary, write_rrd
+
+T = 200
+STATES = ["pitch", "yaw", "pitch_rate", "yaw_rate"]
+
+TOY_XML = """
+<mujoco model="toy">
+  <asset><mesh name="tet" vertex="0 0 0  0.05 0 0  0 0.05 0  0 0 0.05"/></asset>
+  <worldbody>
+    <geom name="floor" type="plane" size="0 0 0.1" rgba="0.3 0.3 0.3 1"/>
+    <geom name="base" type="box" size="0.1 0.1 0.05" pos="0 0 0.05"/>
+    <body name="arm" pos="0 0 0.3">
+      <joint name="pitch" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="-0.2 0 0 0.2 0 0" size="0.02" rgba="0.8 0.2 0.2 1"/>
+      <geom type="box" size="0.03 0.03 0.03" pos="0.2 0 0"/>
+      <geom type="cylinder" size="0.02 0.05" pos="-0.2 0 0"/>
+      <body name="tip" pos="0.2 0 0">
+        <joint name="yaw" type="hinge" axis="0 0 1"/>
+        <geom type="sphere" size="0.02"/>
+        <geom type="mesh" mesh="tet"/>
+        <geom type="box" size="0.01 0.01 0.01" group="3"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def make_model() -> mujoco.MjModel:
+    """The toy two-joint rig used by the viz and plot tests."""
+    return mujoco.MjModel.from_xml_string(TOY_XML)
+
+
+def make_trajectory(model: mujoco.MjModel | None = None, *, covariance: bool = True,
+                    estimate: bool = True, n_rows: int = T) -> Trajectory:
+    """Synthetic run: sinusoidal pitch/yaw, noisy estimate, 2 angle measurements.
+
+    With ``model``, body poses come from ``mj_kinematics`` over the qpos sweep.
+    """
+    rng = np.random.default_rng(0)
+    dt = 0.01
+    t = np.arange(n_rows) * dt
+    pitch, yaw = 0.3 * np.sin(2.0 * t), 0.5 * np.sin(1.3 * t)
+    state = np.column_stack([pitch, yaw, 0.6 * np.cos(2.0 * t), 0.65 * np.cos(1.3 * t)])
+    est = state + 0.01 * rng.standard_normal(state.shape) if estimate else None
+    cov = None
+    if covariance and estimate:
+        cov = np.tile(np.diag([1e-4, 1e-4, 4e-4, 4e-4]), (n_rows, 1, 1))
+    meas = state[:, :2] + 0.005 * rng.standard_normal((n_rows, 2))
+    action = np.column_stack([np.sin(t), np.cos(t)])
+    action[0] = 0.0
+    setpoint = np.column_stack([0.3 * np.ones(n_rows), -0.2 * np.ones(n_rows)])
+    body_pos = body_quat = None
+    if model is not None:
+        data = mujoco.MjData(model)
+        body_pos = np.empty((n_rows, model.nbody, 3))
+        body_quat = np.empty((n_rows, model.nbody, 4))
+        for k in range(n_rows):
+            data.qpos[:] = [pitch[k], yaw[k]]
+            mujoco.mj_kinematics(model, data)
+            body_pos[k], body_quat[k] = data.xpos, data.xquat
+    return Trajectory(
+        t_s=t, state=state, state_names=list(STATES), measurement=meas,
+        measurement_names=["pitch_enc", "yaw_enc"], action=action,
+        action_names=["pitch_voltage [V]", "yaw_voltage [V]"], estimate=est, covariance=cov,
+        measured_state_index=[0, 1], setpoint=setpoint, body_pos=body_pos,
+        body_quat_wxyz=body_quat, meta={"rig": "toy"},
+    )
+
+
+def _component(path, entity: str, component: str) -> tuple[np.ndarray, np.ndarray]:
+    """(time in ns, values) of one temporal component read back from an .rrd file."""
+    from rerun.chunk import RrdReader
+
+    times, values = [], []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        times.append(batch.column("time").cast("int64").to_numpy())
+        values.append(np.array([row[0] for row in batch.column(component).to_pylist()]))
+    assert times, f"no temporal chunk for {entity}"
+    time_ns, vals = np.concatenate(times), np.concatenate(values)
+    order = np.argsort(time_ns, kind="stable")
+    return time_ns[order], vals[order]
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return make_model()
+
+
+@pytest.fixture(scope="module")
+def rrd_file(tmp_path_factory, model):
+    out_dir = tmp_path_factory.mktemp("rrd")
+    traj = make_trajectory(model)
+    path = write_rrd(traj, out_dir / "run.rrd", model=model)
+    return path, traj
+
+
+def test_state_error_measurement_entities_have_t_samples(rrd_file):
+    path, _ = rrd_file
+    summary = rrd_summary(path)
+    for name in STATES:
+        for entity in (f"state/{name}/truth", f"state/{name}/estimate",
+                       f"error/{name}/value", f"error/{name}/plus_3sigma",
+                       f"error/{name}/minus_3sigma"):
+            assert summary.get(entity) == T, entity
+    for entity in ("measurement/pitch_enc", "measurement/yaw_enc",
+                   "action/pitch_voltage", "action/yaw_voltage",
+                   "setpoint/pitch", "setpoint/yaw"):
+        assert summary.get(entity) == T, entity
+    assert not any(e.startswith("__") for e in summary)
+
+
+def test_rig_transforms_and_geometry(rrd_file):
+    path, _ = rrd_file
+    summary = rrd_summary(path)
+    for body in ("world", "arm", "tip"):
+        assert summary.get(f"rig/{body}") == T, body
+    geoms = sorted(e for e in summary if e.count("/") == 2 and e.startswith("rig/"))
+    # floor + base on world, capsule/box/cylinder on arm, sphere + mesh on tip;
+    # the group-3 (collision-only) box is not drawn.
+    assert geoms == ["rig/arm/geom_2", "rig/arm/geom_3", "rig/arm/geom_4",
+                     "rig/tip/geom_5", "rig/tip/geom_6", "rig/world/geom_0",
+                     "rig/world/geom_1"]
+    assert all(summary[g] == 0 for g in geoms)  # static
+
+
+def test_rig_quaternion_matches_mujoco(rrd_file, model):
+    path, traj = rrd_file
+    k = 137
+    data = mujoco.MjData(model)
+    data.qpos[:] = traj.state[k, :2]
+    mujoco.mj_kinematics(model, data)
+    tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "tip")
+    time_ns, quats = _component(path, "/rig/tip", "Transform3D:quaternion")
+    assert len(time_ns) == T
+    row = int(np.argmin(np.abs(time_ns - round(traj.t_s[k] * 1e9))))
+    expected = data.xquat[tip][[1, 2, 3, 0]]
+    np.testing.assert_allclose(quats[row], expected, atol=1e-6)
+    _, trans = _component(path, "/rig/tip", "Transform3D:translation")
+    np.testing.assert_allclose(trans[row], data.xpos[tip], atol=1e-6)
+
+
+def test_scalar_values_in_degrees(rrd_file):
+    path, traj = rrd_file
+    time_ns, values = _component(path, "/state/pitch_rate/truth", "Scalars:scalars")
+    np.testing.assert_allclose(time_ns, np.round(traj.t_s * 1e9))
+    np.testing.assert_allclose(values, np.degrees(traj.state[:, 2]))
+    _, sigma = _component(path, "/error/yaw/plus_3sigma", "Scalars:scalars")
+    np.testing.assert_allclose(sigma, 3.0 * math.degrees(0.01))
+
+
+def test_blueprint_is_stored(rrd_file):
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(rrd_file[0])
+    assert len(reader.recordings()) == 1
+    assert len(reader.blueprints()) == 1
+    names, queries = set(), []
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:display_name" in batch.schema.names:
+            names.update(v[0] for v in batch.column("ViewBlueprint:display_name").to_pylist())
+        if "ViewContents:query" in batch.schema.names:
+            queries += batch.column("ViewContents:query").to_pylist()[0]
+    assert {"rig", "actions", *STATES, *(f"{s} error" for s in STATES)} <= names
+    assert "/measurement/pitch_enc" in queries and "/setpoint/yaw" in queries
+
+
+def test_quat_conversion_helper():
+    q = np.array([[0.1, 0.2, 0.3, 0.4], [1.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(quat_wxyz_to_xyzw(q), [[0.2, 0.3, 0.4, 0.1],
+                                                          [0.0, 0.0, 0.0, 1.0]])
+    with pytest.raises(ValueError):
+        quat_wxyz_to_xyzw(np.zeros(3))
+
+
+def test_no_temp_files_left(rrd_file):
+    path, _ = rrd_file
+    assert sorted(p.name for p in path.parent.iterdir()) == ["run.rrd"]
+
+
+def test_without_model_or_covariance(tmp_path):
+    traj = make_trajectory(None, covariance=False)
+    path = write_rrd(traj, tmp_path / "sub" / "plain.rrd")
+    summary = rrd_summary(path)
+    assert not any(e.startswith("rig") for e in summary)
+    assert summary["state/yaw/estimate"] == T
+    assert summary["error/yaw/value"] == T
+    assert "error/yaw/plus_3sigma" not in summary
+    assert sorted(p.name for p in path.parent.iterdir()) == ["plain.rrd"]
+
+
+def test_without_estimate(tmp_path):
+    from rerun.chunk import RrdReader
+
+    traj = make_trajectory(None, estimate=False)
+    path = write_rrd(traj, tmp_path / "truth_only.rrd", application_id="testbed/toy.v1")
+    assert RrdReader(path).recordings()[0].application_id == "testbed-toy-v1"
+    summary = rrd_summary(path)
+    assert summary["state/pitch/truth"] == T
+    assert not any(e.startswith(("error", "state/pitch/estimate")) for e in summary)
+
+
+def test_model_without_body_arrays_skips_rig(tmp_path, model):
+    traj = make_trajectory(None)
+    summary = rrd_summary(write_rrd(traj, tmp_path / "r.rrd", model=model))
+    assert not any(e.startswith("rig") for e in summary)
+
+
+@pytest.mark.parametrize("field", ["state", "estimate", "covariance", "body_quat_wxyz"])
+def test_nan_raises_and_writes_nothing(tmp_path, model, field):
+    traj = make_trajectory(model)
+    arr = getattr(traj, field).copy()
+    arr.flat[5] = np.nan
+    setattr(traj, field, arr)
+    with pytest.raises(ValueError, match=field):
+        write_rrd(traj, tmp_path / "bad.rrd", model=model)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_body_arrays_must_match_model(tmp_path, model):
+    traj = make_trajectory(model)
+    traj.body_pos = traj.body_pos[:, :2]
+    with pytest.raises(ValueError, match="nbody"):
+        write_rrd(traj, tmp_path / "bad.rrd", model=model)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_while_logging_leaves_no_file(tmp_path, model, monkeypatch):
+    import rerun as rr
+
+    def broken(self, entity_path, *args, **kwargs):
+        if entity_path.startswith("rig/"):
+            raise RuntimeError("boom")
+        return original(self, entity_path, *args, **kwargs)
+
+    original = rr.RecordingStream.send_columns
+    monkeypatch.setattr(rr.RecordingStream, "send_columns", broken)
+    with pytest.raises(RuntimeError, match="boom"):
+        write_rrd(make_trajectory(model), tmp_path / "run.rrd", model=model)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_mismatched_estimate_is_refused_at_construction():
+    import dataclasses
+
+    traj = make_trajectory(None)
+    with pytest.raises(ValueError, match="estimate"):
+        dataclasses.replace(traj, estimate=traj.estimate[:, :2])
+
+
+def test_no_actions_no_measurements(tmp_path):
+    traj = make_trajectory(None)
+    traj.action, traj.action_names = np.zeros((T, 0)), []
+    traj.measurement, traj.measurement_names = np.zeros((T, 0)), []
+    traj.measured_state_index = []
+    summary = rrd_summary(write_rrd(traj, tmp_path / "r.rrd"))
+    assert summary["state/pitch/truth"] == T
+    assert not any(e.startswith(("action", "measurement")) for e in summary)
