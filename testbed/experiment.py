@@ -58,7 +58,7 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
                      disturbance: str = "none", process_noise_scale: float = 0.0,
                      process_noise_floor: float = 0.5, params: dict[str, float] | None = None,
                      physics_dt_s: float = 0.001, frame_skip: int = 10,
-                     kalman_bucy_substeps: int = 2) -> Experiment:
+                     kalman_bucy_substeps: int | str = "auto") -> Experiment:
     """The helicopter with an estimator designed on seed-000's linear model and an LQR.
 
     The estimator's model is the paper's ``(A, B)`` (the rig is its nonlinear truth); its
@@ -86,8 +86,9 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         nominal ones: model mismatch).
     physics_dt_s, frame_skip : float, int
         MuJoCo step and control period = ``physics_dt_s * frame_skip``.
-    kalman_bucy_substeps : int
-        RK4 substeps per sample for ``kalman-bucy``.
+    kalman_bucy_substeps : int or "auto"
+        RK4 substeps per sample for ``kalman-bucy`` (``"auto"``: enough for stability at
+        the current covariance; quantized encoders make the Riccati equation stiff).
 
     Returns
     -------

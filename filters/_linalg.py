@@ -1,0 +1,215 @@
+"""Private validation and linear-algebra helpers shared by the :mod:`filters` modules.
+
+Nothing here is public API. All arrays are ``float64``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg import expm
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Relative tolerance for symmetry: ``max|M - M^T| <= SYM_RTOL * max|M|``.
+SYM_RTOL = 1e-9
+#: Relative tolerance for semidefiniteness: ``min eig >= -PSD_RTOL * max|eig|``.
+PSD_RTOL = 1e-9
+
+
+def fmt_shape(shape: Sequence[int | str]) -> str:
+    """Format a shape such as ``(4, "k")`` as ``"(4, k)"`` (symbolic dimensions unquoted)."""
+    inner = ", ".join(str(s) for s in shape)
+    return f"({inner},)" if len(shape) == 1 else f"({inner})"
+
+
+def to_float_array(name: str, value: object) -> FloatArray:
+    """Convert ``value`` to a new ``float64`` array, raising ``ValueError`` naming ``name``."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} must be a real numeric array, got {type(value).__name__}"
+        ) from exc
+
+
+def readonly(arr: FloatArray) -> FloatArray:
+    """Mark ``arr`` read-only in place and return it."""
+    arr.flags.writeable = False
+    return arr
+
+
+def matrix(
+    name: str,
+    value: object,
+    shape: tuple[int | None, int | None],
+    *,
+    what: str = "a finite matrix",
+    labels: tuple[str, str] = ("n", "n"),
+) -> FloatArray:
+    """Validate a finite 2-D matrix.
+
+    Parameters
+    ----------
+    name : str
+        Argument name used in error messages.
+    value : array_like
+        Candidate matrix.
+    shape : tuple of (int or None)
+        Required shape; ``None`` entries are free.
+    what : str
+        Description of the expected property, used in error messages.
+    labels : tuple of str
+        Symbols printed for free dimensions.
+
+    Returns
+    -------
+    numpy.ndarray, shape ``shape``
+        A fresh ``float64`` copy.
+    """
+    arr = to_float_array(name, value)
+    expected = fmt_shape(
+        [s if s is not None else lab for s, lab in zip(shape, labels, strict=True)]
+    )
+    ok = arr.ndim == 2 and all(s is None or s == a for s, a in zip(shape, arr.shape, strict=True))
+    if not ok:
+        raise ValueError(f"{name} must be {what} with shape {expected}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be {what} with shape {expected}, got non-finite entries")
+    return arr
+
+
+def symmetric_psd(name: str, value: object, n: int, *, definite: bool) -> FloatArray:
+    """Validate a symmetric positive (semi)definite ``(n, n)`` matrix.
+
+    Parameters
+    ----------
+    name : str
+        Argument name used in error messages.
+    value : array_like, shape (n, n)
+        Candidate matrix. Asymmetry up to ``SYM_RTOL`` (relative) is removed.
+    n : int
+        Required dimension.
+    definite : bool
+        Require positive definiteness (Cholesky must succeed) instead of
+        semidefiniteness (``min eig >= -PSD_RTOL * max|eig|``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, n)
+        The symmetrized ``float64`` copy.
+    """
+    what = "symmetric positive " + ("definite" if definite else "semidefinite")
+    arr = matrix(name, value, (n, n), what=what)
+    return batch_symmetric_psd(name, arr, n, definite=definite, what=what)
+
+
+def batch_symmetric_psd(
+    name: str, arr: FloatArray, n: int, *, definite: bool = False, what: str | None = None
+) -> FloatArray:
+    """Validate a finite stack of symmetric PSD matrices, shape ``(..., n, n)``.
+
+    Returns the symmetrized stack; raises ``ValueError`` naming ``name`` otherwise.
+    """
+    what = what or "symmetric positive " + ("definite" if definite else "semidefinite")
+    expected = f"(..., {n}, {n})"
+    if arr.ndim < 2 or arr.shape[-2:] != (n, n):
+        raise ValueError(f"{name} must be {what} with shape {expected}, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be {what} with shape {expected}, got non-finite entries")
+    if arr.size == 0:
+        return arr
+    scale = float(np.abs(arr).max())
+    asym = float(np.abs(arr - np.swapaxes(arr, -1, -2)).max())
+    if asym > SYM_RTOL * scale:
+        raise ValueError(
+            f"{name} must be {what} with shape {expected}, got a non-symmetric matrix "
+            f"(max |{name} - {name}^T| = {asym:.3g})"
+        )
+    sym = 0.5 * (arr + np.swapaxes(arr, -1, -2))
+    eig = np.linalg.eigvalsh(sym)
+    emin = float(eig[..., 0].min())
+    if definite:
+        try:
+            np.linalg.cholesky(sym)
+            ok = emin > 0.0
+        except np.linalg.LinAlgError:
+            ok = False
+    else:
+        ok = bool((eig[..., 0] >= -PSD_RTOL * np.abs(eig).max(axis=-1)).all())
+    if not ok:
+        raise ValueError(
+            f"{name} must be {what} with shape {expected}, got minimum eigenvalue {emin:.6g}"
+        )
+    return sym
+
+
+def positive_time(name: str, value: object) -> float:
+    """Validate a finite, strictly positive time step in seconds."""
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} must be a positive finite float (seconds), got {value!r}"
+        ) from exc
+    if not (np.isfinite(out) and out > 0.0):
+        raise ValueError(f"{name} must be a positive finite float (seconds), got {value!r}")
+    return out
+
+
+def zoh(A: FloatArray, B: FloatArray, dt_s: float) -> tuple[FloatArray, FloatArray]:
+    """Exact zero-order-hold discretization of ``dx/dt = A x + B u``.
+
+    Parameters
+    ----------
+    A : numpy.ndarray, shape (n, n)
+    B : numpy.ndarray, shape (n, k)
+    dt_s : float
+        Hold interval in seconds.
+
+    Returns
+    -------
+    F : numpy.ndarray, shape (n, n)
+        ``exp(A dt)``.
+    Bd : numpy.ndarray, shape (n, k)
+        ``int_0^dt exp(A s) ds B``.
+    """
+    n, k = B.shape
+    M = np.zeros((n + k, n + k))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    E = expm(M * dt_s)
+    return E[:n, :n].copy(), E[:n, n:].copy()
+
+
+def van_loan(A: FloatArray, Q: FloatArray, dt_s: float) -> FloatArray:
+    """Discrete process-noise covariance ``Q_d = int_0^dt e^{As} Q e^{A^T s} ds`` (Van Loan).
+
+    Parameters
+    ----------
+    A : numpy.ndarray, shape (n, n)
+    Q : numpy.ndarray, shape (n, n)
+        Continuous noise intensity (symmetric PSD).
+    dt_s : float
+        Interval in seconds.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, n)
+        Symmetrized ``Q_d``.
+
+    Notes
+    -----
+    With ``G = expm([[-A, Q], [0, A^T]] dt)``: ``F = G22^T`` and ``Q_d = F G12``
+    (C. F. Van Loan, IEEE TAC 23(3), 1978).
+    """
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -A
+    M[:n, n:] = Q
+    M[n:, n:] = A.T
+    G = expm(M * dt_s)
+    Qd = G[n:, n:].T @ G[:n, n:]
+    return 0.5 * (Qd + Qd.T)
