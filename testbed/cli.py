@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--disturbance", default="none", choices=DISTURBANCES)
     run.add_argument("--process-noise", type=float, default=0.0,
                      help="scale of seed-000's white-noise matrix b applied to the rig")
+    run.add_argument("--process-noise-floor", type=float, default=0.05,
+                     help="filter's extra process-noise intensity on each acceleration row "
+                     "(rad^2/s^3) for unmodelled dynamics")
     run.add_argument("--param", type=_param_scale, action="append", default=[],
                      metavar="NAME=SCALE", help="scale a physical parameter of the simulated "
                      "rig (model mismatch), e.g. --param mass_kg=1.1; repeatable")
@@ -89,6 +92,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     experiment = build_helicopter(args.filter, args.controller, sensors=args.sensors,
                                   sensor_kwargs=sensor_kwargs, disturbance=args.disturbance,
                                   process_noise_scale=args.process_noise,
+                                  process_noise_floor=args.process_noise_floor,
                                   params=dict(args.param) or None)
     start = time.perf_counter()
     traj, summary = run_episode(experiment, args.duration, seed=args.seed,

@@ -56,7 +56,7 @@ class Experiment:
 def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
                      sensors: str = "encoders", sensor_kwargs: dict | None = None,
                      disturbance: str = "none", process_noise_scale: float = 0.0,
-                     process_noise_floor: float = 0.5, params: dict[str, float] | None = None,
+                     process_noise_floor: float = 0.05, params: dict[str, float] | None = None,
                      physics_dt_s: float = 0.001, frame_skip: int = 10,
                      kalman_bucy_substeps: int | str = "auto") -> Experiment:
     """The helicopter with an estimator designed on seed-000's linear model and an LQR.
