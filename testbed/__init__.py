@@ -14,16 +14,18 @@ import gymnasium as gym
 
 __version__ = "0.1.0"
 
-ENV_IDS = ("testbed/Helicopter2DOF-v0",)
+#: Environment id -> (entry point, max_episode_steps). Entry points import lazily.
+_ENVS = {
+    "testbed/Helicopter2DOF-v0": ("testbed.envs.helicopter:Helicopter2DOFEnv", 2000),
+    "testbed/VehicleRoll-v0": ("testbed.envs.vehicle_roll:VehicleRollEnv", 1000),
+}
+ENV_IDS = tuple(_ENVS)
 
 
 def _register() -> None:
-    if "testbed/Helicopter2DOF-v0" not in gym.registry:
-        gym.register(
-            id="testbed/Helicopter2DOF-v0",
-            entry_point="testbed.envs.helicopter:Helicopter2DOFEnv",
-            max_episode_steps=2000,
-        )
+    for env_id, (entry_point, max_steps) in _ENVS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry_point, max_episode_steps=max_steps)
 
 
 _register()
