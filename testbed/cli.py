@@ -2,6 +2,9 @@
 
 ``testbed run helicopter --filter kalman --controller lqr --duration 20 --seed 0 \\
 --rrd runs/demo.rrd --json runs/demo.json --plot runs/demo.png``
+
+``testbed run vehicle-roll --filter kalman --manoeuvre double-lane-change --sensors imu \\
+--duration 10 --seed 0 --json PATH --rrd PATH --plot PATH``
 """
 
 from __future__ import annotations
@@ -16,19 +19,21 @@ import numpy as np
 from filters import FilterError
 from testbed.experiment import CONTROLLERS, DISTURBANCES, FILTERS, build_helicopter, run_episode
 from testbed.io import write_json
+from testbed.manoeuvres import MANOEUVRES
 from testbed.sensors import SENSOR_SUITES
+from testbed.vehicle_sensors import VEHICLE_SENSOR_SUITES
 
-RIGS = ("helicopter",)
+RIGS = ("helicopter", "vehicle-roll")
 
 
-def _param_scale(text: str) -> tuple[str, float]:
+def _name_value(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep:
-        raise argparse.ArgumentTypeError(f"--param expects NAME=SCALE, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
     try:
         return name.strip(), float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--param {name}: scale must be a number, got "
+        raise argparse.ArgumentTypeError(f"{name}: value must be a number, got "
                                          f"{value!r}") from None
 
 
@@ -49,7 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--controller", default="lqr", choices=CONTROLLERS)
     run.add_argument("--duration", type=_positive, default=20.0, help="simulated seconds")
     run.add_argument("--seed", type=int, default=0)
-    run.add_argument("--sensors", default="encoders", choices=SENSOR_SUITES)
+    run.add_argument("--sensors", default=None,
+                     choices=sorted(set(SENSOR_SUITES) | set(VEHICLE_SENSOR_SUITES)),
+                     help=f"helicopter: {', '.join(SENSOR_SUITES)} (default encoders); "
+                     f"vehicle-roll: {', '.join(VEHICLE_SENSOR_SUITES)} (default imu)")
+    run.add_argument("--manoeuvre", default="double-lane-change", choices=sorted(MANOEUVRES),
+                     help="vehicle-roll: lateral-acceleration profile driving a_y")
+    run.add_argument("--manoeuvre-param", type=_name_value, action="append", default=[],
+                     metavar="NAME=VALUE", help="vehicle-roll: manoeuvre parameter, repeatable")
     run.add_argument("--encoder-noise", type=float, default=0.0,
                      help="extra Gaussian noise std on the encoder angles, rad")
     run.add_argument("--disturbance", default="none", choices=DISTURBANCES)
@@ -58,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--process-noise-floor", type=float, default=0.05,
                      help="filter's extra process-noise intensity on each acceleration row "
                      "(rad^2/s^3) for unmodelled dynamics")
-    run.add_argument("--param", type=_param_scale, action="append", default=[],
+    run.add_argument("--param", type=_name_value, action="append", default=[],
                      metavar="NAME=SCALE", help="scale a physical parameter of the simulated "
                      "rig (model mismatch), e.g. --param mass_kg=1.1; repeatable")
     run.add_argument("--rrd", help="write a Rerun recording here")
@@ -85,15 +97,33 @@ def _format_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _build(args: argparse.Namespace):
+    if args.rig == "vehicle-roll":
+        from testbed.vehicle_experiment import build_vehicle_roll
+
+        sensors = args.sensors or "imu"
+        if sensors not in VEHICLE_SENSOR_SUITES:
+            raise ValueError(f"--sensors {sensors!r} is not a vehicle-roll suite; expected one "
+                             f"of {VEHICLE_SENSOR_SUITES}")
+        return build_vehicle_roll(args.filter, manoeuvre=args.manoeuvre,
+                                  manoeuvre_params=dict(args.manoeuvre_param) or None,
+                                  sensors=sensors, params=dict(args.param) or None)
+    sensors = args.sensors or "encoders"
+    if sensors not in SENSOR_SUITES:
+        raise ValueError(f"--sensors {sensors!r} is not a helicopter suite; expected one of "
+                         f"{SENSOR_SUITES}")
+    sensor_kwargs = {"noise_std_rad": args.encoder_noise} if sensors.startswith(
+        "encoders") else None
+    return build_helicopter(args.filter, args.controller, sensors=sensors,
+                            sensor_kwargs=sensor_kwargs, disturbance=args.disturbance,
+                            process_noise_scale=args.process_noise,
+                            process_noise_floor=args.process_noise_floor,
+                            params=dict(args.param) or None)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """``testbed run``: one closed-loop episode, summary table and output files."""
-    sensor_kwargs = {"noise_std_rad": args.encoder_noise} if args.sensors.startswith(
-        "encoders") else None
-    experiment = build_helicopter(args.filter, args.controller, sensors=args.sensors,
-                                  sensor_kwargs=sensor_kwargs, disturbance=args.disturbance,
-                                  process_noise_scale=args.process_noise,
-                                  process_noise_floor=args.process_noise_floor,
-                                  params=dict(args.param) or None)
+    experiment = _build(args)
     start = time.perf_counter()
     traj, summary = run_episode(experiment, args.duration, seed=args.seed,
                                 progress=False if args.no_progress else None)
@@ -101,7 +131,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     result = {
         "rig": args.rig,
         "filter": args.filter,
-        "controller": args.controller,
+        "controller": experiment.meta.get("controller", args.controller),
         "seed": args.seed,
         "duration_s": float(args.duration),
         "steps": summary["steps"],
@@ -113,7 +143,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         "wall_s": wall_s,
         "config": experiment.meta,
     }
-    print(f"{args.rig} | filter {args.filter} | controller {args.controller} | "
+    print(f"{args.rig} | filter {args.filter} | controller {result['controller']} | "
           f"{summary['steps']} steps in {wall_s:.2f} s wall")
     print(_format_table(summary))
     if args.json:
@@ -121,7 +151,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.plot:
         from testbed.plots import plot_trajectory
 
-        title = f"{args.rig}: {args.filter} filter, {args.controller} controller, seed {args.seed}"
+        title = (f"{args.rig}: {args.filter} filter, {result['controller']} controller, "
+                 f"seed {args.seed}")
         print(f"wrote {plot_trajectory(traj, args.plot, title=title)}")
     if args.rrd:
         from testbed.viz import write_rrd

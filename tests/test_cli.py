@@ -36,3 +36,22 @@ def test_bad_arguments_exit_with_a_message(capsys):
         main(["run", "helicopter", "--filter", "nope"])
     assert main(["run", "helicopter", "--duration", "0.1", "--param", "mass_kg=-1"]) == 2
     assert "mass_kg" in capsys.readouterr().err
+
+
+def test_run_vehicle_roll_writes_the_three_files(tmp_path):
+    out = tmp_path / "v"
+    code = main(["run", "vehicle-roll", "--filter", "kalman", "--manoeuvre",
+                 "double-lane-change", "--sensors", "imu", "--duration", "2", "--seed", "0",
+                 "--json", str(out / "r.json"), "--rrd", str(out / "r.rrd"),
+                 "--plot", str(out / "r.png"), "--no-progress"])
+    assert code == 0
+    data = json.loads((out / "r.json").read_text())
+    assert data["rig"] == "vehicle-roll" and data["steps"] == 200
+    assert set(data["rmse"]) == {"roll", "roll_rate"}
+    assert set(data["measurement_rmse"]) == {"roll_rate"}
+    assert sorted(p.name for p in out.iterdir()) == ["r.json", "r.png", "r.rrd"]
+
+
+def test_sensor_suite_must_match_the_rig(capsys):
+    assert main(["run", "vehicle-roll", "--sensors", "encoders", "--duration", "0.1"]) == 2
+    assert "vehicle-roll suite" in capsys.readouterr().err

@@ -1,0 +1,391 @@
+"""Vehicle roll rig (seed-002 Example 5.2): physics, paper model, sensors, env, experiment."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from scipy.integrate import solve_ivp
+
+import testbed  # noqa: F401  (registers the environments)
+from testbed.envs.vehicle_roll import VehicleRollEnv
+from testbed.experiment import run_episode
+from testbed.rigs.helicopter import GRAVITY_M_S2
+from testbed.rigs.vehicle_roll import (
+    VehicleRollParams,
+    VehicleRollRig,
+    paper_disturbance,
+    paper_model,
+    physical_model,
+)
+from testbed.vehicle_experiment import build_vehicle_roll, process_noise_intensity
+from testbed.vehicle_sensors import ImuSuite, PaperRollSuite, make_vehicle_sensor_suite
+
+G = GRAVITY_M_S2
+
+
+# ---------------------------------------------------------------- paper model vs physics
+def test_paper_model_verbatim():
+    pm = paper_model()
+    assert pm.T == 0.01
+    np.testing.assert_allclose(pm.A, [[1.0, 0.01],
+                                      [(1700 * 0.25 - 55314) * 0.01 / 1700,
+                                       1 - 53071 * 0.01 / 1700]], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(pm.A[1], [-0.32287647, 0.68781765], atol=1e-8)
+    np.testing.assert_allclose(pm.C, [[0.0, 0.0], [0.0, -20 * 0.01 / 1700]], rtol=0, atol=1e-18)
+    np.testing.assert_array_equal(pm.H, [[0.4048, 0.6405], [1.1213, 1.4616]])
+    np.testing.assert_array_equal(pm.B, [[-0.7916], [0.3652]])
+    np.testing.assert_array_equal(pm.L, [[0.8248], [-1.3774]])
+    np.testing.assert_array_equal(pm.M, [[1.0, 0.0]])
+    assert paper_disturbance(0) == 0.01 and paper_disturbance(2) == pytest.approx(0.0081)
+
+
+def test_paper_A_lacks_g_physical_has_it():
+    p = VehicleRollParams()
+    pm = paper_model()
+    A_phys, _ = VehicleRollRig().linearize()
+    # A[1, 0] = (gravity term - K_R) / I_xx (times T in the discrete paper model)
+    paper_gravity = pm.A[1, 0] * p.roll_inertia / pm.T + p.roll_stiffness
+    physical_gravity = A_phys[1, 0] * p.roll_inertia + p.roll_stiffness
+    print(f"gravity stiffness: paper {paper_gravity:.2f}, physical {physical_gravity:.2f} "
+          "N m/rad")
+    assert paper_gravity == pytest.approx(425.0, abs=1e-9)  # m_s h_cr
+    assert physical_gravity == pytest.approx(4169.25, abs=1e-3)  # m_s g h_cr
+    # The paper's A is the forward-Euler discretization of the model without g:
+    A_no_g = np.array([[0.0, 1.0], [(425.0 - p.roll_stiffness) / p.roll_inertia,
+                                    -p.roll_damping / p.roll_inertia]])
+    np.testing.assert_allclose(pm.A, np.eye(2) + pm.T * A_no_g, atol=1e-14)
+
+
+def test_linearization_matches_analytic():
+    rig = VehicleRollRig()
+    A, B = rig.linearize()
+    A_an, B_an = physical_model()
+    np.testing.assert_allclose(A, A_an, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(B, B_an, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(A_an, [[0, 1], [(4169.25 - 55314) / 1700, -53071 / 1700]])
+    np.testing.assert_allclose(B_an, [[0], [0.25]])
+    # Away from upright: cos(eta) on the input, the slopes of the nonlinear torques.
+    p = rig.params
+    eta, a_y = 0.1, 4.0
+    A, B = rig.linearize(np.array([eta, 0.3]), a_y_op=a_y)
+    mh = p.sprung_mass_kg * p.com_height_m
+    d_eta = (mh * G * np.cos(eta) - mh * a_y * np.sin(eta) - p.roll_stiffness) / p.roll_inertia
+    np.testing.assert_allclose(A[1], [d_eta, -p.roll_damping / p.roll_inertia], rtol=1e-6)
+    np.testing.assert_allclose(B[1, 0], mh * np.cos(eta) / p.roll_inertia, rtol=1e-6)
+
+
+def test_rig_inertia_is_about_the_roll_axis():
+    rig = VehicleRollRig()
+    M = np.zeros((1, 1))
+    mujoco.mj_fullM(rig.model, rig.data, M)
+    assert M[0, 0] == pytest.approx(1700.0, rel=1e-12)
+    assert rig.params.inertia_com == pytest.approx(1700 - 1700 * 0.25**2)
+
+
+# ---------------------------------------------------------------- rig vs eq. (51)
+def _eq51(p: VehicleRollParams, a_seq, w_seq, dt_s, with_cos: bool) -> np.ndarray:
+    """Integrate eq. (51) with scipy, a_y and w_k held over each control step."""
+    mh = p.sprung_mass_kg * p.com_height_m
+
+    def f(t, x, a, w):
+        lever = np.cos(x[0]) if with_cos else 1.0
+        torque = (mh * a * lever + mh * G * np.sin(x[0]) - p.roll_stiffness * x[0]
+                  - (p.roll_damping + p.damping_noise * w) * x[1])
+        return [x[1], torque / p.roll_inertia]
+
+    x = np.zeros(2)
+    out = []
+    for a, w in zip(a_seq, w_seq, strict=True):
+        x = solve_ivp(f, (0.0, dt_s), x, args=(a, w), method="DOP853", rtol=1e-10,
+                      atol=1e-12).y[:, -1]
+        out.append(x)
+    return np.array(out)
+
+
+def test_mujoco_rig_reproduces_eq51():
+    # A hard step steer plus random perturbations, and D_n x 500 so the multiplicative
+    # damping noise matters: the replay uses the a_y and w_k the env reports.
+    env = VehicleRollEnv(manoeuvre="step-steer", manoeuvre_params={"amplitude_m_s2": 7.0},
+                         params={"damping_noise": 500.0})
+    env.reset(seed=0)
+    rng = np.random.default_rng(1)
+    states, a_seq, w_seq = [], [], []
+    for _ in range(1000):  # 10 s
+        _, _, _, _, info = env.step(rng.uniform(-1.0, 1.0, 1))
+        states.append(info["state"])
+        a_seq.append(info["a_y"])
+        w_seq.append(info["damping_noise"])
+    states = np.array(states)
+    assert np.abs(states[:, 0]).max() > 0.05  # about 3.4 deg of roll
+    verbatim = _eq51(env.rig.params, a_seq, w_seq, env.dt_s, with_cos=False)
+    with_cos = _eq51(env.rig.params, a_seq, w_seq, env.dt_s, with_cos=True)
+    err = np.abs(states[:, 0] - verbatim[:, 0]).max()
+    err_cos = np.abs(states[:, 0] - with_cos[:, 0]).max()
+    print(f"roll error vs eq. (51): {err:.2e} rad; vs eq. (51) with cos(eta): {err_cos:.2e}")
+    assert err < 1e-3
+    assert err_cos < 1e-4  # what is left is MuJoCo's 1 ms integration error
+
+
+def test_damping_noise_is_drawn_per_step_and_applied():
+    env = VehicleRollEnv()
+    env.reset(seed=3)
+    w = []
+    for _ in range(400):
+        _, _, _, _, info = env.step(np.array([2.0]))
+        w.append(info["damping_noise"])
+        assert env.rig.model.dof_damping[0] == pytest.approx(53071.0 + 20.0 * w[-1])
+    w = np.array(w)
+    assert abs(w.mean()) < 0.2 and 0.85 < w.std() < 1.15
+    env.reset(seed=3)
+    assert env.rig.model.dof_damping[0] == 53071.0
+
+
+# ---------------------------------------------------------------- sensors
+def test_imu_formula_and_noise_levels():
+    suite = ImuSuite(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0)
+    quiet = ImuSuite(dt_s=0.01, roll_sensor=True, gyro_noise_density=0.0, gyro_bias_walk=0.0,
+                     accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02)
+    rng = np.random.default_rng(0)
+    x = np.array([0.05, -0.2])
+    np.testing.assert_allclose(quiet.measure(x, 0.0, rng, a_y=4.0),
+                               [-0.2, 4.0 * np.cos(0.05) + G * np.sin(0.05) + 0.02, 0.05])
+    samples = np.array([suite.measure(x, 0.0, rng, a_y=4.0) for _ in range(4000)])
+    std = samples.std(axis=0)
+    expected = [np.deg2rad(0.01) * 10.0, 150e-6 * G * 10.0, np.deg2rad(0.1)]
+    np.testing.assert_allclose(std, expected, rtol=0.05)
+    np.testing.assert_allclose(suite.sample_std(), expected)
+    C, R = suite.linear_model(0.01)
+    np.testing.assert_allclose(C, [[0, 1], [G, 0], [1, 0]])
+    np.testing.assert_allclose(R, np.diag(np.square(expected)))
+    np.testing.assert_array_equal(suite.feedthrough_matrix(), [[0], [1], [0]])
+    assert suite.names == ["roll_rate", "lateral_accel", "roll"]
+    assert suite.measured_state_index == [1, None, 0]
+
+
+def test_imu_gyro_bias_random_walk():
+    suite = ImuSuite(dt_s=0.01, gyro_noise_density=0.0, gyro_bias_walk=0.01,
+                     gyro_bias0_std=0.0)
+    rng = np.random.default_rng(1)
+    suite.reset(rng)
+    biases = []
+    for _ in range(1000):
+        biases.append(suite.measure(np.zeros(2), 0.0, rng)[0])
+    increments = np.diff(biases)
+    assert increments.std() == pytest.approx(0.01 * np.sqrt(0.01), rel=0.1)
+    suite.reset(rng)
+    assert suite.gyro_bias == 0.0
+
+
+def test_paper_suite_is_H_x_plus_L_v():
+    env = VehicleRollEnv(sensors="paper", manoeuvre="paper-decay")
+    obs, info = env.reset(seed=0, options={"x0": [0.1, 1.0]})
+    pm = paper_model()
+    np.testing.assert_allclose(obs, pm.H @ [0.1, 1.0] + pm.L[:, 0] * 0.01, rtol=1e-14)
+    for k in range(1, 30):
+        obs, _, _, _, info = env.step(np.zeros(1))
+        v = paper_disturbance(k)
+        np.testing.assert_allclose(info["disturbance"], [v], rtol=1e-12)
+        np.testing.assert_allclose(obs, pm.H @ info["state"] + pm.L[:, 0] * v, rtol=1e-12)
+        assert info["a_y"] == pytest.approx(paper_disturbance(k - 1))  # held over the step
+    C, R = env.sensors.linear_model(0.01)
+    np.testing.assert_array_equal(C, pm.H)
+    assert np.all(np.linalg.eigvalsh(R) > 0)
+
+
+def test_accelerometer_on_the_rig_sees_a_y_and_gravity():
+    env = VehicleRollEnv(sensor_kwargs={"gyro_noise_density": 0.0, "gyro_bias_walk": 0.0,
+                                        "accel_noise_density": 0.0})
+    env.reset(seed=0)
+    for _ in range(300):
+        obs, _, _, _, info = env.step(np.array([6.0]))
+    eta = info["state"][0]
+    assert obs[1] == pytest.approx(6.0 * np.cos(eta) + G * np.sin(eta), rel=1e-12)
+    assert obs[0] == info["state"][1]
+
+
+def test_sensor_suite_factory_errors():
+    assert isinstance(make_vehicle_sensor_suite("imu", 0.01), ImuSuite)
+    assert isinstance(make_vehicle_sensor_suite("paper", 0.01), PaperRollSuite)
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+        make_vehicle_sensor_suite("encoders", 0.01)
+    with pytest.raises(ValueError, match="gyro_noise_density"):
+        make_vehicle_sensor_suite("imu", 0.01, gyro_noise_density=-1.0)
+    with pytest.raises(ValueError, match="bad arguments"):
+        make_vehicle_sensor_suite("imu", 0.01, sonar=True)
+
+
+# ---------------------------------------------------------------- environment contract
+@pytest.mark.filterwarnings("ignore::UserWarning")
+@pytest.mark.parametrize("sensors, manoeuvre", [("imu", None), ("imu", "double-lane-change"),
+                                                ("paper", "paper-decay")])
+def test_check_env(sensors, manoeuvre):
+    env = gym.make("testbed/VehicleRoll-v0", sensors=sensors, manoeuvre=manoeuvre,
+                   sensor_kwargs={"roll_sensor": True} if sensors == "imu" else None)
+    check_env(env.unwrapped, skip_render_check=True)
+
+
+def test_registered_with_time_limit():
+    env = gym.make("testbed/VehicleRoll-v0")
+    assert env.spec.max_episode_steps == 1000
+    env.reset(seed=0)
+    truncated, steps = False, 0
+    while not truncated:
+        _, _, _, truncated, _ = env.step(np.zeros(1))
+        steps += 1
+    assert steps == 1000
+
+
+def _rollout(seed: int, n: int = 200) -> list:
+    env = VehicleRollEnv(manoeuvre="sine-sweep", sensor_kwargs={"roll_sensor": True,
+                                                                "gyro_bias0_std": 0.01})
+    obs, info = env.reset(seed=seed)
+    out = [obs, info["state"]]
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        obs, reward, _, _, info = env.step(rng.uniform(-1, 1, 1))
+        out += [obs, info["state"], np.array([reward, info["t"], info["a_y"],
+                                              info["damping_noise"]]),
+                info["action_applied"], info["action_clipped"]]
+    return out
+
+
+def test_same_seed_is_bitwise_identical_and_other_seed_differs():
+    a, b, c = _rollout(3), _rollout(3), _rollout(4)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert any(not np.array_equal(x, y) for x, y in zip(a, c, strict=True))
+
+
+def test_info_contents_and_reset_defaults():
+    env = VehicleRollEnv()
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (2,) and env.observation_space.contains(obs)
+    np.testing.assert_array_equal(info["state"], [0.0, 0.0])
+    assert info["t"] == 0.0 and info["a_y"] == 0.0
+    assert info["setpoint"].shape == (0,) and info["disturbance"].shape == (0,)
+    _, reward, terminated, truncated, info = env.step(np.array([3.0]))
+    assert info["t"] == pytest.approx(0.01)
+    assert reward == pytest.approx(-info["state"][0] ** 2)
+    assert not terminated and not truncated
+    np.testing.assert_array_equal(info["action_applied"], [3.0])
+    np.testing.assert_array_equal(info["action_clipped"], [False])
+    assert info["state"][0] > 0  # a left turn (a_y > 0) rolls the body outwards (+)
+    assert set(info) >= {"state", "t", "a_y", "disturbance", "setpoint", "action_applied",
+                         "action_clipped"}
+    assert env.state_names == ["roll", "roll_rate"]
+    assert env.action_names == ["a_y [m/s^2]"]
+    pos, quat = env.body_poses()
+    assert pos.shape == (env.rig.model.nbody, 3) and quat.shape == (env.rig.model.nbody, 4)
+
+
+def test_actions_beyond_the_limit_are_clipped_and_flagged():
+    env = VehicleRollEnv()
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([9.5]))
+    assert info["a_y"] == 8.0 and info["action_clipped"].tolist() == [True]
+    env = VehicleRollEnv(manoeuvre="step-steer", manoeuvre_params={"amplitude_m_s2": 7.0,
+                                                                    "t_start_s": 0.0,
+                                                                    "rise_time_s": 0.01})
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([0.5]))  # manoeuvre(0) = 0: no clipping
+    assert info["a_y"] == 0.5 and not info["action_clipped"][0]
+    _, _, _, _, info = env.step(np.array([2.0]))  # 7 + 2 > 8
+    assert info["a_y"] == 8.0 and info["a_y_manoeuvre"] == 7.0 and info["action_clipped"][0]
+
+
+@pytest.mark.parametrize("action", [[np.nan], [np.inf], [1.0, 2.0], [[1.0]], 1.0, "abc", None])
+def test_bad_action_raises_and_leaves_state_unchanged(action):
+    env = VehicleRollEnv(manoeuvre="step-steer")
+    env.reset(seed=0)
+    for _ in range(120):
+        env.step(np.array([1.0]))
+    before = (env.rig.data.qpos.copy(), env.rig.data.qvel.copy(), env.t_s,
+              env.np_random.bit_generator.state, env.rig.model.dof_damping.copy(),
+              env.rig.data.xfrc_applied.copy())
+    with pytest.raises(ValueError, match="action"):
+        env.step(action)
+    after = (env.rig.data.qpos, env.rig.data.qvel, env.t_s, env.np_random.bit_generator.state,
+             env.rig.model.dof_damping, env.rig.data.xfrc_applied)
+    for x, y in zip(before, after, strict=True):
+        if isinstance(x, dict):
+            assert x == y
+        else:
+            np.testing.assert_array_equal(x, y)
+
+
+def test_bad_names_and_unphysical_parameters():
+    with pytest.raises(ValueError, match=r"expected one of \['double-lane-change'"):
+        VehicleRollEnv(manoeuvre="slalom")
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+        VehicleRollEnv(sensors="lidar")
+    with pytest.raises(ValueError, match="control period"):
+        VehicleRollEnv(sensors=ImuSuite(dt_s=0.005))
+    for name in ("sprung_mass_kg", "roll_stiffness", "roll_damping"):
+        with pytest.raises(ValueError, match=name):
+            VehicleRollEnv(params={name: -1.0})
+        with pytest.raises(ValueError, match=f"VehicleRollParams.{name} must be"):
+            VehicleRollParams(**{name: -5.0}).validate()
+    with pytest.raises(ValueError, match="sprung_mass_kg must be positive"):
+        VehicleRollParams(sprung_mass_kg=0.0).validate()
+    with pytest.raises(ValueError, match="roll_inertia"):
+        VehicleRollParams(com_height_m=2.0).validate()  # I_xx < m h^2
+    env = VehicleRollEnv()
+    with pytest.raises(ValueError, match="roll_damping"):
+        env.reset(options={"params": {"roll_damping": -2.0}})
+    with pytest.raises(ValueError, match="unknown params key 'mass'"):
+        env.reset(options={"params": {"mass": 1.1}})
+    with pytest.raises(ValueError, match="unknown reset options"):
+        env.reset(options={"setpoints": []})
+    with pytest.raises(ValueError, match="x0"):
+        env.reset(options={"x0": [0.0, 0.0, 0.0]})
+    with pytest.raises(ValueError, match="x0"):
+        env.reset(options={"x0": [np.nan, 0.0]})
+
+
+def test_model_mismatch_params_scale_the_rig():
+    env = VehicleRollEnv()
+    env.reset(seed=0, options={"params": {"roll_stiffness": 0.5, "damping_noise": 0.0}})
+    assert env.rig.params.roll_stiffness == pytest.approx(55314 / 2)
+    assert env.rig.model.jnt_stiffness[0] == pytest.approx(55314 / 2)
+    env.step(np.zeros(1))
+    assert env.rig.model.dof_damping[0] == 53071.0  # D_n = 0: no damping noise
+    env.reset(seed=0)
+    assert env.rig.params == VehicleRollParams()
+
+
+# ---------------------------------------------------------------- experiment
+def test_kalman_filter_on_imu_during_double_lane_change():
+    exp = build_vehicle_roll("kalman", manoeuvre="double-lane-change", sensors="imu")
+    traj, summary = run_episode(exp, duration_s=10.0, seed=0, progress=False)
+    rmse_deg = {k: np.rad2deg(v) for k, v in summary["rmse"].items()}
+    meas_deg = {k: np.rad2deg(v) for k, v in summary["measurement_rmse"].items()}
+    print(f"Kalman/imu/double-lane-change RMSE: roll {rmse_deg['roll']:.4f} deg, roll_rate "
+          f"{rmse_deg['roll_rate']:.4f} deg/s; gyro measurement RMSE "
+          f"{meas_deg['roll_rate']:.4f} deg/s; NEES {summary['nees_mean']:.2f}; peak roll "
+          f"{np.rad2deg(np.abs(traj.state[:, 0]).max()):.2f} deg")
+    assert rmse_deg["roll"] < 0.5
+    assert rmse_deg["roll_rate"] < meas_deg["roll_rate"]  # better than the raw gyro
+    assert summary["steps"] == 1000 and summary["clipped_fraction"] == 0.0
+    assert traj.setpoint.shape == (1001, 0) and traj.setpoint_names() == []
+    assert traj.action_names == ["a_y [m/s^2]"]
+    assert np.abs(traj.action[:, 0]).max() == pytest.approx(6.16, abs=0.01)
+
+
+def test_process_noise_derivation():
+    p = VehicleRollParams()
+    Q = process_noise_intensity(p, 0.01, a_y_std=0.1, design_roll_rate=0.2)
+    q_damp = (p.damping_noise * 0.01 / p.roll_inertia * 0.2) ** 2 / 0.01  # paper's C x w
+    q_ay = (0.25 * 0.01 * 0.1) ** 2 / 0.01
+    np.testing.assert_allclose(Q, np.diag([0.0, q_damp + q_ay]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("filter_name, sensors", [("kalman", "paper"), ("kalman-bucy", "imu")])
+def test_other_filters_and_suites_run(filter_name, sensors):
+    exp = build_vehicle_roll(filter_name, sensors=sensors, manoeuvre="step-steer")
+    _, summary = run_episode(exp, duration_s=2.0, seed=1, record=False, progress=False)
+    assert np.rad2deg(summary["rmse"]["roll"]) < 0.5
+    with pytest.raises(ValueError, match="expected one of"):
+        build_vehicle_roll("hinf")
