@@ -20,7 +20,8 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
                    capture_output=True)
     (wheel,) = wheel_dir.glob("testbed-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert "testbed/models/helicopter_2dof.xml" in names
+    for xml in sorted((ROOT / "models").glob("*.xml")):
+        assert f"testbed/models/{xml.name}" in names
     assert any(n.startswith("filters/") for n in names)
 
     target = tmp_path / "site"
