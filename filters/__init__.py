@@ -23,6 +23,7 @@ from filters.errors import (
     LossOfDefinitenessError,
     check_covariance,
 )
+from filters.hinf_mean_square import MeanSquareHInfFilter
 from filters.kalman import KalmanBucyFilter, KalmanFilter
 from filters.models import DiscreteLinearSystem, LinearSystem
 
@@ -35,5 +36,6 @@ __all__ = [
     "KalmanFilter",
     "LinearSystem",
     "LossOfDefinitenessError",
+    "MeanSquareHInfFilter",
     "check_covariance",
 ]
