@@ -77,7 +77,44 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--json", help="write the summary JSON here")
     run.add_argument("--plot", help="write a PNG plot here")
     run.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+
+    from testbed.reproductions import REPRODUCTIONS
+
+    rep = sub.add_parser("reproduce", help="run a paper example and compare with its numbers")
+    rep.add_argument("name", choices=[*sorted(REPRODUCTIONS), "all"])
+    rep.add_argument("--horizon", type=_positive, default=None,
+                     help="simulated seconds (default: the paper's horizon)")
+    rep.add_argument("--seed", type=int, default=0)
+    rep.add_argument("--json")
+    rep.add_argument("--plot")
+    rep.add_argument("--rrd")
+    rep.add_argument("--out-dir", default="runs/reproductions",
+                     help="with 'all': where the JSON/PNG/RRD files go")
+    rep.add_argument("--doc", default="docs/reproductions.md",
+                     help="with 'all': the Markdown table to regenerate")
     return parser
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """``testbed reproduce``: one paper example (or all, regenerating the docs table)."""
+    from testbed import reproductions
+
+    if args.name == "all":
+        results = reproductions.reproduce_all(args.out_dir, args.doc)
+        for name, result in results.items():
+            print(f"{name}: {reproductions.load(name).row(result)['ours']}")
+        print(f"wrote {args.doc} and {args.out_dir}/")
+        return 0
+    module = reproductions.load(args.name)
+    result = module.reproduce(horizon_s=args.horizon, seed=args.seed, json_path=args.json,
+                              plot_path=args.plot, rrd_path=args.rrd)
+    row = module.row(result)
+    print(f"{args.name}\n  paper: {row['claim']}\n  ours:  {row['ours']}\n"
+          f"  agree: {row['agree']}")
+    for path in (args.json, args.plot, args.rrd):
+        if path:
+            print(f"wrote {path}")
+    return 0
 
 
 def _format_table(summary: dict) -> str:
@@ -169,6 +206,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "run":
             return cmd_run(args)
+        if args.command == "reproduce":
+            return cmd_reproduce(args)
     except ValueError as exc:
         print(f"testbed: error: {exc}", file=sys.stderr)
         return 2

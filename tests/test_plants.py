@@ -45,3 +45,14 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="x0"):
         simulate_linear(A, A, A, A, np.zeros(3), lambda t: np.zeros(2), lambda t: np.zeros(2),
                         0.1, 10)
+
+
+def test_interval_average_output():
+    """x' = 1 from 0: the average of x over [k dt, (k+1) dt] is (k + 1/2) dt."""
+    A = np.zeros((1, 1))
+    B = np.ones((1, 1))
+    _, x, y = simulate_linear(A, B, np.zeros((1, 1)), np.zeros((1, 1)), np.zeros(1),
+                              lambda t: np.ones(1), lambda t: np.zeros(1), 0.1, 5,
+                              output=lambda t, s: s)
+    np.testing.assert_allclose(y[:, 0], (np.arange(5) + 0.5) * 0.1, atol=1e-14)
+    np.testing.assert_allclose(x[:, 0], np.arange(6) * 0.1, atol=1e-14)
