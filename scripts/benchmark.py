@@ -15,6 +15,8 @@ Measured (median of ``--repeats`` timed blocks, after a warm-up):
 - ``kf_step_us`` / ``filterpy_step_us``: one predict + update of our ``KalmanFilter`` and of
   ``filterpy.kalman.KalmanFilter`` on the same 4-state, 2-measurement model;
   ``kf_vs_filterpy`` = their ratio (target <= 1.0);
+- ``mshinf_step_us``: one step of the mean-square H-infinity filter (seed-000's example,
+  4 states, one RK4 substep) and ``mshinf_vs_kf`` its ratio to ``kf_step_us`` (target <= 2);
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference.
 
 Never used as a timed test: numbers depend on the machine; ratios much less so.
@@ -35,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters import KalmanFilter, LinearSystem  # noqa: E402
+from filters import KalmanFilter, LinearSystem, MeanSquareHInfFilter  # noqa: E402
 from testbed.envs.helicopter import Helicopter2DOFEnv  # noqa: E402
 from testbed.experiment import build_helicopter  # noqa: E402
 from testbed.io import write_json  # noqa: E402
@@ -106,10 +108,20 @@ def bench_kalman(calls: int, repeats: int) -> dict[str, float]:
         ref.predict(u=u)
         ref.update(ys[counter["i"]])
 
+    hinf = MeanSquareHInfFilter(pm.A, pm.B, pm.C1, pm.h, pm.C2, pm.H, pm.G, pm.b, pm.L, 1.1,
+                                np.eye(4), x0, P0, dt)
+    ys4 = rng.normal(size=(1024, 4)) * 0.01
+
+    def hinf_step() -> None:
+        counter["i"] = (counter["i"] + 1) & 1023
+        hinf.step(ys4[counter["i"]], u)
+
     ours_s = time_per_call(ours_step, calls, repeats)
     ref_s = time_per_call(filterpy_step, calls, repeats)
+    hinf_s = time_per_call(hinf_step, calls, repeats)
     return {"kf_step_us": ours_s * 1e6, "filterpy_step_us": ref_s * 1e6,
-            "kf_vs_filterpy": ours_s / ref_s}
+            "kf_vs_filterpy": ours_s / ref_s, "mshinf_step_us": hinf_s * 1e6,
+            "mshinf_vs_kf": hinf_s / ours_s}
 
 
 def bench_reference_env(calls: int, repeats: int) -> dict[str, float]:
@@ -142,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     results.update(bench_kalman(args.calls, args.repeats))
     results.update(bench_reference_env(args.calls, args.repeats))
     results["targets"] = {"env_overhead_ratio <= 2.0": results["env_overhead_ratio"] <= 2.0,
-                          "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0}
+                          "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0,
+                          "mshinf_vs_kf <= 2.0": results["mshinf_vs_kf"] <= 2.0}
     width = max(len(k) for k in results)
     for key, value in results.items():
         if isinstance(value, float):

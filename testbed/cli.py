@@ -64,7 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                      metavar="NAME=VALUE", help="vehicle-roll: manoeuvre parameter, repeatable")
     run.add_argument("--encoder-noise", type=float, default=0.0,
                      help="extra Gaussian noise std on the encoder angles, rad")
-    run.add_argument("--disturbance", default="none", choices=DISTURBANCES)
+    run.add_argument("--disturbance", default=None, choices=DISTURBANCES,
+                     help="helicopter: deterministic disturbance (default: seed000 for "
+                     "ms-hinf, none otherwise)")
     run.add_argument("--process-noise", type=float, default=0.0,
                      help="scale of seed-000's white-noise matrix b applied to the rig")
     run.add_argument("--process-noise-floor", type=float, default=0.05,
@@ -151,8 +153,9 @@ def _build(args: argparse.Namespace):
                          f"{SENSOR_SUITES}")
     sensor_kwargs = {"noise_std_rad": args.encoder_noise} if sensors.startswith(
         "encoders") else None
+    disturbance = args.disturbance or ("seed000" if args.filter == "ms-hinf" else "none")
     return build_helicopter(args.filter, args.controller, sensors=sensors,
-                            sensor_kwargs=sensor_kwargs, disturbance=args.disturbance,
+                            sensor_kwargs=sensor_kwargs, disturbance=disturbance,
                             process_noise_scale=args.process_noise,
                             process_noise_floor=args.process_noise_floor,
                             params=dict(args.param) or None)

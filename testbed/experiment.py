@@ -14,7 +14,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from filters import DiscreteLinearSystem, KalmanBucyFilter, KalmanFilter, LinearSystem
+from filters import (
+    DiscreteLinearSystem,
+    KalmanBucyFilter,
+    KalmanFilter,
+    LinearSystem,
+    MeanSquareHInfFilter,
+)
 from testbed.control import LQRTracker
 from testbed.disturbances import Disturbance, seed000_disturbance
 from testbed.envs.helicopter import Helicopter2DOFEnv
@@ -24,10 +30,12 @@ from testbed.rigs.helicopter import (
     gravity_voltage,
     paper_model,
 )
+from testbed.scenarios.seed000 import MsHinfHelicopterScenario
+from testbed.sensors import DisturbanceChannel, make_sensor_suite
 from testbed.trajectory import Trajectory
 from testbed.wrappers import FilterInLoop
 
-FILTERS = ("kalman", "kalman-bucy")
+FILTERS = ("kalman", "kalman-bucy", "ms-hinf")
 CONTROLLERS = ("lqr", "open-loop")
 DISTURBANCES = ("none", "seed000")
 
@@ -69,7 +77,10 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
 
     Parameters
     ----------
-    filter_name : {"kalman", "kalman-bucy"}
+    filter_name : {"kalman", "kalman-bucy", "ms-hinf"}
+        ``ms-hinf``: seed-000's mean-square H-infinity filter, designed on the paper's model
+        with its ``G``, ``H``, ``L``, ``R`` and ``gamma = 1.1``; the sensors get the
+        deterministic channel ``y2 = C2 x + H w`` (requires ``disturbance="seed000"``).
     controller : {"lqr", "open-loop"}
         ``open-loop`` applies the level-pitch gravity voltage only.
     sensors : str
@@ -102,15 +113,21 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         raise ValueError(f"unknown disturbance {disturbance!r}; expected one of {DISTURBANCES}")
     if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
         raise ValueError(f"process_noise_floor must be finite and >= 0, got {process_noise_floor}")
+    if filter_name == "ms-hinf" and disturbance != "seed000":
+        raise ValueError("filter 'ms-hinf' needs the deterministic disturbance channel "
+                         "y2 = C2 x + H w: use disturbance='seed000'")
     dist: Disturbance | None = None
     if disturbance == "seed000" or process_noise_scale > 0:
         dist = seed000_disturbance(noise_scale=process_noise_scale,
                                    deterministic=disturbance == "seed000")
-    env = Helicopter2DOFEnv(physics_dt_s=physics_dt_s, frame_skip=frame_skip, sensors=sensors,
-                            sensor_kwargs=sensor_kwargs, disturbance=dist, params=params)
-    nominal = HelicopterParams()  # what the designer knows: never the scaled truth
-    dt_s = env.dt_s
+    dt_s = physics_dt_s * frame_skip
+    suite = make_sensor_suite(sensors, dt_s, **(sensor_kwargs or {}))
     model = paper_model()
+    if filter_name == "ms-hinf":
+        suite = DisturbanceChannel(suite, model.C2, model.H)
+    env = Helicopter2DOFEnv(physics_dt_s=physics_dt_s, frame_skip=frame_skip, sensors=suite,
+                            disturbance=dist, params=params)
+    nominal = HelicopterParams()  # what the designer knows: never the scaled truth
 
     C, R_sample = env.sensors.linear_model(dt_s)
     Q = np.zeros((4, 4))
@@ -120,17 +137,24 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
     plant = LinearSystem(A=model.A, B=model.B, C=C, Q=Q, R=R_sample * dt_s)
     x0 = np.array([-PITCH_LIMIT_RAD, 0.0, 0.0, 0.0])
     P0 = np.diag([1e-4, 1e-4, 1e-4, 1e-4])
+    measurement_index = range(C.shape[0])
     if filter_name == "kalman":
         discrete: DiscreteLinearSystem = plant.discretize(dt_s)
         estimator = KalmanFilter(discrete, x0, P0)
-    else:
+    elif filter_name == "kalman-bucy":
         estimator = KalmanBucyFilter(plant, x0, P0, dt_s=dt_s, substeps=kalman_bucy_substeps)
+    else:
+        paper = MsHinfHelicopterScenario()
+        estimator = MeanSquareHInfFilter(model.A, model.B, C, plant.R, model.C2, model.H,
+                                         model.G, plant.Q, model.L, paper.gamma, paper.R, x0,
+                                         P0, dt_s, substeps="auto", noise_intensities=True)
+        measurement_index = range(suite.dim)
 
     def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
         return u - gravity_voltage(nominal, x_hat[0])
 
     wrapped = FilterInLoop(env, estimator, input_transform=unbalanced_input,
-                           measurement_index=range(C.shape[0]))
+                           measurement_index=measurement_index)
     if controller == "lqr":
         lqr = LQRTracker(model.A, model.B, dt_s,
                          feedforward=lambda pitch: gravity_voltage(nominal, pitch),

@@ -228,6 +228,60 @@ class PaperSuite:
         return self.C1.copy(), self.intensity / dt_s
 
 
+@dataclass
+class DisturbanceChannel:
+    """A sensor suite plus seed-000's deterministic channel ``y2 = C2 x + H w``.
+
+    The channel carries no noise: ``w`` is the environment's deterministic disturbance at the
+    sample time (zeros when it has none).
+
+    Parameters
+    ----------
+    base : EncoderSuite or PaperSuite
+        The stochastic channels ``y1`` (first ``base.dim`` entries).
+    C2 : ndarray, shape (m2, 4)
+    H : ndarray, shape (m2, s)
+    """
+
+    base: EncoderSuite | PaperSuite
+    C2: np.ndarray
+    H: np.ndarray
+    name: str = field(default="", init=False)
+
+    def __post_init__(self) -> None:
+        self.C2 = np.atleast_2d(np.asarray(self.C2, dtype=float))
+        self.H = np.atleast_2d(np.asarray(self.H, dtype=float))
+        if self.C2.shape[1] != 4 or self.H.shape[0] != self.C2.shape[0]:
+            raise ValueError(f"C2 must be (m2, 4) and H (m2, s); got {self.C2.shape}, "
+                             f"{self.H.shape}")
+        self.name = f"{self.base.name}+y2"
+
+    @property
+    def dim(self) -> int:
+        """``base.dim + m2``."""
+        return self.base.dim + self.C2.shape[0]
+
+    @property
+    def names(self) -> list[str]:
+        """Base channel names, then ``y2_0, y2_1, ...``."""
+        return self.base.names + [f"y2_{i}" for i in range(self.C2.shape[0])]
+
+    @property
+    def measured_state_index(self) -> list[int | None]:
+        """The base suite's, then ``None`` for the ``y2`` channels."""
+        return self.base.measured_state_index + [None] * self.C2.shape[0]
+
+    def measure(self, x: np.ndarray, t_s: float, rng: np.random.Generator,
+                w: np.ndarray | None = None) -> np.ndarray:
+        """``[y1, C2 x + H w]``, shape (dim,)."""
+        w = np.zeros(self.H.shape[1]) if w is None else w
+        return np.concatenate([self.base.measure(x, t_s, rng, w), self.C2 @ x + self.H @ w])
+
+    def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The stochastic channels' ``(C, R)`` (see the base suite)."""
+        return self.base.linear_model(dt_s)
+
+
 SENSOR_SUITES = ("encoders", "encoders+gyros", "paper")
 
 

@@ -122,3 +122,20 @@ def test_wrapper_uses_the_applied_action_and_input_transform():
     wrapped.reset(seed=0)
     wrapped.step(np.array([30.0, -1.0]))
     np.testing.assert_array_equal(seen[0], [24.0, -1.0])
+
+
+def test_ms_hinf_flies_the_rig_with_the_y2_channel():
+    exp = build_helicopter("ms-hinf", "lqr", disturbance="seed000")
+    inner = exp.env.unwrapped
+    assert inner.sensors.dim == 4 and inner.sensors.names[2:] == ["y2_0", "y2_1"]
+    traj, s = run_episode(exp, 3.0, seed=0)
+    # y2 = C2 x + H w: pitch + w3, yaw + w4 exactly (no noise on the deterministic channel)
+    from testbed.disturbances import seed000_w
+
+    k = 100
+    w = seed000_w(traj.t_s[k])
+    np.testing.assert_allclose(traj.measurement[k, 2:], traj.state[k, :2] + w[2:], atol=1e-12)
+    assert s["T_final"] is not None and s["T_final"] < 1.1
+    assert s["rmse"]["pitch"] < np.deg2rad(1.0)
+    with pytest.raises(ValueError, match="seed000"):
+        build_helicopter("ms-hinf", "lqr", disturbance="none")
