@@ -1,7 +1,8 @@
 """Streaming estimation metrics: RMSE, NEES, measurement RMSE and the noise-output ratio T.
 
 Nothing is stored per step: sums accumulate, so an 80 s episode or a thousand of them cost
-the same memory.
+the same memory. A leading batch axis (``reset(x0)`` with ``x0`` of shape ``(N, n)``) tracks N
+episodes stepped together (:mod:`testbed.batch`) with the same formulas.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import numpy as np
 
 
 class EpisodeMetrics:
-    """Accumulate estimation metrics over one episode.
+    """Accumulate estimation metrics over one episode, or over a batch of episodes.
 
     Parameters
     ----------
@@ -32,6 +33,14 @@ class EpisodeMetrics:
 
     with ``x0`` the true initial state. It is reported only when a deterministic disturbance
     ``w`` is present.
+
+    Batch axis: after ``reset(x0)`` with ``x0`` of shape ``(..., n)`` the leading axes
+    (:attr:`batch_shape`) are independent episodes stepped together; :meth:`update` then takes
+    ``(..., n)`` states, ``(..., n, n)`` (or one shared ``(n, n)``) covariances, ``(..., m)``
+    measurements and a shared ``(s,)`` or per-episode ``(..., s)`` disturbance, and the
+    accessors return arrays of shape :attr:`batch_shape` where they return floats for a single
+    episode. The products are numpy's ``vecdot``/``matvec``/``vecmat``, which give bitwise the
+    single-episode results row by row.
     """
 
     def __init__(self, state_names: list[str], dt_s: float,
@@ -47,16 +56,25 @@ class EpisodeMetrics:
         self.reset(np.zeros(n))
 
     def reset(self, x0: np.ndarray) -> None:
-        """Start a new episode from the true initial state ``x0`` (shape (n,))."""
+        """Start a new episode from the true initial state ``x0``, shape (n,) or (..., n)."""
+        x0 = np.asarray(x0, dtype=float)
         n = len(self.state_names)
-        self._x0_weight = float(x0 @ self.ratio_weight @ x0)
+        if x0.ndim < 1 or x0.shape[-1] != n:
+            raise ValueError(f"x0 must have shape ({n},) or (..., {n}), got shape {x0.shape}")
+        #: Leading batch axes (``()`` for a single episode).
+        self.batch_shape: tuple[int, ...] = x0.shape[:-1]
+        if self.batch_shape:
+            self._x0_weight = np.vecdot(np.vecmat(x0, self.ratio_weight), x0)
+        else:
+            self._x0_weight = float(x0 @ self.ratio_weight @ x0)
+        zero = np.zeros(self.batch_shape) if self.batch_shape else 0.0
         self.count = 0
-        self._sq_err = np.zeros(n)
-        self._nees_sum = 0.0
+        self._sq_err = np.zeros(x0.shape)
+        self._nees_sum = zero
         self._nees_count = 0
-        self._meas_sq = {}
-        self._z_err_sq = 0.0
-        self._w_sq = 0.0
+        self._meas_sq: dict[str, float | np.ndarray] = {}
+        self._z_err_sq = zero
+        self._w_sq = zero
         self._has_w = False
 
     def update(self, x_true: np.ndarray, x_hat: np.ndarray, P: np.ndarray | None,
@@ -65,52 +83,91 @@ class EpisodeMetrics:
 
         Parameters
         ----------
-        x_true, x_hat : ndarray, shape (n,)
-        P : ndarray, shape (n, n) or None
+        x_true, x_hat : ndarray, shape (n,) or (..., n)
+        P : ndarray, shape (n, n) or (..., n, n), or None
             Estimator covariance (NEES uses it when given).
-        y : ndarray, shape (m,)
+        y : ndarray, shape (m,) or (..., m)
             Measurement.
-        w : ndarray, shape (s,) or None
-            Deterministic disturbance applied over the step.
+        w : ndarray, shape (s,) or (..., s), or None
+            Deterministic disturbance applied over the step (shared by a batch when 1-D).
         """
         err = x_hat - x_true
+        single = err.ndim == 1  # plain products; the batched ones equal them row by row
         self.count += 1
         self._sq_err += err**2
         if P is not None:
-            self._nees_sum += float(err @ np.linalg.solve(P, err))
+            if single:
+                self._nees_sum += float(err @ np.linalg.solve(P, err))
+            else:
+                self._nees_sum = self._nees_sum + np.vecdot(
+                    err, np.linalg.solve(P, err[..., None])[..., 0])
             self._nees_count += 1
+        y_t, x_t = y.T, x_true.T  # channel-major: y_t[channel] is (...,) in both cases
         for channel, state in enumerate(self.measured_state_index):
             if state is not None:
                 name = self.state_names[state]
-                self._meas_sq[name] = self._meas_sq.get(name, 0.0) + (y[channel]
-                                                                       - x_true[state]) ** 2
-        z_err = self.output_matrix @ err
-        self._z_err_sq += float(z_err @ z_err) * self.dt_s
-        if w is not None and len(w):
+                self._meas_sq[name] = self._meas_sq.get(name, 0.0) + (y_t[channel]
+                                                                       - x_t[state]) ** 2
+        if single:
+            z_err = self.output_matrix @ err
+            self._z_err_sq += float(z_err @ z_err) * self.dt_s
+        else:
+            z_err = np.matvec(self.output_matrix, err)
+            self._z_err_sq = self._z_err_sq + np.vecdot(z_err, z_err) * self.dt_s
+        if w is not None and np.size(w):
             self._has_w = True
-            self._w_sq += float(w @ w) * self.dt_s
+            w_sq = float(w @ w) if np.ndim(w) == 1 else np.vecdot(w, w)
+            self._w_sq = self._w_sq + w_sq * self.dt_s
 
-    def rmse(self) -> dict[str, float]:
+    def _out(self, value: np.ndarray) -> float | np.ndarray:
+        """A float for a single episode, an array of shape ``batch_shape`` for a batch."""
+        return np.asarray(value) if self.batch_shape else float(value)
+
+    def rmse(self) -> dict[str, float | np.ndarray]:
         """Root-mean-square estimation error per state."""
         values = np.sqrt(self._sq_err / max(self.count, 1))
+        if self.batch_shape:
+            return {name: values[..., i] for i, name in enumerate(self.state_names)}
         return dict(zip(self.state_names, values.tolist(), strict=True))
 
-    def measurement_rmse(self) -> dict[str, float]:
+    def measurement_rmse(self) -> dict[str, float | np.ndarray]:
         """RMSE of each directly measuring channel against the state it measures."""
-        return {k: float(np.sqrt(v / max(self.count, 1))) for k, v in self._meas_sq.items()}
+        return {k: self._out(np.sqrt(v / max(self.count, 1))) for k, v in self._meas_sq.items()}
 
-    def nees_mean(self) -> float | None:
+    def nees_mean(self) -> float | np.ndarray | None:
         """Mean normalized estimation error squared (expected ``n`` for a consistent filter)."""
-        return self._nees_sum / self._nees_count if self._nees_count else None
+        return self._out(self._nees_sum / self._nees_count) if self._nees_count else None
 
-    def noise_output_ratio(self) -> float | None:
+    def noise_output_ratio(self) -> float | np.ndarray | None:
         """seed-000's ratio ``T`` over the episode so far, or None without a disturbance."""
         if not self._has_w:
             return None
-        return float(np.sqrt(self._z_err_sq / (self._w_sq + self._x0_weight)))
+        return self._out(np.sqrt(self._z_err_sq / (self._w_sq + self._x0_weight)))
 
-    def summary(self) -> dict:
-        """All metrics as a JSON-ready dict (``None`` where undefined)."""
+    def summary(self, index: int | tuple[int, ...] | None = None) -> dict:
+        """All metrics as a dict (``None`` where undefined).
+
+        Parameters
+        ----------
+        index : int or tuple, optional
+            Batch member to report (batched metrics only): its summary then has exactly the
+            single-episode form (floats, JSON-ready). Without it a batch reports arrays of
+            shape :attr:`batch_shape`.
+        """
+        if index is not None:
+            if not self.batch_shape:
+                raise ValueError("index is only valid for batched metrics")
+
+            def pick(v):
+                return None if v is None else float(np.asarray(v)[index])
+
+            return {
+                "steps": self.count,
+                "rmse": {k: pick(v) for k, v in self.rmse().items()},
+                "measurement_rmse": {k: pick(v) for k, v in self.measurement_rmse().items()},
+                "nees_mean": pick(self.nees_mean()),
+                "T_final": pick(self.noise_output_ratio()),
+            }
         return {
             "steps": self.count,
             "rmse": self.rmse(),
