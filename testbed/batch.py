@@ -244,8 +244,7 @@ class BatchClosedLoop:
         self.measurement_names = list(inner.sensors.names)
         self.estimator = copy.deepcopy(wrapper.estimator)
         self._prior = (np.array(self.estimator.x), np.array(self.estimator.P))
-        C, _ = inner.sensors.linear_model(self.dt_s)
-        self._filter_channels = C.shape[0]  # build_helicopter feeds the first C.shape[0]
+        self._filter_index = wrapper.measurement_index  # channels the estimator reads
         self._reference_metrics = wrapper.metrics()
         self._gravity = functools.partial(gravity_voltage, HelicopterParams())
         if isinstance(experiment.policy, LQRTracker):
@@ -327,7 +326,7 @@ class BatchClosedLoop:
         if rec is not None:
             self._record(rec, 0)
         clipped = np.zeros(n, dtype=np.int64)
-        m = self._filter_channels
+        index = self._filter_index
         info = sim.info
         own_bar = bar is None
         if own_bar:
@@ -340,7 +339,7 @@ class BatchClosedLoop:
                     sim.step(ctrl(x_hat))
                     u_model = info["action_applied"] - self._gravity(x_hat[:, 0])
                     y = sim.obs
-                    x_hat = est.step(y[:, :m], u_model)
+                    x_hat = est.step(y if index is None else y[:, index], u_model)
                     metrics.update(info["state"], x_hat, est.P, y, info["disturbance"])
                     clipped += info["action_clipped"].any(axis=1)
                     if rec is not None:

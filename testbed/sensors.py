@@ -76,6 +76,11 @@ class EncoderSuite:
         """Index of the state each channel measures."""
         return [0, 1, 2, 3][: self.dim]
 
+    @property
+    def noise_draws(self) -> int:
+        """Standard normal variates one sample consumes (angle noise, then gyro noise)."""
+        return 2 * int(self._angle_noise) + 2 * int(self.gyros)
+
     def measure(self, x: np.ndarray, t_s: float, rng: np.random.Generator,
                 w: np.ndarray | None = None) -> np.ndarray:
         """One sample of the sensors.
@@ -87,7 +92,7 @@ class EncoderSuite:
         t_s : float
             Time (unused: encoders are time-invariant).
         rng : numpy.random.Generator
-            Source of all noise.
+            Source of all noise (``noise_draws`` standard normal variates).
         w : ndarray, optional
             Deterministic disturbance (unused by this suite).
 
@@ -95,13 +100,34 @@ class EncoderSuite:
         -------
         ndarray, shape (dim,)
         """
-        angles = np.round(x[:2] / self._quantum) * self._quantum
+        xi = rng.standard_normal((1, self.noise_draws))
+        return self.measure_batch(x[None], xi, None)[0]
+
+    def measure_batch(self, x: np.ndarray, xi: np.ndarray,
+                      w: np.ndarray | None = None) -> np.ndarray:
+        """Samples of ``k`` states with given noise variates (what :meth:`measure` draws).
+
+        Parameters
+        ----------
+        x : ndarray, shape (k, 4)
+        xi : ndarray, shape (k, noise_draws)
+            Standard normal variates, in the order :meth:`measure` draws them.
+        w : ndarray, optional
+            Unused.
+
+        Returns
+        -------
+        ndarray, shape (k, dim)
+        """
+        angles = np.round(x[:, :2] / self._quantum) * self._quantum
+        col = 0
         if self._angle_noise:
-            angles = angles + self._angle_std * rng.standard_normal(2)
+            angles = angles + self._angle_std * xi[:, :2]
+            col = 2
         if not self.gyros:
             return angles
-        rates = x[2:4] + self._gyro_std * rng.standard_normal(2)
-        return np.concatenate([angles, rates])
+        rates = x[:, 2:4] + self._gyro_std * xi[:, col:col + 2]
+        return np.concatenate([angles, rates], axis=1)
 
     def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Observation matrix and per-sample noise covariance for filter design.
@@ -201,6 +227,11 @@ class PaperSuite:
             out += [None] * self.C2.shape[0]
         return out
 
+    @property
+    def noise_draws(self) -> int:
+        """Standard normal variates one sample consumes (``m1``)."""
+        return self.C1.shape[0]
+
     def measure(self, x: np.ndarray, t_s: float, rng: np.random.Generator,
                 w: np.ndarray | None = None) -> np.ndarray:
         """One sample ``[y1, y2]``, shape (dim,).
@@ -210,12 +241,30 @@ class PaperSuite:
         ValueError
             If the suite has a ``y2`` channel and ``w`` is missing or of the wrong size.
         """
-        y1 = self.C1 @ x + self._chol @ rng.standard_normal(self.C1.shape[0])
+        xi = rng.standard_normal((1, self.noise_draws))
+        return self.measure_batch(x[None], xi, None if w is None else np.asarray(w)[None])[0]
+
+    def measure_batch(self, x: np.ndarray, xi: np.ndarray,
+                      w: np.ndarray | None = None) -> np.ndarray:
+        """Samples of ``k`` states with given noise variates.
+
+        Parameters
+        ----------
+        x : ndarray, shape (k, 4)
+        xi : ndarray, shape (k, m1)
+        w : ndarray, shape (k, s), optional
+            Required with a ``y2`` channel.
+
+        Returns
+        -------
+        ndarray, shape (k, dim)
+        """
+        y1 = np.matvec(self.C1, x) + np.matvec(self._chol, xi)
         if self.C2 is None:
             return y1
-        if w is None or np.shape(w) != (self.H.shape[1],):
+        if w is None or w.shape[1:] != (self.H.shape[1],):
             raise ValueError(f"w must have shape ({self.H.shape[1]},) for the y2 channel")
-        return np.concatenate([y1, self.C2 @ x + self.H @ w])
+        return np.concatenate([y1, np.matvec(self.C2, x) + np.matvec(self.H, w)], axis=1)
 
     def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """``C1`` and the sampled covariance ``intensity / dt_s`` of the stochastic channel.
@@ -271,11 +320,23 @@ class DisturbanceChannel:
         """The base suite's, then ``None`` for the ``y2`` channels."""
         return self.base.measured_state_index + [None] * self.C2.shape[0]
 
+    @property
+    def noise_draws(self) -> int:
+        """The base suite's (the ``y2`` channel is noise-free)."""
+        return self.base.noise_draws
+
     def measure(self, x: np.ndarray, t_s: float, rng: np.random.Generator,
                 w: np.ndarray | None = None) -> np.ndarray:
-        """``[y1, C2 x + H w]``, shape (dim,)."""
-        w = np.zeros(self.H.shape[1]) if w is None else w
-        return np.concatenate([self.base.measure(x, t_s, rng, w), self.C2 @ x + self.H @ w])
+        """``[y1, C2 x + H w]``, shape (dim,); ``w = 0`` when None."""
+        xi = rng.standard_normal((1, self.noise_draws))
+        return self.measure_batch(x[None], xi, None if w is None else np.asarray(w)[None])[0]
+
+    def measure_batch(self, x: np.ndarray, xi: np.ndarray,
+                      w: np.ndarray | None = None) -> np.ndarray:
+        """``[y1, C2 x + H w]`` for ``k`` states, shape (k, dim); ``w`` (k, s) or None."""
+        w = np.zeros((len(x), self.H.shape[1])) if w is None else w
+        return np.concatenate([self.base.measure_batch(x, xi, None),
+                               np.matvec(self.C2, x) + np.matvec(self.H, w)], axis=1)
 
     def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The stochastic channels' ``(C, R)`` (see the base suite)."""

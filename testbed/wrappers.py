@@ -63,6 +63,11 @@ class FilterInLoop(gym.Wrapper):
         self._metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
                                        measured, output_matrix, ratio_weight)
 
+    @property
+    def measurement_index(self) -> np.ndarray | None:
+        """Sensor channels given to the estimator (None: all)."""
+        return self._index
+
     def metrics(self) -> EpisodeMetrics:
         """Metrics of the current episode."""
         return self._metrics

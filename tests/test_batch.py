@@ -277,7 +277,7 @@ def test_batch_rejects_unsupported_sensors():
         def measure(self, x, t_s, rng, w=None):
             return x[:1]
 
-    with pytest.raises(TypeError, match="sensor suites"):
+    with pytest.raises(TypeError, match="measure_batch"):
         HelicopterBatch(Helicopter2DOFEnv(sensors=Custom()), 2)
 
 
@@ -352,3 +352,15 @@ def test_monte_carlo_validates_arguments():
         monte_carlo(runs=2, duration_s=0.001, progress=False)
     with pytest.raises(ValueError, match="unknown filter"):
         monte_carlo(filter_name="bogus", runs=2, progress=False)
+
+
+def test_monte_carlo_ms_hinf_equals_single_runs():
+    """The mean-square H-infinity filter (y2 channel) batched equals the single loop."""
+    kw = {"disturbance": "seed000"}
+    res = monte_carlo("ms-hinf", runs=2, duration_s=0.5, seed=3, progress=False, **kw)
+    single = [run_episode(build_helicopter("ms-hinf", **kw), 0.5, seed=int(s),
+                          progress=False)[1] for s in run_seeds(3, 2)]
+    assert res["rmse"]["pitch"]["mean"] == pytest.approx(
+        np.mean([s["rmse"]["pitch"] for s in single]), rel=1e-10)
+    assert res["T_final"]["mean"] == pytest.approx(
+        np.mean([s["T_final"] for s in single]), rel=1e-10)

@@ -53,7 +53,6 @@ from testbed.rigs.helicopter import (
     HelicopterParams,
     HelicopterRig,
 )
-from testbed.sensors import EncoderSuite, PaperSuite
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
@@ -290,46 +289,6 @@ class NoiseStreams:
         return out
 
 
-class _BatchSensors:
-    """Vectorized ``measure`` of the testbed's sensor suites with pre-drawn noise.
-
-    Mirrors :class:`~testbed.sensors.EncoderSuite` and :class:`~testbed.sensors.PaperSuite`
-    operation by operation (reading their precomputed quantum, standard deviations and noise
-    factor), with ``numpy.matvec`` where they use ``matrix @ vector`` (bitwise equal).
-    """
-
-    def __init__(self, suite: EncoderSuite | PaperSuite):
-        if isinstance(suite, EncoderSuite):
-            self.draws = 2 * int(suite._angle_noise) + 2 * int(suite.gyros)
-        elif isinstance(suite, PaperSuite):
-            self.draws = suite.C1.shape[0]
-        else:
-            raise TypeError("the batched helicopter supports the EncoderSuite and PaperSuite "
-                            f"sensor suites, got {type(suite).__name__}")
-        self.suite = suite
-        self.dim = suite.dim
-
-    def measure(self, x: np.ndarray, xi: np.ndarray, w: np.ndarray | None) -> np.ndarray:
-        """Measurements of states ``x`` (k, 4) with noise ``xi`` (k, draws), shape (k, dim)."""
-        s = self.suite
-        if isinstance(s, EncoderSuite):
-            angles = np.round(x[:, :2] / s._quantum) * s._quantum
-            col = 0
-            if s._angle_noise:
-                angles = angles + s._angle_std * xi[:, :2]
-                col = 2
-            if not s.gyros:
-                return angles
-            rates = x[:, 2:4] + s._gyro_std * xi[:, col:col + 2]
-            return np.concatenate([angles, rates], axis=1)
-        y1 = np.matvec(s.C1, x) + np.matvec(s._chol, xi)
-        if s.C2 is None:
-            return y1
-        if w is None or w.shape[1:] != (s.H.shape[1],):
-            raise ValueError(f"w must have shape ({s.H.shape[1]},) for the y2 channel")
-        return np.concatenate([y1, np.matvec(s.C2, x) + np.matvec(s.H, w)], axis=1)
-
-
 def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int) -> np.ndarray:
     """``fn(t_i)`` for every entry of ``t`` (k,), evaluated once per distinct time: (k, dim)."""
     if len(t) and t.min() == t.max():
@@ -383,7 +342,12 @@ class HelicopterBatch:
         self.dt_s = template.dt_s
         self.nominal_params = template.nominal_params
         self.state_names = list(template.state_names)
-        self.sensors = _BatchSensors(template.sensors)
+        if not (hasattr(template.sensors, "measure_batch")
+                and hasattr(template.sensors, "noise_draws")):
+            raise TypeError("the batched helicopter needs sensor suites with noise_draws and "
+                            "measure_batch(x, xi, w) (as testbed.sensors' suites have), got "
+                            f"{type(template.sensors).__name__}")
+        self.sensors = template.sensors
         self.disturbance = dist = template.disturbance
         if type(dist).acceleration is not Disturbance.acceleration:
             raise TypeError("the batched helicopter vectorizes Disturbance.acceleration; a "
@@ -394,7 +358,7 @@ class HelicopterBatch:
         rig = HelicopterRig(self.nominal_params, physics_dt_s=template.rig.model.opt.timestep)
         self._dof = rig.dof_index
         self.physics = BatchPhysics(rig, n, template.frame_skip, num_threads)
-        draws = self._dist_draws + self.sensors.draws
+        draws = self._dist_draws + self.sensors.noise_draws
         self.noise = NoiseStreams(n, 64 * max(draws, 1))
         self._tables = [_validate_setpoints(setpoints)]
         self._table_of = np.zeros(n, dtype=int)
@@ -529,8 +493,8 @@ class HelicopterBatch:
         self.steps[sel] = 0
         self.x0[sel] = x0
         w = self._signal(np.zeros(k))
-        xi = self.noise.draw(self.sensors.draws, None if members is None else index)
-        self.obs[sel] = self.sensors.measure(x0, xi, w)
+        xi = self.noise.draw(self.sensors.noise_draws, None if members is None else index)
+        self.obs[sel] = self.sensors.measure_batch(x0, xi, w)
         self.reward[sel] = 0.0
         info = self.info
         info["state"][sel] = self.physics.states(None if members is None else index)
@@ -589,8 +553,8 @@ class HelicopterBatch:
         e = x[:, :2] - ref
         self.reward[sel] = -(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1])
         w_now = self._signal(t) if dist.has_deterministic else None
-        self.obs[sel] = self.sensors.measure(x, self.noise.draw(self.sensors.draws, members),
-                                             w_now)
+        xi = self.noise.draw(self.sensors.noise_draws, members)
+        self.obs[sel] = self.sensors.measure_batch(x, xi, w_now)
         info = self.info
         info["state"][sel] = x
         info["t"][sel] = t
