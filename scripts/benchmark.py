@@ -17,7 +17,12 @@ Measured (median of ``--repeats`` timed blocks, after a warm-up):
   ``kf_vs_filterpy`` = their ratio (target <= 1.0);
 - ``mshinf_step_us``: one step of the mean-square H-infinity filter (seed-000's example,
   4 states, one RK4 substep) and ``mshinf_vs_kf`` its ratio to ``kf_step_us`` (target <= 2);
-- ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference.
+- ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
+- Monte Carlo (``scripts/bench_mc.py``): ``raw_rollout_traj_steps_per_s``,
+  ``mc_traj_steps_per_s``, ``mc_mshinf_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.4),
+  ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
+  scale: 1000 runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a 16-point
+  sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long ones.
 
 Never used as a timed test: numbers depend on the machine; ratios much less so.
 """
@@ -137,11 +142,42 @@ def bench_reference_env(calls: int, repeats: int) -> dict[str, float]:
     return {"inverted_pendulum_v5_steps_per_s": 1.0 / step}
 
 
+def bench_scale(quick: bool) -> dict[str, object]:
+    """Monte-Carlo throughput, memory, scaling, the papers' scale and the Ray sweep speedup."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_mc import bench_monte_carlo
+
+    from testbed.batch import monte_carlo
+    from testbed.sweep import sweep
+
+    out: dict[str, object] = dict(bench_monte_carlo())
+    mshinf = monte_carlo("ms-hinf", runs=256, duration_s=20.0, seed=0, progress=False,
+                         disturbance="seed000")
+    out["mc_mshinf_traj_steps_per_s"] = mshinf["traj_steps_per_s"]
+    if quick:
+        return out
+    big = monte_carlo("kalman", runs=1000, duration_s=80.0, seed=0, progress=True)
+    out["mc_1000x80s_wall_s"] = big["wall_s"]
+    grid = {"process_noise_scale": [0.0, 0.1, 0.2, 0.3], "params.mass_kg": [0.9, 1.0, 1.1, 1.2]}
+    walls = {}
+    for workers in (1, 2):
+        start = time.perf_counter()
+        sweep(grid, runs=32, duration_s=10.0, seed=0, backend="ray", workers=workers,
+              progress=False)
+        walls[workers] = time.perf_counter() - start
+    out["sweep_ray_wall_s"] = walls
+    out["sweep_ray_speedup"] = walls[1] / walls[2]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", help="write the results here (atomically)")
     parser.add_argument("--calls", type=int, default=2000, help="calls per timed block")
     parser.add_argument("--repeats", type=int, default=7, help="timed blocks (median taken)")
+    parser.add_argument("--quick", action="store_true",
+                        help="skip the 1000 x 80 s Monte Carlo and the Ray sweep")
+    parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")
     args = parser.parse_args(argv)
 
     results: dict[str, object] = {
@@ -153,9 +189,16 @@ def main(argv: list[str] | None = None) -> int:
     results.update(bench_physics(args.calls, args.repeats))
     results.update(bench_kalman(args.calls, args.repeats))
     results.update(bench_reference_env(args.calls, args.repeats))
-    results["targets"] = {"env_overhead_ratio <= 2.0": results["env_overhead_ratio"] <= 2.0,
-                          "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0,
-                          "mshinf_vs_kf <= 2.0": results["mshinf_vs_kf"] <= 2.0}
+    targets = {"env_overhead_ratio <= 2.0": results["env_overhead_ratio"] <= 2.0,
+               "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0,
+               "mshinf_vs_kf <= 2.0": results["mshinf_vs_kf"] <= 2.0}
+    if not args.no_mc:
+        results.update(bench_scale(args.quick))
+        targets["mc_vs_raw >= 0.4"] = results["mc_vs_raw"] >= 0.4
+        targets["mc_peak_rss_mb <= 500"] = results["mc_peak_rss_mb"] <= 500
+        if "sweep_ray_speedup" in results:
+            targets["sweep_ray_speedup >= 1.6"] = results["sweep_ray_speedup"] >= 1.6
+    results["targets"] = targets
     width = max(len(k) for k in results)
     for key, value in results.items():
         if isinstance(value, float):

@@ -80,6 +80,36 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--plot", help="write a PNG plot here")
     run.add_argument("--no-progress", action="store_true", help="never show a progress bar")
 
+    def add_helicopter_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("rig", choices=("helicopter",))
+        p.add_argument("--filter", default="kalman", choices=FILTERS)
+        p.add_argument("--controller", default="lqr", choices=CONTROLLERS)
+        p.add_argument("--runs", type=int, default=1000)
+        p.add_argument("--duration", type=_positive, default=80.0, help="simulated s per run")
+        p.add_argument("--seed", type=int, default=0)
+        p.add_argument("--sensors", default="encoders", choices=SENSOR_SUITES)
+        p.add_argument("--disturbance", default=None, choices=DISTURBANCES,
+                       help="default: seed000 for ms-hinf, none otherwise")
+        p.add_argument("--process-noise", type=float, default=0.0)
+        p.add_argument("--param", type=_name_value, action="append", default=[],
+                       metavar="NAME=SCALE")
+        p.add_argument("--json", help="write the results here")
+        p.add_argument("--no-progress", action="store_true")
+
+    mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
+    add_helicopter_options(mc)
+    mc.add_argument("--batch-size", type=int, default=None)
+    mc.add_argument("--save-npz", help="also write every trajectory to this .npz")
+
+    sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
+    add_helicopter_options(sw)
+    sw.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
+                    required=True, help="a swept build argument (process_noise_scale, gamma, "
+                    "params.mass_kg, ...) and its values; repeatable (Cartesian product)")
+    sw.add_argument("--backend", default="local", choices=("local", "ray"))
+    sw.add_argument("--workers", type=int, default=None)
+    sw.add_argument("--address", default=None, help="Ray cluster address (backend ray)")
+
     from testbed.reproductions import REPRODUCTIONS
 
     rep = sub.add_parser("reproduce", help="run a paper example and compare with its numbers")
@@ -95,6 +125,73 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--doc", default="docs/reproductions.md",
                      help="with 'all': the Markdown table to regenerate")
     return parser
+
+
+def _grid_axis(text: str) -> tuple[str, list[float]]:
+    name, sep, values = text.partition("=")
+    if not sep or not values:
+        raise ValueError(f"--grid expects NAME=V1,V2,..., got {text!r}")
+    try:
+        return name.strip(), [float(v) for v in values.split(",")]
+    except ValueError:
+        raise ValueError(f"--grid {name}: values must be numbers, got {values!r}") from None
+
+
+def _mc_build_kwargs(args: argparse.Namespace) -> dict:
+    return {"controller": args.controller, "sensors": args.sensors,
+            "disturbance": args.disturbance or ("seed000" if args.filter == "ms-hinf"
+                                                else "none"),
+            "process_noise_scale": args.process_noise, "params": dict(args.param) or None}
+
+
+def _print_mc(result: dict) -> None:
+    print(f"{result['runs']} runs x {result['steps_per_run']} steps in {result['wall_s']:.2f} s "
+          f"({result['traj_steps_per_s']:,.0f} trajectory-steps/s)")
+    print(f"{'state':<12}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
+    for name, stats in result["rmse"].items():
+        scale = 180 / np.pi
+        print(f"{name:<12}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
+              f"{stats['q95'] * scale:>12.4f}  {'deg/s' if 'rate' in name else 'deg'}")
+    if result.get("nees_mean") is not None:
+        print(f"mean NEES {result['nees_mean']:.3f}")
+    if result.get("T_final"):
+        print(f"T_final mean {result['T_final']['mean']:.4f}")
+
+
+def cmd_mc(args: argparse.Namespace) -> int:
+    """``testbed mc``: a batched Monte-Carlo study."""
+    from testbed.batch import monte_carlo
+
+    result = monte_carlo(args.filter, runs=args.runs, duration_s=args.duration, seed=args.seed,
+                         batch_size=args.batch_size, progress=not args.no_progress,
+                         save_npz=args.save_npz, **_mc_build_kwargs(args))
+    _print_mc(result)
+    if args.json:
+        print(f"wrote {write_json(args.json, result)}")
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """``testbed sweep``: one Monte-Carlo study per grid point."""
+    from testbed.sweep import sweep
+
+    grid = dict(_grid_axis(text) for text in args.grid)
+    result = sweep(grid, filter_name=args.filter, runs=args.runs, duration_s=args.duration,
+                   seed=args.seed, backend=args.backend, workers=args.workers,
+                   address=args.address, progress=not args.no_progress,
+                   **_mc_build_kwargs(args))
+    names = list(grid)
+    print(f"{len(result['points'])} points on {result['backend']} ({result['workers']} workers) "
+          f"in {result['wall_s']:.2f} s")
+    print("  ".join(f"{n:>16}" for n in names) + f"{'pitch RMSE deg':>16}{'yaw RMSE deg':>14}")
+    for entry in result["points"]:
+        rmse = entry["result"]["rmse"]
+        print("  ".join(f"{entry['point'][n]:>16g}" for n in names)
+              + f"{np.degrees(rmse['pitch']['mean']):>16.4f}"
+              f"{np.degrees(rmse['yaw']['mean']):>14.4f}")
+    if args.json:
+        print(f"wrote {write_json(args.json, result)}")
+    return 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -211,6 +308,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "reproduce":
             return cmd_reproduce(args)
+        if args.command == "mc":
+            return cmd_mc(args)
+        if args.command == "sweep":
+            return cmd_sweep(args)
     except ValueError as exc:
         print(f"testbed: error: {exc}", file=sys.stderr)
         return 2

@@ -66,7 +66,8 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
                      disturbance: str = "none", process_noise_scale: float = 0.0,
                      process_noise_floor: float = 0.05, params: dict[str, float] | None = None,
                      physics_dt_s: float = 0.001, frame_skip: int = 10,
-                     kalman_bucy_substeps: int | str = "auto") -> Experiment:
+                     kalman_bucy_substeps: int | str = "auto",
+                     gamma: float | None = None) -> Experiment:
     """The helicopter with an estimator designed on seed-000's linear model and an LQR.
 
     The estimator's model is the paper's ``(A, B)`` (the rig is its nonlinear truth); its
@@ -97,6 +98,8 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         nominal ones: model mismatch).
     physics_dt_s, frame_skip : float, int
         MuJoCo step and control period = ``physics_dt_s * frame_skip``.
+    gamma : float, optional
+        Attenuation level of ``ms-hinf`` (default: the paper's 1.1).
     kalman_bucy_substeps : int or "auto"
         RK4 substeps per sample for ``kalman-bucy`` (``"auto"``: enough for stability at
         the current covariance; quantized encoders make the Riccati equation stiff).
@@ -113,6 +116,8 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         raise ValueError(f"unknown disturbance {disturbance!r}; expected one of {DISTURBANCES}")
     if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
         raise ValueError(f"process_noise_floor must be finite and >= 0, got {process_noise_floor}")
+    if gamma is not None and filter_name != "ms-hinf":
+        raise ValueError(f"gamma applies to the 'ms-hinf' filter only, not {filter_name!r}")
     if filter_name == "ms-hinf" and disturbance != "seed000":
         raise ValueError("filter 'ms-hinf' needs the deterministic disturbance channel "
                          "y2 = C2 x + H w: use disturbance='seed000'")
@@ -145,8 +150,9 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         estimator = KalmanBucyFilter(plant, x0, P0, dt_s=dt_s, substeps=kalman_bucy_substeps)
     else:
         paper = MsHinfHelicopterScenario()
+        gamma = paper.gamma if gamma is None else gamma
         estimator = MeanSquareHInfFilter(model.A, model.B, C, plant.R, model.C2, model.H,
-                                         model.G, plant.Q, model.L, paper.gamma, paper.R, x0,
+                                         model.G, plant.Q, model.L, gamma, paper.R, x0,
                                          P0, dt_s, substeps="auto", noise_intensities=True)
         measurement_index = range(suite.dim)
 
@@ -176,6 +182,7 @@ def build_helicopter(filter_name: str = "kalman", controller: str = "lqr", *,
         "sensors": sensors,
         "disturbance": disturbance,
         "process_noise_scale": process_noise_scale,
+        "gamma": gamma,
         "params": dict(params or {}),
         "physics_dt_s": physics_dt_s,
         "control_dt_s": dt_s,
