@@ -148,7 +148,6 @@ def bench_scale(quick: bool) -> dict[str, object]:
     from bench_mc import bench_monte_carlo
 
     from testbed.batch import monte_carlo
-    from testbed.sweep import sweep
 
     out: dict[str, object] = dict(bench_monte_carlo())
     mshinf = monte_carlo("ms-hinf", runs=256, duration_s=20.0, seed=0, progress=False,
