@@ -21,6 +21,10 @@ _ENVS = {
     "testbed/Helicopter2DOF-v0": ("testbed.envs.helicopter:Helicopter2DOFEnv", 2000,
                                   "testbed.envs.helicopter_vector:Helicopter2DOFVectorEnv"),
     "testbed/VehicleRoll-v0": ("testbed.envs.vehicle_roll:VehicleRollEnv", 1000),
+    "testbed/PolynomialCubic-v0": ("testbed.envs.polynomial:PolynomialCubicEnv", 1400),
+    "testbed/NonlinearDiscrete-v0": ("testbed.envs.nonlinear_discrete:NonlinearDiscreteEnv",
+                                     200),
+    "testbed/UncertainLinear-v0": ("testbed.envs.uncertain_linear:UncertainLinearEnv", 1000),
 }
 ENV_IDS = tuple(_ENVS)
 

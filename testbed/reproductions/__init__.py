@@ -15,6 +15,11 @@ from typing import Any
 
 REPRODUCTIONS = {
     "ms-hinf-helicopter": "testbed.reproductions.ms_hinf_helicopter",
+    "polynomial-hinf": "testbed.reproductions.polynomial_hinf",
+    "lmi-hinf-vehicle-roll": "testbed.reproductions.lmi_hinf_vehicle_roll",
+    "nonlinear-discrete": "testbed.reproductions.nonlinear_discrete",
+    "variance-constrained-continuous": "testbed.reproductions.variance_constrained_continuous",
+    "variance-constrained-discrete": "testbed.reproductions.variance_constrained_discrete",
 }
 
 
