@@ -24,6 +24,7 @@ slope, so the linearization with gravity compensated by the input (``u_op`` from
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import mujoco
@@ -228,8 +229,15 @@ def gravity_voltage(params: HelicopterParams, pitch_rad: float | np.ndarray) -> 
         close to the constant ``u = [12.495, -3.835]`` V of seed-000's example.
     """
     torque = params.mass_kg * GRAVITY_M_S2 * params.com_m * np.cos(np.asarray(pitch_rad, float))
-    per_newton_metre = np.linalg.solve(params.torque_gains, np.array([1.0, 0.0]))
-    return torque[..., None] * per_newton_metre
+    return torque[..., None] * _volts_per_pitch_newton_metre(params)
+
+
+@functools.lru_cache(maxsize=32)
+def _volts_per_pitch_newton_metre(params: HelicopterParams) -> np.ndarray:
+    """Voltages giving 1 N m of pitch torque and no yaw torque, shape (2,), read-only."""
+    volts = np.linalg.solve(params.torque_gains, np.array([1.0, 0.0]))
+    volts.flags.writeable = False
+    return volts
 
 
 class HelicopterRig:
