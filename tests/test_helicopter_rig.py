@@ -123,7 +123,9 @@ def test_scaled_params_validation():
         HelicopterParams().scaled({"mas": 1.1})
     with pytest.raises(ValueError, match="mass_kg"):
         HelicopterParams().scaled({"mass_kg": float("nan")})
-    assert HelicopterParams().scaled({"mass_kg": 2.0}).mass_kg == pytest.approx(2 * 1.3872)
+    assert HelicopterParams().scaled({"mass_kg": 1.5}).mass_kg == pytest.approx(1.5 * 1.3872)
+    with pytest.raises(ValueError, match="pitch_inertia must exceed"):
+        HelicopterParams().scaled({"mass_kg": 2.0})  # m l^2 would exceed the inertia
 
 
 def test_paper_model_corrections():

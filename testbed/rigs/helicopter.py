@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from testbed.rigs.assets import model_path
+from testbed.rigs.params import scaled_copy
 
 GRAVITY_M_S2 = 9.81
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
@@ -95,24 +96,15 @@ class HelicopterParams:
         Parameters
         ----------
         scales : dict
-            ``{field_name: factor}``; factors must be finite and positive.
+            ``{field_name: factor}``; factors must be finite and non-negative.
 
         Raises
         ------
         ValueError
-            Unknown field name or a non-positive/non-finite factor.
+            Unknown field name, a bad factor, or an unphysical result (e.g. ``m l^2`` above
+            the pitch inertia), named in the message.
         """
-        names = {f.name for f in dataclasses.fields(self)}
-        changes = {}
-        for key, factor in scales.items():
-            if key not in names:
-                raise ValueError(f"unknown params key {key!r}; expected one of {sorted(names)}")
-            factor = float(factor)
-            if not np.isfinite(factor) or factor <= 0.0:
-                raise ValueError(f"params[{key!r}] must be a finite positive scale factor, "
-                                 f"got {factor}")
-            changes[key] = getattr(self, key) * factor
-        return dataclasses.replace(self, **changes)
+        return scaled_copy(self, scales)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""

@@ -49,6 +49,7 @@ import numpy as np
 
 from testbed.rigs.assets import model_path
 from testbed.rigs.helicopter import GRAVITY_M_S2
+from testbed.rigs.params import scaled_copy
 
 STATE_NAMES = ("roll", "roll_rate")
 ACTION_NAMES = ("a_y",)
@@ -102,23 +103,7 @@ class VehicleRollParams:
             Unknown field name, a negative/non-finite factor, or an unphysical result
             (named in the message).
         """
-        names = {f.name for f in dataclasses.fields(self)}
-        changes = {}
-        for key, factor in scales.items():
-            if key not in names:
-                raise ValueError(f"unknown params key {key!r}; expected one of {sorted(names)}")
-            try:
-                factor = float(factor)
-            except (TypeError, ValueError):
-                raise ValueError(f"params[{key!r}] must be a number (scale factor), "
-                                 f"got {factor!r}") from None
-            if not np.isfinite(factor) or factor < 0.0:
-                raise ValueError(f"params[{key!r}] must be a finite non-negative scale factor, "
-                                 f"got {factor}")
-            changes[key] = getattr(self, key) * factor
-        out = dataclasses.replace(self, **changes)
-        out.validate()
-        return out
+        return scaled_copy(self, scales)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""

@@ -1,0 +1,45 @@
+"""Shared helper of the rigs' parameter dataclasses: scaling for model-mismatch studies."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+import numpy as np
+
+P = TypeVar("P")
+
+
+def scaled_copy(params: P, scales: dict[str, Any]) -> P:
+    """Copy of a parameter dataclass with fields multiplied by factors, then validated.
+
+    Parameters
+    ----------
+    params : dataclass instance with a ``validate()`` method
+    scales : dict
+        ``{field_name: factor}``; factors must be finite and non-negative (0 only where the
+        parameter may vanish: ``validate()`` decides).
+
+    Raises
+    ------
+    ValueError
+        Unknown field name (the valid ones are listed), a factor that is not a finite
+        non-negative number, or an unphysical result (named by ``validate()``).
+    """
+    names = {f.name for f in dataclasses.fields(params)}
+    changes = {}
+    for key, factor in scales.items():
+        if key not in names:
+            raise ValueError(f"unknown params key {key!r}; expected one of {sorted(names)}")
+        try:
+            factor = float(factor)
+        except (TypeError, ValueError):
+            raise ValueError(f"params[{key!r}] must be a number (scale factor), "
+                             f"got {factor!r}") from None
+        if not np.isfinite(factor) or factor < 0.0:
+            raise ValueError(f"params[{key!r}] must be a finite non-negative scale factor, "
+                             f"got {factor}")
+        changes[key] = getattr(params, key) * factor
+    out = dataclasses.replace(params, **changes)
+    out.validate()
+    return out
