@@ -22,12 +22,17 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for xml in sorted((ROOT / "models").glob("*.xml")):
         assert f"testbed/models/{xml.name}" in names
+    for source in sorted((ROOT / "testbed").rglob("*.py")) + sorted(
+            (ROOT / "filters").rglob("*.py")):
+        assert source.relative_to(ROOT).as_posix() in names, source
     assert any(n.startswith("filters/") for n in names)
 
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet",
                     "--target", str(target), str(wheel)], check=True, capture_output=True)
-    code = ("import testbed.rigs.assets as a, mujoco;"
+    code = ("import importlib, pkgutil, testbed, filters, mujoco, testbed.rigs.assets as a;"
+            "[importlib.import_module(m.name) for pkg in (testbed, filters) for m in "
+            "pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')];"  # every module ships
             "p = a.model_path('helicopter_2dof.xml'); assert 'site' in str(p), p;"
             "print(mujoco.MjModel.from_xml_path(str(p)).nq)")
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True,

@@ -1,0 +1,250 @@
+"""Simulation of a polynomial plant ``dx/dt = f(x, t) + B w + E u`` (seed-001's class).
+
+A :class:`PolynomialPlant` wraps a :class:`~filters.polynomial_model.PolynomialModel`
+(coefficient tensors of degree <= 3, constant or functions of time) and integrates it with
+classical RK4 on a fixed step. Users define their own systems by building the model::
+
+    model = PolynomialModel(a1=..., a2=..., a3=lambda t: ..., B=..., C=..., D=..., L=...)
+    run = PolynomialPlant(model).simulate(x0, dt_s=1e-3, n_steps=1000, w=my_w)
+
+Disturbances: a deterministic ``w(t)`` (evaluated at the RK4 stage times, so smooth
+signals keep order 4) and/or white noise of intensity ``q`` (``w = sqrt(q) dW/dt``, one
+standard Wiener increment per substep added to the state as ``B sqrt(q) dW``: strong order 1
+for this additive noise). The observation is integrated along the state: the returned ``y``
+is the interval average ``(1/dt) int (C x + D w) dt`` an integrate-and-dump converter would
+deliver (for white noise its noise part is ``D sqrt(q) (W(t + dt) - W(t)) / dt``, the same
+increments the state saw, so ``D B^T != 0`` correlations are kept).
+
+Finite escape (Remark 2 of seed-001: an unstable cubic term escapes in finite time) is
+detected by an :class:`~filters.polynomial_model.EscapeTest` after every substep (a bound
+and a growth test; never NaN) and reported as
+:class:`~filters.errors.FiniteEscapeError` with ``quantity="state"``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from filters.errors import FiniteEscapeError
+from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
+
+SignalArg = Callable[[float], np.ndarray] | np.ndarray | None
+
+
+@dataclass
+class PlantRun:
+    """Result of :meth:`PolynomialPlant.simulate`, truncated at an escape.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (N + 1,)
+        Grid times, s (``N`` completed steps).
+    x : ndarray, shape (N + 1, n)
+        State at the grid times.
+    y : ndarray, shape (N, m)
+        Interval averages of the observation ``C x + D w`` (row ``k``: over
+        ``[t_k, t_k+1]``).
+    w : ndarray, shape (N, p)
+        Interval averages of the disturbance (deterministic part plus white noise).
+    escape : FiniteEscapeError or None
+        The escape that ended the run early (``quantity="state"``), or None.
+    """
+
+    t_s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    w: np.ndarray
+    escape: FiniteEscapeError | None = None
+
+
+def _signal(name: str, value: SignalArg, dim: int) -> Callable[[float], np.ndarray] | None:
+    """A callable ``t -> (dim,)`` from a callable, a constant vector or None (zero)."""
+    if value is None or dim == 0:
+        return None
+    if callable(value):
+        return value
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (dim,) or not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be a callable t_s -> ({dim},) or a finite array of "
+                         f"shape ({dim},), got {value!r}")
+    return lambda _t: arr
+
+
+class PolynomialPlant:
+    """A polynomial system integrated with RK4 on a fixed step.
+
+    Parameters
+    ----------
+    model : PolynomialModel
+        ``f``, ``B``, ``C``, ``D``, ``E`` (``L`` is not used by the plant).
+    escape : EscapeTest, optional
+        Finite-escape test of the state (default :class:`EscapeTest()`: bound 1e8, growth
+        +10 % per substep above 100).
+
+    Attributes
+    ----------
+    model : PolynomialModel
+    n, m, p, k : int
+        State, observation, disturbance and input dimensions.
+    """
+
+    def __init__(self, model: PolynomialModel, escape: EscapeTest | None = None) -> None:
+        if not isinstance(model, PolynomialModel):
+            raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
+        self.model = model
+        self.escape = escape or EscapeTest()
+        self.n, self.m, self.p, self.k = model.n, model.m, model.p, model.k
+        self._last: PolynomialCoefficients | None = None  # coefficients at the last time
+
+    def rhs(self, t: float, x: np.ndarray, w: np.ndarray | None,
+            u: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(dx/dt, y)`` at one point: ``f(x, t) + B w + E u`` and ``C x + D w``."""
+        cached = self._last
+        if cached is not None and cached.t == t:
+            c = cached
+        else:
+            c = self._last = self.model.at(t)
+        dx = c.f(x)
+        y = c.C @ x
+        if w is not None:
+            dx = dx + c.B @ w
+            y = y + c.D @ w
+        if u is not None and c.E is not None:
+            dx = dx + c.E @ u
+        return dx, y
+
+    def advance(self, x: np.ndarray, t_s: float, dt_s: float, substeps: int = 1, *,
+                w: Callable[[float], np.ndarray] | None = None, u: np.ndarray | None = None,
+                dW: np.ndarray | None = None, noise_intensity: np.ndarray | None = None,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Integrate one interval ``[t_s, t_s + dt_s]`` in ``substeps`` RK4 steps.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+        t_s : float
+        dt_s : float
+        substeps : int
+        w : callable ``t -> (p,)``, optional
+            Deterministic disturbance.
+        u : ndarray, shape (k,), optional
+            Input held over the interval.
+        dW : ndarray, shape (substeps, p), optional
+            Standard normal variates, one row per substep (white noise).
+        noise_intensity : ndarray, shape (p,), optional
+            White-noise intensity ``q`` of each disturbance component (with ``dW``).
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+            State at ``t_s + dt_s``.
+        y_avg : ndarray, shape (m,)
+            Interval average of ``C x + D w``.
+        w_avg : ndarray, shape (p,)
+            Interval average of ``w``.
+
+        Raises
+        ------
+        FiniteEscapeError
+            ``quantity="state"``, time = end of the failing substep.
+        """
+        p = self.p
+        h = dt_s / substeps
+        x = np.array(x, dtype=float)
+        y_int = np.zeros(self.m)
+        w_int = np.zeros(p)
+        q = self.escape.magnitude(x, 1)
+
+        def stage(t: float, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            ws = None if w is None else np.asarray(w(t), dtype=float)
+            dx, y = self.rhs(t, xs, ws, u)
+            return dx, y, (np.zeros(p) if ws is None else ws)
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            for i in range(substeps):
+                t = t_s + i * h
+                k1, y1, w1 = stage(t, x)
+                k2, y2, w2 = stage(t + h / 2, x + h / 2 * k1)
+                k3, y3, w3 = stage(t + h / 2, x + h / 2 * k2)
+                k4, y4, w4 = stage(t + h, x + h * k3)
+                x = x + h / 6 * (k1 + 2 * (k2 + k3) + k4)
+                y_int += h / 6 * (y1 + 2 * (y2 + y3) + y4)
+                w_int += h / 6 * (w1 + 2 * (w2 + w3) + w4)
+                if dW is not None:
+                    c = self.model.at(t + h)
+                    inc = np.sqrt(noise_intensity * h) * dW[i]  # int w dt over the substep
+                    x = x + c.B @ inc
+                    y_int += c.D @ inc
+                    w_int += inc
+                q = self.escape.check("state", q, x, time=t + h, step_s=h, core_ndim=1)
+        return x, y_int / dt_s, w_int / dt_s
+
+    def simulate(self, x0: np.ndarray, dt_s: float, n_steps: int, *, w: SignalArg = None,
+                 u: SignalArg = None, substeps: int = 1, t0: float = 0.0,
+                 rng: np.random.Generator | None = None,
+                 noise_intensity: float | np.ndarray | None = None) -> PlantRun:
+        """Integrate on a uniform grid; stops (without raising) at a finite escape.
+
+        Parameters
+        ----------
+        x0 : ndarray, shape (n,)
+        dt_s : float
+            Grid step (sample period of ``y``), s.
+        n_steps : int
+        w : callable ``t -> (p,)`` or ndarray, optional
+            Deterministic disturbance (default zero).
+        u : callable ``t -> (k,)`` or ndarray, optional
+            Input, held over each grid interval at its value at the interval start.
+        substeps : int
+            RK4 steps per grid interval.
+        t0 : float
+        rng : numpy.random.Generator, optional
+            Source of the white noise (``None``: no white noise).
+        noise_intensity : float or ndarray, shape (p,), optional
+            White-noise intensity ``q`` per disturbance component (default 1 with ``rng``).
+
+        Returns
+        -------
+        PlantRun
+            Arrays up to the last completed step; ``escape`` set if the state escaped.
+        """
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive step in s, got {dt_s}")
+        if int(n_steps) != n_steps or n_steps < 1:
+            raise ValueError(f"n_steps must be a positive integer, got {n_steps}")
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps}")
+        x = np.array(x0, dtype=float)
+        if x.shape != (self.n,) or not np.isfinite(x).all():
+            raise ValueError(f"x0 must be a finite array of shape ({self.n},), got {x0!r}")
+        w_fn = _signal("w", w, self.p)
+        u_fn = _signal("u", u, self.k)
+        q = None
+        if rng is not None:
+            q = np.broadcast_to(np.asarray(1.0 if noise_intensity is None else noise_intensity,
+                                           dtype=float), (self.p,)).copy()
+            if not np.all(np.isfinite(q)) or np.any(q < 0):
+                raise ValueError(f"noise_intensity must be finite and >= 0, got "
+                                 f"{noise_intensity!r}")
+        t = t0 + dt_s * np.arange(n_steps + 1)
+        xs = np.empty((n_steps + 1, self.n))
+        ys = np.empty((n_steps, self.m))
+        ws = np.empty((n_steps, self.p))
+        xs[0] = x
+        escape = None
+        done = n_steps
+        for k in range(n_steps):
+            uk = None if u_fn is None else np.asarray(u_fn(t[k]), dtype=float)
+            dW = None if rng is None else rng.standard_normal((substeps, self.p))
+            try:
+                x, ys[k], ws[k] = self.advance(x, t[k], dt_s, substeps, w=w_fn, u=uk, dW=dW,
+                                               noise_intensity=q)
+            except FiniteEscapeError as exc:
+                escape, done = exc, k
+                break
+            xs[k + 1] = x
+        return PlantRun(t_s=t[:done + 1], x=xs[:done + 1], y=ys[:done], w=ws[:done],
+                        escape=escape)
