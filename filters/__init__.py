@@ -13,14 +13,20 @@ Estimators (satisfy the :class:`Estimator` protocol)
     :class:`KalmanFilter` (``"kalman"``), :class:`KalmanBucyFilter` (``"kalman-bucy"``),
     :class:`MeanSquareHInfFilter` (seed-000, ``"ms-hinf"``),
     :class:`PolynomialHInfFilter`, :class:`NonOrthonormalPolynomialHInfFilter` and
-    :class:`LinearizedHInfFilter` (seed-001).
+    :class:`LinearizedHInfFilter` (seed-001), :class:`LinearFilter` (fixed gains
+    ``xhat' = G xhat + K y``, ``"linear-gain"``: the variance-constrained designs).
+Designs
+    :func:`design_parabolic` (seed-003, Theorem 1), :func:`design_discrete` (seed-004).
 Analysis
-    :mod:`filters.analysis` (noise-output ratio, norms, covariances, pole regions).
+    :mod:`filters.analysis`: noise-output ratio, :func:`hinf_norm` (Hamiltonian/symplectic
+    bisection), error covariances, pole regions, :func:`robust_filter_analysis` over
+    norm-bounded uncertainty (:class:`UncertainPlant`).
 Errors
     :class:`FilterError`, :class:`LossOfDefinitenessError`,
     :class:`FiniteEscapeError` and :func:`check_covariance`.
 """
 
+from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.errors import (
     FilterError,
@@ -37,8 +43,12 @@ from filters.hinf_polynomial import (
 from filters.kalman import KalmanBucyFilter, KalmanFilter
 from filters.models import DiscreteLinearSystem, LinearSystem
 from filters.polynomial_model import EscapeTest, PolynomialModel
+from filters.variance_constrained import LinearFilter, VarianceDesign
+from filters.variance_continuous import ParabolicDesignParameters, design_parabolic
+from filters.variance_discrete import DiscreteDesignParameters, design_discrete
 
 __all__ = [
+    "DiscreteDesignParameters",
     "DiscreteLinearSystem",
     "EscapeTest",
     "Estimator",
@@ -46,12 +56,20 @@ __all__ = [
     "FiniteEscapeError",
     "KalmanBucyFilter",
     "KalmanFilter",
+    "LinearFilter",
     "LinearSystem",
     "LinearizedHInfFilter",
     "LossOfDefinitenessError",
     "MeanSquareHInfFilter",
     "NonOrthonormalPolynomialHInfFilter",
+    "ParabolicDesignParameters",
     "PolynomialHInfFilter",
     "PolynomialModel",
+    "UncertainPlant",
+    "VarianceDesign",
     "check_covariance",
+    "design_discrete",
+    "design_parabolic",
+    "hinf_norm",
+    "robust_filter_analysis",
 ]

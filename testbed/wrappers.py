@@ -52,7 +52,9 @@ class FilterInLoop(gym.Wrapper):
         super().__init__(env)
         self.estimator = estimator
         self.input_transform = input_transform
-        self._prior = (np.array(estimator.x, copy=True), np.array(estimator.P, copy=True))
+        P = estimator.P  # None for estimators without a covariance
+        self._prior = (np.array(estimator.x, copy=True),
+                       None if P is None else np.array(P, copy=True))
         n = self._prior[0].shape[-1]
         self.observation_space = spaces.Box(-np.inf, np.inf, (n,), np.float64)
         inner = env.unwrapped

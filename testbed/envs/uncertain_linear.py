@@ -1,0 +1,212 @@
+"""``testbed/UncertainLinear-v0``: a linear plant with norm-bounded uncertainty (seed-003,
+seed-004) as a Gymnasium environment."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from filters.analysis import UncertainPlant
+from testbed.plants.uncertain_linear import UncertainLinearPlant, UncertainLinearSensors
+
+RESET_OPTION_KEYS = ("x0", "F")
+#: Bound of the (optional, normalized) input, clipped; scale it through ``B``.
+INPUT_LIMIT = 1.0
+#: Default sample period of a continuous-time scenario, s.
+CONTINUOUS_DT_S = 0.01
+
+
+def _scenario_model(name: str) -> UncertainPlant:
+    if name == "seed003":
+        from testbed.scenarios.seed003 import VarianceConstrainedContinuousScenario
+
+        return VarianceConstrainedContinuousScenario().plant
+    if name == "seed004":
+        from testbed.scenarios.seed004 import VarianceConstrainedDiscreteScenario
+
+        return VarianceConstrainedDiscreteScenario().plant
+    raise ValueError(f"scenario must be 'seed003' or 'seed004' (or pass plant=...), got "
+                     f"{name!r}")
+
+
+class UncertainLinearEnv(gym.Env):
+    """A linear plant with norm-bounded uncertainty ``[dA; dC] = [M1; M2] F N``, ``F^T F <= I``.
+
+    seed-003 (continuous, ``scenario="seed003"``) or seed-004 (discrete, ``"seed004"``), or
+    any :class:`~filters.analysis.UncertainPlant` (``plant=``)::
+
+        continuous: x' = (A + M1 F N) x + B u + D1 w,   y = (C + M2 F N) x + D2 w
+        discrete:   x(k+1) = (A + M1 F N) x(k) + B u(k) + D1 w(k),
+                    y(k) = (C + M2 F N) x(k) + D2 w(k)
+
+    ``w`` is white noise of unit intensity (continuous) or unit covariance (discrete), the same
+    in state and measurement. ``F`` is drawn per episode from the env's generator (entries
+    uniform in [-1, 1], scaled to spectral norm <= 1; uniform on [-1, 1] for a scalar ``F``)
+    unless fixed by the constructor or ``reset(options={"F": ...})``. Simulation:
+    :class:`~testbed.plants.uncertain_linear.UncertainLinearPlant` (exact for the continuous
+    plant: ``x`` and ``int y dt`` by Van Loan).
+
+    ## Action space
+
+    ``Box(-1, 1, (k,), float64)``: the normalized input ``u`` through ``B`` (default
+    ``B = 0``, shape (n, 1): the papers' plants have no input; the action then has no
+    effect). Values outside
+    are clipped (``info["action_clipped"]``); NaN, inf or a wrong shape raise ``ValueError``
+    and leave the state (and the generator) unchanged.
+
+    | Num | Action | Min | Max | Unit |
+    |-----|--------|-----|-----|------|
+    | 0..k-1 | input ``u`` (held over the step) | -1 | 1 | - (scaled by ``B``) |
+
+    ## Observation space
+
+    ``Box(-inf, inf, (p,), float64)``:
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0..p-1 | measurement ``y`` of the last step | plant units |
+
+    After a step ``k -> k+1`` the observation is the measurement that belongs to that step:
+    discrete ``y(k)`` (it shares ``w(k)`` with ``x(k+1)``, as in (1)-(2) of seed-004);
+    continuous the average of ``y(t)`` over the step (noise covariance ``D2 D2^T / dt``). A
+    filter ``xhat(k+1) = G xhat(k) + K y(k)`` stepped on it estimates ``info["state"] =
+    x(k+1)``, so :class:`~testbed.wrappers.FilterInLoop` with
+    :class:`~filters.variance_constrained.LinearFilter` is aligned. ``reset`` returns zeros
+    (no measurement yet).
+
+    ## Info
+
+    | key | content | unit |
+    |-----|---------|------|
+    | `state` | true ``x`` after the step, shape (n,) | plant units |
+    | `t` | time after the step | s |
+    | `disturbance` | noise draw of the step (see below) | - |
+    | `F` | the episode's uncertainty, shape (i, j) | - |
+    | `setpoint` | no reference: shape (0,) | |
+    | `action_applied` | clipped ``u``, shape (k,) | |
+    | `action_clipped` | bool, shape (k,) | |
+
+    ``disturbance`` is ``w(k)`` (shape (r,)) for a discrete plant; for a continuous plant it is
+    the standard normal ``xi`` of the exact step (``S xi`` is the noise of ``[x(k+1); y]``,
+    :class:`~testbed.plants.uncertain_linear.Transition`).
+
+    ## Reward
+
+    0 (an estimation testbed; there is nothing to control).
+
+    ## Episode end
+
+    Never terminates; truncated after ``max_episode_steps`` (registration default 1000).
+
+    ## Arguments
+
+    ``scenario`` (``"seed003"``, ``"seed004"``) or ``plant`` (an ``UncertainPlant``);
+    ``dt_s`` (continuous: sample period, default 0.01 s; discrete: time label, default 1);
+    ``F`` (fixed uncertainty, default None: drawn per episode); ``B`` (n, k) input matrix.
+
+    ``reset(seed=..., options={"x0": (n,), "F": scalar or (i, j)})``: ``x0`` defaults to 0;
+    ``F`` overrides the uncertainty for this episode. Unknown keys raise ``ValueError``.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 100}
+
+    def __init__(self, scenario: str = "seed003", plant: UncertainPlant | None = None,
+                 dt_s: float | None = None, F: Any = None, B: Any = None,
+                 render_mode: str | None = None):
+        if render_mode is not None:
+            raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
+        if plant is not None and not isinstance(plant, UncertainPlant):
+            raise ValueError(f"plant must be a filters.analysis.UncertainPlant, got "
+                             f"{type(plant).__name__}")
+        model = plant if plant is not None else _scenario_model(scenario)
+        if dt_s is None:
+            dt_s = 1.0 if model.discrete else CONTINUOUS_DT_S
+        if not (isinstance(dt_s, (int, float)) and np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive finite float (s), got {dt_s!r}")
+        self.model = model
+        self.plant = UncertainLinearPlant(model, float(dt_s), B)
+        self.dt_s = float(dt_s)
+        self._fixed_F = None if F is None else model.uncertainty(F)
+        self.sensors = UncertainLinearSensors(model)
+        n, p, k = model.n, model.p, self.plant.B.shape[1]
+        self.action_space = spaces.Box(-INPUT_LIMIT, INPUT_LIMIT, (k,), np.float64)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (p,), np.float64)
+        self.state_names = [f"x{i + 1}" for i in range(n)]
+        self.action_names = [f"u{i + 1} [-]" for i in range(k)]
+        self._x = np.zeros(n)
+        self._x0 = np.zeros(n)
+        self._F = np.zeros(model.f_shape)
+        self._steps = 0
+
+    @property
+    def t_s(self) -> float:
+        """Time in s (steps times ``dt_s``)."""
+        return self._steps * self.dt_s
+
+    @property
+    def F(self) -> np.ndarray:
+        """The current episode's uncertainty, shape (i, j)."""
+        return self._F.copy()
+
+    @property
+    def x0(self) -> np.ndarray:
+        """True initial state of the current episode, shape (n,)."""
+        return self._x0.copy()
+
+    def _info(self, xi: np.ndarray, u: np.ndarray, clipped: np.ndarray) -> dict[str, Any]:
+        return {"state": self._x.copy(), "t": self.t_s, "disturbance": xi, "F": self._F.copy(),
+                "setpoint": np.zeros(0), "action_applied": u, "action_clipped": clipped}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Reset the plant; see the class docstring for ``options``."""
+        options = dict(options or {})
+        unknown = set(options) - set(RESET_OPTION_KEYS)
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
+                             f"{RESET_OPTION_KEYS}")
+        n = self.model.n
+        x0 = np.zeros(n)
+        if options.get("x0") is not None:
+            x0 = np.asarray(options["x0"], dtype=float)
+            if x0.shape != (n,) or not np.isfinite(x0).all():
+                raise ValueError(f"options['x0'] must be a finite array of shape ({n},), got "
+                                 f"{options['x0']!r}")
+        F_opt = None
+        if options.get("F") is not None:
+            try:
+                F_opt = self.model.uncertainty(options["F"])
+            except ValueError as exc:
+                raise ValueError(f"options['F']: {exc}") from None
+        super().reset(seed=seed)
+        if F_opt is not None:
+            self._F = F_opt
+        elif self._fixed_F is not None:
+            self._F = self._fixed_F.copy()
+        else:
+            self._F = self.plant.sample_F(self.np_random)
+        self._x = x0.copy()
+        self._x0 = x0.copy()
+        self._steps = 0
+        k = self.plant.B.shape[1]
+        r = self.plant.transition(self._F).S.shape[1]
+        return np.zeros(self.model.p), self._info(np.zeros(r), np.zeros(k), np.zeros(k, bool))
+
+    def step(self, action):
+        """Advance one sample; see the class docstring."""
+        k = self.plant.B.shape[1]
+        try:
+            u = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be numeric with shape ({k},), got {action!r}") from None
+        if u.shape != (k,):
+            raise ValueError(f"action must have shape ({k},), got shape {u.shape}")
+        if not np.isfinite(u).all():
+            raise ValueError(f"action must be finite (no NaN/inf), got {u}")
+        uc = u.clip(-INPUT_LIMIT, INPUT_LIMIT)
+        x, y, xi = self.plant.step(self._x, self._F, self.np_random, uc)
+        self._x = x
+        self._steps += 1
+        return y, 0.0, False, False, self._info(xi, uc, uc != u)

@@ -1,0 +1,261 @@
+"""Simulation of linear plants with norm-bounded uncertainty (seed-003, seed-004).
+
+The model is a :class:`filters.analysis.UncertainPlant`::
+
+    continuous: x' = (A + M1 F N) x + B u + D1 w,       y = (C + M2 F N) x + D2 w
+    discrete:   x(k+1) = (A + M1 F N) x(k) + B u(k) + D1 w(k),   y(k) = (C + M2 F N) x(k) + D2 w(k)
+
+with ``F^T F <= I`` fixed over a run and one white noise ``w`` (unit intensity, or unit
+covariance per sample) driving state and measurement. ``B`` is an optional input (zero in
+the papers).
+
+Sampling (row ``k`` of a run pairs the measurement with the step ``k -> k + 1``)
+--------------------------------------------------------------------------------
+* discrete: ``y[k] = y(k)``, drawn with the same ``w(k)`` that drives ``x(k+1)``;
+* continuous: ``y[k]`` is the average of ``y(t)`` over ``[t_k, t_k + dt]`` (integrate-and-dump;
+  its noise has covariance ``D2 D2^T / dt``). ``x`` and ``int y dt`` are integrated *exactly*
+  (Van Loan: one Gaussian draw per step for the joint increment), so the only approximation
+  in the testbed is the filter's own sampling.
+
+A filter ``xhat(k+1) = G xhat(k) + K y[k]`` (discrete) or its exact sampled version
+(:class:`filters.variance_constrained.LinearFilter`) then estimates ``x(k+1)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+from filters.analysis import UncertainPlant
+
+
+@dataclass(frozen=True)
+class Transition:
+    """One sampling step of the plant for a fixed ``F``.
+
+    Attributes
+    ----------
+    Phi : ndarray, shape (n + p, n)
+        Maps ``x(k)`` to ``[x(k+1); y[k]]`` (mean part).
+    Gu : ndarray, shape (n + p, k)
+        Maps ``u(k)`` (held over the step) to ``[x(k+1); y[k]]``.
+    S : ndarray, shape (n + p, r_eff)
+        Noise factor: ``[x(k+1); y[k]]`` gets ``S xi``, ``xi ~ N(0, I)``. Discrete:
+        ``S = [D1; D2]`` and ``xi = w(k)``; continuous: a factor of the Van Loan covariance.
+    noise_cov : ndarray, shape (n + p, n + p)
+        ``S S^T``.
+    """
+
+    Phi: np.ndarray
+    Gu: np.ndarray
+    S: np.ndarray
+    noise_cov: np.ndarray
+
+
+@dataclass(frozen=True)
+class UncertainLinearSensors:
+    """The measurement ``y`` of an uncertain linear plant, for environments and designs.
+
+    Attributes
+    ----------
+    model : UncertainPlant
+    """
+
+    model: UncertainPlant
+
+    @property
+    def dim(self) -> int:
+        """Number of measurement channels ``p``."""
+        return self.model.p
+
+    @property
+    def names(self) -> list[str]:
+        """``["y1", ..., "yp"]``."""
+        return [f"y{i + 1}" for i in range(self.model.p)]
+
+    @property
+    def measured_state_index(self) -> list[int | None]:
+        """The state a channel measures directly (a unit row of ``C``), else None."""
+        out: list[int | None] = []
+        for row in self.model.C:
+            nz = np.flatnonzero(row)
+            out.append(int(nz[0]) if nz.size == 1 and row[nz[0]] == 1.0 else None)
+        return out
+
+    def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nominal ``C`` and the per-sample noise covariance of ``y`` (the ``D2`` part).
+
+        Returns
+        -------
+        C : ndarray, shape (p, n)
+        R : ndarray, shape (p, p)
+            ``D2 D2^T`` (discrete) or ``D2 D2^T / dt_s`` (continuous, interval average).
+        """
+        R = self.model.D2 @ self.model.D2.T
+        return self.model.C.copy(), R if self.model.discrete else R / dt_s
+
+
+def _noise_factor(Q: np.ndarray) -> np.ndarray:
+    """``S`` with ``S S^T = Q`` for a symmetric PSD (possibly singular) ``Q``."""
+    w, V = np.linalg.eigh(0.5 * (Q + Q.T))
+    keep = w > 1e-14 * max(float(w.max()), 1e-300)
+    return V[:, keep] * np.sqrt(w[keep])
+
+
+class UncertainLinearPlant:
+    """Sampled simulation of an :class:`~filters.analysis.UncertainPlant`.
+
+    Parameters
+    ----------
+    model : UncertainPlant
+    dt_s : float
+        Sample period in s (continuous plants); for a discrete plant it only labels time
+        (default 1.0).
+    B : ndarray, shape (n, k), optional
+        Input matrix (default zeros (n, 1): the papers' plants have no input).
+
+    Raises
+    ------
+    ValueError
+        On a non-positive ``dt_s`` or a ``B`` of the wrong shape.
+    """
+
+    def __init__(self, model: UncertainPlant, dt_s: float = 1.0,
+                 B: np.ndarray | None = None) -> None:
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive finite float (s), got {dt_s!r}")
+        self.model = model
+        self.dt_s = float(dt_s)
+        n = model.n
+        B_ = np.zeros((n, 1)) if B is None else np.asarray(B, dtype=float)
+        if B_.ndim != 2 or B_.shape[0] != n or not np.isfinite(B_).all():
+            raise ValueError(f"B must be a finite matrix with shape ({n}, k), got {B_.shape}")
+        self.B = B_
+        self._cache: dict[bytes, Transition] = {}
+
+    @property
+    def discrete(self) -> bool:
+        return self.model.discrete
+
+    def sample_F(self, rng: np.random.Generator) -> np.ndarray:
+        """A random admissible ``F``: entries uniform in ``[-1, 1]``, scaled to ``||F||_2 <= 1``.
+
+        For a scalar ``F`` this is uniform on ``[-1, 1]``.
+
+        Returns
+        -------
+        ndarray, shape (i, j)
+        """
+        F = rng.uniform(-1.0, 1.0, self.model.f_shape)
+        norm = np.linalg.norm(F, 2) if F.size else 0.0
+        return F / norm if norm > 1.0 else F
+
+    def transition(self, F: np.ndarray | float | None) -> Transition:
+        """The sampling step for ``F`` (cached per ``F``)."""
+        Fm = self.model.uncertainty(F)
+        key = Fm.tobytes()
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        m = self.model
+        A_F, C_F = m.perturbed(Fm)
+        n, p, k = m.n, m.p, self.B.shape[1]
+        if m.discrete:
+            Phi = np.vstack([A_F, C_F])
+            Gu = np.vstack([self.B, np.zeros((p, k))])
+            Dz = np.vstack([m.D1, m.D2])
+            Q = Dz @ Dz.T
+        else:
+            dt = self.dt_s
+            nz = n + p
+            Az = np.zeros((nz, nz))
+            Az[:n, :n] = A_F
+            Az[n:, :n] = C_F
+            Dz = np.vstack([m.D1, m.D2])
+            # drift and input: exp([[Az, Bz], [0, 0]] dt)
+            Bz = np.vstack([self.B, np.zeros((p, k))])
+            big = np.zeros((nz + k, nz + k))
+            big[:nz, :nz] = Az
+            big[:nz, nz:] = Bz
+            E = expm(big * dt)
+            Phi_z, Gu = E[:nz, :nz], E[:nz, nz:]
+            # noise covariance by Van Loan
+            vl = np.zeros((2 * nz, 2 * nz))
+            vl[:nz, :nz] = -Az
+            vl[:nz, nz:] = Dz @ Dz.T
+            vl[nz:, nz:] = Az.T
+            V = expm(vl * dt)
+            Q = V[nz:, nz:].T @ V[:nz, nz:]
+            # rows n: are int y dt over the step: divide by dt for the average
+            scale = np.concatenate([np.ones(n), np.full(p, 1.0 / dt)])
+            Phi = Phi_z[:, :n] * scale[:, None]
+            Gu = Gu * scale[:, None]
+            Q = Q * np.outer(scale, scale)
+        Q = 0.5 * (Q + Q.T)
+        S = Dz if m.discrete else _noise_factor(Q)  # discrete: xi is w(k) itself
+        out = Transition(Phi=Phi, Gu=Gu, S=S, noise_cov=Q)
+        self._cache[key] = out
+        return out
+
+    def step(self, x: np.ndarray, F: np.ndarray | float | None, rng: np.random.Generator,
+             u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One step for one plant or a batch.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,) or (N, n)
+        F : the run's uncertainty
+        rng : numpy.random.Generator
+        u : ndarray, shape (k,) or (N, k), optional
+
+        Returns
+        -------
+        x_next : ndarray, shape like ``x``
+        y : ndarray, shape (p,) or (N, p)
+            The measurement of this step (see the module docstring).
+        xi : ndarray, shape (r_eff,) or (N, r_eff)
+            The standard normal draw (``S xi`` is the noise of ``[x_next; y]``).
+        """
+        tr = self.transition(F)
+        n = self.model.n
+        xi = rng.standard_normal((*x.shape[:-1], tr.S.shape[1]))
+        z = x @ tr.Phi.T + xi @ tr.S.T
+        if u is not None:
+            z = z + u @ tr.Gu.T
+        return z[..., :n], z[..., n:], xi
+
+    def simulate(self, F: np.ndarray | float | None, x0: np.ndarray, n_steps: int,
+                 rng: np.random.Generator, u: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A run of ``n_steps`` steps for one plant or a batch of independent plants.
+
+        Parameters
+        ----------
+        F : the uncertainty of the run (shared by the batch)
+        x0 : ndarray, shape (n,) or (N, n)
+        n_steps : int
+        rng : numpy.random.Generator
+        u : ndarray, shape (n_steps, k) or (n_steps, N, k), optional
+
+        Returns
+        -------
+        t_s : ndarray, shape (n_steps + 1,)
+        x : ndarray, shape (n_steps + 1, n) or (n_steps + 1, N, n)
+        y : ndarray, shape (n_steps, p) or (n_steps, N, p)
+            ``y[k]`` is the measurement of the step ``k -> k + 1``.
+        """
+        if int(n_steps) != n_steps or n_steps < 1:
+            raise ValueError(f"n_steps must be a positive integer, got {n_steps}")
+        x = np.array(x0, dtype=float)
+        if x.shape[-1] != self.model.n or x.ndim > 2 or not np.isfinite(x).all():
+            raise ValueError(f"x0 must be finite with shape ({self.model.n},) or (N, "
+                             f"{self.model.n}), got {x.shape}")
+        xs = np.empty((n_steps + 1, *x.shape))
+        ys = np.empty((n_steps, *x.shape[:-1], self.model.p))
+        xs[0] = x
+        for k in range(n_steps):
+            x, ys[k], _ = self.step(x, F, rng, None if u is None else u[k])
+            xs[k + 1] = x
+        return np.arange(n_steps + 1) * self.dt_s, xs, ys
