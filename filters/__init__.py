@@ -16,7 +16,9 @@ Estimators (satisfy the :class:`Estimator` protocol)
     :class:`LinearizedHInfFilter` (seed-001), :class:`LinearFilter` (fixed gains
     ``xhat' = G xhat + K y``, ``"linear-gain"``: the variance-constrained designs).
 Designs
-    :func:`design_parabolic` (seed-003, Theorem 1), :func:`design_discrete` (seed-004).
+    :func:`design_lmi_hinf` / :func:`minimal_gamma` (seed-002, Theorem 4 LMI (48) with
+    cvxpy; filter (45) as :class:`LMIHInfFilter`, ``"lmi-hinf"``), :func:`design_parabolic`
+    (seed-003, Theorem 1), :func:`design_discrete` (seed-004).
 Analysis
     :mod:`filters.analysis`: noise-output ratio, :func:`hinf_norm` (Hamiltonian/symplectic
     bisection), error covariances, pole regions, :func:`robust_filter_analysis` over
@@ -41,6 +43,17 @@ from filters.hinf_polynomial import (
     PolynomialHInfFilter,
 )
 from filters.kalman import KalmanBucyFilter, KalmanFilter
+from filters.lmi_hinf import (
+    DesignCheck,
+    GammaSearch,
+    LMIHInfDesign,
+    LMIHInfFilter,
+    StochasticLinearSystem,
+    certify_gain,
+    check_design,
+    design_lmi_hinf,
+    minimal_gamma,
+)
 from filters.models import DiscreteLinearSystem, LinearSystem
 from filters.polynomial_model import EscapeTest, PolynomialModel
 from filters.variance_constrained import LinearFilter, VarianceDesign
@@ -48,14 +61,18 @@ from filters.variance_continuous import ParabolicDesignParameters, design_parabo
 from filters.variance_discrete import DiscreteDesignParameters, design_discrete
 
 __all__ = [
+    "DesignCheck",
     "DiscreteDesignParameters",
     "DiscreteLinearSystem",
     "EscapeTest",
     "Estimator",
     "FilterError",
     "FiniteEscapeError",
+    "GammaSearch",
     "KalmanBucyFilter",
     "KalmanFilter",
+    "LMIHInfDesign",
+    "LMIHInfFilter",
     "LinearFilter",
     "LinearSystem",
     "LinearizedHInfFilter",
@@ -65,11 +82,16 @@ __all__ = [
     "ParabolicDesignParameters",
     "PolynomialHInfFilter",
     "PolynomialModel",
+    "StochasticLinearSystem",
     "UncertainPlant",
     "VarianceDesign",
+    "certify_gain",
     "check_covariance",
+    "check_design",
     "design_discrete",
+    "design_lmi_hinf",
     "design_parabolic",
     "hinf_norm",
+    "minimal_gamma",
     "robust_filter_analysis",
 ]

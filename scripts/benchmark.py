@@ -22,7 +22,9 @@ Measured (median of ``--repeats`` timed blocks, after a warm-up):
   ``mc_traj_steps_per_s``, ``mc_mshinf_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.4),
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
   scale: 1000 runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a 16-point
-  sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long ones.
+  sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long ones;
+- LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of seed-002's LMI (48) for
+  Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
 Never used as a timed test: numbers depend on the machine; ratios much less so.
 """
@@ -206,6 +208,12 @@ def main(argv: list[str] | None = None) -> int:
     targets = {"env_overhead_ratio <= 2.0": results["env_overhead_ratio"] <= 2.0,
                "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0,
                "mshinf_vs_kf <= 2.0": results["mshinf_vs_kf"] <= 2.0}
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_lmi import bench_lmi
+
+    results.update(bench_lmi())
+    targets["lmi_solve_s < 0.1"] = results["lmi_solve_s"] < 0.1
+    targets["gamma_bisection_s < 2"] = results["gamma_bisection_s"] < 2.0
     if not args.no_mc:
         results.update(bench_scale(args.quick))
         targets["mc_vs_raw >= 0.4"] = results["mc_vs_raw"] >= 0.4

@@ -21,6 +21,7 @@ from testbed.experiment import CONTROLLERS, DISTURBANCES, FILTERS, build_helicop
 from testbed.io import write_json
 from testbed.manoeuvres import MANOEUVRES
 from testbed.sensors import SENSOR_SUITES
+from testbed.vehicle_experiment import FILTERS as VEHICLE_FILTERS
 from testbed.vehicle_sensors import VEHICLE_SENSOR_SUITES
 
 RIGS = ("helicopter", "vehicle-roll")
@@ -50,7 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     run.add_argument("rig", choices=RIGS)
-    run.add_argument("--filter", default="kalman", choices=FILTERS)
+    run.add_argument("--filter", default="kalman", choices=sorted(set(FILTERS) | set(
+        VEHICLE_FILTERS)), help=f"helicopter: {', '.join(FILTERS)}; vehicle-roll: "
+        f"{', '.join(VEHICLE_FILTERS)}")
     run.add_argument("--controller", default="lqr", choices=CONTROLLERS)
     run.add_argument("--duration", type=_positive, default=20.0, help="simulated seconds")
     run.add_argument("--seed", type=int, default=0)

@@ -56,7 +56,7 @@ from testbed.experiment import Experiment
 from testbed.rigs.vehicle_roll import VehicleRollParams, paper_model, physical_model
 from testbed.wrappers import FilterInLoop
 
-FILTERS = ("kalman", "kalman-bucy")
+FILTERS = ("kalman", "kalman-bucy", "lmi-hinf")
 
 
 def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
@@ -149,11 +149,17 @@ def build_vehicle_roll(filter_name: str = "kalman", *,
     plant = LinearSystem(A=A, B=B, C=C, Q=Q, R=R_sample * dt_s, D=D)
     x0 = np.zeros(2)
     P0 = np.diag(np.deg2rad([0.5, 1.0]) ** 2) if P0 is None else np.asarray(P0, dtype=float)
+    design_meta: dict[str, Any] = {}
     if filter_name == "kalman":
         discrete: DiscreteLinearSystem = plant.discretize(dt_s)
         estimator = KalmanFilter(discrete, x0, P0)
-    else:
+    elif filter_name == "kalman-bucy":
         estimator = KalmanBucyFilter(plant, x0, P0, dt_s=dt_s, substeps=kalman_bucy_substeps)
+    else:  # seed-002 Theorem 4 design on the physical model; the known a_y is its input
+        from testbed.scenarios.seed002 import vehicle_lmi_estimator
+
+        estimator, design_meta = vehicle_lmi_estimator(env.sensors, dt_s, params=nominal,
+                                                       a_y_std=a_y_std)
     wrapped = FilterInLoop(env, estimator, measurement_index=range(C.shape[0]),
                            output_matrix=paper_model().M)
 
@@ -179,4 +185,6 @@ def build_vehicle_roll(filter_name: str = "kalman", *,
         "physics_dt_s": physics_dt_s,
         "control_dt_s": dt_s,
     }
+    if design_meta:
+        meta["lmi_design"] = design_meta
     return Experiment(wrapped, policy, reset_policy, meta)

@@ -94,6 +94,9 @@ class FilterInLoop(gym.Wrapper):
                              "'x0' and/or 'P0'")
         y, info = self.env.reset(seed=seed, options=options or None)
         self.estimator.reset(prior.get("x0", self._prior[0]), prior.get("P0", self._prior[1]))
+        prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
+        if prime is not None:
+            prime(y if self._index is None else y[self._index])
         self._metrics.reset(info["state"])
         return np.array(self.estimator.x, copy=True), self._augment(info, y)
 

@@ -1,0 +1,363 @@
+"""seed-002 Examples 5.1 and 5.2 as data: systems, signals, printed values, run settings.
+
+Example 5.2 (vehicle roll, Theorem 4) in the names of :class:`filters.lmi_hinf.
+StochasticLinearSystem` (paper (44) letters in brackets)::
+
+    x_{k+1} = A x + B v + A_w x w        (52): A, B, C
+    y_k     = C_y x + D_y v              (52): H, L   [(44): K, L]
+    z_k     = C_z x                      (52): M      [(44): G]
+
+Two versions:
+
+- :func:`paper_system`: (52) verbatim (:func:`testbed.rigs.vehicle_roll.paper_model`, the
+  forward-Euler model without ``g`` in ``A[1, 0]``).
+- :func:`rig_system`: the physically consistent model of the MuJoCo rig driven by the
+  ``paper-decay`` manoeuvre (``a_y = v_k``, m/s^2) and measured by the ``paper`` suite
+  (``y = H x + L v``): exact zero-order-hold discretization of the physical linearization
+  (with ``g``), ``A = expm(A_c T)``, ``B = int_0^T expm(A_c s) ds B_c``; the damping noise
+  ``C_R + D_n w_k`` held over the step gives ``A_w``, ``B_w`` as ``D_n`` times the derivative
+  of ``(A, B)`` with respect to ``C_R`` (Frechet derivative of the matrix exponential).
+
+:func:`vehicle_lmi_estimator` designs the filter for the rig in the loop with any vehicle
+sensor suite and a known lateral acceleration (the CLI's ``--filter lmi-hinf``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import expm_frechet
+
+from filters.lmi_hinf import (
+    DEFAULT_MARGIN,
+    LMIHInfDesign,
+    LMIHInfFilter,
+    StochasticLinearSystem,
+    design_lmi_hinf,
+    minimal_gamma,
+)
+from testbed.rigs.vehicle_roll import (
+    PAPER_PERIOD_S,
+    VehicleRollParams,
+    paper_disturbance,
+    paper_model,
+    physical_model,
+)
+
+#: Printed solution of (48) and the printed gain (Example 5.2).
+PAPER_P1 = np.array([[0.0114, 0.0002], [0.0002, 0.0002]])
+PAPER_P2 = np.array([[7.5939, 0.1379], [0.1379, 0.0029]])
+PAPER_P_K = np.array([[-6.3529, 2.8009], [-0.1137, 0.0503]])
+PAPER_K_HAT = np.array([[-0.9194, 0.3965], [4.5617, -1.5241]])
+
+
+def paper_system(params: VehicleRollParams | None = None) -> StochasticLinearSystem:
+    """(52) as the system (44): ``A, B, C_y = H, C_z = M, A_w = C, D_y = L`` (no ``B_w``, ``D_z``).
+
+    Returns
+    -------
+    StochasticLinearSystem
+        n = 2, n_v = 1, n_y = 2, n_z = 1.
+    """
+    m = paper_model(params)
+    return StochasticLinearSystem(A=m.A, B=m.B, C_y=m.H, C_z=m.M, A_w=m.C, D_y=m.L)
+
+
+def _zoh_with_damping_derivative(params: VehicleRollParams, dt_s: float
+                                 ) -> tuple[np.ndarray, ...]:
+    """``(A_d, B_d, dA_d/dC_R, dB_d/dC_R)`` of the physical model's exact ZOH discretization."""
+    A_c, B_c = physical_model(params)
+    n, k = B_c.shape
+    M = np.zeros((n + k, n + k))
+    M[:n, :n] = A_c
+    M[:n, n:] = B_c
+    E = np.zeros_like(M)
+    E[1, 1] = -1.0 / params.roll_inertia  # d A_c / d C_R
+    expM, dexpM = expm_frechet(M * dt_s, E * dt_s)
+    return expM[:n, :n], expM[:n, n:], dexpM[:n, :n], dexpM[:n, n:]
+
+
+def rig_system(params: VehicleRollParams | None = None,
+               dt_s: float = PAPER_PERIOD_S) -> StochasticLinearSystem:
+    """The MuJoCo rig with the ``paper-decay`` manoeuvre and the ``paper`` suite, as (44).
+
+    Parameters
+    ----------
+    params : VehicleRollParams, optional
+        Physical parameters (default Table 1).
+    dt_s : float
+        Control period, s.
+
+    Returns
+    -------
+    StochasticLinearSystem
+        ``A = expm(A_c T)``, ``B = ZOH(B_c)`` (rad, rad/s per m/s^2 of ``v = a_y``),
+        ``A_w = D_n dA/dC_R``, ``B_w = D_n dB/dC_R``, ``C_y = H``, ``D_y = L``, ``C_z = [1, 0]``.
+    """
+    p = params or VehicleRollParams()
+    A, B, dA, dB = _zoh_with_damping_derivative(p, dt_s)
+    m = paper_model(p)
+    return StochasticLinearSystem(A=A, B=B, C_y=m.H, C_z=m.M, A_w=p.damping_noise * dA,
+                                  B_w=p.damping_noise * dB, D_y=m.L)
+
+
+def identify_rig_step(params: VehicleRollParams | None = None, dt_s: float = PAPER_PERIOD_S,
+                      physics_dt_s: float = 0.001, eps: float = 1e-6
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The MuJoCo rig's one-control-step map ``x+ = A x + B a_y`` by central differences.
+
+    Steps :class:`~testbed.rigs.vehicle_roll.VehicleRollRig` (nominal damping, ``w = 0``)
+    from perturbed states and inputs, so the result includes MuJoCo's integrator
+    (``implicitfast`` at ``physics_dt_s``). Compare with :func:`rig_system` (exact ZOH).
+
+    Returns
+    -------
+    A : ndarray, shape (2, 2)
+    B : ndarray, shape (2, 1)
+    """
+    import mujoco
+
+    from testbed.rigs.vehicle_roll import VehicleRollRig
+
+    rig = VehicleRollRig(params, physics_dt_s=physics_dt_s)
+    nstep = int(round(dt_s / physics_dt_s))
+
+    def f(x: np.ndarray, a_y: float) -> np.ndarray:
+        mujoco.mj_resetData(rig.model, rig.data)
+        rig.set_damping_noise(0.0)
+        rig.set_lateral_acceleration(a_y)
+        rig.set_state(x)
+        mujoco.mj_step(rig.model, rig.data, nstep=nstep)
+        return rig.get_state()
+
+    A = np.zeros((2, 2))
+    for i in range(2):
+        dx = np.zeros(2)
+        dx[i] = eps
+        A[:, i] = (f(dx, 0.0) - f(-dx, 0.0)) / (2 * eps)
+    B = ((f(np.zeros(2), eps) - f(np.zeros(2), -eps)) / (2 * eps))[:, None]
+    return A, B
+
+
+@dataclass(frozen=True)
+class VehicleRollLMIScenario:
+    """Example 5.2's run settings (printed values where the paper gives them).
+
+    Attributes
+    ----------
+    x0 : ndarray, shape (2,)
+        ``[0.1, 1]`` (rad, rad/s on the rig): the paper's initial state.
+    xhat0 : ndarray, shape (2,)
+        ``[0, 0]``, the paper's initial estimate.
+    runs : int
+        100 Monte-Carlo runs, as in the paper.
+    horizon_s : float
+        2 s (200 steps); the paper does not state its horizon. By then the sums are within
+        1e-5 of their limits (slowest error pole: 0.971, the rig design; 0.943 on (52)).
+    dt_s : float
+        ``T = 0.01`` s.
+    gamma_factor : float
+        Neither example states gamma: the filters are evaluated at
+        ``gamma_used = gamma_factor * gamma_min``.
+    margin : float
+        Relative strictness margin of (48) (:func:`filters.lmi_hinf.balancing`).
+    rtol : float
+        Relative tolerance of the gamma bisection.
+    """
+
+    x0: np.ndarray = field(default_factory=lambda: np.array([0.1, 1.0]))
+    xhat0: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    runs: int = 100
+    horizon_s: float = 2.0
+    dt_s: float = PAPER_PERIOD_S
+    gamma_factor: float = 1.1
+    margin: float = DEFAULT_MARGIN
+    rtol: float = 1e-3
+
+    @staticmethod
+    def v(k: np.ndarray | int) -> np.ndarray | float:
+        """``v_k = 0.01 * 0.9^k``."""
+        return paper_disturbance(k)
+
+
+@dataclass(frozen=True)
+class NonlinearDiscreteScenario:
+    """Example 5.1's run settings. The paper gives neither ``x0`` nor ``gamma``.
+
+    Attributes
+    ----------
+    x0 : ndarray, shape (2,)
+        ``[1, 1]`` (with ``x0 = 0`` the state stays 0 and every sum is 0).
+    gamma : float
+        2.0: just above the smallest gamma (1.84) for which the corrected (35) holds on the
+        default grid, so a violation of Corollary 3 is (36)'s, which does not involve gamma.
+    runs : int
+        1000, as in the paper.
+    steps : int
+        200 (the environment's episode length; the paper's horizon is not stated).
+    grid_halfwidth, grid_points : float, int
+        Corollary 3 is checked on ``[-2, 2]^4`` in ``(x, xhat)`` with 21 points per axis.
+    """
+
+    x0: np.ndarray = field(default_factory=lambda: np.array([1.0, 1.0]))
+    gamma: float = 2.0
+    runs: int = 1000
+    steps: int = 200
+    grid_halfwidth: float = 2.0
+    grid_points: int = 21
+
+
+# ----------------------------------------------------------------- CLI helper
+def vehicle_design_system(sensors: Any, dt_s: float, params: VehicleRollParams | None = None,
+                          a_y_std: float = 0.1) -> tuple[StochasticLinearSystem, np.ndarray,
+                                                         np.ndarray]:
+    """The design system of the rig in the loop with a known lateral acceleration.
+
+    The applied ``a_y`` is a known input (``B_u``, feedthrough ``D_u`` from the suite). The
+    H-infinity disturbance ``v`` collects, each scaled to unit size: the ``a_y`` error
+    (``a_y_std`` m/s^2 per step, through ``B_u``), the suite's white noise per channel (its
+    ``linear_model`` ``R``: standard deviations on the diagonal), and for the ``paper`` suite
+    the paper's ``v`` through ``L`` (amplitude 0.01).
+
+    Parameters
+    ----------
+    sensors : vehicle sensor suite
+        ``ImuSuite`` or ``PaperRollSuite`` (``linear_model``, ``feedthrough_matrix``).
+    dt_s : float
+        Control period, s.
+    params : VehicleRollParams, optional
+        The designer's parameters (nominal by default).
+    a_y_std : float
+        Size of the ``a_y`` error, m/s^2.
+
+    Returns
+    -------
+    system : StochasticLinearSystem
+    input_matrix : ndarray, shape (2, 1)
+        ``B_u`` (ZOH of the physical ``B``).
+    feedthrough : ndarray, shape (n_y, 1)
+    """
+    p = params or VehicleRollParams()
+    A, B, dA, dB = _zoh_with_damping_derivative(p, dt_s)
+    C, R = sensors.linear_model(dt_s)
+    D_u = sensors.feedthrough_matrix()
+    m = C.shape[0]
+    std = np.sqrt(np.clip(np.diag(R), 0.0, None))
+    cols_B = [B[:, 0] * a_y_std]
+    cols_Bw = [p.damping_noise * dB[:, 0] * a_y_std]
+    cols_D = [D_u[:, 0] * a_y_std]
+    for i in range(m):
+        if std[i] > 0:
+            e = np.zeros(m)
+            e[i] = std[i]
+            cols_B.append(np.zeros(2))
+            cols_Bw.append(np.zeros(2))
+            cols_D.append(e)
+    L = getattr(sensors, "L", None)
+    amplitude = getattr(getattr(sensors, "_v", None), "amplitude_m_s2", None)
+    if L is not None and amplitude is not None:
+        cols_B.append(np.zeros(2))
+        cols_Bw.append(np.zeros(2))
+        cols_D.append(np.asarray(L, float)[:, 0] * amplitude)
+    system = StochasticLinearSystem(
+        A=A, B=np.column_stack(cols_B), C_y=C, C_z=np.array([[1.0, 0.0]]),
+        A_w=p.damping_noise * dA, B_w=np.column_stack(cols_Bw), D_y=np.column_stack(cols_D))
+    return system, B, D_u
+
+
+def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float = 1.1, *,
+                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10
+                 ) -> tuple[LMIHInfDesign, int]:
+    """The design at ``gamma = factor * 2^j * gamma_min`` for the smallest ``j`` that verifies.
+
+    Near ``gamma_min`` the minimum-trace (mixed H2/H-infinity) solution can be too
+    ill-conditioned for the solver to return a solution that passes the a-posteriori check;
+    doubling gamma moves away from the boundary.
+
+    Returns
+    -------
+    design : LMIHInfDesign
+        The first verified design (or the last attempt, not feasible).
+    j : int
+        Number of doublings used.
+    """
+    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin)
+    j = 0
+    while not design.feasible and j < max_doublings:
+        j += 1
+        design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
+                                 margin=margin)
+    return design, j
+
+
+def vehicle_lmi_estimator(sensors: Any, dt_s: float, *, params: VehicleRollParams | None = None,
+                          a_y_std: float = 0.1, gamma: float | None = None,
+                          gamma_factor: float = 1.1, objective: str = "h2",
+                          x0: np.ndarray | None = None) -> tuple[LMIHInfFilter, dict[str, Any]]:
+    """The filter (45) for the vehicle rig in the loop (``--filter lmi-hinf``).
+
+    Designs on :func:`vehicle_design_system` by Theorem 4 at ``gamma`` (default
+    ``gamma_factor * 2^j * gamma_min``, :func:`design_above`) with the mixed H2/H-infinity
+    objective.
+
+    Returns
+    -------
+    estimator : LMIHInfFilter
+        With the known input ``a_y`` (``input_matrix``, ``feedthrough``) and ``dt_s``.
+    meta : dict
+        ``gamma_min``, ``gamma``, ``gain``, ``status``, ``spectral_radius`` for JSON outputs.
+
+    Raises
+    ------
+    ValueError
+        If no verified design exists (the solver status is in the message).
+    """
+    system, B_u, D_u = vehicle_design_system(sensors, dt_s, params, a_y_std)
+    gamma_min = None
+    if gamma is None:
+        search = minimal_gamma(system)
+        if search.gamma_min is None:
+            raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
+        gamma_min = search.gamma_min
+        design, _ = design_above(system, gamma_min, gamma_factor, objective=objective)
+    else:
+        design = design_lmi_hinf(system, gamma, objective=objective)
+    if not design.feasible:
+        raise ValueError(f"no verified lmi-hinf design at gamma = {design.gamma:.6g}: status "
+                         f"{design.status} (solver: {design.solver_status})")
+    gamma = design.gamma
+    estimator = LMIHInfFilter.from_design(system, design, x0=np.zeros(2) if x0 is None else x0,
+                                          input_matrix=B_u, feedthrough=D_u, dt_s=dt_s)
+    meta = {"gamma_min": gamma_min, "gamma": gamma, "gain": design.gain.tolist(),
+            "status": design.status, "spectral_radius": design.check.spectral_radius,
+            "objective": objective, "a_y_std": a_y_std}
+    return estimator, meta
+
+
+def initial_state_weight(design: LMIHInfDesign, x0: np.ndarray, xhat0: np.ndarray) -> float:
+    """``V(eta_0) = eta_0' diag(P1, P2) eta_0`` with ``eta_0 = [x0; x0 - xhat0]``.
+
+    The proof of Lemma 2 ((13)) bounds ``sum E|ztilde|^2 <= gamma^2 sum E|v|^2 + V(eta_0)``.
+    """
+    x0 = np.asarray(x0, dtype=float)
+    e0 = x0 - np.asarray(xhat0, dtype=float)
+    return float(x0 @ design.P1 @ x0 + e0 @ design.P2 @ e0)
+
+
+__all__ = [
+    "PAPER_K_HAT",
+    "PAPER_P1",
+    "PAPER_P2",
+    "PAPER_P_K",
+    "NonlinearDiscreteScenario",
+    "VehicleRollLMIScenario",
+    "design_above",
+    "identify_rig_step",
+    "initial_state_weight",
+    "paper_system",
+    "rig_system",
+    "vehicle_design_system",
+    "vehicle_lmi_estimator",
+]
