@@ -5,7 +5,7 @@ Nothing here is public API. All arrays are ``float64``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -213,3 +213,57 @@ def van_loan(A: FloatArray, Q: FloatArray, dt_s: float) -> FloatArray:
     G = expm(M * dt_s)
     Qd = G[n:, n:].T @ G[:n, n:]
     return 0.5 * (Qd + Qd.T)
+
+
+#: A constant array or a function ``t_s -> array`` (a time-varying coefficient).
+TimeArg = npt.ArrayLike | Callable[[float], npt.ArrayLike]
+
+
+def checked_array(name: str, value: object, shape: tuple[int | None, ...],
+                  t: float) -> FloatArray:
+    """A finite ``float64`` array of the given shape (``None``: free), else ``ValueError``."""
+    arr = to_float_array(name, value)
+    if arr.ndim != len(shape) or any(s is not None and s != a
+                                     for s, a in zip(shape, arr.shape, strict=True)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + \
+            ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name} must have shape {want}, got shape {arr.shape} "
+                         f"(at t = {t:.6g} s)")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got non-finite entries at t = {t:.6g} s")
+    return arr
+
+
+class TimeFunction:
+    """One coefficient: constant (validated once) or a callable of time (validated per call).
+
+    Parameters
+    ----------
+    name : str
+        Argument name used in error messages.
+    arg : array_like or callable ``t_s -> array_like``
+    shape : tuple of (int or None)
+        Expected shape (``None``: free dimension, fixed by the value at ``t0``).
+    t0 : float
+        Time at which a callable is first evaluated and checked.
+    """
+
+    __slots__ = ("name", "shape", "value", "func")
+
+    def __init__(self, name: str, arg: TimeArg, shape: tuple[int | None, ...], t0: float):
+        self.name = name
+        self.func: Callable[[float], npt.ArrayLike] | None = arg if callable(arg) else None
+        value = checked_array(name, arg(t0) if self.func is not None else arg, shape, t0)
+        self.shape = value.shape
+        self.value = readonly(value)
+
+    @property
+    def constant(self) -> bool:
+        """True when the coefficient does not depend on time."""
+        return self.func is None
+
+    def __call__(self, t: float) -> FloatArray:
+        """The value at time ``t`` (s)."""
+        if self.func is None:
+            return self.value
+        return checked_array(self.name, self.func(t), self.shape, t)

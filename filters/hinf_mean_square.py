@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -36,13 +35,21 @@ import numpy.typing as npt
 from scipy.linalg import solve_continuous_are
 from scipy.linalg.lapack import dpotrf as _dpotrf
 
-from filters._linalg import FloatArray, positive_time, readonly, to_float_array
+from filters._linalg import (
+    FloatArray,
+    TimeArg,
+    TimeFunction,
+    checked_array,
+    positive_time,
+    readonly,
+    to_float_array,
+)
 from filters.errors import FilterError, FiniteEscapeError, check_covariance
 from filters.kalman import _SampledFilter
 
 __all__ = ["AssumptionWarning", "MeanSquareHInfFilter"]
 
-MatrixArg = npt.ArrayLike | Callable[[float], npt.ArrayLike]
+MatrixArg = TimeArg
 """A constant matrix or a function ``t_s -> matrix`` (time-varying)."""
 
 _ESCAPE_BOUND = 1e12  # default of check_covariance
@@ -110,43 +117,6 @@ class _FastConstants:
     work: tuple[tuple[FloatArray, FloatArray, FloatArray], ...]  # (buffer, Z view, v view)
     Nr_col: FloatArray  # contiguous view Nr[:, n] (Nr is Fortran-ordered)
     Ae_col: FloatArray  # contiguous view Ae[:n, n] (Ae is Fortran-ordered)
-
-
-class _Matrix:
-    """One matrix argument: constant (validated once) or a callable of time."""
-
-    __slots__ = ("name", "shape", "value", "func")
-
-    def __init__(self, name: str, arg: MatrixArg, t0: float,
-                 shape: tuple[int | None, int | None]) -> None:
-        self.name = name
-        self.func: Callable[[float], npt.ArrayLike] | None = arg if callable(arg) else None
-        value = _as_matrix(name, arg(t0) if self.func is not None else arg, shape, t0)
-        self.shape = value.shape
-        self.value = readonly(value)
-
-    @property
-    def constant(self) -> bool:
-        return self.func is None
-
-    def __call__(self, t: float) -> FloatArray:
-        if self.func is None:
-            return self.value
-        return _as_matrix(self.name, self.func(t), self.shape, t)
-
-
-def _as_matrix(name: str, value: object, shape: tuple[int | None, int | None],
-               t: float) -> FloatArray:
-    """Validate a finite 2-D matrix of the given shape (``None``: free dimension)."""
-    arr = to_float_array(name, value)
-    if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape,
-                                                                    strict=True)):
-        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
-        raise ValueError(f"{name} must be a matrix of shape {want}, got shape {arr.shape} "
-                         f"(at t = {t:.6g} s)")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got non-finite entries at t = {t:.6g} s")
-    return arr
 
 
 def _pbh_stabilizable(A: FloatArray, B: FloatArray) -> bool:
@@ -348,30 +318,30 @@ class MeanSquareHInfFilter(_SampledFilter):
         self._gamma = g
         self._gm2 = 0.0 if math.isinf(g) else 1.0 / (g * g)
 
-        self._A = _Matrix("A", A, t0, (None, None))
+        self._A = TimeFunction("A", A, (None, None), t0)
         n = self._A.shape[0]
         if self._A.shape != (n, n) or n == 0:
             raise ValueError(f"A must be a square matrix of shape (n, n), n >= 1, got "
                              f"shape {self._A.shape}")
-        self._B = None if B is None else _Matrix("B", B, t0, (n, None))
-        self._C1 = _Matrix("C1", C1, t0, (None, n))
+        self._B = None if B is None else TimeFunction("B", B, (n, None), t0)
+        self._C1 = TimeFunction("C1", C1, (None, n), t0)
         m1 = self._C1.shape[0]
-        self._C2 = _Matrix("C2", C2, t0, (None, n))
+        self._C2 = TimeFunction("C2", C2, (None, n), t0)
         m2 = self._C2.shape[0]
-        self._G = _Matrix("G", G, t0, (n, None))
+        self._G = TimeFunction("G", G, (n, None), t0)
         s = self._G.shape[1]
-        self._H = _Matrix("H", H, t0, (m2, s))
-        self._L = _Matrix("L", L, t0, (None, n))
+        self._H = TimeFunction("H", H, (m2, s), t0)
+        self._L = TimeFunction("L", L, (None, n), t0)
         self._intensities = bool(noise_intensities)
-        self._h = _Matrix("h", h, t0, (m1, m1 if self._intensities else None))
-        self._b = _Matrix("b", b, t0, (n, n if self._intensities else None))
+        self._h = TimeFunction("h", h, (m1, m1 if self._intensities else None), t0)
+        self._b = TimeFunction("b", b, (n, n if self._intensities else None), t0)
         if m1 == 0 or m2 == 0:
             raise ValueError(f"C1 and C2 need at least one row, got m1 = {m1}, m2 = {m2}")
         self._n, self._m1, self._m2 = n, m1, m2
         self._m = m1 + m2
         self._k = 0 if self._B is None else self._B.shape[1]
 
-        Rm = _as_matrix("R", R, (n, n), t0)
+        Rm = checked_array("R", R, (n, n), t0)
         scale = float(np.abs(Rm).max())
         if float(np.abs(Rm - Rm.T).max()) > 1e-9 * scale:
             raise ValueError("R must be symmetric positive definite (S(t0) = R^-1), got a "

@@ -23,7 +23,6 @@ Units: time in seconds; the arrays are ``float64`` and carry the units of the us
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import permutations
@@ -31,49 +30,13 @@ from itertools import permutations
 import numpy as np
 import numpy.typing as npt
 
-from filters._linalg import FloatArray, readonly, to_float_array
+from filters._linalg import FloatArray, TimeArg, TimeFunction, readonly
 from filters.errors import FiniteEscapeError
 
 __all__ = ["EscapeTest", "PolynomialCoefficients", "PolynomialModel"]
 
-CoefArg = npt.ArrayLike | Callable[[float], npt.ArrayLike]
+CoefArg = TimeArg
 """A constant array or a function ``t_s -> array`` (time-varying coefficient)."""
-
-
-class _Coef:
-    """One coefficient: constant (validated once) or a callable of time (validated per call)."""
-
-    __slots__ = ("name", "shape", "value", "func")
-
-    def __init__(self, name: str, arg: CoefArg, shape: tuple[int | None, ...], t0: float):
-        self.name = name
-        self.func: Callable[[float], npt.ArrayLike] | None = arg if callable(arg) else None
-        value = _validate(name, arg(t0) if self.func is not None else arg, shape, t0)
-        self.shape = value.shape
-        self.value = readonly(value)
-
-    @property
-    def constant(self) -> bool:
-        return self.func is None
-
-    def __call__(self, t: float) -> FloatArray:
-        if self.func is None:
-            return self.value
-        return _validate(self.name, self.func(t), self.shape, t)
-
-
-def _validate(name: str, value: object, shape: tuple[int | None, ...], t: float) -> FloatArray:
-    """A finite ``float64`` array of the given shape (``None``: free), else ``ValueError``."""
-    arr = to_float_array(name, value)
-    if arr.ndim != len(shape) or any(s is not None and s != a
-                                     for s, a in zip(shape, arr.shape, strict=True)):
-        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + \
-            ("," if len(shape) == 1 else "") + ")"
-        raise ValueError(f"{name} must have shape {want}, got shape {arr.shape} "
-                         f"(at t = {t:.6g} s)")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite, got non-finite entries at t = {t:.6g} s")
-    return arr
 
 
 def symmetrize_tensor(a: FloatArray) -> FloatArray:
@@ -228,7 +191,7 @@ class PolynomialModel:
         self._t0 = t0
         self._args = {"a0": a0, "a1": a1, "a2": a2, "a3": a3, "B": B, "C": C, "D": D, "L": L,
                       "E": E}
-        B_ = _Coef("B", B, (None, None), t0)
+        B_ = TimeFunction("B", B, (None, None), t0)
         n_b = B_.shape[0]
         if n is not None and (int(n) != n or n < 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
@@ -238,18 +201,18 @@ class PolynomialModel:
         if n < 1:
             raise ValueError(f"B must have shape (n, p) with n >= 1, got shape {B_.shape}")
         p = B_.shape[1]
-        C_ = _Coef("C", C, (None, n), t0)
+        C_ = TimeFunction("C", C, (None, n), t0)
         m = C_.shape[0]
         if m < 1:
             raise ValueError(f"C must have at least one row, got shape {C_.shape}")
         self._B, self._C = B_, C_
-        self._D = _Coef("D", D, (m, p), t0)
-        self._L = _Coef("L", L, (None, n), t0)
-        self._E = None if E is None else _Coef("E", E, (n, None), t0)
+        self._D = TimeFunction("D", D, (m, p), t0)
+        self._L = TimeFunction("L", L, (None, n), t0)
+        self._E = None if E is None else TimeFunction("E", E, (n, None), t0)
         shapes = {"a0": (n,), "a1": (n, n), "a2": (n, n, n), "a3": (n, n, n, n)}
-        coefs: dict[str, _Coef | None] = {}
+        coefs: dict[str, TimeFunction | None] = {}
         for name, arg in (("a0", a0), ("a1", a1), ("a2", a2), ("a3", a3)):
-            c = None if arg is None else _Coef(name, arg, shapes[name], t0)
+            c = None if arg is None else TimeFunction(name, arg, shapes[name], t0)
             if c is not None and c.constant and not np.any(c.value):
                 c = None  # an all-zero constant contributes nothing
             coefs[name] = c

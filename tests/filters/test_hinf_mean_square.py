@@ -431,7 +431,7 @@ def test_paper_example_satisfies_all_assumptions() -> None:
         (dict(R=-R_EX), r"R must be symmetric positive definite"),
         (dict(gamma=0.0), "gamma"),
         (dict(gamma=float("nan")), "gamma"),
-        (dict(C2=np.eye(3)), "C2 must be a matrix of shape"),
+        (dict(C2=np.eye(3)), "C2 must have shape"),
         (dict(substeps=0), "substeps"),
     ],
 )
