@@ -12,6 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from testbed.disturbances import Disturbance, seed000_disturbance
+from testbed.envs.common import reset_options
 from testbed.rigs.helicopter import (
     ACTION_NAMES,
     PITCH_LIMIT_RAD,
@@ -202,11 +203,7 @@ class Helicopter2DOFEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the rig; see the class docstring for ``options``."""
-        options = dict(options or {})
-        unknown = set(options) - set(RESET_OPTION_KEYS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                             f"{RESET_OPTION_KEYS}")
+        options = reset_options(options, RESET_OPTION_KEYS)
         params = self.nominal_params.scaled(options.get("params") or {})
         x0 = np.array([-PITCH_LIMIT_RAD, 0.0, 0.0, 0.0])
         if options.get("x0") is not None:

@@ -41,6 +41,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from testbed.disturbances import Disturbance
+from testbed.envs.common import reset_options
 from testbed.envs.helicopter import (
     DEFAULT_SETPOINTS,
     RESET_OPTION_KEYS,
@@ -382,11 +383,7 @@ class HelicopterBatch:
                        k: int) -> list[dict[str, Any]]:
         """Normalize reset options to one dict per reset member (see :meth:`reset`)."""
         if options is None or isinstance(options, dict):
-            shared = dict(options or {})
-            unknown = set(shared) - set(RESET_OPTION_KEYS)
-            if unknown:
-                raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                                 f"{RESET_OPTION_KEYS}")
+            shared = reset_options(options, RESET_OPTION_KEYS)
             per = [{} for _ in range(k)]
             for key, value in shared.items():
                 if value is None:
@@ -407,10 +404,7 @@ class HelicopterBatch:
         if len(per) != k:
             raise ValueError(f"got {len(per)} option dicts for {k} members being reset")
         for d in per:
-            unknown = set(d) - set(RESET_OPTION_KEYS)
-            if unknown:
-                raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                                 f"{RESET_OPTION_KEYS}")
+            reset_options(d, RESET_OPTION_KEYS)
         return per
 
     def _x0(self, value: Any) -> np.ndarray:

@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from testbed.envs.common import reset_options
 from testbed.plants import nonlinear_discrete as plant
 
 RESET_OPTION_KEYS = ("x0",)
@@ -176,11 +177,7 @@ class NonlinearDiscreteEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset to ``x0`` (``options={"x0": ...}``, default ``[1, 1]``)."""
-        options = dict(options or {})
-        unknown = set(options) - set(RESET_OPTION_KEYS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                             f"{RESET_OPTION_KEYS}")
+        options = reset_options(options, RESET_OPTION_KEYS)
         x0 = np.array(self.DEFAULT_X0)
         if options.get("x0") is not None:
             x0 = np.asarray(options["x0"], dtype=float)

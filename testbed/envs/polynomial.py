@@ -15,6 +15,7 @@ from gymnasium import spaces
 
 from filters.errors import FiniteEscapeError
 from filters.polynomial_model import EscapeTest
+from testbed.envs.common import reset_options
 from testbed.plants.polynomial import PolynomialPlant
 from testbed.scenarios.seed001 import paper_model, paper_w
 
@@ -255,11 +256,7 @@ class PolynomialCubicEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the plant; see the class docstring for ``options``."""
-        options = dict(options or {})
-        unknown = set(options) - set(RESET_OPTION_KEYS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                             f"{RESET_OPTION_KEYS}")
+        options = reset_options(options, RESET_OPTION_KEYS)
         x0 = np.array([1.0, 1.0])
         if options.get("x0") is not None:
             x0 = np.asarray(options["x0"], dtype=float)

@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from filters.analysis import UncertainPlant
+from testbed.envs.common import reset_options
 from testbed.plants.uncertain_linear import UncertainLinearPlant, UncertainLinearSensors
 
 RESET_OPTION_KEYS = ("x0", "F")
@@ -162,11 +163,7 @@ class UncertainLinearEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the plant; see the class docstring for ``options``."""
-        options = dict(options or {})
-        unknown = set(options) - set(RESET_OPTION_KEYS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                             f"{RESET_OPTION_KEYS}")
+        options = reset_options(options, RESET_OPTION_KEYS)
         n = self.model.n
         x0 = np.zeros(n)
         if options.get("x0") is not None:

@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from testbed.envs.common import reset_options
 from testbed.manoeuvres import MANOEUVRES, Manoeuvre, make_manoeuvre
 from testbed.rigs.vehicle_roll import (
     A_Y_LIMIT_M_S2,
@@ -221,11 +222,7 @@ class VehicleRollEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the rig; see the class docstring for ``options``."""
-        options = dict(options or {})
-        unknown = set(options) - set(RESET_OPTION_KEYS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
-                             f"{RESET_OPTION_KEYS}")
+        options = reset_options(options, RESET_OPTION_KEYS)
         params = self.nominal_params.scaled(options.get("params") or {})
         x0 = np.zeros(2)
         if options.get("x0") is not None:
