@@ -43,6 +43,7 @@ from filters.lmi_hinf import (
     ms_spectral_radius,
     output_error_moments,
 )
+from testbed.reproductions.outputs import write_outputs
 from testbed.scenarios.seed002 import (
     PAPER_K_HAT,
     PAPER_P1,
@@ -324,17 +325,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         else:
             result[label] = entry
     result["wall_s"] = time.perf_counter() - start
-    if json_path:
-        from testbed.io import write_json
-
-        write_json(json_path, result)
-    if plot_path:
-        _plot(curves, result, s, plot_path)
-    if rrd_path:
-        from testbed.viz import write_rrd
-
-        sim = curves["rig"]["x0_paper"]["sim"]
-        write_rrd(_trajectory(sim), rrd_path, model=sim["model"],
+    sim = curves["rig"]["x0_paper"]["sim"]
+    write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  plot=lambda path: _plot(curves, result, s, path),
+                  trajectory=lambda: _trajectory(sim), model=sim["model"],
                   application_id="testbed-lmi-hinf-vehicle-roll")
     return result
 

@@ -29,6 +29,7 @@ import numpy as np
 from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
 from filters.analysis import noise_output_ratio
 from testbed.plants.linear import simulate_linear
+from testbed.reproductions.outputs import write_outputs
 from testbed.scenarios.seed000 import MsHinfHelicopterScenario
 from testbed.trajectory import Trajectory
 
@@ -121,16 +122,10 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
         "kalman_T_final_noisy": float(noisy["T_kb"][-1]),
         "wall_s": time.perf_counter() - start,
     }
-    if json_path:
-        from testbed.io import write_json
-
-        write_json(json_path, result)
-    if plot_path:
-        _plot(mean, noisy, s, plot_path)
-    if rrd_path:
-        from testbed.viz import write_rrd
-
-        write_rrd(_trajectory(noisy, s), rrd_path, application_id="testbed-ms-hinf-helicopter")
+    write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  plot=lambda path: _plot(mean, noisy, s, path),
+                  trajectory=lambda: _trajectory(noisy, s),
+                  application_id="testbed-ms-hinf-helicopter")
     return result
 
 

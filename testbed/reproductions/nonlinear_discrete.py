@@ -30,6 +30,7 @@ import numpy as np
 
 from filters.lmi_hinf import LMIHInfFilter
 from testbed.plants import nonlinear_discrete as plant
+from testbed.reproductions.outputs import write_outputs
 from testbed.scenarios.seed002 import NonlinearDiscreteScenario
 from testbed.trajectory import Trajectory
 
@@ -163,17 +164,11 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     }
     loop = run_in_loop(x0, steps, seed) if (plot_path or rrd_path) else None
     result["wall_s"] = time.perf_counter() - start
-    if json_path:
-        from testbed.io import write_json
-
-        write_json(json_path, result)
-    if plot_path:
-        _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma, s, plot_path)
-    if rrd_path:
-        from testbed.viz import write_rrd
-
-        write_rrd(_trajectory(loop), rrd_path, application_id="testbed-nonlinear-discrete",
-                  degrees=False)
+    write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  plot=lambda path: _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma,
+                                          s, path),
+                  trajectory=lambda: _trajectory(loop),
+                  application_id="testbed-nonlinear-discrete", degrees=False)
     return result
 
 

@@ -39,6 +39,7 @@ from filters.analysis import noise_output_ratio
 from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
 from testbed.plants.polynomial import PolynomialPlant
+from testbed.reproductions.outputs import write_outputs
 from testbed.scenarios.seed001 import PolynomialHinfScenario, paper_model
 from testbed.trajectory import Trajectory
 
@@ -202,17 +203,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     }
     result["escaped"] = {**main["escaped"], "plant": sim["plant_escape"]}
     result["wall_s"] = time.perf_counter() - start
-    if json_path:
-        from testbed.io import write_json
-
-        write_json(json_path, result)
-    if plot_path:
-        _plot(sim, result, s, plot_path)
-    if rrd_path:
-        from testbed.viz import write_rrd
-
-        write_rrd(_trajectory(sim, result), rrd_path, application_id="testbed-polynomial-hinf",
-                  degrees=False)
+    write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  plot=lambda path: _plot(sim, result, s, path),
+                  trajectory=lambda: _trajectory(sim, result),
+                  application_id="testbed-polynomial-hinf", degrees=False)
     return result
 
 

@@ -54,6 +54,7 @@ from filters.variance_continuous import (
     search_parabolic,
 )
 from testbed.plants.uncertain_linear import UncertainLinearPlant
+from testbed.reproductions.outputs import write_outputs
 from testbed.scenarios.seed003 import VarianceConstrainedContinuousScenario
 from testbed.trajectory import Trajectory
 
@@ -322,17 +323,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         "wall_s": {"design": t_design, "search": t_search,
                    "total": time.perf_counter() - start},
     }
-    if json_path:
-        from testbed.io import write_json
-
-        write_json(json_path, result)
-    if plot_path:
-        _plot(result, s, plant, sample, plot_path)
-    if rrd_path:
-        from testbed.viz import write_rrd
-
-        write_rrd(trajectory(sample, NAME), rrd_path, application_id="testbed-" + NAME,
-                  degrees=False)
+    write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  plot=lambda path: _plot(result, s, plant, sample, path),
+                  trajectory=lambda: trajectory(sample, NAME),
+                  application_id="testbed-" + NAME, degrees=False)
     return result
 
 
