@@ -45,7 +45,7 @@ from filters._linalg import (
     to_float_array,
 )
 from filters.errors import FilterError, FiniteEscapeError, check_covariance
-from filters.kalman import _SampledFilter
+from filters.kalman import _IntegratedFilter
 
 __all__ = ["AssumptionWarning", "MeanSquareHInfFilter"]
 
@@ -140,7 +140,7 @@ def _pbh_stabilizable(A: FloatArray, B: FloatArray) -> bool:
     return True
 
 
-class MeanSquareHInfFilter(_SampledFilter):
+class MeanSquareHInfFilter(_IntegratedFilter):
     """Central suboptimal mean-square H-infinity filter of seed-000, Theorem 1, eqs. (7)-(9).
 
     Equation map (paper numbering)
@@ -407,20 +407,7 @@ class MeanSquareHInfFilter(_SampledFilter):
         """Attenuation level."""
         return self._gamma
 
-    @property
-    def dt_s(self) -> float:
-        """Sample interval in seconds."""
-        return self._dt  # type: ignore[return-value]
 
-    @property
-    def t0(self) -> float:
-        """Initial time in seconds (:meth:`reset` returns to it)."""
-        return self._t0
-
-    @property
-    def substeps(self) -> int:
-        """RK4 substeps of the last (``"auto"``) or every sample interval."""
-        return self._substeps
 
     @property
     def measurement_layout(self) -> tuple[int, int]:

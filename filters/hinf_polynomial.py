@@ -86,7 +86,7 @@ import numpy.typing as npt
 
 from filters._linalg import FloatArray, positive_time, readonly, to_float_array
 from filters.errors import check_symmetric_covariance
-from filters.kalman import _SampledFilter
+from filters.kalman import _IntegratedFilter
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
 
 __all__ = [
@@ -200,7 +200,7 @@ class _Terms:
     LT: FloatArray
 
 
-class _CentralHInfFilter(_SampledFilter):
+class _CentralHInfFilter(_IntegratedFilter):
     """Shared integrator of the central H-infinity filters (see the module docstring).
 
     Subclasses define :meth:`_drift` (the ``F`` and ``A`` of the state and gain equations).
@@ -291,20 +291,8 @@ class _CentralHInfFilter(_SampledFilter):
         """``R^-1``, the initial gain matrix, shape (n, n)."""
         return self._P0
 
-    @property
-    def dt_s(self) -> float:
-        """Sample interval in s."""
-        return self._dt  # type: ignore[return-value]
 
-    @property
-    def t0(self) -> float:
-        """Initial time in s (:meth:`reset` returns to it)."""
-        return self._t0
 
-    @property
-    def substeps(self) -> int:
-        """RK4 substeps per sample interval."""
-        return self._substeps
 
     @property
     def escape(self) -> EscapeTest:

@@ -164,6 +164,28 @@ class _SampledFilter:
         return self._vector("u", u, self._k)
 
 
+class _IntegratedFilter(_SampledFilter):
+    """A sampled filter whose equations are integrated over each interval by RK4 substeps."""
+
+    _t0: float = 0.0
+    _substeps: int
+
+    @property
+    def dt_s(self) -> float:
+        """Sample interval in seconds."""
+        return self._dt  # type: ignore[return-value]
+
+    @property
+    def t0(self) -> float:
+        """Initial time in seconds (:meth:`reset` returns to it)."""
+        return self._t0
+
+    @property
+    def substeps(self) -> int:
+        """RK4 substeps of the last (``"auto"``) or every sample interval."""
+        return self._substeps
+
+
 class KalmanFilter(_SampledFilter):
     """Discrete-time Kalman filter with Joseph-form covariance update.
 
@@ -424,7 +446,7 @@ class KalmanFilter(_SampledFilter):
         )
 
 
-class KalmanBucyFilter(_SampledFilter):
+class KalmanBucyFilter(_IntegratedFilter):
     """Continuous-time Kalman-Bucy filter driven by sampled (interval-averaged) measurements.
 
     Over each sample interval ``[t, t + dt]`` it integrates::
@@ -513,15 +535,6 @@ class KalmanBucyFilter(_SampledFilter):
         """The filter model."""
         return self._system
 
-    @property
-    def dt_s(self) -> float:
-        """Sample interval in seconds."""
-        return self._dt  # type: ignore[return-value]
-
-    @property
-    def substeps(self) -> int:
-        """RK4 substeps of the last (``"auto"``) or every sample interval."""
-        return self._substeps
 
     def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
         """Integrate the filter over one sample interval with ``u`` and ``y`` held.
