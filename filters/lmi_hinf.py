@@ -1,7 +1,8 @@
-"""LMI-designed H-infinity filter for linear discrete stochastic systems (seed-002, Theorem 4).
+"""LMI-designed H-infinity filter for linear discrete stochastic systems (Theorem 4 of
+Zhang, Deng & Zhang (2018)).
 
 Reference: T. Zhang, F. Deng, W. Zhang, "Robust H-infinity filtering for nonlinear
-discrete-time stochastic systems" (``/work/shared/papers/seed-002-...md``), Section 4.
+discrete-time stochastic systems" (2018), Section 4; see docs/references.md.
 
 System (paper eq. (44)) and the names used here::
 
@@ -13,8 +14,8 @@ System (paper eq. (44)) and the names used here::
 disturbance (energy-bounded, ``l2``). Shapes: state ``n``, disturbance ``n_v``, measurement
 ``n_y``, estimated output ``n_z``.
 
-Filter (45), with the misprint corrected (PAPER_NOTES: the paper prints ``A x_k``; the error
-system (46) it derives requires ``A xhat_k``)::
+Filter (45), with the misprint corrected (see docs/references.md: the paper prints ``A x_k``;
+the error system (46) it derives requires ``A xhat_k``)::
 
     xhat_{k+1} = A xhat_k + Khat (y_k - C_y xhat_k),     zhat_k = C_z xhat_k      (45)
 
@@ -47,8 +48,8 @@ Theorem 4 takes ``P = diag(P1, P2)`` and ``P_K = P2 Khat``; LMI (48) in ``(P1, P
      [*,   *,   *,      *,    *,                 *,      *,     -I    ]]  < 0      (48)
 
 Misprint corrected: the printed row 2, column 8 entry ``G`` is ``G'`` (``C_z'``, a column
-block; PAPER_NOTES). ``Khat = P2^-1 P_K``. The suboptimal mixed H2/H-infinity filter
-minimizes ``trace(P1 + P2)`` subject to (48).
+block; see docs/references.md). ``Khat = P2^-1 P_K``. The suboptimal mixed H2/H-infinity
+filter minimizes ``trace(P1 + P2)`` subject to (48).
 
 What this module adds to the paper
 ----------------------------------
@@ -141,7 +142,7 @@ _BRACKET = 10.0
 # --------------------------------------------------------------------------- system
 @dataclass(frozen=True, eq=False)
 class StochasticLinearSystem:
-    """The linear discrete stochastic system (44) of seed-002 (see the module docstring).
+    """The linear discrete stochastic system (44) of the paper (see the module docstring).
 
     Parameters
     ----------
@@ -1196,7 +1197,7 @@ class LMIHInfFilter(_SampledFilter):
     @classmethod
     def from_state_space(cls, F: npt.ArrayLike, G: npt.ArrayLike,
                          x0: npt.ArrayLike | None = None, **kwargs: Any) -> LMIHInfFilter:
-        """A filter ``xhat_{k+1} = F xhat_k + G y_k`` given directly (e.g. seed-002's (50)).
+        """A filter ``xhat_{k+1} = F xhat_k + G y_k`` given directly (e.g. the paper's (50)).
 
         Parameters
         ----------

@@ -1,4 +1,5 @@
-"""Speed of the Theorem-4 LMI design (seed-002 Example 5.2's size: n = 2, n_y = 2, n_v = 1).
+"""Speed of the Theorem-4 LMI design of Zhang, Deng & Zhang (2018) (the size of its Example 5.2:
+n = 2, n_y = 2, n_v = 1).
 
 ``python scripts/bench_lmi.py`` prints the JSON of :func:`bench_lmi`; ``scripts/benchmark.py``
 may import :func:`bench_lmi`. Targets: one LMI solve (median) below 0.1 s, the gamma bisection
@@ -12,7 +13,7 @@ import statistics
 import time
 
 from filters.lmi_hinf import design_lmi_hinf, minimal_gamma
-from testbed.scenarios.seed002 import paper_system
+from testbed.scenarios.zhang_hinf import paper_system
 
 
 def bench_lmi(repeats: int = 11, bisections: int = 3) -> dict[str, float]:

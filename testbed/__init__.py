@@ -17,10 +17,11 @@ __version__ = "0.1.0"
 #: Environment id -> (entry point, max_episode_steps[, vector entry point]). Entry points
 #: import lazily; a vector entry point serves ``gym.make_vec(...,
 #: vectorization_mode="vector_entry_point")``.
+_RIG = "testbed.envs.rig_env:RigEnv"
+_RIG_VECTOR = "testbed.envs.rig_env:RigVectorEnv"
 _ENVS = {
-    "testbed/Helicopter2DOF-v0": ("testbed.envs.helicopter:Helicopter2DOFEnv", 2000,
-                                  "testbed.envs.helicopter_vector:Helicopter2DOFVectorEnv"),
-    "testbed/VehicleRoll-v0": ("testbed.envs.vehicle_roll:VehicleRollEnv", 1000),
+    "testbed/Helicopter2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "helicopter"}),
+    "testbed/VehicleRoll-v0": (_RIG, 1000, _RIG_VECTOR, {"rig": "vehicle-roll"}),
     "testbed/PolynomialCubic-v0": ("testbed.envs.polynomial:PolynomialCubicEnv", 1400),
     "testbed/NonlinearDiscrete-v0": ("testbed.envs.nonlinear_discrete:NonlinearDiscreteEnv",
                                      200),
@@ -30,10 +31,11 @@ ENV_IDS = tuple(_ENVS)
 
 
 def _register() -> None:
-    for env_id, (entry_point, max_steps, *vector) in _ENVS.items():
+    for env_id, (entry_point, max_steps, *rest) in _ENVS.items():
+        vector, kwargs = (rest + [None, None])[:2]
         if env_id not in gym.registry:
             gym.register(id=env_id, entry_point=entry_point, max_episode_steps=max_steps,
-                         vector_entry_point=vector[0] if vector else None)
+                         vector_entry_point=vector, kwargs=kwargs or {})
 
 
 _register()

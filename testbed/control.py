@@ -1,4 +1,8 @@
-"""Controllers usable as policies: LQR (with integral action) and gravity feed-forward."""
+"""Controllers for the closed loop, batch-first: LQR tracking with integral action, open loop.
+
+A controller is ``reset(num)`` then ``__call__(x_hat (N, n), t_s) -> u (N, nu)``; it acts on
+the estimate (output feedback), never on the true state.
+"""
 
 from __future__ import annotations
 
@@ -31,84 +35,120 @@ def discrete_lqr(F: np.ndarray, G: np.ndarray, Q: np.ndarray, R: np.ndarray) -> 
 
 
 class LQRTracker:
-    """Setpoint-tracking LQR with integral action and gravity feed-forward (output feedback).
+    """Setpoint-tracking LQR with integral action and feed-forward, for N members.
 
-    ``u = u_ff(pitch_hat) - K [x_hat - x_ref; xi]`` where ``x_ref = [pitch_ref, yaw_ref, 0, 0]``,
-    ``xi`` integrates the angle errors (``xi += dt (y_hat - y_ref)``, frozen while the
-    amplifier saturates: anti-windup), and ``u_ff`` the voltages that cancel gravity at the
-    estimated pitch. The gain is the discrete LQR of the linear model with ZOH at ``dt_s``.
+    ``u = u_ff(x_hat) - K [x_hat - x_ref; xi]`` where ``x_ref`` holds the references of the
+    tracked states (zero elsewhere), ``xi`` integrates the tracked errors (frozen while the
+    input saturates: anti-windup) and ``u_ff`` is the rig's operating input (e.g. the
+    gravity-compensating voltage) at the estimate. The gain is the discrete LQR of the
+    design model ``(A, B)`` with ZOH at ``dt_s``.
 
     Parameters
     ----------
-    A, B : ndarray, shapes (4, 4), (4, 2)
-        Continuous-time model used for design (e.g. seed-000's).
+    A, B : ndarray, shapes (n, n), (n, nu)
+        Continuous-time design model.
     dt_s : float
-        Control period in s.
-    feedforward : callable ``pitch_rad -> (2,) volts``
-        Gravity compensation.
-    setpoint : callable ``t_s -> (2,) rad``
-        Reference schedule (pitch, yaw).
+        Control period, s.
+    tracked : ndarray of int, shape (r,)
+        Indices of the tracked states.
+    feedforward : callable ``x_hat (N, n) -> (N, nu)``
+    setpoint : callable ``t_s -> (N, r) or (r,)``
     state_weight, input_weight, integral_weight : array_like
-        Diagonals of the LQR weights (4 states; 2 inputs; 2 integrators).
+        Diagonals of the LQR weights (n states; nu inputs; r integrators).
     integral : bool
         Include integral action.
-    voltage_limit_v : float
+    low, high : array_like, shape (nu,)
         Saturation used for anti-windup.
     """
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, dt_s: float,
-                 feedforward: Callable[[float], np.ndarray],
-                 setpoint: Callable[[float], np.ndarray],
-                 state_weight=(200.0, 100.0, 2.0, 5.0), input_weight=(0.05, 0.05),
-                 integral_weight=(50.0, 20.0), integral: bool = True,
-                 voltage_limit_v: float = 24.0):
-        plant = LinearSystem(A=A, B=B, C=np.eye(2, A.shape[0]), Q=np.zeros_like(A),
-                             R=np.eye(2)).discretize(dt_s)
+    def __init__(self, A: np.ndarray, B: np.ndarray, dt_s: float, tracked: np.ndarray,
+                 feedforward: Callable[[np.ndarray], np.ndarray],
+                 setpoint: Callable[[float], np.ndarray], state_weight, input_weight,
+                 integral_weight, integral: bool = True, low=-np.inf, high=np.inf):
+        n, k = B.shape
+        self.tracked = np.asarray(tracked, dtype=int)
+        r = len(self.tracked)
+        plant = LinearSystem(A=A, B=B, C=np.eye(n)[self.tracked], Q=np.zeros_like(A),
+                             R=np.eye(r)).discretize(dt_s)
         Fd, Gd = plant.F, plant.B
-        self.integral = integral
-        self.dt_s = dt_s
+        self.integral, self.dt_s = integral, dt_s
         if integral:
-            n, k = B.shape
-            Fa = np.zeros((n + 2, n + 2))
+            Fa = np.zeros((n + r, n + r))
             Fa[:n, :n] = Fd
-            Fa[n:, :2] = dt_s * np.eye(2)
-            Fa[n:, n:] = np.eye(2)
-            Ga = np.vstack([Gd, np.zeros((2, k))])
+            Fa[n:, self.tracked] = dt_s * np.eye(r)
+            Fa[n:, n:] = np.eye(r)
+            Ga = np.vstack([Gd, np.zeros((r, k))])
             Q = np.diag(np.concatenate([state_weight, integral_weight]))
             self.K = discrete_lqr(Fa, Ga, Q, np.diag(input_weight))
         else:
             self.K = discrete_lqr(Fd, Gd, np.diag(state_weight), np.diag(input_weight))
-        self._feedforward = feedforward
-        self._setpoint = setpoint
-        self.voltage_limit_v = voltage_limit_v
-        self.reset()
+        self._feedforward, self._setpoint = feedforward, setpoint
+        self.low, self.high = np.asarray(low, float), np.asarray(high, float)
+        self.reset(1)
 
-    def reset(self) -> None:
-        """Clear the integrators and the clock."""
-        self._xi = np.zeros(2)
-        self._k = 0
+    def reset(self, num: int) -> None:
+        """Clear the integrators of ``num`` members."""
+        self._xi = np.zeros((num, len(self.tracked)))
 
-    def __call__(self, x_hat: np.ndarray) -> np.ndarray:
-        """Voltages for the current estimate.
-
-        Parameters
-        ----------
-        x_hat : ndarray, shape (4,)
-            State estimate ``[pitch, yaw, pitch_rate, yaw_rate]``.
-
-        Returns
-        -------
-        ndarray, shape (2,)
-            Motor voltages (V), within the saturation limits.
-        """
-        t_s = self._k * self.dt_s
-        ref = self._setpoint(t_s)
-        err = x_hat - np.concatenate([ref, np.zeros(2)])
-        z = np.concatenate([err, self._xi]) if self.integral else err
-        u = self._feedforward(x_hat[0]) - self.K @ z
-        u_sat = np.clip(u, -self.voltage_limit_v, self.voltage_limit_v)
-        if self.integral and np.all(u_sat == u):
-            self._xi = self._xi + self.dt_s * err[:2]
-        self._k += 1
+    def __call__(self, x_hat: np.ndarray, t_s: float) -> np.ndarray:
+        """Inputs (N, nu) for the estimates ``x_hat`` (N, n) at time ``t_s``."""
+        num, n = x_hat.shape
+        ref = np.broadcast_to(self._setpoint(t_s), (num, len(self.tracked)))
+        x_ref = np.zeros((num, n))
+        x_ref[:, self.tracked] = ref
+        err = x_hat - x_ref
+        z = np.concatenate([err, self._xi], axis=1) if self.integral else err
+        u = self._feedforward(x_hat) - np.matvec(self.K, z)
+        u_sat = np.clip(u, self.low, self.high)
+        if self.integral:
+            free = np.all(u_sat == u, axis=1)
+            self._xi = np.where(free[:, None], self._xi + self.dt_s * err[:, self.tracked],
+                                self._xi)
         return u_sat
 
+
+class OpenLoop:
+    """A constant input (the rig's operating input at its linearization point), N members."""
+
+    def __init__(self, action: np.ndarray):
+        self.action = np.asarray(action, dtype=float)
+
+    def reset(self, num: int) -> None:
+        """Nothing to clear."""
+
+    def __call__(self, x_hat: np.ndarray, t_s: float) -> np.ndarray:
+        """``action`` for every member, (N, nu)."""
+        return np.broadcast_to(self.action, (len(x_hat), len(self.action)))
+
+
+#: LQR weights per rig name (diagonals); other rigs get identity weights.
+LQR_WEIGHTS = {
+    "helicopter": {"state_weight": (200.0, 100.0, 2.0, 5.0), "input_weight": (0.05, 0.05),
+                   "integral_weight": (50.0, 20.0)},
+}
+CONTROLLERS = ("lqr", "open-loop")
+
+
+def make_controller(name: str, rig, design, setpoint: Callable[[float], np.ndarray]):
+    """A controller by name for a rig and its design model.
+
+    Parameters
+    ----------
+    name : {"lqr", "open-loop"}
+        ``open-loop``: the operating input at the linearization point (the helicopter's
+        hover voltage, zero for the vehicle, whose manoeuvre drives it).
+    rig : Rig
+    design : DesignModel
+    setpoint : callable ``t_s -> (N, r)``
+    """
+    nominal = rig.params_type()
+    if name == "open-loop":
+        return OpenLoop(rig.operating_input(nominal, rig.linearization_point()[None])[0])
+    if name != "lqr":
+        raise ValueError(f"unknown controller {name!r}; expected one of {CONTROLLERS}")
+    n, k, r = rig.n_states, rig.n_actions, len(rig.tracked_states)
+    weights = LQR_WEIGHTS.get(rig.name, {"state_weight": np.ones(n), "input_weight": np.ones(k),
+                                         "integral_weight": np.ones(r)})
+    return LQRTracker(design.continuous.A, design.continuous.B, design.dt_s, rig.tracked_index,
+                      lambda x: rig.operating_input(nominal, x), setpoint, **weights,
+                      low=rig.action_low, high=rig.action_high)

@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def seed000_w(t_s: float) -> np.ndarray:
-    """seed-000's deterministic disturbance ``w(t)``, shape (4,).
+def basin_helicopter_w(t_s: float) -> np.ndarray:
+    """Basin et al.'s (helicopter example) deterministic disturbance ``w(t)``, shape (4,).
 
     ``w1 = 1/(1+t)``, ``w2 = 0.1 (1 - exp(-0.3 t))``, ``w3 = 0.1745/(1+t)``,
     ``w4 = 0.0873 (1 - exp(-0.3 t))``. ``w2`` and ``w4`` do not decay, so ``||w||_2`` grows
-    with the horizon (PAPER_NOTES).
+    with the horizon (docs/references.md).
     """
     rise = 1.0 - np.exp(-0.3 * t_s)
     return np.array([1.0 / (1.0 + t_s), 0.1 * rise, 0.1745 / (1.0 + t_s), 0.0873 * rise])
@@ -54,8 +54,8 @@ class Disturbance:
     n_positions: int = 2
 
     def __post_init__(self) -> None:
-        if (self.G is None) != (self.w is None):
-            raise ValueError("G and w must be given together (deterministic disturbance G w(t))")
+        if self.G is not None and self.w is None:
+            raise ValueError("G needs the signal w (deterministic disturbance G w(t))")
         for name in ("G", "b"):
             M = getattr(self, name)
             if M is None:
@@ -67,8 +67,11 @@ class Disturbance:
                 raise ValueError(f"{name}: rows of position states must be zero; a disturbance "
                                  "acts as a force (velocity rows only)")
             setattr(self, name, M)
-        if self.G is not None:
+        if self.w is not None:
             w0 = np.asarray(self.w(0.0), dtype=float)
+            if w0.ndim != 1:
+                raise ValueError(f"w(t) must return a 1-D array, got shape {w0.shape}")
+        if self.G is not None:
             if w0.shape != (self.G.shape[1],):
                 raise ValueError(f"w(t) must return shape ({self.G.shape[1]},) to match G, "
                                  f"got {w0.shape}")
@@ -82,6 +85,11 @@ class Disturbance:
     def has_deterministic(self) -> bool:
         """True when a deterministic ``G w(t)`` is present (the T ratio is then defined)."""
         return self.G is not None
+
+    @property
+    def has_signal(self) -> bool:
+        """True when a signal ``w(t)`` exists (it may enter only measurements, without ``G``)."""
+        return self.w is not None
 
     @property
     def intensity(self) -> np.ndarray | None:
@@ -124,8 +132,8 @@ class Disturbance:
         return np.asarray(accel, dtype=float)
 
 
-def seed000_disturbance(noise_scale: float = 1.0, deterministic: bool = True) -> Disturbance:
-    """seed-000's disturbance: ``G w(t)`` with the printed ``G`` and ``w``, and ``b dW``.
+def basin_helicopter_disturbance(noise_scale: float = 1.0, deterministic: bool = True) -> Disturbance:
+    """Basin et al.'s helicopter disturbance: ``G w(t)`` with the printed ``G`` and ``w``, and ``b dW``.
 
     Parameters
     ----------
@@ -134,10 +142,10 @@ def seed000_disturbance(noise_scale: float = 1.0, deterministic: bool = True) ->
     deterministic : bool
         Include ``G w(t)``.
     """
-    from testbed.rigs.helicopter import paper_model
+    from testbed.rigs.helicopter.rig import paper_model
 
     pm = paper_model()
     if not (np.isfinite(noise_scale) and noise_scale >= 0):
         raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
-    return Disturbance(G=pm.G if deterministic else None, w=seed000_w if deterministic else None,
+    return Disturbance(G=pm.G if deterministic else None, w=basin_helicopter_w if deterministic else None,
                        b=pm.b * noise_scale if noise_scale > 0 else None)

@@ -1,5 +1,5 @@
-"""seed-002 Example 5.1: plant (49), env ``testbed/NonlinearDiscrete-v0``, filter (50),
-Corollary 3 checker and the reproduction."""
+"""Zhang, Deng & Zhang (2018), Example 5.1: plant (49), env ``testbed/NonlinearDiscrete-v0``,
+filter (50), Corollary 3 checker and the reproduction."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from gymnasium.utils.env_checker import check_env
 import testbed  # noqa: F401  (registers the environments)
 from testbed.envs.nonlinear_discrete import NonlinearDiscreteEnv
 from testbed.plants import nonlinear_discrete as plant
-from testbed.reproductions import nonlinear_discrete as rep
+from testbed.reproductions import zhang_nonlinear_discrete as rep
 from testbed.wrappers import FilterInLoop
 
 
@@ -168,7 +168,7 @@ KEYS = {"x0", "gamma", "runs", "sum_E_z2", "gamma2_sum_v2", "inequality_holds",
 def test_reproduction_defaults_and_outputs(tmp_path):
     from testbed.cli import main
 
-    code = main(["reproduce", "nonlinear-discrete", "--json", str(tmp_path / "r.json"),
+    code = main(["reproduce", "zhang-nonlinear-discrete", "--json", str(tmp_path / "r.json"),
                  "--plot", str(tmp_path / "r.png"), "--rrd", str(tmp_path / "r.rrd")])
     assert code == 0
     r = json.loads((tmp_path / "r.json").read_text())

@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from testbed.plants.linear import simulate_linear
-from testbed.scenarios.seed000 import MsHinfHelicopterScenario
+from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
 
 
 def test_noise_free_integration_is_fourth_order():

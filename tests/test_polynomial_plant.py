@@ -16,7 +16,7 @@ from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
 from testbed.envs.polynomial import PolynomialCubicEnv
 from testbed.plants.polynomial import PolynomialPlant
-from testbed.scenarios.seed001 import PolynomialHinfScenario, paper_w
+from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario, paper_w
 from testbed.wrappers import FilterInLoop
 
 

@@ -1,4 +1,5 @@
-"""seed-002 Example 5.2: scenario data, the rig model, the CLI helper and the reproduction."""
+"""Zhang, Deng & Zhang (2018), Example 5.2: scenario data, the rig model, the CLI helper and
+the reproduction."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ from filters.lmi_hinf import check_design, lmi_gamma_for_solution, minimal_gamma
 from testbed.cli import main
 from testbed.envs.vehicle_roll import VehicleRollEnv
 from testbed.experiment import Experiment, run_episode
-from testbed.reproductions import lmi_hinf_vehicle_roll as rep
+from testbed.reproductions import zhang_lmi_hinf_vehicle_roll as rep
 from testbed.rigs.vehicle_roll import paper_model
-from testbed.scenarios.seed002 import (
+from testbed.scenarios.zhang_hinf import (
     PAPER_K_HAT,
     PAPER_P1,
     PAPER_P2,
@@ -46,7 +47,7 @@ def test_printed_solution_needs_gamma_near_7():
     assert g == pytest.approx(6.9967, abs=1e-3)
     k = np.linalg.solve(PAPER_P2, PAPER_P_K)
     assert np.allclose(k[0], PAPER_K_HAT[0], atol=0.01)
-    assert not np.allclose(k[1], PAPER_K_HAT[1], atol=0.1)  # ill-conditioned P2 (PAPER_NOTES)
+    assert not np.allclose(k[1], PAPER_K_HAT[1], atol=0.1)  # ill-conditioned P2 (references.md)
 
 
 def test_printed_gain_is_certified_from_gamma_5():
@@ -86,7 +87,7 @@ def test_cli_estimator_flies_the_rig(sensors, kwargs):
 
 
 def test_reproduction_short_run_writes_all_keys(tmp_path):
-    code = main(["reproduce", "lmi-hinf-vehicle-roll", "--horizon", "0.5", "--json",
+    code = main(["reproduce", "zhang-lmi-hinf-vehicle-roll", "--horizon", "0.5", "--json",
                  str(tmp_path / "o.json"), "--plot", str(tmp_path / "o.png"), "--rrd",
                  str(tmp_path / "o.rrd")])
     assert code == 0

@@ -1,4 +1,4 @@
-"""``testbed reproduce polynomial-hinf``: outputs, an independent check of the numbers
+"""``testbed reproduce basin-polynomial-hinf``: outputs, an independent check of the numbers
 (solve_ivp on the printed equations), escape reporting, and the full run (slow)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 from testbed.cli import main
 from testbed.reproductions import REPRODUCTIONS, load
-from testbed.reproductions import polynomial_hinf as ph
+from testbed.reproductions import basin_polynomial_hinf as ph
 
 KEYS = {"T_poly", "T_linearized", "horizon", "escaped", "curve", "paper",
         "linearized_variant", "L_identity", "gamma"}
@@ -20,12 +20,12 @@ G = 1.05
 
 
 def test_registered():
-    assert REPRODUCTIONS["polynomial-hinf"] == "testbed.reproductions.polynomial_hinf"
-    assert load("polynomial-hinf") is ph
+    assert REPRODUCTIONS["basin-polynomial-hinf"] == "testbed.reproductions.basin_polynomial_hinf"
+    assert load("basin-polynomial-hinf") is ph
 
 
 def test_cli_short_horizon_writes_outputs(tmp_path):
-    code = main(["reproduce", "polynomial-hinf", "--horizon", "0.3", "--json",
+    code = main(["reproduce", "basin-polynomial-hinf", "--horizon", "0.3", "--json",
                  str(tmp_path / "o.json"), "--plot", str(tmp_path / "o.png"), "--rrd",
                  str(tmp_path / "o.rrd")])
     assert code == 0

@@ -1,4 +1,5 @@
-"""Reproductions of seed-003 (continuous) and seed-004 (discrete): keys, numbers, CLI."""
+"""Reproductions of Wang & Fang (2006) (continuous) and Liu, Deng & Wang (n.d.) (discrete):
+keys, numbers, CLI."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
+from testbed.reproductions import liu_variance_constrained_discrete as vd
 from testbed.reproductions import load
-from testbed.reproductions import variance_constrained_continuous as vc
-from testbed.reproductions import variance_constrained_discrete as vd
+from testbed.reproductions import wang_variance_constrained_parabolic as vc
 
 DESIGN_KEYS = {"solved", "Q1", "Q2", "K", "G"}
 PUBLISHED_KEYS = {"name", "K", "G", "hinf_worst", "variance_worst", "poles_in_region",
@@ -47,7 +48,7 @@ def _check_common(data: dict, n_published: int, eqs: tuple[str, str]) -> None:
 
 def test_discrete_cli_writes_outputs(tmp_path, capsys):
     out = tmp_path / "d"
-    code = main(["reproduce", "variance-constrained-discrete", "--horizon", "80", "--seed",
+    code = main(["reproduce", "liu-variance-constrained-discrete", "--horizon", "80", "--seed",
                  "1", "--json", f"{out}.json", "--plot", f"{out}.png", "--rrd", f"{out}.rrd"])
     assert code == 0
     data = json.loads((tmp_path / "d.json").read_text())
@@ -65,7 +66,7 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys):
     assert data["design_search"]["found"]
     assert (tmp_path / "d.png").stat().st_size > 10_000
     assert (tmp_path / "d.rrd").stat().st_size > 10_000
-    row = load("variance-constrained-discrete").row(data)
+    row = load("liu-variance-constrained-discrete").row(data)
     assert set(row) == {"paper", "claim", "ours", "agree", "why"}
     assert "0.3022" in row["why"] and "ours:" in capsys.readouterr().out
 
@@ -94,7 +95,7 @@ def test_continuous_short_run_keys_and_findings(tmp_path):
 @pytest.mark.slow
 def test_continuous_cli_full_run(tmp_path):
     start = time.perf_counter()
-    code = main(["reproduce", "variance-constrained-continuous", "--json",
+    code = main(["reproduce", "wang-variance-constrained-parabolic", "--json",
                  str(tmp_path / "c.json"), "--plot", str(tmp_path / "c.png"), "--rrd",
                  str(tmp_path / "c.rrd")])
     wall = time.perf_counter() - start

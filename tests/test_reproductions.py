@@ -3,19 +3,20 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
 from testbed.cli import main
 from testbed.reproductions import REPRODUCTIONS, load, render_table
-from testbed.reproductions import ms_hinf_helicopter as ms
+from testbed.reproductions import basin_ms_hinf_helicopter as ms
 
 KEYS = {"T_final", "T_max", "T_final_noisy", "T_max_noisy", "gamma", "final_error",
         "paper_T_max", "kalman_T_final"}
 
 
 def test_ms_hinf_short_horizon_writes_outputs(tmp_path):
-    code = main(["reproduce", "ms-hinf-helicopter", "--horizon", "5", "--json",
+    code = main(["reproduce", "basin-ms-hinf-helicopter", "--horizon", "5", "--json",
                  str(tmp_path / "o.json"), "--plot", str(tmp_path / "o.png"), "--rrd",
                  str(tmp_path / "o.rrd")])
     assert code == 0
@@ -42,9 +43,17 @@ def test_ms_hinf_full_horizon_numbers():
 
 
 def test_registry_and_table():
-    assert "ms-hinf-helicopter" in REPRODUCTIONS
+    assert "basin-ms-hinf-helicopter" in REPRODUCTIONS
     with pytest.raises(ValueError, match="unknown reproduction"):
         load("nope")
     text = render_table({"x": {"paper": "p", "claim": "c|d", "ours": "o", "agree": "yes",
                                "why": "w"}})
     assert "| `x` | p | c\\|d | o | yes | w |" in text
+
+
+def test_names_follow_the_papers_and_are_documented():
+    references = (Path(__file__).resolve().parents[1] / "docs" / "references.md").read_text()
+    for name, module in REPRODUCTIONS.items():
+        assert name.split("-")[0] in {"basin", "zhang", "wang", "liu"}  # first author
+        assert module == "testbed.reproductions." + name.replace("-", "_")
+        assert f"`{name}`" in references

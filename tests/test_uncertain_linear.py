@@ -1,4 +1,5 @@
-"""testbed/UncertainLinear-v0 and its plant simulation (seed-003, seed-004 scenarios)."""
+"""testbed/UncertainLinear-v0 and its plant simulation (the scenarios of
+Wang & Fang (2006) and Liu, Deng & Wang (n.d.))."""
 
 from __future__ import annotations
 
@@ -12,32 +13,35 @@ from filters.analysis import error_covariance, steady_state_covariance
 from filters.variance_constrained import LinearFilter
 from testbed.envs.uncertain_linear import UncertainLinearEnv
 from testbed.plants.uncertain_linear import UncertainLinearPlant
-from testbed.reproductions.variance_constrained_continuous import sampled_error_covariance
-from testbed.scenarios.seed003 import VarianceConstrainedContinuousScenario
-from testbed.scenarios.seed004 import VarianceConstrainedDiscreteScenario
+from testbed.reproductions.wang_variance_constrained_parabolic import sampled_error_covariance
+from testbed.scenarios.liu_variance_discrete import VarianceConstrainedDiscreteScenario
+from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
 from testbed.wrappers import FilterInLoop
 
+#: The two named scenarios of the environment.
+CONTINUOUS, DISCRETE = "wang-variance-constrained-parabolic", "liu-variance-constrained-discrete"
 
-@pytest.mark.parametrize("scenario", ["seed003", "seed004"])
+
+@pytest.mark.parametrize("scenario", [CONTINUOUS, DISCRETE])
 def test_env_checker_and_spaces(scenario):
     env = gym.make("testbed/UncertainLinear-v0", scenario=scenario)
     check_env(env.unwrapped, skip_render_check=True)
     u = env.unwrapped
     assert u.observation_space.shape == (1,) and u.action_space.shape == (1,)
     assert u.state_names == ["x1", "x2"] and u.sensors.names == ["y1"]
-    assert u.dt_s == (1.0 if scenario == "seed004" else 0.01)
+    assert u.dt_s == (1.0 if scenario == DISCRETE else 0.01)
     y, info = env.reset(seed=0)
     assert np.array_equal(y, [0.0]) and info["t"] == 0.0
     assert {"state", "t", "disturbance", "F", "setpoint", "action_applied",
             "action_clipped"} <= set(info)
     C, R = u.sensors.linear_model(u.dt_s)
     assert C.shape == (1, 2) and R.shape == (1, 1)
-    assert u.sensors.measured_state_index == ([0] if scenario == "seed004" else [None])
+    assert u.sensors.measured_state_index == ([0] if scenario == DISCRETE else [None])
 
 
 def test_same_seed_bitwise_identical_and_F_per_episode():
     def run(seed):
-        env = UncertainLinearEnv("seed003")
+        env = UncertainLinearEnv(CONTINUOUS)
         out = [env.reset(seed=seed)[1]["F"]]
         for _ in range(50):
             y, _, _, _, info = env.step(np.zeros(1))
@@ -48,17 +52,17 @@ def test_same_seed_bitwise_identical_and_F_per_episode():
     assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
     c = run(5)
     assert not np.array_equal(a[0], c[0])
-    env = UncertainLinearEnv("seed004")
+    env = UncertainLinearEnv(DISCRETE)
     Fs = [env.reset(seed=s)[1]["F"][0, 0] for s in range(30)]
     assert min(Fs) >= -1 and max(Fs) <= 1 and np.std(Fs) > 0.3
     _, info = env.reset(seed=0, options={"F": -1.0, "x0": [1.0, 2.0]})
     assert info["F"][0, 0] == -1.0 and np.array_equal(info["state"], [1.0, 2.0])
-    fixed = UncertainLinearEnv("seed004", F=0.5)
+    fixed = UncertainLinearEnv(DISCRETE, F=0.5)
     assert fixed.reset(seed=1)[1]["F"][0, 0] == 0.5
 
 
 def test_validation_leaves_state_unchanged():
-    env = UncertainLinearEnv("seed004")
+    env = UncertainLinearEnv(DISCRETE)
     env.reset(seed=0)
     env.step(np.zeros(1))
     x, t = env.unwrapped._x.copy(), env.t_s
@@ -75,9 +79,9 @@ def test_validation_leaves_state_unchanged():
     with pytest.raises(ValueError, match="x0"):
         env.reset(options={"x0": [1.0]})
     with pytest.raises(ValueError, match="scenario"):
-        UncertainLinearEnv("seed999")
+        UncertainLinearEnv("no-such-scenario")
     with pytest.raises(ValueError, match="dt_s"):
-        UncertainLinearEnv("seed003", dt_s=-1.0)
+        UncertainLinearEnv(CONTINUOUS, dt_s=-1.0)
     _, _, _, _, info = env.step(np.array([3.0]))
     assert info["action_clipped"][0] and info["action_applied"][0] == 1.0
 
@@ -117,7 +121,7 @@ def test_filter_in_the_loop_is_aligned():
     sim = UncertainLinearPlant(s.plant)
     np.testing.assert_allclose(sampled_error_covariance(sim, s.paper_G, s.paper_K, 0.0), P,
                                atol=1e-15)
-    env = FilterInLoop(UncertainLinearEnv("seed004", F=0.0),
+    env = FilterInLoop(UncertainLinearEnv(DISCRETE, F=0.0),
                        LinearFilter(s.paper_G, s.paper_K, np.zeros(2), discrete=True,
                                     B=np.zeros((2, 1))))
     env.reset(seed=2)

@@ -1,1 +1,6 @@
-"""Gymnasium environments of the testbed (registered when :mod:`testbed` is imported)."""
+"""Gymnasium environments: every rig through :class:`RigEnv` / :class:`RigVectorEnv`, and
+the papers' plain (non-MuJoCo) plants."""
+
+from testbed.envs.rig_env import RigEnv, RigVectorEnv, build_simulator
+
+__all__ = ["RigEnv", "RigVectorEnv", "build_simulator"]

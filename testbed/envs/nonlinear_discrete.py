@@ -1,4 +1,5 @@
-"""``testbed/NonlinearDiscrete-v0``: seed-002's nonlinear discrete stochastic system (49)."""
+"""``testbed/NonlinearDiscrete-v0``: the nonlinear discrete stochastic system (49) of
+Zhang, Deng & Zhang (2018), Example 5.1 (see docs/references.md)."""
 
 from __future__ import annotations
 
@@ -61,7 +62,7 @@ class NonlinearDiscreteSensors:
 
 
 class NonlinearDiscreteEnv(gym.Env):
-    """seed-002 Example 5.1, eq. (49): a plain (non-MuJoCo) nonlinear stochastic plant.
+    """Example 5.1, eq. (49), of Zhang, Deng & Zhang (2018): a plain (non-MuJoCo) stochastic plant.
 
     ::
 

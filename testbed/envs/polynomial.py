@@ -1,4 +1,5 @@
-"""``testbed/PolynomialCubic-v0``: seed-001's cubic polynomial system as a Gymnasium environment.
+"""``testbed/PolynomialCubic-v0``: the cubic polynomial system of Basin, Shi &
+Calderon-Alvarez (n.d.) as a Gymnasium environment (see docs/references.md).
 
 A plain ODE plant (no MuJoCo) under the same contract as the MuJoCo rigs.
 """
@@ -17,7 +18,7 @@ from filters.errors import FiniteEscapeError
 from filters.polynomial_model import EscapeTest
 from testbed.envs.common import reset_options
 from testbed.plants.polynomial import PolynomialPlant
-from testbed.scenarios.seed001 import paper_model, paper_w
+from testbed.scenarios.basin_polynomial_hinf import paper_model, paper_w
 
 STATE_NAMES = ("x1", "x2")
 ACTION_LIMIT = 10.0
@@ -79,13 +80,14 @@ class OutputSensor:
 
 
 class PolynomialCubicEnv(gym.Env):
-    """The cubic polynomial system of seed-001, Section IV, integrated with RK4.
+    """The cubic system of Basin, Shi & Calderon-Alvarez (n.d.), Section IV, integrated with RK4.
 
     ``dx1/dt = x2``, ``dx2/dt = 0.1 x2^2 + (0.1 + 0.1 sin 50t) x2^3 + w1 + u``,
     ``y = x1 + w2``, ``z = x`` (eqs. (22)-(24); the input ``u`` is an extension, 0 gives the
     paper's system). The cubic term is positive: the state escapes in finite time (about
     1.78 s from the paper's ``x0 = [1, 1]`` with its disturbance). The model, for filters,
-    is :attr:`model` (:func:`testbed.scenarios.seed001.paper_model` with ``E = [0, 1]^T``).
+    is :attr:`model` (:func:`testbed.scenarios.basin_polynomial_hinf.paper_model` with
+    ``E = [0, 1]^T``).
 
     ## Action space
 

@@ -1,5 +1,6 @@
-"""``testbed/UncertainLinear-v0``: a linear plant with norm-bounded uncertainty (seed-003,
-seed-004) as a Gymnasium environment."""
+"""``testbed/UncertainLinear-v0``: a linear plant with norm-bounded uncertainty as a Gymnasium
+environment (the examples of Wang & Fang (2006) and Liu, Deng & Wang (n.d.); see
+docs/references.md)."""
 
 from __future__ import annotations
 
@@ -20,24 +21,30 @@ INPUT_LIMIT = 1.0
 CONTINUOUS_DT_S = 0.01
 
 
+#: The named scenarios (``scenario=``): the paper examples, continuous and discrete.
+SCENARIOS = ("wang-variance-constrained-parabolic", "liu-variance-constrained-discrete")
+
+
 def _scenario_model(name: str) -> UncertainPlant:
-    if name == "seed003":
-        from testbed.scenarios.seed003 import VarianceConstrainedContinuousScenario
+    if name == "wang-variance-constrained-parabolic":
+        from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
 
         return VarianceConstrainedContinuousScenario().plant
-    if name == "seed004":
-        from testbed.scenarios.seed004 import VarianceConstrainedDiscreteScenario
+    if name == "liu-variance-constrained-discrete":
+        from testbed.scenarios.liu_variance_discrete import VarianceConstrainedDiscreteScenario
 
         return VarianceConstrainedDiscreteScenario().plant
-    raise ValueError(f"scenario must be 'seed003' or 'seed004' (or pass plant=...), got "
+    raise ValueError(f"scenario must be one of {list(SCENARIOS)} (or pass plant=...), got "
                      f"{name!r}")
 
 
 class UncertainLinearEnv(gym.Env):
     """A linear plant with norm-bounded uncertainty ``[dA; dC] = [M1; M2] F N``, ``F^T F <= I``.
 
-    seed-003 (continuous, ``scenario="seed003"``) or seed-004 (discrete, ``"seed004"``), or
-    any :class:`~filters.analysis.UncertainPlant` (``plant=``)::
+    The example of Wang & Fang (2006) (continuous,
+    ``scenario="wang-variance-constrained-parabolic"``) or of Liu, Deng & Wang (n.d.)
+    (discrete, ``"liu-variance-constrained-discrete"``), or any
+    :class:`~filters.analysis.UncertainPlant` (``plant=``)::
 
         continuous: x' = (A + M1 F N) x + B u + D1 w,   y = (C + M2 F N) x + D2 w
         discrete:   x(k+1) = (A + M1 F N) x(k) + B u(k) + D1 w(k),
@@ -71,7 +78,8 @@ class UncertainLinearEnv(gym.Env):
     | 0..p-1 | measurement ``y`` of the last step | plant units |
 
     After a step ``k -> k+1`` the observation is the measurement that belongs to that step:
-    discrete ``y(k)`` (it shares ``w(k)`` with ``x(k+1)``, as in (1)-(2) of seed-004);
+    discrete ``y(k)`` (it shares ``w(k)`` with ``x(k+1)``, as in (1)-(2) of
+    Liu, Deng & Wang (n.d.));
     continuous the average of ``y(t)`` over the step (noise covariance ``D2 D2^T / dt``). A
     filter ``xhat(k+1) = G xhat(k) + K y(k)`` stepped on it estimates ``info["state"] =
     x(k+1)``, so :class:`~testbed.wrappers.FilterInLoop` with
@@ -104,7 +112,8 @@ class UncertainLinearEnv(gym.Env):
 
     ## Arguments
 
-    ``scenario`` (``"seed003"``, ``"seed004"``) or ``plant`` (an ``UncertainPlant``);
+    ``scenario`` (``"wang-variance-constrained-parabolic"``,
+    ``"liu-variance-constrained-discrete"``) or ``plant`` (an ``UncertainPlant``);
     ``dt_s`` (continuous: sample period, default 0.01 s; discrete: time label, default 1);
     ``F`` (fixed uncertainty, default None: drawn per episode); ``B`` (n, k) input matrix.
 
@@ -114,9 +123,9 @@ class UncertainLinearEnv(gym.Env):
 
     metadata = {"render_modes": [], "render_fps": 100}
 
-    def __init__(self, scenario: str = "seed003", plant: UncertainPlant | None = None,
-                 dt_s: float | None = None, F: Any = None, B: Any = None,
-                 render_mode: str | None = None):
+    def __init__(self, scenario: str = "wang-variance-constrained-parabolic",
+                 plant: UncertainPlant | None = None, dt_s: float | None = None,
+                 F: Any = None, B: Any = None, render_mode: str | None = None):
         if render_mode is not None:
             raise ValueError(f"render_mode must be None (no rendering), got {render_mode!r}")
         if plant is not None and not isinstance(plant, UncertainPlant):

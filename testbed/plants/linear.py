@@ -6,8 +6,8 @@ the MuJoCo rig.
 Integration: classical RK4 for the drift (``u(t)`` and ``w(t)`` evaluated at the RK4 stage
 times, so smooth signals keep order 4), plus the Wiener increment ``b dW`` added once per
 step (for additive noise this scheme has strong order 1). With ``rng=None`` the noise is
-left out and the result is the mean trajectory ``E[x(t)]`` that seed-000's bound (6) is
-about.
+left out and the result is the mean trajectory ``E[x(t)]`` that the bound (6) of
+Basin, Elvira-Ceja & Sanchez (n.d.) is about (see docs/references.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""seed-002 Example 5.1: the nonlinear discrete stochastic system (49) and its filter (50).
+"""Zhang, Deng & Zhang (2018), Example 5.1: the nonlinear discrete stochastic system (49) and its
+filter (50) (see docs/references.md).
 
 System (49), state ``x = [x1, x2]``, scalar disturbance ``v_k``, scalar white noise ``w_k``
 (``E w = 0``, ``E w^2 = 1``; drawn standard normal here)::

@@ -1,4 +1,5 @@
-"""Simulation of a polynomial plant ``dx/dt = f(x, t) + B w + E u`` (seed-001's class).
+"""Simulation of a polynomial plant ``dx/dt = f(x, t) + B w + E u`` (the class of systems of
+Basin, Shi & Calderon-Alvarez (n.d.); see docs/references.md).
 
 A :class:`PolynomialPlant` wraps a :class:`~filters.polynomial_model.PolynomialModel`
 (coefficient tensors of degree <= 3, constant or functions of time) and integrates it with
@@ -15,9 +16,9 @@ is the interval average ``(1/dt) int (C x + D w) dt`` an integrate-and-dump conv
 deliver (for white noise its noise part is ``D sqrt(q) (W(t + dt) - W(t)) / dt``, the same
 increments the state saw, so ``D B^T != 0`` correlations are kept).
 
-Finite escape (Remark 2 of seed-001: an unstable cubic term escapes in finite time) is
-detected by an :class:`~filters.polynomial_model.EscapeTest` after every substep (a bound
-and a growth test; never NaN) and reported as
+Finite escape (Remark 2 of Basin, Shi & Calderon-Alvarez (n.d.): an unstable cubic term
+escapes in finite time) is detected by an :class:`~filters.polynomial_model.EscapeTest` after
+every substep (a bound and a growth test; never NaN) and reported as
 :class:`~filters.errors.FiniteEscapeError` with ``quantity="state"``.
 """
 

@@ -1,4 +1,5 @@
-"""Simulation of linear plants with norm-bounded uncertainty (seed-003, seed-004).
+"""Simulation of linear plants with norm-bounded uncertainty (the plants of Wang & Fang (2006) and
+Liu, Deng & Wang (n.d.); see docs/references.md).
 
 The model is a :class:`filters.analysis.UncertainPlant`::
 

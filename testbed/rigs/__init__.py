@@ -1,0 +1,49 @@
+"""Rigs: one folder per rig (MJCF beside its Python) and this registry.
+
+Register a rig with one line, ``register_rig(MyRig)`` (``MyRig.name`` becomes usable in
+``testbed run NAME``, scenarios and :func:`testbed.envs.RigEnv`), or pass the class itself.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: Rig name -> "module:Class" (imported on first use).
+RIGS: dict[str, Any] = {
+    "helicopter": "testbed.rigs.helicopter.rig:HelicopterRig",
+    "vehicle-roll": "testbed.rigs.vehicle_roll.rig:VehicleRollRig",
+}
+
+
+def register_rig(cls: type) -> type:
+    """Add a :class:`~testbed.rigs.base.Rig` subclass to :data:`RIGS` under ``cls.name``."""
+    if not getattr(cls, "name", ""):
+        raise ValueError(f"{cls.__name__}.name must be a non-empty string")
+    RIGS[cls.name] = cls
+    return cls
+
+
+def resolve_rig(rig: Any) -> type:
+    """A rig class from a registered name, a ``module:Class`` path or the class itself."""
+    from testbed.rigs.base import Rig
+
+    if isinstance(rig, type) and issubclass(rig, Rig):
+        return rig
+    if not isinstance(rig, str):
+        raise ValueError(f"rig must be a name, 'module:Class' or a Rig subclass, got {rig!r}")
+    target = RIGS.get(rig, rig)
+    if isinstance(target, str):
+        module, sep, attr = target.partition(":")
+        if not sep:
+            raise ValueError(f"unknown rig {rig!r}; expected one of {sorted(RIGS)} or "
+                             "'package.module:RigClass'")
+        try:
+            target = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as err:
+            raise ValueError(f"cannot load rig {rig!r}: {err}") from None
+        if rig in RIGS:
+            RIGS[rig] = target
+    if not (isinstance(target, type) and issubclass(target, Rig)):
+        raise ValueError(f"{rig!r} is not a testbed.rigs.base.Rig subclass")
+    return target

@@ -1,8 +1,9 @@
-"""Reproduction of seed-004's example: discrete robust H2/H-infinity filtering with variance
-constraints (OCR-damaged paper; PAPER_NOTES.md's reading of the example).
+"""Reproduction of the example of Liu, Deng & Wang (n.d.): discrete robust H2/H-infinity filtering
+with variance constraints (OCR-damaged paper; our reading of the example, see
+docs/references.md).
 
-``testbed reproduce variance-constrained-discrete``. The same parts as
-:mod:`testbed.reproductions.variance_constrained_continuous`:
+``testbed reproduce liu-variance-constrained-discrete``. The same parts as
+:mod:`testbed.reproductions.wang_variance_constrained_parabolic`:
 
 1. **design**: (11) and the reconstructed second Riccati equation (12r)
    (:func:`filters.variance_discrete.design_discrete`) with the printed ``gamma = 0.012``,
@@ -35,16 +36,16 @@ from filters.variance_discrete import (
 )
 from testbed.plants.uncertain_linear import UncertainLinearPlant
 from testbed.reproductions.outputs import write_outputs
-from testbed.reproductions.variance_constrained_continuous import (
+from testbed.reproductions.wang_variance_constrained_parabolic import (
     design_entry,
     evaluate_published,
     monte_carlo_block,
     plot_published,
     trajectory,
 )
-from testbed.scenarios.seed004 import VarianceConstrainedDiscreteScenario
+from testbed.scenarios.liu_variance_discrete import VarianceConstrainedDiscreteScenario
 
-NAME = "variance-constrained-discrete"
+NAME = "liu-variance-constrained-discrete"
 #: Default samples per Monte-Carlo run and runs per F.
 HORIZON = 400
 N_RUNS = 2000
@@ -145,8 +146,9 @@ def _plot(result: dict[str, Any], s: VarianceConstrainedDiscreteScenario,
         ax[1, 0].plot([float(key)] * 2, np.diag(P), "rx", ms=7,
                       label="paper" if key == "1" else None)
     ax[1, 0].legend(fontsize=6)
-    fig.suptitle("seed-004 example: the printed filter checked for all |F| <= 1; design "
-                 f"with printed values solved: {result['design']['U=1']['solved']}")
+    fig.suptitle("Liu, Deng & Wang (n.d.), example: the printed filter checked for all "
+                 "|F| <= 1; design with printed values solved: "
+                 f"{result['design']['U=1']['solved']}")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
 
@@ -183,8 +185,8 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     cov_txt = ", ".join(f"F = {k}: P = {np.round(np.array(c['ours']), 6).tolist()}"
                         for k, c in comp.items())
     why = ("OCR-damaged text: the second Riccati equation and the gain are reconstructed "
-           "(completion of squares of the cited construction, as in seed-003), delta2 and H "
-           "are not legible (assumed delta2 = delta1, H = 0). ")
+           "(completion of squares of the cited construction, as in Wang & Fang (2006)), "
+           "delta2 and H are not legible (assumed delta2 = delta1, H = 0). ")
     if thr is not None and not d["solved"]:
         why += (f"At eps = {p['eps']:g}, (11) has a solution only for delta1 < {thr:.4f} "
                 f"(monotone iteration), just below the printed {p['delta1']:g}. ")
@@ -194,7 +196,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
             "reading of the example or in the paper's numbers. The printed filter meets the "
             f"requirements: {ok_pub}.")
     return {
-        "paper": "seed-004 (Liu, Deng & Wang), Section 4 (OCR damaged)",
+        "paper": "Liu, Deng & Wang (n.d.), Section 4 (OCR damaged)",
         "claim": (f"with gamma = {p['gamma']:g}, eps = {p['eps']:g}, delta1 = {p['delta1']:g} "
                   f"the filter G, K meets var <= {p['sigma2']} and ||H||inf <= {p['gamma']:g};"
                   " printed covariances for F = 1, 0"),

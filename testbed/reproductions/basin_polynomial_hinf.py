@@ -1,16 +1,18 @@
-"""Reproduction of seed-001's example: central H-infinity filter for a cubic polynomial system.
+"""Reproduction of the example of Basin, Shi & Calderon-Alvarez (n.d.): central H-infinity
+filter for a cubic polynomial system (see docs/references.md).
 
-``testbed reproduce polynomial-hinf``. The plant is the paper's system (22)-(24)
-(:class:`~testbed.scenarios.seed001.PolynomialHinfScenario`), integrated with RK4 on a
-``dt_s`` grid (default 0.1 ms, far below the 0.126 s period of ``sin 50t``) with the printed
-L2 disturbance ``w1 = 1/(1+t)^2``, ``w2 = 2/(2+t)^2``; the filters get the interval
+``testbed reproduce basin-polynomial-hinf``. The plant is the paper's system (22)-(24)
+(:class:`~testbed.scenarios.basin_polynomial_hinf.PolynomialHinfScenario`), integrated with
+RK4 on a ``dt_s`` grid (default 0.1 ms, far below the 0.126 s period of ``sin 50t``) with the
+printed L2 disturbance ``w1 = 1/(1+t)^2``, ``w2 = 2/(2+t)^2``; the filters get the interval
 averages of ``y`` (held over each interval) and step on the same grid.
 
 Filters (all from ``x_f(0) = 0``, ``P(0) = R^-1 = I``, ``gamma = 1.05``):
 
 - **poly**: :class:`~filters.hinf_polynomial.PolynomialHInfFilter`, Theorem 1. The main
   run uses the ``L`` for which (13) gives the printed (26) (``L = [1 0]``, see
-  :mod:`testbed.scenarios.seed001`); a test proves the implementation equals (25)-(26).
+  :mod:`testbed.scenarios.basin_polynomial_hinf`); a test proves the implementation equals
+  (25)-(26).
 - **linearized**: :class:`~filters.hinf_polynomial.LinearizedHInfFilter`, (27)-(28). The
   main run uses (27) as printed (``state_equation="jacobian"``: ``0.2 m^2 + (0.3 + 0.3 sin
   50t) m^3``); the variant ``"system"`` uses the system's ``0.1 m^2 + (0.1 + 0.1 sin 50t)
@@ -40,10 +42,10 @@ from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
 from testbed.plants.polynomial import PolynomialPlant
 from testbed.reproductions.outputs import write_outputs
-from testbed.scenarios.seed001 import PolynomialHinfScenario, paper_model
+from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario, paper_model
 from testbed.trajectory import Trajectory
 
-NAME = "polynomial-hinf"
+NAME = "basin-polynomial-hinf"
 #: ``T_before_end`` is reported this long before the end of the common interval, s: near
 #: an escape ``T`` rises steeply, so its value at the cut depends on where the escape test
 #: stops the filter.
@@ -206,7 +208,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(sim, result, s, path),
                   trajectory=lambda: _trajectory(sim, result),
-                  application_id="testbed-polynomial-hinf", degrees=False)
+                  application_id="testbed-" + NAME, degrees=False)
     return result
 
 
@@ -267,8 +269,8 @@ def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario
     bottom.set(title="Fig. 1 (below): noise-output ratio T(t) = ||z - z_f||_2 / (||w||_2^2 + "
                      "x0' R x0)^1/2", xlabel="t [s]", ylabel="T")
     bottom.legend(fontsize=8)
-    fig.suptitle("seed-001 example: central H-infinity filters for x2' = 0.1 x2^2 + "
-                 "(0.1 + 0.1 sin 50t) x2^3 + w1, gamma = 1.05")
+    fig.suptitle("Basin, Shi & Calderon-Alvarez (n.d.), example: central H-infinity filters "
+                 "for x2' = 0.1 x2^2 + (0.1 + 0.1 sin 50t) x2^3 + w1, gamma = 1.05")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
 
@@ -333,7 +335,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
             "at the estimate), not the system's f(m). (32) misprints (14); (14) is "
             "implemented.")
     return {
-        "paper": "seed-001 (Basin, Shi, Calderon-Alvarez), Section IV",
+        "paper": "Basin, Shi & Calderon-Alvarez (n.d.), Section IV",
         "claim": (f"on [0, {paper['horizon']:g}] the polynomial filter (25)-(26) gives "
                   f"||T_zw|| = {paper['T_poly']} < gamma = {gamma}, the linearized filter "
                   f"(27)-(28) {paper['T_linearized']} > gamma"),

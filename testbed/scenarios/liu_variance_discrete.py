@@ -1,9 +1,10 @@
-"""seed-004, Section 4: discrete robust H2/H-infinity filter with variance constraints.
+"""Liu, Deng & Wang (n.d.), Section 4: discrete robust H2/H-infinity filter with variance
+constraints.
 
-The text is OCR damaged; the values are PAPER_NOTES.md's reading of the example. Two design
-values are not legible and are our assumptions: ``delta2 = delta1`` and ``H = 0`` (the central
-gain; the paper prints no ``H``). ``H0`` is our direction for the search over the scale of
-``H``.
+The text is OCR damaged; the values are our reading of the example (see docs/references.md).
+Two design values are not legible and are our assumptions: ``delta2 = delta1`` and ``H = 0``
+(the central gain; the paper prints no ``H``). ``H0`` is our direction for the search over the
+scale of ``H``.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ def _a(rows: list) -> np.ndarray:
 
 @dataclass(frozen=True)
 class VarianceConstrainedDiscreteScenario:
-    """The example of seed-004 (reconstructed reading).
+    """The example of Liu, Deng & Wang (n.d.) (reconstructed reading).
 
     Attributes
     ----------

@@ -1,7 +1,8 @@
-"""seed-003, Section IV: variance-constrained robust H-infinity filter with parabolic poles.
+"""Wang & Fang (2006), Section IV: variance-constrained robust H-infinity filter with parabolic
+poles.
 
 Every printed value of the example, verbatim; the example's ``E = [0.1 0.1]^T`` is Theorem 1's
-``H`` (PAPER_NOTES.md).
+``H`` (see docs/references.md).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ def _a(rows: list) -> np.ndarray:
 
 @dataclass(frozen=True)
 class VarianceConstrainedContinuousScenario:
-    """The example of seed-003 (matrices, requirements, design values, printed results).
+    """The example of Wang & Fang (2006) (matrices, requirements, design values, printed results).
 
     Attributes
     ----------

@@ -1,7 +1,8 @@
-"""Reproduction of seed-002 Example 5.1: the nonlinear system (49) with the filter (50).
+"""Reproduction of Zhang, Deng & Zhang (2018), Example 5.1: the nonlinear system (49) with the
+filter (50) (see docs/references.md).
 
-``testbed reproduce nonlinear-discrete``. The paper states neither ``x0`` nor ``gamma``
-(:class:`testbed.scenarios.seed002.NonlinearDiscreteScenario`: ``x0 = [1, 1]``,
+``testbed reproduce zhang-nonlinear-discrete``. The paper states neither ``x0`` nor ``gamma``
+(:class:`testbed.scenarios.zhang_hinf.NonlinearDiscreteScenario`: ``x0 = [1, 1]``,
 ``gamma = 2``; both are in the output).
 
 - **Monte Carlo** (1000 runs, as in the paper; vectorized over runs,
@@ -31,10 +32,10 @@ import numpy as np
 from filters.lmi_hinf import LMIHInfFilter
 from testbed.plants import nonlinear_discrete as plant
 from testbed.reproductions.outputs import write_outputs
-from testbed.scenarios.seed002 import NonlinearDiscreteScenario
+from testbed.scenarios.zhang_hinf import NonlinearDiscreteScenario
 from testbed.trajectory import Trajectory
 
-NAME = "nonlinear-discrete"
+NAME = "zhang-nonlinear-discrete"
 
 
 def filter50(x0: np.ndarray | None = None) -> LMIHInfFilter:
@@ -168,7 +169,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
                   plot=lambda path: _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma,
                                           s, path),
                   trajectory=lambda: _trajectory(loop),
-                  application_id="testbed-nonlinear-discrete", degrees=False)
+                  application_id="testbed-" + NAME, degrees=False)
     return result
 
 
@@ -218,7 +219,7 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     fig.colorbar(mesh, ax=ax, label="(36) left-hand side (> 0: violated)")
     ax.set(title="Corollary 3 (36), Q1 = Q2 = I, slice x1 = xhat1 = 0 (violated near 0)",
            xlabel="x2", ylabel="xhat2")
-    fig.suptitle("seed-002 Example 5.1: nonlinear system (49), filter (50)")
+    fig.suptitle("Zhang, Deng & Zhang (2018), Example 5.1: nonlinear system (49), filter (50)")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
 
@@ -228,7 +229,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     cor, pr, hji = result["corollary3"], result["corollary3_printed"], result["hji_27"]
     held = "holds" if result["inequality_holds"] else "fails"
     return {
-        "paper": "seed-002 (Zhang, Deng, Zhang), Example 5.1",
+        "paper": "Zhang, Deng & Zhang (2018), Example 5.1",
         "claim": "(35)-(36) 'easily' hold with Q1 = Q2 = I, so (50) is an H-infinity filter; "
                  "1000 runs: sum E ztilde^2 < gamma^2 sum v^2 (Fig. 3); x0, gamma not stated",
         "ours": (f"x0 = {result['x0']}, gamma = {result['gamma']:g}, {result['runs']} runs, "

@@ -1,4 +1,5 @@
-"""seed-001, Section IV: the central H-infinity filter on a cubic polynomial system.
+"""Basin, Shi & Calderon-Alvarez (n.d.), Section IV: the central H-infinity filter on a cubic
+polynomial system (see docs/references.md).
 
 Every printed value of the example, verbatim. The system (22)-(24)::
 
@@ -68,7 +69,7 @@ def paper_w(t_s: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PolynomialHinfScenario:
-    """The example of seed-001 (eqs. (22)-(28) and the values below them).
+    """The example of Basin, Shi & Calderon-Alvarez (n.d.): eqs. (22)-(28) and the values below.
 
     Attributes
     ----------

@@ -1,6 +1,7 @@
-"""Reproduction of seed-000's example: the mean-square H-infinity filter on the helicopter.
+"""Reproduction of the example of Basin, Elvira-Ceja & Sanchez (n.d.): the mean-square
+H-infinity filter on the helicopter (see docs/references.md).
 
-``testbed reproduce ms-hinf-helicopter``. The plant is the paper's linear model (12)-(15)
+``testbed reproduce basin-ms-hinf-helicopter``. The plant is the paper's linear model (12)-(15)
 (not the MuJoCo rig), with every printed value (:class:`MsHinfHelicopterScenario`).
 
 Two runs on a ``dt_s`` grid (default 10 ms):
@@ -30,10 +31,10 @@ from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
 from filters.analysis import noise_output_ratio
 from testbed.plants.linear import simulate_linear
 from testbed.reproductions.outputs import write_outputs
-from testbed.scenarios.seed000 import MsHinfHelicopterScenario
+from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
 from testbed.trajectory import Trajectory
 
-NAME = "ms-hinf-helicopter"
+NAME = "basin-ms-hinf-helicopter"
 
 
 def _filters(s: MsHinfHelicopterScenario, dt_s: float):
@@ -125,7 +126,7 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(mean, noisy, s, path),
                   trajectory=lambda: _trajectory(noisy, s),
-                  application_id="testbed-ms-hinf-helicopter")
+                  application_id="testbed-" + NAME)
     return result
 
 
@@ -172,7 +173,8 @@ def _plot(mean: dict, noisy: dict, s: MsHinfHelicopterScenario, path: str | Path
                     alpha=0.6, label="noisy run")
         bottom.set(title=f"{name} estimation error", xlabel="t [s]", ylabel="deg")
         bottom.legend(fontsize=8)
-    fig.suptitle("seed-000 example: central mean-square H-infinity filter, gamma = 1.1")
+    fig.suptitle("Basin, Elvira-Ceja & Sanchez (n.d.), example: central mean-square "
+                 "H-infinity filter, gamma = 1.1")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
 
@@ -184,7 +186,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     rel_final, rel_max = (T - paper) / paper, (T_max - paper) / paper
     agree = abs(rel_final) < 0.05 or abs(rel_max) < 0.05
     return {
-        "paper": "seed-000 (Basin et al.), Section IV",
+        "paper": "Basin, Elvira-Ceja & Sanchez (n.d.), Section IV",
         "claim": f"max of T over 0-80 s is {result['paper_T_max']} (< gamma = "
                  f"{result['gamma']}); estimation errors converge to zero",
         "ours": (f"mean run: T(80 s) = {T:.4f}, max T = {T_max:.4f} at "

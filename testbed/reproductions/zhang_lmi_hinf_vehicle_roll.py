@@ -1,8 +1,9 @@
-"""Reproduction of seed-002 Example 5.2: the Theorem-4 (LMI) H-infinity filter, vehicle roll.
+"""Reproduction of Zhang, Deng & Zhang (2018), Example 5.2: the Theorem-4 (LMI) H-infinity filter,
+vehicle roll (see docs/references.md).
 
-``testbed reproduce lmi-hinf-vehicle-roll``. Three filters, each evaluated the same way:
+``testbed reproduce zhang-lmi-hinf-vehicle-roll``. Three filters, each evaluated the same way:
 
-- **ours** on the paper's model (52) verbatim (:func:`testbed.scenarios.seed002.
+- **ours** on the paper's model (52) verbatim (:func:`testbed.scenarios.zhang_hinf.
   paper_system`): ``gamma_min`` by bisection on LMI (48) (:func:`filters.lmi_hinf.
   minimal_gamma`), then the suboptimal mixed H2/H-infinity filter (``min trace(P1 + P2)``)
   at ``gamma_used = gamma_factor * gamma_min`` (neither example states gamma);
@@ -10,7 +11,7 @@
   Theorem 4 certifies that gain (LMI (48) with ``P_K = P2 Khat`` fixed), same rule for
   ``gamma_used``; also the gamma for which the printed ``(P1, P2, P_K)`` satisfy (48);
 - **rig**: designed the same way on the physically consistent model of the MuJoCo rig
-  (:func:`testbed.scenarios.seed002.rig_system`) and run on the rig
+  (:func:`testbed.scenarios.zhang_hinf.rig_system`) and run on the rig
   (:class:`~testbed.envs.vehicle_roll.VehicleRollEnv`, ``paper`` suite, ``paper-decay``
   manoeuvre ``a_y = v_k``) with the filter in the loop (:class:`~testbed.wrappers.
   FilterInLoop`).
@@ -44,7 +45,7 @@ from filters.lmi_hinf import (
     output_error_moments,
 )
 from testbed.reproductions.outputs import write_outputs
-from testbed.scenarios.seed002 import (
+from testbed.scenarios.zhang_hinf import (
     PAPER_K_HAT,
     PAPER_P1,
     PAPER_P2,
@@ -58,7 +59,7 @@ from testbed.scenarios.seed002 import (
 )
 from testbed.trajectory import Trajectory
 
-NAME = "lmi-hinf-vehicle-roll"
+NAME = "zhang-lmi-hinf-vehicle-roll"
 CASES = ("x0_zero", "x0_paper")
 
 
@@ -329,7 +330,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(curves, result, s, path),
                   trajectory=lambda: _trajectory(sim), model=sim["model"],
-                  application_id="testbed-lmi-hinf-vehicle-roll")
+                  application_id="testbed-" + NAME)
     return result
 
 
@@ -398,8 +399,8 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     ax.set(title="rig vs (52): state from x0 = [0.1, 1] (rad, rad/s; mean of runs)",
            xlabel="k")
     ax.legend(fontsize=8)
-    fig.suptitle("seed-002 Example 5.2: Theorem-4 H-infinity filter, vehicle roll "
-                 f"({result['runs']} runs)")
+    fig.suptitle("Zhang, Deng & Zhang (2018), Example 5.2: Theorem-4 H-infinity filter, "
+                 f"vehicle roll ({result['runs']} runs)")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
 
@@ -421,7 +422,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     mm = rig["model_mismatch"]
     agree = result["inequality_holds"]["x0_zero"] and p["inequality_holds"]["x0_zero"]
     return {
-        "paper": "seed-002 (Zhang, Deng, Zhang), Example 5.2",
+        "paper": "Zhang, Deng & Zhang (2018), Example 5.2",
         "claim": "Theorem 4 gives the filter (53) (printed Khat); with x0 = [0.1, 1], 100 runs, "
                  "sum E|ztilde|^2 <= gamma^2 sum |v|^2 at every k (Fig. 7); gamma not stated",
         "ours": (f"(52): gamma_min = {result['gamma_min']:.3g} (bisection, rtol "

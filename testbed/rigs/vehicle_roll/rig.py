@@ -47,9 +47,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from testbed.rigs.assets import model_path
-from testbed.rigs.helicopter import GRAVITY_M_S2
-from testbed.rigs.params import scaled_copy
+from testbed.rigs.base import Params, Rig
+from testbed.rigs.helicopter.rig import GRAVITY_M_S2
 
 STATE_NAMES = ("roll", "roll_rate")
 ACTION_NAMES = ("a_y",)
@@ -60,7 +59,7 @@ PAPER_PERIOD_S = 0.01
 
 
 @dataclass(frozen=True)
-class VehicleRollParams:
+class VehicleRollParams(Params):
     """Physical parameters of the roll model (seed-002 Table 1, SI units).
 
     Attributes
@@ -87,23 +86,6 @@ class VehicleRollParams:
     roll_stiffness: float = 55314.0
     roll_damping: float = 53071.0
     damping_noise: float = 20.0
-
-    def scaled(self, scales: dict[str, float]) -> VehicleRollParams:
-        """Copy with some parameters multiplied by factors (model mismatch studies).
-
-        Parameters
-        ----------
-        scales : dict
-            ``{field_name: factor}``; factors must be finite and non-negative (0 is allowed
-            where the parameter may vanish, e.g. ``damping_noise``; :meth:`validate` decides).
-
-        Raises
-        ------
-        ValueError
-            Unknown field name, a negative/non-finite factor, or an unphysical result
-            (named in the message).
-        """
-        return scaled_copy(self, scales)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""
@@ -222,137 +204,151 @@ def physical_model(params: VehicleRollParams | None = None) -> tuple[np.ndarray,
     return A, B
 
 
-class VehicleRollRig:
-    """The MuJoCo roll rig: model, parameters, inputs, state access and linearization.
+#: Roll angle beyond which the vehicle has rolled over (episode terminates), rad.
+ROLLOVER_RAD = float(np.pi / 2)
+SENSOR_PRESETS = ("imu", "paper")
 
-    Parameters
-    ----------
-    params : VehicleRollParams, optional
-        Physical parameters; the MJCF's mass, inertia, centre of mass, stiffness and damping
-        are rewritten from them.
-    physics_dt_s : float
-        MuJoCo time step in seconds.
 
-    Attributes
-    ----------
-    model : mujoco.MjModel
-    data : mujoco.MjData
-    params : VehicleRollParams
+def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
+                            design_roll_rate: float) -> np.ndarray:
+    """Process-noise intensity ``Q`` of the design model, shape (2, 2), rad^2/s^3.
+
+    Two independent parts on the roll-rate row:
+
+    - the multiplicative damping noise: over one step ``T`` the torque ``-D_n w_k roll_rate``
+      changes the roll rate by ``-(D_n T / I_xx) roll_rate w_k``; with a design value for
+      ``roll_rate`` its intensity is ``D_n^2 T design_roll_rate^2 / I_xx^2``;
+    - the ``a_y`` error (std ``a_y_std`` per step, held): ``(m_s h_cr / I_xx)^2 a_y_std^2 T``.
+      It also covers what the linear model leaves out (``1 - cos roll``, ``sin roll - roll``).
+    """
+    inertia = params.roll_inertia
+    q_damp = params.damping_noise**2 * dt_s * design_roll_rate**2 / inertia**2
+    q_ay = (params.sprung_mass_kg * params.com_height_m / inertia) ** 2 * a_y_std**2 * dt_s
+    return np.diag([0.0, q_damp + q_ay])
+
+
+def _zhang_decay(t_s: float) -> np.ndarray:
+    """Zhang et al.'s ``v = 0.01 * 0.9^(t / T)`` as a measurement disturbance, shape (1,)."""
+    return np.array([0.01 * 0.9 ** (max(t_s, 0.0) / PAPER_PERIOD_S)])
+
+
+class VehicleRollRig(Rig):
+    """The sprung mass of a light commercial vehicle rolling about its roll axis.
+
+    Action: the lateral acceleration ``a_y`` (m/s^2, + left), applied as the d'Alembert force
+    ``-m_s a_y`` at the centre of mass (``xfrc_applied``); clipped at +-8 m/s^2. With a
+    manoeuvre (``reset(options={"manoeuvre": name})``) the action is added to the profile.
+    Step noise: the damping is ``C_R + D_n w_k`` over each control step (``w_k ~ N(0, 1)``).
+    The episode terminates past 90 deg of roll.
     """
 
-    XML_FILE = "vehicle_roll.xml"
+    name = "vehicle-roll"
+    xml_path = "vehicle_roll.xml"
+    params_type = VehicleRollParams
+    joints = ("roll",)
+    state_names = STATE_NAMES
+    state_units = ("rad", "rad/s")
+    action_names = ACTION_NAMES
+    action_units = ("m/s^2",)
+    action_low = (-A_Y_LIMIT_M_S2,)
+    action_high = (A_Y_LIMIT_M_S2,)
+    tracked_states = ("roll",)
+    step_noise_dim = 1
+    disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
+    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2}
+    scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
 
     def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001):
-        if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
-            raise ValueError(f"physics_dt_s must be a positive finite time in s, "
-                             f"got {physics_dt_s}")
-        self.model = mujoco.MjModel.from_xml_path(str(model_path(self.XML_FILE)))
-        self.model.opt.timestep = physics_dt_s
+        super().__init__(params, physics_dt_s)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
-        self.data = mujoco.MjData(self.model)
-        joint = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, "roll")
-        self._qpos_adr = int(self.model.jnt_qposadr[joint])
-        self._dof_adr = int(self.model.jnt_dofadr[joint])
-        self._body_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "sprung_mass")
-        self._joint_id = joint
-        self.params = VehicleRollParams()
-        self.set_params(params or VehicleRollParams())
+        self._body_id = self.body_id("sprung_mass")
+        from testbed.manoeuvres import MANOEUVRES
 
-    # ------------------------------------------------------------------ parameters
-    def set_params(self, params: VehicleRollParams) -> None:
-        """Write physical parameters into the MuJoCo model; resets the damping noise to 0.
+        self.manoeuvres = MANOEUVRES
 
-        Raises
-        ------
-        ValueError
-            If a parameter is unphysical (named in the message); the model is unchanged.
-        """
-        params.validate()
-        m = self.model
-        b = self._body_id
-        m.body_mass[b] = params.sprung_mass_kg
-        m.body_ipos[b] = [0.0, 0.0, params.com_height_m]
-        inertia = m.body_inertia[b].copy()
+    def apply_params(self, model: mujoco.MjModel, params: VehicleRollParams) -> None:
+        """Mass, inertia, centre of mass, stiffness and damping from ``params``."""
+        b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "sprung_mass")
+        joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "roll")
+        model.body_mass[b] = params.sprung_mass_kg
+        model.body_ipos[b] = [0.0, 0.0, params.com_height_m]
+        inertia = model.body_inertia[b].copy()
         inertia[0] = params.inertia_com
-        m.body_inertia[b] = inertia
-        m.jnt_stiffness[self._joint_id] = params.roll_stiffness
-        m.qpos_spring[self._qpos_adr] = 0.0
-        m.dof_damping[self._dof_adr] = params.roll_damping
-        mujoco.mj_setConst(m, self.data)
-        self.params = params
+        model.body_inertia[b] = inertia
+        model.jnt_stiffness[joint] = params.roll_stiffness
+        model.qpos_spring[self.qpos_adr[0]] = 0.0
+        model.dof_damping[self.dof_adr[0]] = params.roll_damping
 
-    # ------------------------------------------------------------------ inputs
-    def set_lateral_acceleration(self, a_y: float) -> None:
-        """Apply the inertial force of a lateral acceleration ``a_y`` (m/s^2, + left).
+    def member_constants(self, params: VehicleRollParams) -> np.ndarray:
+        """``[m_s, C_R, D_n]`` for :meth:`actuation` and :meth:`apply_step_noise`."""
+        return np.array([params.sprung_mass_kg, params.roll_damping, params.damping_noise])
 
-        Writes ``xfrc_applied = [0, -m_s a_y, 0, 0, 0, 0]`` on the sprung mass (MuJoCo applies
-        it at the centre of mass): torque ``m_s h_cr a_y cos(roll)`` about the roll axis.
+    def actuation(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
+        """``xfrc_applied[sprung_mass] = [0, -m_s a_y, 0, 0, 0, 0]`` for each member."""
+        xfrc = np.zeros((len(u), self.model.nbody, 6))
+        xfrc[:, self._body_id, 1] = -constants[:, 0] * u[:, 0]
+        return {"xfrc": xfrc}
+
+    def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
+                         xi: np.ndarray) -> None:
+        """Damping ``C_R + D_n w_k`` for the next step."""
+        model.dof_damping[self.dof_adr[0]] = constants[1] + constants[2] * xi[0]
+
+    def validate_x0(self, x0) -> np.ndarray:
+        """Shape (2,), finite, roll short of rollover."""
+        x = super().validate_x0(x0)
+        if abs(x[0]) >= ROLLOVER_RAD:
+            raise ValueError(f"options['x0'] roll {x[0]:.4f} rad is beyond rollover "
+                             f"(+-{ROLLOVER_RAD:.4f} rad)")
+        return x
+
+    def terminated(self, x: np.ndarray) -> np.ndarray:
+        """Rolled over: ``|roll| > 90 deg``."""
+        return np.abs(x[:, 0]) > ROLLOVER_RAD
+
+    def sensors(self, preset: str | None = "imu", *, dt_s: float = 0.01, **options):
+        """``imu`` (gyro, lateral accelerometer, optional roll sensor) or ``paper`` channels.
+
+        See :func:`testbed.rigs.vehicle_roll.sensors.imu` and
+        :class:`testbed.rigs.vehicle_roll.sensors.PaperRollChannel` for the options.
         """
-        self.data.xfrc_applied[self._body_id, 1] = -self.params.sprung_mass_kg * a_y
+        from testbed.rigs.vehicle_roll import sensors
 
-    def set_damping_noise(self, w: float) -> None:
-        """Set the roll damping to ``C_R + D_n w`` for the next steps (``w`` dimensionless)."""
-        self.model.dof_damping[self._dof_adr] = (self.params.roll_damping
-                                                 + self.params.damping_noise * w)
-
-    # ------------------------------------------------------------------ state
-    def get_state(self) -> np.ndarray:
-        """True state ``[roll, roll_rate]``, shape (2,), rad and rad/s."""
-        return np.array([self.data.qpos[self._qpos_adr], self.data.qvel[self._dof_adr]])
-
-    def set_state(self, x: np.ndarray) -> None:
-        """Set the MuJoCo state from ``x`` (shape (2,)) and recompute derived quantities."""
-        self.data.qpos[self._qpos_adr] = x[0]
-        self.data.qvel[self._dof_adr] = x[1]
-        mujoco.mj_forward(self.model, self.data)
-
-    # ------------------------------------------------------------------ models
-    def linearize(self, x_op: np.ndarray | None = None, a_y_op: float = 0.0,
-                  eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time linearization ``(A, B)`` of the MuJoCo rig by central differences.
-
-        ``A = d f / d x`` and ``B = d f / d a_y`` of ``x' = f(x, a_y)``, the roll acceleration
-        from ``mj_forward`` (no integrator involved) at the nominal damping ``C_R`` (``w = 0``).
-
-        Parameters
-        ----------
-        x_op : ndarray, shape (2,), optional
-            Operating state ``[roll, roll_rate]``; default upright at rest.
-        a_y_op : float
-            Operating lateral acceleration, m/s^2.
-        eps : float
-            Finite-difference step (rad, rad/s, m/s^2).
-
-        Returns
-        -------
-        A : ndarray, shape (2, 2)
-        B : ndarray, shape (2, 1)
-            At the default operating point they equal :func:`physical_model` (to ~1e-6).
-        """
-        x_op = np.zeros(2) if x_op is None else np.asarray(x_op, float)
-        if x_op.shape != (2,) or not np.all(np.isfinite(x_op)):
-            raise ValueError(f"x_op must be a finite array of shape (2,), got {x_op!r}")
-        if not np.isfinite(a_y_op):
-            raise ValueError(f"a_y_op must be finite, got {a_y_op}")
-        scratch = mujoco.MjData(self.model)
-        damping = float(self.model.dof_damping[self._dof_adr])
-        self.model.dof_damping[self._dof_adr] = self.params.roll_damping
-        mass = self.params.sprung_mass_kg
-
-        def f(x: np.ndarray, a_y: float) -> np.ndarray:
-            scratch.qpos[self._qpos_adr] = x[0]
-            scratch.qvel[self._dof_adr] = x[1]
-            scratch.xfrc_applied[self._body_id, 1] = -mass * a_y
-            mujoco.mj_forward(self.model, scratch)
-            return np.array([x[1], scratch.qacc[self._dof_adr]])
-
+        preset = preset or "imu"
+        if preset not in SENSOR_PRESETS:
+            raise ValueError(f"unknown vehicle-roll sensor preset {preset!r}; expected one of "
+                             f"{SENSOR_PRESETS}")
         try:
-            A = np.zeros((2, 2))
-            for i in range(2):
-                dx = np.zeros(2)
-                dx[i] = eps
-                A[:, i] = (f(x_op + dx, a_y_op) - f(x_op - dx, a_y_op)) / (2 * eps)
-            B = ((f(x_op, a_y_op + eps) - f(x_op, a_y_op - eps)) / (2 * eps))[:, None]
-        finally:
-            self.model.dof_damping[self._dof_adr] = damping
-        return A, B
+            if preset == "imu":
+                return sensors.imu(dt_s=dt_s, **options)
+            return sensors.PaperRollChannel(**options)
+        except TypeError as err:
+            raise ValueError(f"bad option for sensor preset {preset!r}: {err}") from None
+
+    def design_model(self, sensors, dt_s: float, disturbance=None, *, a_y_std: float = 0.1,
+                     design_roll_rate: float = 0.2):
+        """The physical linearization (with ``g``), nominal parameters, exact ZOH.
+
+        ``Q`` from :func:`process_noise_intensity`; prior ``0``,
+        ``diag((0.5 deg)^2, (1 deg/s)^2)``. ``extras["lmi_system"]`` holds the system of
+        the LMI design (Zhang et al.'s Theorem 4 with the multiplicative damping noise).
+        """
+        from testbed.design import build_design
+
+        for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{key} must be finite and >= 0, got {value}")
+        nominal = VehicleRollParams()
+        A, B = physical_model(nominal)
+        Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
+        if disturbance is not None and disturbance.intensity is not None:
+            Q = Q + disturbance.intensity
+        design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
+                              np.diag(np.deg2rad([0.5, 1.0]) ** 2),
+                              output_matrix=paper_model().M)
+        from testbed.scenarios.zhang_hinf import vehicle_lmi_estimator
+
+        design.extras.update(paper_model=paper_model(), a_y_std=a_y_std,
+                             lmi_system=vehicle_lmi_estimator,
+                             lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
+        return design

@@ -30,8 +30,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from testbed.rigs.assets import model_path
-from testbed.rigs.params import scaled_copy
+from testbed.rigs.base import Params, Rig
 
 GRAVITY_M_S2 = 9.81
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
@@ -41,7 +40,7 @@ VOLTAGE_LIMIT_V = 24.0
 
 
 @dataclass(frozen=True)
-class HelicopterParams:
+class HelicopterParams(Params):
     """Physical parameters of the Quanser 2-DOF helicopter (SI units).
 
     The inertias are not printed in seed-000; they are the values for which the damping and
@@ -89,22 +88,6 @@ class HelicopterParams:
     K_yy: float = 0.7913 * 0.318 / 3.4955
     r_pitch_rotor_m: float = 0.157
     r_yaw_rotor_m: float = 0.178
-
-    def scaled(self, scales: dict[str, float]) -> HelicopterParams:
-        """Copy with some parameters multiplied by factors (model mismatch studies).
-
-        Parameters
-        ----------
-        scales : dict
-            ``{field_name: factor}``; factors must be finite and non-negative.
-
-        Raises
-        ------
-        ValueError
-            Unknown field name, a bad factor, or an unphysical result (e.g. ``m l^2`` above
-            the pitch inertia), named in the message.
-        """
-        return scaled_copy(self, scales)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""
@@ -232,165 +215,205 @@ def _volts_per_pitch_newton_metre(params: HelicopterParams) -> np.ndarray:
     return volts
 
 
-class HelicopterRig:
-    """The MuJoCo helicopter: model, parameters, state access and linearization.
+#: Default setpoint schedule: (start time s, pitch rad, yaw rad).
+DEFAULT_SETPOINTS: tuple[tuple[float, float, float], ...] = (
+    (0.0, 0.0, 0.0),
+    (5.0, float(np.deg2rad(10.0)), float(np.deg2rad(30.0))),
+    (10.0, float(np.deg2rad(-5.0)), float(np.deg2rad(-20.0))),
+    (15.0, float(np.deg2rad(5.0)), 0.0),
+)
+#: Encoder resolutions (pitch, yaw), counts per revolution (Quanser's).
+ENCODER_COUNTS = (4096, 8192)
+SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper")
 
-    Parameters
-    ----------
-    params : HelicopterParams, optional
-        Physical parameters; the MJCF's masses, inertias, damping and gears are rewritten
-        from them.
-    physics_dt_s : float
-        MuJoCo time step in seconds.
 
-    Attributes
-    ----------
-    model : mujoco.MjModel
-    data : mujoco.MjData
+def _basin_signal():
+    from testbed.disturbances import basin_helicopter_w
+
+    return paper_model().G, basin_helicopter_w
+
+
+class HelicopterRig(Rig):
+    """Quanser-style 2-DOF helicopter: pitch and yaw hinges, two voltage-driven rotors.
+
+    The rig rests on its lower pitch stop at -40.5 deg. Motor voltages are clipped at
+    +-24 V like the real amplifier. Design model: Basin et al.'s linear model (the MuJoCo
+    linearization about level pitch with gravity compensated by the input), the sensors'
+    linear model, and as input the voltage minus the gravity-compensating voltage at the
+    estimated pitch (nominal parameters).
     """
 
-    XML_FILE = "helicopter_2dof.xml"
+    name = "helicopter"
+    xml_path = "helicopter_2dof.xml"
+    params_type = HelicopterParams
+    joints = ("pitch", "yaw")
+    state_names = STATE_NAMES
+    state_units = ("rad", "rad", "rad/s", "rad/s")
+    action_names = ACTION_NAMES
+    action_units = ("V", "V")
+    action_low = (-VOLTAGE_LIMIT_V, -VOLTAGE_LIMIT_V)
+    action_high = (VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V)
+    tracked_states = ("pitch", "yaw")
+    default_setpoints = DEFAULT_SETPOINTS
+    disturbance_signals = {"basin-helicopter": lambda: _basin_signal()}
+    scenario_options = {"process_noise_floor": 0.05}
 
     def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001):
-        if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
-            raise ValueError(f"physics_dt_s must be a positive finite time in s, "
-                             f"got {physics_dt_s}")
-        self.model = mujoco.MjModel.from_xml_path(str(model_path(self.XML_FILE)))
-        self.model.opt.timestep = physics_dt_s
-        self.data = mujoco.MjData(self.model)
-        self._qpos_adr = np.array([self.model.jnt_qposadr[self._joint_id(n)]
-                                   for n in ("pitch", "yaw")])
-        self._dof_adr = np.array([self.model.jnt_dofadr[self._joint_id(n)]
-                                  for n in ("pitch", "yaw")])
-        self._body_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "helicopter")
-        self._stage_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "yaw_stage")
-        self._act_pitch = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR,
-                                            "pitch_motor")
-        self._act_yaw = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, "yaw_motor")
+        super().__init__(params, physics_dt_s)
+        ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n)
+               for n in ("pitch_motor", "yaw_motor")]
+        self._act_pitch, self._act_yaw = ids
         self._mass_matrix = np.zeros((self.model.nv, self.model.nv))
-        # [pitch, yaw, pitch_rate, yaw_rate] as one gather from concatenate(qpos, qvel)
-        self._state_gather = np.concatenate([self._qpos_adr, self.model.nq + self._dof_adr])
-        self.params = HelicopterParams()
-        self.set_params(params or HelicopterParams())
 
-    def _joint_id(self, name: str) -> int:
-        return mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, name)
-
-    # ------------------------------------------------------------------ parameters
-    def set_params(self, params: HelicopterParams) -> None:
-        """Write physical parameters into the MuJoCo model (masses, inertias, damping, gears).
-
-        Raises
-        ------
-        ValueError
-            If a parameter is unphysical (named in the message); the model is unchanged.
-        """
-        params.validate()
-        m = self.model
-        m.body_mass[self._body_id] = params.mass_kg
-        m.body_ipos[self._body_id] = [params.com_m, 0.0, 0.0]
-        m.body_inertia[self._body_id] = params.body_inertia_com
-        m.body_inertia[self._stage_id] = [params.stage_inertia] * 3
-        m.dof_damping[self._dof_adr[0]] = params.pitch_damping
-        m.dof_damping[self._dof_adr[1]] = params.yaw_damping
-        m.site_pos[m.actuator_trnid[self._act_pitch, 0], 0] = params.r_pitch_rotor_m
-        m.site_pos[m.actuator_trnid[self._act_yaw, 0], 0] = -params.r_yaw_rotor_m
+    def apply_params(self, model: mujoco.MjModel, params: HelicopterParams) -> None:
+        """Masses, inertias, damping, rotor arms and gears from ``params``."""
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "helicopter")
+        stage = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "yaw_stage")
+        act_p = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "pitch_motor")
+        act_y = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "yaw_motor")
+        model.body_mass[body] = params.mass_kg
+        model.body_ipos[body] = [params.com_m, 0.0, 0.0]
+        model.body_inertia[body] = params.body_inertia_com
+        model.body_inertia[stage] = [params.stage_inertia] * 3
+        model.dof_damping[self.dof_adr[0]] = params.pitch_damping
+        model.dof_damping[self.dof_adr[1]] = params.yaw_damping
+        model.site_pos[model.actuator_trnid[act_p, 0], 0] = params.r_pitch_rotor_m
+        model.site_pos[model.actuator_trnid[act_y, 0], 0] = -params.r_yaw_rotor_m
         gear = np.zeros((2, 6))
         gear[0, 2] = params.K_pp / params.r_pitch_rotor_m   # thrust N/V along rotor axis
         gear[0, 5] = params.K_yp                            # reaction torque about rotor axis
         gear[1, 1] = -params.K_yy / params.r_yaw_rotor_m    # thrust along -y (yaw +)
         gear[1, 4] = -params.K_py                           # reaction torque, pitch +
-        m.actuator_gear[self._act_pitch] = gear[0]
-        m.actuator_gear[self._act_yaw] = gear[1]
-        mujoco.mj_setConst(m, self.data)
-        self.params = params
+        model.actuator_gear[act_p] = gear[0]
+        model.actuator_gear[act_y] = gear[1]
 
-    # ------------------------------------------------------------------ state
-    def get_state(self) -> np.ndarray:
-        """True state ``[pitch, yaw, pitch_rate, yaw_rate]``, shape (4,), rad and rad/s."""
-        return np.concatenate((self.data.qpos, self.data.qvel))[self._state_gather]
+    def process_noise_matrix(self) -> np.ndarray:
+        """Basin et al.'s white-noise matrix ``b`` (4, 2) (velocity rows)."""
+        return paper_model().b
 
-    def set_state(self, x: np.ndarray) -> None:
-        """Set the MuJoCo state from ``x`` (shape (4,)) and recompute derived quantities."""
-        self.data.qpos[self._qpos_adr] = x[:2]
-        self.data.qvel[self._dof_adr] = x[2:]
-        mujoco.mj_forward(self.model, self.data)
+    def default_x0(self) -> np.ndarray:
+        """Resting on the lower pitch stop: ``[-40.5 deg, 0, 0, 0]``."""
+        return np.array([-PITCH_LIMIT_RAD, 0.0, 0.0, 0.0])
+
+    def validate_x0(self, x0) -> np.ndarray:
+        """Shape (4,), finite, pitch within the stops."""
+        x = super().validate_x0(x0)
+        if abs(x[0]) > PITCH_LIMIT_RAD + 1e-9:
+            raise ValueError(f"options['x0'] pitch {x[0]:.4f} rad is outside the stops "
+                             f"+-{PITCH_LIMIT_RAD:.4f} rad")
+        return x
+
+    def validate_setpoints(self, setpoints) -> np.ndarray:
+        """Rows ``(t_s, pitch_rad, yaw_rad)``; pitch within the stops."""
+        table = super().validate_setpoints(setpoints)
+        if np.any(np.abs(table[:, 1]) > PITCH_LIMIT_RAD):
+            raise ValueError(f"setpoint pitch must lie within +-{np.rad2deg(PITCH_LIMIT_RAD)} deg")
+        return table
+
+    def operating_input(self, params: HelicopterParams, x: np.ndarray) -> np.ndarray:
+        """Voltages cancelling gravity at each state's pitch, shape (k, 2)."""
+        return gravity_voltage(params, x[:, 0])
+
+    def gravity_voltage(self, pitch_rad: float | np.ndarray) -> np.ndarray:
+        """Voltages cancelling gravity at ``pitch_rad`` with this rig's current parameters."""
+        return gravity_voltage(self.params, pitch_rad)
 
     def joint_accel_to_force(self, accel: np.ndarray) -> np.ndarray:
-        """Generalized forces producing joint accelerations ``accel`` at the current pose.
-
-        Parameters
-        ----------
-        accel : ndarray, shape (2,)
-            ``[pitch_accel, yaw_accel]`` in rad/s^2 (the paper's disturbance units).
-
-        Returns
-        -------
-        ndarray, shape (nv,)
-            ``M(q) a`` in MuJoCo dof order, N m.
-        """
+        """Generalized forces ``M(q) a`` (nv,) producing joint accelerations ``accel`` (2,)."""
         a = np.zeros(self.model.nv)
-        a[self._dof_adr] = accel
+        a[self.dof_adr] = accel
         mujoco.mj_fullM(self.model, self.data, self._mass_matrix)
         return self._mass_matrix @ a
 
-    @property
-    def dof_index(self) -> np.ndarray:
-        """MuJoCo dof indices of ``[pitch, yaw]``, shape (2,)."""
-        return self._dof_adr
-
-    # ------------------------------------------------------------------ models
-    def gravity_voltage(self, pitch_rad: float | np.ndarray) -> np.ndarray:
-        """Voltages cancelling gravity at ``pitch_rad`` with this rig's current parameters.
-
-        See :func:`gravity_voltage`; returns shape ``(..., 2)`` in V.
-        """
-        return gravity_voltage(self.params, pitch_rad)
-
-    def linearize(self, x_op: np.ndarray | None = None, u_op: np.ndarray | None = None,
-                  eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time linearization ``(A, B)`` of the MuJoCo rig by central differences.
-
-        ``A = d f / d x`` and ``B = d f / d u`` of ``x' = f(x, u)`` with the accelerations
-        from ``mj_forward`` (no integrator involved; joint limits inactive inside the range).
+    # ------------------------------------------------------------------ sensors, design
+    def sensors(self, preset: str | None = "encoders", *, dt_s: float = 0.01,
+                noise_std_rad: float = 0.0, gyro_noise_std_rad_s: float = 0.005,
+                counts_per_rev: tuple[int, int] = ENCODER_COUNTS,
+                intensity: np.ndarray | None = None, disturbance_channel: bool = False):
+        """A sensor suite built from the rig's channels.
 
         Parameters
         ----------
-        x_op : ndarray, shape (4,), optional
-            Operating state; default level pitch at rest.
-        u_op : ndarray, shape (2,), optional
-            Operating voltages; default :meth:`gravity_voltage` at ``x_op``'s pitch.
-        eps : float
-            Finite-difference step (rad, rad/s, V).
-
-        Returns
-        -------
-        A : ndarray, shape (4, 4)
-        B : ndarray, shape (4, 2)
+        preset : {"encoders", "encoders+gyros", "paper"}
+            ``encoders``: quantized pitch and yaw encoders (``2 pi / counts``) with optional
+            white noise ``noise_std_rad``; ``encoders+gyros`` adds rate gyros (white noise
+            ``gyro_noise_std_rad_s``); ``paper``: Basin et al.'s ``y1 = C1 x + e`` with
+            ``cov(e) = intensity / dt_s`` (default intensity ``h h^T = I``).
+        dt_s : float
+            Sampling period, s.
+        disturbance_channel : bool
+            Append the deterministic channel ``y2 = C2 x + H w`` of the mean-square
+            H-infinity example (needs the scenario's disturbance ``w``).
         """
-        x_op = np.zeros(4) if x_op is None else np.asarray(x_op, float)
-        if x_op.shape != (4,) or not np.all(np.isfinite(x_op)):
-            raise ValueError(f"x_op must be a finite array of shape (4,), got {x_op!r}")
-        u_op = self.gravity_voltage(x_op[0]) if u_op is None else np.asarray(u_op, float)
-        if u_op.shape != (2,) or not np.all(np.isfinite(u_op)):
-            raise ValueError(f"u_op must be a finite array of shape (2,), got {u_op!r}")
-        scratch = mujoco.MjData(self.model)
+        from testbed.sensors import LinearChannel, Quantize, StateChannel, Suite, WhiteNoise
 
-        def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
-            scratch.qpos[self._qpos_adr] = x[:2]
-            scratch.qvel[self._dof_adr] = x[2:]
-            scratch.ctrl[[self._act_pitch, self._act_yaw]] = u
-            mujoco.mj_forward(self.model, scratch)
-            return np.concatenate([x[2:], scratch.qacc[self._dof_adr]])
+        preset = preset or "encoders"
+        if preset not in SENSOR_PRESETS:
+            raise ValueError(f"unknown helicopter sensor preset {preset!r}; expected one of "
+                             f"{SENSOR_PRESETS}")
+        counts = np.asarray(counts_per_rev)
+        if counts.shape != (2,) or np.any(counts < 1) or np.any(counts != np.round(counts)):
+            raise ValueError("counts_per_rev must be two positive integers (pitch, yaw), "
+                             f"got {counts_per_rev}")
 
-        A = np.zeros((4, 4))
-        B = np.zeros((4, 2))
-        for i in range(4):
-            dx = np.zeros(4)
-            dx[i] = eps
-            A[:, i] = (f(x_op + dx, u_op) - f(x_op - dx, u_op)) / (2 * eps)
-        for j in range(2):
-            du = np.zeros(2)
-            du[j] = eps
-            B[:, j] = (f(x_op, u_op + du) - f(x_op, u_op - du)) / (2 * eps)
-        return A, B
+        def state(i: int):
+            return StateChannel(i, 4, 2, STATE_NAMES[i], self.state_units[i])
+
+        paper = paper_model()
+        if preset == "paper":
+            S = np.eye(2) if intensity is None else intensity
+            parts = [WhiteNoise(LinearChannel(paper.C1, ("pitch", "yaw"), ("rad", "rad"),
+                                              n_inputs=2), intensity=S, dt_s=dt_s)]
+        else:
+            if intensity is not None:
+                raise ValueError("intensity applies to the 'paper' preset only")
+            angles = Quantize(Suite(state(0), state(1)), 2 * np.pi / counts.astype(float))
+            if np.any(np.asarray(noise_std_rad) != 0):
+                angles = WhiteNoise(angles, std=noise_std_rad)
+            parts = [angles]
+            if preset == "encoders+gyros":
+                parts.append(WhiteNoise(Suite(state(2), state(3)), std=gyro_noise_std_rad_s))
+        if disturbance_channel:
+            parts.append(LinearChannel(paper.C2, ("y2_pitch", "y2_yaw"), ("rad", "rad"),
+                                       Hw=paper.H, n_inputs=2))
+        return Suite(*parts)
+
+    def design_model(self, sensors, dt_s: float, disturbance=None, *,
+                     process_noise_floor: float = 0.05):
+        """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor.
+
+        Parameters
+        ----------
+        sensors : Sensor
+        dt_s : float
+        disturbance : testbed.disturbances.Disturbance, optional
+            Its white-noise intensity ``b b^T`` enters ``Q``, its ``G`` the design.
+        process_noise_floor : float
+            Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
+        """
+        from testbed.design import build_design
+
+        if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
+            raise ValueError(f"process_noise_floor must be finite and >= 0, got "
+                             f"{process_noise_floor}")
+        model = paper_model()
+        Q = np.zeros((4, 4))
+        Q[2:, 2:] += process_noise_floor * np.eye(2)
+        G = None
+        if disturbance is not None:
+            if disturbance.intensity is not None:
+                Q += disturbance.intensity
+            G = disturbance.G
+        from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
+
+        paper = MsHinfHelicopterScenario()
+        nominal = HelicopterParams()  # what the designer knows: never the scaled truth
+
+        def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+            return u - gravity_voltage(nominal, x_hat[:, 0])
+
+        return build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
+                            np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
+                            input_transform=unbalanced_input,
+                            extras={"paper_model": model, "gamma": paper.gamma,
+                                    "initial_weight": paper.R})

@@ -1,4 +1,5 @@
-"""seed-002 Examples 5.1 and 5.2 as data: systems, signals, printed values, run settings.
+"""Zhang, Deng & Zhang (2018), Examples 5.1 and 5.2 as data: systems, signals, printed values, run
+settings (see docs/references.md).
 
 Example 5.2 (vehicle roll, Theorem 4) in the names of :class:`filters.lmi_hinf.
 StochasticLinearSystem` (paper (44) letters in brackets)::
@@ -210,23 +211,21 @@ class NonlinearDiscreteScenario:
 
 
 # ----------------------------------------------------------------- CLI helper
-def vehicle_design_system(sensors: Any, dt_s: float, params: VehicleRollParams | None = None,
+def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
                           a_y_std: float = 0.1) -> tuple[StochasticLinearSystem, np.ndarray,
                                                          np.ndarray]:
-    """The design system of the rig in the loop with a known lateral acceleration.
+    """The LMI design system of the rig in the loop with a known lateral acceleration.
 
-    The applied ``a_y`` is a known input (``B_u``, feedthrough ``D_u`` from the suite). The
+    The applied ``a_y`` is a known input (``B_u``, feedthrough ``D_u`` of the sensors). The
     H-infinity disturbance ``v`` collects, each scaled to unit size: the ``a_y`` error
-    (``a_y_std`` m/s^2 per step, through ``B_u``), the suite's white noise per channel (its
-    ``linear_model`` ``R``: standard deviations on the diagonal), and for the ``paper`` suite
-    the paper's ``v`` through ``L`` (amplitude 0.01).
+    (``a_y_std`` m/s^2 per step, through ``B_u``), the sensors' white noise per channel
+    (standard deviations of their ``R``), and for the ``paper`` channels the paper's ``v``
+    through ``L`` (amplitude 0.01).
 
     Parameters
     ----------
-    sensors : vehicle sensor suite
-        ``ImuSuite`` or ``PaperRollSuite`` (``linear_model``, ``feedthrough_matrix``).
-    dt_s : float
-        Control period, s.
+    design : testbed.design.DesignModel
+        The vehicle rig's design model (its stochastic channels, ``dt_s``).
     params : VehicleRollParams, optional
         The designer's parameters (nominal by default).
     a_y_std : float
@@ -240,9 +239,11 @@ def vehicle_design_system(sensors: Any, dt_s: float, params: VehicleRollParams |
     feedthrough : ndarray, shape (n_y, 1)
     """
     p = params or VehicleRollParams()
-    A, B, dA, dB = _zoh_with_damping_derivative(p, dt_s)
-    C, R = sensors.linear_model(dt_s)
-    D_u = sensors.feedthrough_matrix()
+    A, B, dA, dB = _zoh_with_damping_derivative(p, design.dt_s)
+    index = design.measurement_index
+    C = design.sensors.C[index]
+    R = design.sensors.R[np.ix_(index, index)]
+    D_u = design.sensors.D[index]
     m = C.shape[0]
     std = np.sqrt(np.clip(np.diag(R), 0.0, None))
     cols_B = [B[:, 0] * a_y_std]
@@ -255,47 +256,20 @@ def vehicle_design_system(sensors: Any, dt_s: float, params: VehicleRollParams |
             cols_B.append(np.zeros(2))
             cols_Bw.append(np.zeros(2))
             cols_D.append(e)
-    L = getattr(sensors, "L", None)
-    amplitude = getattr(getattr(sensors, "_v", None), "amplitude_m_s2", None)
-    if L is not None and amplitude is not None:
+    amplitude = design.extras.get("lmi_amplitude")
+    if amplitude is not None:
         cols_B.append(np.zeros(2))
         cols_Bw.append(np.zeros(2))
-        cols_D.append(np.asarray(L, float)[:, 0] * amplitude)
+        cols_D.append(paper_model().L[:, 0] * amplitude)
     system = StochasticLinearSystem(
         A=A, B=np.column_stack(cols_B), C_y=C, C_z=np.array([[1.0, 0.0]]),
         A_w=p.damping_noise * dA, B_w=np.column_stack(cols_Bw), D_y=np.column_stack(cols_D))
     return system, B, D_u
 
 
-def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float = 1.1, *,
-                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10
-                 ) -> tuple[LMIHInfDesign, int]:
-    """The design at ``gamma = factor * 2^j * gamma_min`` for the smallest ``j`` that verifies.
-
-    Near ``gamma_min`` the minimum-trace (mixed H2/H-infinity) solution can be too
-    ill-conditioned for the solver to return a solution that passes the a-posteriori check;
-    doubling gamma moves away from the boundary.
-
-    Returns
-    -------
-    design : LMIHInfDesign
-        The first verified design (or the last attempt, not feasible).
-    j : int
-        Number of doublings used.
-    """
-    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin)
-    j = 0
-    while not design.feasible and j < max_doublings:
-        j += 1
-        design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
-                                 margin=margin)
-    return design, j
-
-
-def vehicle_lmi_estimator(sensors: Any, dt_s: float, *, params: VehicleRollParams | None = None,
-                          a_y_std: float = 0.1, gamma: float | None = None,
-                          gamma_factor: float = 1.1, objective: str = "h2",
-                          x0: np.ndarray | None = None) -> tuple[LMIHInfFilter, dict[str, Any]]:
+def vehicle_lmi_estimator(design: Any, *, gamma: float | None = None,
+                          gamma_factor: float = 1.1, objective: str = "h2"
+                          ) -> tuple[LMIHInfFilter, dict[str, Any]]:
     """The filter (45) for the vehicle rig in the loop (``--filter lmi-hinf``).
 
     Designs on :func:`vehicle_design_system` by Theorem 4 at ``gamma`` (default
@@ -307,31 +281,31 @@ def vehicle_lmi_estimator(sensors: Any, dt_s: float, *, params: VehicleRollParam
     estimator : LMIHInfFilter
         With the known input ``a_y`` (``input_matrix``, ``feedthrough``) and ``dt_s``.
     meta : dict
-        ``gamma_min``, ``gamma``, ``gain``, ``status``, ``spectral_radius`` for JSON outputs.
+        ``gamma_min``, ``gamma``, ``gain``, ``status``, ``spectral_radius`` for outputs.
 
     Raises
     ------
     ValueError
         If no verified design exists (the solver status is in the message).
     """
-    system, B_u, D_u = vehicle_design_system(sensors, dt_s, params, a_y_std)
+    a_y_std = design.extras.get("a_y_std", 0.1)
+    system, B_u, D_u = vehicle_design_system(design, a_y_std=a_y_std)
     gamma_min = None
     if gamma is None:
         search = minimal_gamma(system)
         if search.gamma_min is None:
             raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
         gamma_min = search.gamma_min
-        design, _ = design_above(system, gamma_min, gamma_factor, objective=objective)
+        lmi, _ = design_above(system, gamma_min, gamma_factor, objective=objective)
     else:
-        design = design_lmi_hinf(system, gamma, objective=objective)
-    if not design.feasible:
-        raise ValueError(f"no verified lmi-hinf design at gamma = {design.gamma:.6g}: status "
-                         f"{design.status} (solver: {design.solver_status})")
-    gamma = design.gamma
-    estimator = LMIHInfFilter.from_design(system, design, x0=np.zeros(2) if x0 is None else x0,
-                                          input_matrix=B_u, feedthrough=D_u, dt_s=dt_s)
-    meta = {"gamma_min": gamma_min, "gamma": gamma, "gain": design.gain.tolist(),
-            "status": design.status, "spectral_radius": design.check.spectral_radius,
+        lmi = design_lmi_hinf(system, gamma, objective=objective)
+    if not lmi.feasible:
+        raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
+                         f"{lmi.status} (solver: {lmi.solver_status})")
+    estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=B_u,
+                                          feedthrough=D_u, dt_s=design.dt_s)
+    meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gain": lmi.gain.tolist(),
+            "status": lmi.status, "spectral_radius": lmi.check.spectral_radius,
             "objective": objective, "a_y_std": a_y_std}
     return estimator, meta
 

@@ -1,7 +1,8 @@
-"""seed-000, Section IV: the mean-square H-infinity filter on the 2-DOF helicopter.
+"""Basin, Elvira-Ceja & Sanchez (n.d.), Section IV: the mean-square H-infinity filter on the
+2-DOF helicopter.
 
 Every printed value of the example, verbatim (with the corrections of
-:func:`testbed.rigs.helicopter.paper_model`).
+:func:`testbed.rigs.helicopter.paper_model`; see docs/references.md).
 """
 
 from __future__ import annotations
@@ -10,13 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from testbed.disturbances import seed000_w
+from testbed.disturbances import basin_helicopter_w
 from testbed.rigs.helicopter import LinearModel, paper_model
 
 
 @dataclass(frozen=True)
 class MsHinfHelicopterScenario:
-    """The example of seed-000 (eqs. (12)-(18) and the values below them).
+    """The example of Basin, Elvira-Ceja & Sanchez (n.d.): eqs. (12)-(18) and the values below.
 
     Attributes
     ----------
@@ -52,5 +53,5 @@ class MsHinfHelicopterScenario:
 
     @staticmethod
     def w(t_s: float) -> np.ndarray:
-        """The printed L2 disturbance ``w(t)``, shape (4,) (see :func:`seed000_w`)."""
-        return seed000_w(t_s)
+        """The printed L2 disturbance ``w(t)``, shape (4,) (from :mod:`testbed.disturbances`)."""
+        return basin_helicopter_w(t_s)

@@ -1,7 +1,7 @@
-"""Reproduction of seed-003's example: variance-constrained robust H-infinity filtering with
-parabolic pole assignment.
+"""Reproduction of the example of Wang & Fang (2006): variance-constrained robust H-infinity
+filtering with parabolic pole assignment (see docs/references.md).
 
-``testbed reproduce variance-constrained-continuous``. Four parts:
+``testbed reproduce wang-variance-constrained-parabolic``. Four parts:
 
 1. **design**: Theorem 1 with the printed parameters (eps1 = eps2 = 0.58, delta1 = delta2 =
    0.01, H = [0.1 0.1]^T, U = +-1) and the corrected equations
@@ -22,7 +22,7 @@ parabolic pole assignment.
    value and against the exact steady state of the sampled loop.
 
 The helpers :func:`evaluate_published`, :func:`monte_carlo` and :func:`sampled_error_covariance`
-are shared with :mod:`testbed.reproductions.variance_constrained_discrete`.
+are shared with :mod:`testbed.reproductions.liu_variance_constrained_discrete`.
 """
 
 from __future__ import annotations
@@ -55,10 +55,10 @@ from filters.variance_continuous import (
 )
 from testbed.plants.uncertain_linear import UncertainLinearPlant
 from testbed.reproductions.outputs import write_outputs
-from testbed.scenarios.seed003 import VarianceConstrainedContinuousScenario
+from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
 from testbed.trajectory import Trajectory
 
-NAME = "variance-constrained-continuous"
+NAME = "wang-variance-constrained-parabolic"
 #: Sample period of the Monte-Carlo runs, s.
 DT_S = 0.005
 #: Default simulated time per run, s, and Monte-Carlo runs per (filter, F).
@@ -383,7 +383,7 @@ def _plot(result: dict[str, Any], s: VarianceConstrainedContinuousScenario,
     ax = fig.subplots(2, 2)
     plot_published(ax, result, plant, s.region, s.gamma, s.sigma2, sample,
                    discrete=False)
-    fig.suptitle("seed-003 example: printed filters checked for all |F| <= 1; "
+    fig.suptitle("Wang & Fang (2006), example: printed filters checked for all |F| <= 1; "
                  f"Theorem 1 design solved: {result['design']['U=1']['solved']}")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
@@ -491,7 +491,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
             f"{worst_rel:.1%} and with the sampled loop's steady state within "
             f"{worst_z:.1f} standard errors. Misprints corrected: (11) C_hat, (14)/(17) M1 M1^T.")
     return {
-        "paper": "seed-003 (Wang & Fang 2006), Section IV",
+        "paper": "Wang & Fang (2006), Section IV",
         "claim": (f"(16), (17) solved with eps1 = eps2 = {p['eps1']:g}, delta = "
                   f"{p['delta1']:g}, H = [0.1 0.1]^T; (K1, G1), (K2, G2) give poles in "
                   f"P({p['a']:g}, {p['b']:g}), ||H||inf <= {p['gamma']:g} and var <= "

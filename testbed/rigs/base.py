@@ -1,0 +1,406 @@
+"""The rig contract: one MuJoCo model, its parameters, names with units, and its design model.
+
+A rig is one folder under ``testbed/rigs/`` (its MJCF file beside its Python, as in
+dm_control's suite) holding a :class:`Rig` subclass, plus one registration line in
+:mod:`testbed.rigs`. A subclass declares data (class attributes) and overrides a few hooks;
+everything else (loading, named state access, finite-difference linearization, the batched
+simulator, the Gymnasium environments, the runner) is inherited or generic.
+
+State convention: ``x = [positions of joints..., velocities of joints...]`` for the joints
+named in :attr:`Rig.joints` (hinges or slides), in rad or m and rad/s or m/s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+
+from testbed.rigs.params import scaled_copy
+
+
+@dataclasses.dataclass(frozen=True)
+class Params:
+    """Base of a rig's physical parameters: a frozen dataclass with scaling and validation."""
+
+    def scaled(self, scales: dict[str, float] | None):
+        """Copy with fields multiplied by factors (model-mismatch studies), validated.
+
+        Raises
+        ------
+        ValueError
+            Unknown field (the valid ones listed), a bad factor, or an unphysical result.
+        """
+        return scaled_copy(self, scales or {})
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first unphysical parameter (all must be finite)."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if not np.isfinite(value):
+                raise ValueError(f"{type(self).__name__}.{f.name} must be finite, got {value}")
+
+
+class Rig:
+    """A MuJoCo rig: model, parameters, named state, actuation, linearization, design model.
+
+    Subclasses set the class attributes and override :meth:`apply_params` (write parameters
+    into the model) and, where the rig needs them, :meth:`actuation`, :meth:`operating_input`,
+    :meth:`validate_x0`, :meth:`terminated`, :meth:`sensors` and :meth:`design_model`.
+
+    Parameters
+    ----------
+    params : Params, optional
+        Physical parameters (default: the nominal ``params_type()``).
+    physics_dt_s : float
+        MuJoCo time step, s.
+
+    Attributes
+    ----------
+    model : mujoco.MjModel
+    data : mujoco.MjData
+    params : Params
+    """
+
+    #: Registry name (``testbed run NAME``).
+    name: ClassVar[str] = ""
+    #: MJCF file, absolute or relative to the module defining the subclass.
+    xml_path: ClassVar[Path]
+    #: Parameter dataclass.
+    params_type: ClassVar[type[Params]] = Params
+    #: Joints whose positions then velocities form the state.
+    joints: ClassVar[tuple[str, ...]] = ()
+    state_names: ClassVar[tuple[str, ...]] = ()
+    state_units: ClassVar[tuple[str, ...]] = ()
+    action_names: ClassVar[tuple[str, ...]] = ()
+    action_units: ClassVar[tuple[str, ...]] = ()
+    #: Action limits (the amplifier/actuator saturates there: actions are clipped).
+    action_low: ClassVar[tuple[float, ...]] = ()
+    action_high: ClassVar[tuple[float, ...]] = ()
+    #: States a reference tracks (reward, LQR integrators, output of the T ratio).
+    tracked_states: ClassVar[tuple[str, ...]] = ()
+    #: Standard normals per member and control step that perturb the model
+    #: (:meth:`apply_step_noise`); 0 for none.
+    step_noise_dim: ClassVar[int] = 0
+    #: Open-loop input profiles by name (``reset(options={"manoeuvre": name})``).
+    manoeuvres: ClassVar[dict[str, Callable[..., Any]]] = {}
+    #: Default reference schedule ``((t_s, *tracked values), ...)``; empty: zero reference.
+    default_setpoints: ClassVar[tuple[tuple[float, ...], ...]] = ()
+    #: Named deterministic disturbances: ``name -> () -> (G (n, s) or None, w: t_s -> (s,))``.
+    disturbance_signals: ClassVar[dict[str, Callable[[], tuple[Any, Any]]]] = {}
+    #: Scenario defaults of this rig (``controller``, ``manoeuvre``...).
+    scenario_defaults: ClassVar[dict[str, Any]] = {"controller": "lqr"}
+    #: Rig-specific scenario options with their defaults (see :meth:`design_model`).
+    scenario_options: ClassVar[dict[str, Any]] = {}
+
+    def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001):
+        if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
+            raise ValueError(f"physics_dt_s must be a positive finite time in s, "
+                             f"got {physics_dt_s}")
+        self.model = mujoco.MjModel.from_xml_path(str(self.resolved_xml_path()))
+        self.model.opt.timestep = physics_dt_s
+        self.data = mujoco.MjData(self.model)
+        ids = [self.joint_id(n) for n in self.joints]
+        self.qpos_adr = np.array([self.model.jnt_qposadr[i] for i in ids], dtype=int)
+        self.dof_adr = np.array([self.model.jnt_dofadr[i] for i in ids], dtype=int)
+        #: Index of the state in ``concatenate(qpos, qvel)``.
+        self.state_gather = np.concatenate([self.qpos_adr, self.model.nq + self.dof_adr])
+        self._check_declarations()
+        self.params = self.params_type()
+        self.set_params(params or self.params_type())
+
+    @classmethod
+    def resolved_xml_path(cls) -> Path:
+        """The MJCF file (relative paths resolve beside the subclass's module)."""
+        import sys
+
+        path = Path(cls.xml_path)
+        if not path.is_absolute():
+            path = Path(sys.modules[cls.__module__].__file__).resolve().parent / path
+        if not path.is_file():
+            raise FileNotFoundError(f"MJCF model of rig {cls.name!r} not found: {path}")
+        return path
+
+    def _check_declarations(self) -> None:
+        n, k = self.n_states, self.n_actions
+        for label, seq, size in (("state_names", self.state_names, n),
+                                 ("state_units", self.state_units, n),
+                                 ("action_units", self.action_units, k),
+                                 ("action_low", self.action_low, k),
+                                 ("action_high", self.action_high, k)):
+            if len(seq) != size:
+                raise TypeError(f"{type(self).__name__}.{label} has {len(seq)} entries, "
+                                f"expected {size}")
+        unknown = set(self.tracked_states) - set(self.state_names)
+        if unknown:
+            raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
+                            "state names")
+
+    # ------------------------------------------------------------------ declarations
+    @property
+    def n_states(self) -> int:
+        """State dimension ``2 * len(joints)``."""
+        return 2 * len(self.joints)
+
+    @property
+    def n_actions(self) -> int:
+        """Action dimension."""
+        return len(self.action_names)
+
+    @property
+    def tracked_index(self) -> np.ndarray:
+        """Indices of :attr:`tracked_states` in the state, shape (r,)."""
+        return np.array([self.state_names.index(s) for s in self.tracked_states], dtype=int)
+
+    def units(self) -> dict[str, str]:
+        """``{state or action name: unit}``."""
+        return {**dict(zip(self.state_names, self.state_units, strict=True)),
+                **dict(zip(self.action_names, self.action_units, strict=True))}
+
+    def joint_id(self, name: str) -> int:
+        """MuJoCo id of a joint; ``ValueError`` naming it when the model has none."""
+        jid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise ValueError(f"rig {self.name!r}: the MJCF model has no joint {name!r}")
+        return jid
+
+    def body_id(self, name: str) -> int:
+        """MuJoCo id of a body; ``ValueError`` naming it when the model has none."""
+        bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if bid < 0:
+            raise ValueError(f"rig {self.name!r}: the MJCF model has no body {name!r}")
+        return bid
+
+    # ------------------------------------------------------------------ parameters
+    def set_params(self, params: Params) -> None:
+        """Validate and write physical parameters into :attr:`model` (then ``mj_setConst``).
+
+        Raises
+        ------
+        ValueError
+            Unphysical parameter (named); the model is unchanged.
+        """
+        if not isinstance(params, self.params_type):
+            raise ValueError(f"params must be a {self.params_type.__name__}, got "
+                             f"{type(params).__name__}")
+        params.validate()
+        self.apply_params(self.model, params)
+        mujoco.mj_setConst(self.model, self.data)
+        self.params = params
+
+    def apply_params(self, model: mujoco.MjModel, params: Params) -> None:
+        """Write ``params`` into ``model`` (masses, inertias, damping, gears...)."""
+
+    def member_constants(self, params: Params) -> np.ndarray:
+        """Per-member numbers :meth:`actuation` and :meth:`apply_step_noise` need, shape (d,)."""
+        return np.zeros(0)
+
+    # ------------------------------------------------------------------ state
+    def get_state(self, data: mujoco.MjData | None = None) -> np.ndarray:
+        """State of ``data`` (default :attr:`data`), shape (n,)."""
+        data = self.data if data is None else data
+        return np.concatenate((data.qpos, data.qvel))[self.state_gather]
+
+    def set_state(self, x: np.ndarray, data: mujoco.MjData | None = None,
+                  model: mujoco.MjModel | None = None) -> None:
+        """Write ``x`` (shape (n,)) into qpos/qvel and run ``mj_forward``."""
+        data = self.data if data is None else data
+        j = len(self.joints)
+        data.qpos[self.qpos_adr] = x[:j]
+        data.qvel[self.dof_adr] = x[j:]
+        mujoco.mj_forward(self.model if model is None else model, data)
+
+    def default_x0(self) -> np.ndarray:
+        """Initial state when a reset gives none, shape (n,) (default: rest at zero)."""
+        return np.zeros(self.n_states)
+
+    def validate_x0(self, x0: Any) -> np.ndarray:
+        """``options['x0']`` as a finite array of shape (n,), else ``ValueError``."""
+        try:
+            x = np.asarray(x0, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"options['x0'] must be numeric, got {x0!r}") from None
+        if x.shape != (self.n_states,) or not np.all(np.isfinite(x)):
+            raise ValueError(f"options['x0'] must be a finite array of shape ({self.n_states},) "
+                             f"{list(self.state_names)}, got {x0!r}")
+        return x
+
+    def validate_setpoints(self, setpoints: Sequence[Sequence[float]]) -> np.ndarray:
+        """A reference table ``(t_s, *tracked values)`` rows, checked; shape (rows, 1 + r)."""
+        r = len(self.tracked_states)
+        try:
+            table = np.asarray(setpoints, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"setpoints must be numeric rows (t_s, {', '.join(self.tracked_states)})"
+                             ) from None
+        if table.ndim != 2 or table.shape[1] != 1 + r or len(table) == 0:
+            raise ValueError(f"setpoints must be a sequence of (t_s, "
+                             f"{', '.join(self.tracked_states)}) rows, got shape {table.shape}")
+        if not np.all(np.isfinite(table)) or np.any(np.diff(table[:, 0]) < 0) or table[0, 0] > 0:
+            raise ValueError("setpoints must be finite, start at t <= 0 and be sorted by time")
+        return table
+
+    def terminated(self, x: np.ndarray) -> np.ndarray:
+        """Whether each state ends the episode (e.g. a rollover), shape (k,) bool."""
+        return np.zeros(len(x), dtype=bool)
+
+    # ------------------------------------------------------------------ inputs
+    def actuation(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
+        """MuJoCo inputs for applied actions ``u`` (k, nu) (default: ``ctrl = u``).
+
+        Parameters
+        ----------
+        u : ndarray, shape (k, nu)
+            Applied (clipped) actions in the rig's units.
+        constants : ndarray, shape (k, d)
+            :meth:`member_constants` of each member.
+
+        Returns
+        -------
+        dict
+            ``"ctrl"`` (k, model.nu) and/or ``"xfrc"`` (k, nbody, 6).
+        """
+        return {"ctrl": u}
+
+    def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
+                         xi: np.ndarray) -> None:
+        """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)."""
+
+    def operating_input(self, params: Params, x: np.ndarray) -> np.ndarray:
+        """Input that holds the rig at state ``x`` (e.g. gravity compensation), (k, nu).
+
+        The design model's linear input is ``u - operating_input(x_hat)``; controllers add
+        it as feed-forward. Default: zero.
+        """
+        return np.zeros((len(x), self.n_actions))
+
+    def process_noise_matrix(self) -> np.ndarray | None:
+        """White process-noise input ``b`` (n, p) scaled by ``process_noise`` (None: none)."""
+        return None
+
+    def disturbance(self, name: Any = None, process_noise: float = 0.0):
+        """The scenario's disturbance: a named signal ``G w(t)`` and/or ``process_noise b dW``.
+
+        Parameters
+        ----------
+        name : str, Disturbance or None
+            A key of :attr:`disturbance_signals` (``None``/``"none"``: no signal).
+        process_noise : float
+            Scale of :meth:`process_noise_matrix` (0: none).
+
+        Returns
+        -------
+        testbed.disturbances.Disturbance or None
+        """
+        from testbed.disturbances import Disturbance
+
+        if isinstance(name, Disturbance):
+            if process_noise:
+                raise ValueError("process_noise applies to a named disturbance, not to a "
+                                 "Disturbance object")
+            return name
+        try:
+            scale = float(process_noise)
+        except (TypeError, ValueError):
+            raise ValueError(f"process_noise must be a number, got {process_noise!r}") from None
+        if not (np.isfinite(scale) and scale >= 0):
+            raise ValueError(f"process_noise must be finite and >= 0, got {process_noise}")
+        G = w = b = None
+        if name not in (None, "none"):
+            if name not in self.disturbance_signals:
+                raise ValueError(f"unknown disturbance {name!r} for rig {self.name!r}; expected "
+                                 f"one of {sorted(self.disturbance_signals) or ['none']}")
+            G, w = self.disturbance_signals[name]()
+        if scale > 0:
+            b0 = self.process_noise_matrix()
+            if b0 is None:
+                raise ValueError(f"rig {self.name!r} has no process-noise model; "
+                                 "process_noise must be 0")
+            b = b0 * scale
+        if w is None and b is None:
+            return None
+        return Disturbance(G=G, w=w, b=b, n_positions=len(self.joints))
+
+    # ------------------------------------------------------------------ linearization
+    def linearize(self, x_op: np.ndarray | None = None, u_op: np.ndarray | None = None,
+                  eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time ``(A, B)`` of ``x' = f(x, u)`` by central differences of MuJoCo.
+
+        Accelerations come from ``mj_forward`` (no integrator involved) at the current
+        parameters, without step noise.
+
+        Parameters
+        ----------
+        x_op : ndarray, shape (n,), optional
+            Operating state; default :meth:`linearization_point`'s.
+        u_op : ndarray, shape (nu,), optional
+            Operating input; default :meth:`operating_input` at ``x_op``.
+        eps : float
+            Finite-difference step (state and input units).
+
+        Returns
+        -------
+        A : ndarray, shape (n, n)
+        B : ndarray, shape (n, nu)
+        """
+        n, k, j = self.n_states, self.n_actions, len(self.joints)
+        x_op = self.linearization_point() if x_op is None else np.asarray(x_op, float)
+        if x_op.shape != (n,) or not np.all(np.isfinite(x_op)):
+            raise ValueError(f"x_op must be a finite array of shape ({n},), got {x_op!r}")
+        u_op = (self.operating_input(self.params, x_op[None])[0] if u_op is None
+                else np.asarray(u_op, float))
+        if u_op.shape != (k,) or not np.all(np.isfinite(u_op)):
+            raise ValueError(f"u_op must be a finite array of shape ({k},), got {u_op!r}")
+        scratch = mujoco.MjData(self.model)
+        constants = self.member_constants(self.params)[None]
+
+        def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+            scratch.qpos[self.qpos_adr] = x[:j]
+            scratch.qvel[self.dof_adr] = x[j:]
+            inputs = self.actuation(u[None], constants)
+            if "ctrl" in inputs:
+                scratch.ctrl[:] = inputs["ctrl"][0]
+            if "xfrc" in inputs:
+                scratch.xfrc_applied[:] = inputs["xfrc"][0]
+            mujoco.mj_forward(self.model, scratch)
+            return np.concatenate([x[j:], scratch.qacc[self.dof_adr]])
+
+        A, B = np.zeros((n, n)), np.zeros((n, k))
+        for i in range(n):
+            dx = np.zeros(n)
+            dx[i] = eps
+            A[:, i] = (f(x_op + dx, u_op) - f(x_op - dx, u_op)) / (2 * eps)
+        for i in range(k):
+            du = np.zeros(k)
+            du[i] = eps
+            B[:, i] = (f(x_op, u_op + du) - f(x_op, u_op - du)) / (2 * eps)
+        return A, B
+
+    def linearization_point(self) -> np.ndarray:
+        """Default operating state of :meth:`linearize`, shape (n,) (zero)."""
+        return np.zeros(self.n_states)
+
+    # ------------------------------------------------------------------ sensors and design
+    def sensors(self, preset: str | None = None, **options: Any):
+        """A sensor suite by preset name (see the subclass), built from its channels."""
+        raise NotImplementedError(f"rig {self.name!r} declares no sensor presets")
+
+    def design_model(self, sensors, dt_s: float, disturbance=None, **options: Any):
+        """What a filter designer knows for these sensors and control period.
+
+        Default: the MuJoCo linearization at :meth:`linearization_point` (nominal
+        parameters), the sensors' linear model, the disturbance's intensity plus
+        ``process_noise`` (intensity on each velocity row) as ``Q``, a zero prior mean
+        and ``P0 = prior_std**2 I``. Rigs with a paper model override this.
+
+        Returns
+        -------
+        testbed.design.DesignModel
+        """
+        from testbed.design import design_from_linearization
+
+        return design_from_linearization(self, sensors, dt_s, disturbance, **options)

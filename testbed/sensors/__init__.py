@@ -1,0 +1,29 @@
+"""Sensors: one batched contract, channels a rig declares, decorators for any rig.
+
+See :mod:`testbed.sensors.base` for the contract, :mod:`testbed.sensors.channels` for the
+generic channels and :mod:`testbed.sensors.decorators` for quantization, noise, biases,
+delay and sample-and-hold.
+"""
+
+from testbed.sensors.base import (
+    Noise,
+    NoiseStreams,
+    Sample,
+    Sensor,
+    SensorModel,
+    Suite,
+)
+from testbed.sensors.channels import LinearChannel, StateChannel
+from testbed.sensors.decorators import (
+    Bias,
+    BiasRandomWalk,
+    Decorator,
+    Delay,
+    Quantize,
+    SampleAndHold,
+    WhiteNoise,
+)
+
+__all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "LinearChannel", "Noise",
+           "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "Sensor", "SensorModel",
+           "StateChannel", "Suite", "WhiteNoise"]

@@ -1,0 +1,267 @@
+"""The sensor contract: batched, stateful, seeded, with a linear model for designers.
+
+A :class:`Sensor` turns the true state of N simulated members into measurements. Every
+sensor (a channel a rig declares, a decorator around another sensor, a suite of sensors)
+has the same four parts:
+
+- declarations: ``names``, ``units`` and ``measured_state`` (the state a channel measures
+  directly, or None), one entry per output channel;
+- ``allocate(num)``: size the per-member state (biases, delay lines) for N members;
+- ``reset(sample, noise)`` and ``measure(sample, noise) -> (k, m)``: the members in
+  ``sample.members`` start an episode / take one sample. All randomness comes from
+  ``noise.normal(d)``, each member's own seeded stream, so a member's measurements do not
+  depend on which other members are simulated with it;
+- ``linear_model()``: ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample, for designers.
+
+MuJoCo adds no sensor noise; noise given as a continuous-time intensity ``S`` (a power
+spectral density) becomes the per-sample covariance ``S / dt_s`` (the average of ``dy/dt``
+over one sample), a density ``N`` (unit/sqrt(Hz)) the standard deviation ``N sqrt(1/dt_s)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from gymnasium.utils import seeding
+
+Members = np.ndarray | slice
+
+
+@dataclass
+class Sample:
+    """What a sensor may read at one sample instant, for ``k`` members.
+
+    Attributes
+    ----------
+    x : ndarray, shape (k, n)
+        True states.
+    t_s : ndarray, shape (k,)
+        Sample times, s.
+    u : ndarray, shape (k, nu)
+        Actions applied over the step that ended at this sample (zeros at reset), rig units.
+    w : ndarray, shape (k, s)
+        Deterministic disturbance at the sample time (``s = 0`` without one).
+    members : ndarray of int (k,) or slice
+        Which of the ``num`` allocated members these rows are.
+    """
+
+    x: np.ndarray
+    t_s: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    members: Members = field(default_factory=lambda: slice(None))
+
+    @property
+    def k(self) -> int:
+        """Number of members in this sample."""
+        return len(self.x)
+
+
+class NoiseStreams:
+    """Per-member standard-normal streams, drawn ahead in blocks.
+
+    Member ``i`` owns ``gymnasium.utils.seeding.np_random(seed_i)``, exactly like a single
+    Gymnasium environment's ``np_random``. numpy's ``Generator`` fills an array from one
+    stream without caching, so a block equals the same number of single draws: a member's
+    values do not depend on the batch it runs in.
+
+    Parameters
+    ----------
+    num : int
+        Number of members.
+    block : int
+        Values drawn per refill and member (at least the largest single request).
+    """
+
+    def __init__(self, num: int, block: int = 256):
+        self.block = max(int(block), 1)
+        self.generators: list[np.random.Generator | None] = [None] * num
+        self._buf = np.empty((num, self.block))
+        self._pos = np.full(num, self.block)
+
+    def seed(self, i: int, seed: int | None) -> None:
+        """Restart member ``i``'s stream like ``gym.Env.reset(seed=seed)``.
+
+        A None seed keeps an existing generator (and creates a random one otherwise).
+        """
+        if seed is not None or self.generators[i] is None:
+            self.generators[i] = seeding.np_random(seed)[0]
+            self._pos[i] = self.block
+
+    def _refill(self, i: int) -> None:
+        pos, buf = self._pos[i], self._buf[i]
+        left = self.block - pos
+        buf[:left] = buf[pos:]
+        self.generators[i].standard_normal(out=buf[left:])
+        self._pos[i] = 0
+
+    def draw(self, d: int, members: Members = slice(None)) -> np.ndarray:
+        """The next ``d`` values of each selected stream, shape (k, d)."""
+        index = np.arange(len(self._pos))[members]
+        if d == 0:
+            return np.zeros((len(index), 0))
+        if d > self.block:
+            raise ValueError(f"cannot draw {d} values at once (block {self.block})")
+        pos = self._pos[index]
+        for i in index[pos + d > self.block]:
+            self._refill(i)
+        pos = self._pos[index]
+        if len(pos) and pos.min() == pos.max():
+            start = int(pos[0])
+            out = self._buf[index, start:start + d]
+        else:
+            out = self._buf[index[:, None], pos[:, None] + np.arange(d)]
+        self._pos[index] = pos + d
+        return out
+
+    def view(self, members: Members) -> Noise:
+        """The streams of ``members`` as a :class:`Noise` source."""
+        return Noise(self, members)
+
+
+@dataclass
+class Noise:
+    """Standard normals for the members of one sample (a view of :class:`NoiseStreams`)."""
+
+    streams: NoiseStreams
+    members: Members
+
+    def normal(self, d: int) -> np.ndarray:
+        """``d`` standard normals per member, shape (k, d), from each member's own stream."""
+        return self.streams.draw(d, self.members)
+
+
+@dataclass
+class SensorModel:
+    """Linear model ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample.
+
+    Attributes
+    ----------
+    C : ndarray, shape (m, n)
+    D : ndarray, shape (m, nu)
+    R : ndarray, shape (m, m)
+        Per-sample covariance of the modelled noise (quantization as ``q^2 / 12``).
+    Hw : ndarray, shape (m, s)
+        Deterministic disturbance input (``s = 0`` when the channels do not see ``w``).
+    stochastic : ndarray of bool, shape (m,)
+        Channels a stochastic (Kalman-type) design uses; a noise-free channel driven by
+        ``w`` (an H-infinity filter's ``y2 = C2 x + H w``) is not.
+    """
+
+    C: np.ndarray
+    D: np.ndarray
+    R: np.ndarray
+    Hw: np.ndarray
+    stochastic: np.ndarray
+
+    @staticmethod
+    def stack(models: list[SensorModel]) -> SensorModel:
+        """The model of sensors measured one after the other (block-diagonal ``R``)."""
+        from scipy.linalg import block_diag
+
+        s = max(mod.Hw.shape[1] for mod in models)
+        Hw = np.vstack([np.pad(mod.Hw, ((0, 0), (0, s - mod.Hw.shape[1]))) for mod in models])
+        return SensorModel(C=np.vstack([mod.C for mod in models]),
+                           D=np.vstack([mod.D for mod in models]),
+                           R=block_diag(*[mod.R for mod in models]), Hw=Hw,
+                           stochastic=np.concatenate([mod.stochastic for mod in models]))
+
+
+class Sensor:
+    """Base of every sensor: declarations, per-member state, batched measurement.
+
+    Subclasses implement :meth:`measure` and :meth:`linear_model`, and set ``names``,
+    ``units`` and ``measured_state`` (tuples of equal length). Stateful ones override
+    :meth:`allocate` and :meth:`reset`.
+    """
+
+    names: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    measured_state: tuple[int | None, ...] = ()
+
+    @property
+    def dim(self) -> int:
+        """Number of output channels ``m``."""
+        return len(self.names)
+
+    def allocate(self, num: int) -> None:
+        """Size the per-member state for ``num`` members (default: stateless)."""
+
+    def reset(self, sample: Sample, noise: Noise) -> None:
+        """Start an episode for ``sample.members`` (default: nothing to reset, no draws)."""
+
+    def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
+        """One sample of every member in ``sample``, shape (k, m)."""
+        raise NotImplementedError
+
+    def linear_model(self) -> SensorModel:
+        """The model a designer uses (see :class:`SensorModel`)."""
+        raise NotImplementedError
+
+    def __add__(self, other: Sensor) -> Suite:
+        return Suite(self, other)
+
+    def describe(self) -> str:
+        """Short description for outputs, e.g. ``quantize(pitch)``."""
+        return "+".join(self.names)
+
+
+class Suite(Sensor):
+    """Sensors measured one after the other; the output is their concatenation.
+
+    Parameters
+    ----------
+    *sensors : Sensor
+    """
+
+    def __init__(self, *sensors: Sensor):
+        flat: list[Sensor] = []
+        for s in sensors:
+            if not isinstance(s, Sensor):
+                raise ValueError(f"Suite members must be Sensor objects, got {s!r}")
+            flat.extend(s.sensors if isinstance(s, Suite) else [s])
+        if not flat:
+            raise ValueError("a Suite needs at least one sensor")
+        self.sensors = tuple(flat)
+        self.names = tuple(n for s in flat for n in s.names)
+        self.units = tuple(u for s in flat for u in s.units)
+        self.measured_state = tuple(i for s in flat for i in s.measured_state)
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"sensor channel names must be unique, got {list(self.names)}")
+
+    def allocate(self, num: int) -> None:
+        """Allocate every member sensor."""
+        for s in self.sensors:
+            s.allocate(num)
+
+    def reset(self, sample: Sample, noise: Noise) -> None:
+        """Reset every member sensor, in order."""
+        for s in self.sensors:
+            s.reset(sample, noise)
+
+    def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
+        """Every sensor in order (their draws in that order), concatenated: (k, m)."""
+        parts = [s.measure(sample, noise) for s in self.sensors]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+    def linear_model(self) -> SensorModel:
+        """The stacked models of the member sensors."""
+        return SensorModel.stack([s.linear_model() for s in self.sensors])
+
+    def describe(self) -> str:
+        """The members' descriptions joined by ``+``."""
+        return " + ".join(s.describe() for s in self.sensors)
+
+
+def as_array(value: Any, size: int, name: str, *, non_negative: bool = True) -> np.ndarray:
+    """A finite float array of shape (size,) from a scalar or a sequence; else ValueError."""
+    try:
+        arr = np.broadcast_to(np.asarray(value, dtype=float), (size,)).copy()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be one number or {size} numbers, got {value!r}") from None
+    if not np.all(np.isfinite(arr)) or (non_negative and np.any(arr < 0)):
+        kind = "finite and non-negative" if non_negative else "finite"
+        raise ValueError(f"{name} must be {kind}, got {value!r}")
+    return arr

@@ -1,0 +1,584 @@
+"""The batch-first simulator: one implementation of reset/step for N members of any rig.
+
+The Gymnasium ``Env`` (:class:`testbed.envs.RigEnv`) is its N = 1 view, the ``VectorEnv``
+(:class:`testbed.envs.RigVectorEnv`) its N view, and the runner's closed loop drives it
+directly, so a member's trajectory does not depend on how many members run with it.
+
+Step semantics (per member, one control period ``dt_s = physics_dt_s * frame_skip``):
+
+1. the action is checked (shape, finite) for every member before anything changes, clipped
+   to the rig's limits; with a manoeuvre (open-loop input profile) the clipped action is
+   added to the profile at the step's start and the sum clipped again (zero-order hold);
+2. the rig's step noise perturbs its model (e.g. the vehicle's damping noise), then the
+   disturbance ``G w(t) + b dW`` becomes joint accelerations and, through the mass matrix
+   ``M(q)``, generalized forces (Euler-Maruyama: ``b xi / sqrt(dt)`` held over the step);
+3. MuJoCo steps ``frame_skip`` times (a pool of threads; ``mj_step`` releases the GIL);
+4. the sensors sample the new state.
+
+Randomness: member ``i`` owns one stream (:class:`testbed.sensors.NoiseStreams`, seeded like
+a Gymnasium env's ``np_random``); per step it gives, in order, the rig's step noise, the
+disturbance noise, then the sensors' noise.
+
+Physics: each member's complete MuJoCo integration state (``mjSTATE_INTEGRATION``: time,
+qpos, qvel, warm start, ctrl, applied forces) is a row of one array; a worker thread loads a
+row into its own ``MjData``, steps and stores it back, which is bitwise identical to stepping
+a dedicated ``MjData`` without one ``MjData`` (13.6 MB arena) per member.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from testbed.disturbances import Disturbance
+from testbed.rigs.base import Params, Rig
+from testbed.sensors import NoiseStreams, Sample, Sensor
+
+_INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+_CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
+_QFRC = int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)
+_XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+_QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
+_QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
+RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
+
+
+class PhysicsDivergenceError(RuntimeError):
+    """MuJoCo's state became non-finite or huge (the simulation diverged)."""
+
+
+def default_num_threads() -> int:
+    """CPUs this process may run on (the default size of the physics thread pool)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def _state_offset(model: mujoco.MjModel, spec: int, component: int) -> int:
+    """Offset of one component in a ``spec`` state vector (stored in increasing bit order)."""
+    return sum(mujoco.mj_stateSize(model, 1 << k) for k in range(component.bit_length() - 1)
+               if spec & (1 << k))
+
+
+class Physics:
+    """MuJoCo integration states of N members, stepped by a pool of threads.
+
+    Parameters
+    ----------
+    rig : Rig
+        Model factory (its own model is modified to make per-parameter copies).
+    num : int
+    frame_skip : int
+    num_threads : int, optional
+        Worker threads (default :func:`default_num_threads`, at most ``num``).
+    """
+
+    def __init__(self, rig: Rig, num: int, frame_skip: int, num_threads: int | None = None):
+        self.rig, self.num, self.frame_skip = rig, int(num), int(frame_skip)
+        model = rig.model
+        self.nu, self.nv, self.nbody = model.nu, model.nv, model.nbody
+        self._own_models = rig.step_noise_dim > 0  # each member perturbs its model per step
+        self._cache: dict[Params, mujoco.MjModel] = {}
+        self.models = [self.model_for(rig.params)] * self.num
+        self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
+        nstate = mujoco.mj_stateSize(model, _INTEGRATION)
+        self.state = np.zeros((self.num, nstate))
+        self.mass = np.zeros((self.num, self.nv, self.nv))
+        c = _state_offset(model, _INTEGRATION, _CTRL)
+        f = _state_offset(model, _INTEGRATION, _QFRC)
+        x = _state_offset(model, _INTEGRATION, _XFRC)
+        self._ctrl, self._qfrc = slice(c, c + self.nu), slice(f, f + self.nv)
+        self._xfrc = slice(x, x + 6 * self.nbody)
+        qpos, qvel = (_state_offset(model, _INTEGRATION, b) for b in (_QPOS, _QVEL))
+        self._gather = np.concatenate([qpos + rig.qpos_adr, qvel + rig.dof_adr])
+        self._check_layout()
+        threads = default_num_threads() if num_threads is None else int(num_threads)
+        if threads < 1:
+            raise ValueError(f"num_threads must be >= 1, got {num_threads}")
+        self.num_threads = min(threads, max(self.num, 1))
+        self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
+        self.poses: tuple[np.ndarray, np.ndarray] | None = None
+        self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
+                      if self.num_threads > 1 else None)
+
+    def _check_layout(self) -> None:
+        """Verify the computed state offsets against MuJoCo (fails loudly if it changes)."""
+        model = self.rig.model
+        data = mujoco.MjData(model)
+        data.ctrl[:] = np.arange(1, self.nu + 1)
+        data.qfrc_applied[:] = -np.arange(1, self.nv + 1)
+        data.xfrc_applied[:] = np.arange(6 * self.nbody).reshape(self.nbody, 6) + 0.5
+        data.qpos[:] = 10 + np.arange(model.nq)
+        data.qvel[:] = 20 + np.arange(self.nv)
+        row = np.zeros(self.state.shape[1])
+        mujoco.mj_getState(model, data, row, _INTEGRATION)
+        expected = np.concatenate([data.qpos[self.rig.qpos_adr], data.qvel[self.rig.dof_adr]])
+        if not (np.array_equal(row[self._ctrl], data.ctrl)
+                and np.array_equal(row[self._qfrc], data.qfrc_applied)
+                and np.array_equal(row[self._xfrc], data.xfrc_applied.ravel())
+                and np.array_equal(row[self._gather], expected)):
+            raise RuntimeError("unexpected mjSTATE_INTEGRATION layout in this MuJoCo version")
+
+    def model_for(self, params: Params) -> mujoco.MjModel:
+        """A model with these parameters (cached unless members perturb their models)."""
+        model = self._cache.get(params)
+        if model is None:
+            self.rig.set_params(params)
+            model = copy.copy(self.rig.model)  # mj_copyModel
+            if self._own_models:
+                return model
+            self._cache[params] = model
+        return model
+
+    def reset(self, members: Sequence[int], params: Sequence[Params], x0: np.ndarray) -> None:
+        """``mj_resetData``, ``x0`` into qpos/qvel, ``mj_forward`` for each member (k,)."""
+        data = self._datas[0]
+        for j, i in enumerate(members):
+            model = self.models[i] = self.model_for(params[j])
+            self.constants[i] = self.rig.member_constants(params[j])
+            mujoco.mj_resetData(model, data)
+            self.rig.set_state(x0[j], data, model)
+            mujoco.mj_getState(model, data, self.state[i], _INTEGRATION)
+            mujoco.mj_fullM(model, data, self.mass[i])
+        in_use = {id(m) for m in self.models}
+        self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
+
+    def states(self, members: Any = slice(None)) -> np.ndarray:
+        """Rig states of the members, shape (k, n)."""
+        return self.state[members][:, self._gather]
+
+    def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
+                   qfrc: np.ndarray | None) -> None:
+        """Write ctrl / xfrc_applied / qfrc_applied of the members' state rows."""
+        if "ctrl" in inputs:
+            self.state[members, self._ctrl] = inputs["ctrl"]
+        if "xfrc" in inputs:
+            self.state[members, self._xfrc] = inputs["xfrc"].reshape(len(inputs["xfrc"]), -1)
+        if qfrc is not None:
+            self.state[members, self._qfrc] = qfrc
+
+    def step(self, members: np.ndarray, need_mass: bool = False,
+             need_poses: bool = False) -> None:
+        """``mj_step`` ``frame_skip`` times for the members (sorted int array)."""
+        if need_poses and (self.poses is None or len(self.poses[0]) != self.num):
+            self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
+        chunks = [c.tolist() for c in np.array_split(members, self.num_threads) if len(c)]
+        futures = [self._pool.submit(self._work, self._datas[w], chunk, need_mass, need_poses)
+                   for w, chunk in enumerate(chunks[1:], 1)] if self._pool else []
+        try:
+            if chunks:
+                self._work(self._datas[0], chunks[0], need_mass, need_poses)
+        finally:
+            for future in futures:
+                future.result()
+
+    def _work(self, data: mujoco.MjData, rows: Sequence[int], need_mass: bool,
+              need_poses: bool) -> None:
+        models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
+        set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
+        for i in rows:
+            model, row = models[i], state[i]
+            set_state(model, data, row, _INTEGRATION)
+            step(model, data, nstep)
+            get_state(model, data, row, _INTEGRATION)
+            if need_mass:
+                mujoco.mj_fullM(model, data, mass[i])
+            if need_poses:
+                self.poses[0][i] = data.xpos
+                self.poses[1][i] = data.xquat
+
+    def forward_poses(self, members: np.ndarray) -> None:
+        """Body poses of the members from their current states (``mj_kinematics``)."""
+        if self.poses is None or len(self.poses[0]) != self.num:
+            self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
+        data = self._datas[0]
+        for i in members:
+            mujoco.mj_setState(self.models[i], data, self.state[i], _INTEGRATION)
+            mujoco.mj_kinematics(self.models[i], data)
+            self.poses[0][i] = data.xpos
+            self.poses[1][i] = data.xquat
+
+    def close(self) -> None:
+        """Stop the worker threads."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+
+def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int) -> np.ndarray:
+    """``fn(t_i)`` for every entry of ``t`` (k,), evaluated once per distinct time: (k, dim)."""
+    if len(t) and t.min() == t.max():
+        return np.broadcast_to(np.asarray(fn(float(t[0])), dtype=float), (len(t), dim))
+    values, inverse = np.unique(t, return_inverse=True)
+    table = np.array([fn(float(v)) for v in values], dtype=float).reshape(len(values), dim)
+    return table[inverse]
+
+
+class Simulator:
+    """N members of one rig with sensors and a disturbance, stepped together.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (nominal parameters; dedicated to this simulator: its model is modified).
+    sensors : Sensor
+        Copied; the copy holds the members' sensor states.
+    num : int
+        Number of members N.
+    frame_skip : int
+        Physics steps per control step.
+    disturbance : Disturbance, optional
+    params : dict, optional
+        Default parameter scale factors of the simulated members (model mismatch).
+    setpoints : sequence of rows, optional
+        Default reference ``(t_s, *tracked)`` (default: the rig's, else zero).
+    manoeuvre : str or callable, optional
+        Default open-loop input profile (a name of ``rig.manoeuvres`` or ``t_s -> (nu,)``).
+    manoeuvre_params : dict, optional
+    num_threads : int, optional
+
+    Attributes
+    ----------
+    obs : ndarray, shape (N, m)
+    info : dict of ndarray
+        ``state`` (N, n), ``t`` (N,), ``disturbance`` (N, s), ``setpoint`` (N, r),
+        ``action_applied`` (N, nu), ``action_clipped`` (N, nu) bool, ``manoeuvre`` (N, nu)
+        (the profile's part), ``process_accel`` (N, nv_rig), ``step_noise`` (N, d).
+    reward : ndarray, shape (N,)
+        ``-|x_tracked - reference|^2`` after the step.
+    terminated : ndarray of bool, shape (N,)
+    steps : ndarray of int, shape (N,)
+    """
+
+    def __init__(self, rig: Rig, sensors: Sensor, num: int = 1, frame_skip: int = 10, *,
+                 disturbance: Disturbance | None = None, params: dict | None = None,
+                 setpoints: Sequence[Sequence[float]] | None = None,
+                 manoeuvre: Any = None, manoeuvre_params: dict | None = None,
+                 num_threads: int | None = None):
+        if int(num) != num or num < 1:
+            raise ValueError(f"num must be a positive integer, got {num}")
+        if int(frame_skip) != frame_skip or frame_skip < 1:
+            raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
+        if not isinstance(sensors, Sensor):
+            raise ValueError(f"sensors must be a testbed.sensors.Sensor, got {sensors!r}")
+        self.rig = rig
+        self.num = n = int(num)
+        self.frame_skip = int(frame_skip)
+        self.dt_s = float(rig.model.opt.timestep) * self.frame_skip
+        self.nominal_params = rig.params.scaled(params or {})
+        self.disturbance = disturbance or Disturbance(n_positions=len(rig.joints))
+        self.sensors = copy.deepcopy(sensors)
+        self.sensors.allocate(n)
+        self._low = np.asarray(rig.action_low, float)
+        self._high = np.asarray(rig.action_high, float)
+        self._nu, self._nx = rig.n_actions, rig.n_states
+        self._j = len(rig.joints)
+        self._tracked = rig.tracked_index
+        table = setpoints if setpoints is not None else (rig.default_setpoints or None)
+        r = len(self._tracked)
+        self._tables = [rig.validate_setpoints(table) if table is not None
+                        else np.zeros((1, 1 + r))]
+        self._table_of = np.zeros(n, dtype=int)
+        self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
+        self._schedule_of = np.zeros(n, dtype=int)
+        self._w_dim = len(self.disturbance.signal(0.0))
+        self._dist_draws = 0 if self.disturbance.b is None else self.disturbance.b.shape[1]
+        self.physics = Physics(rig, n, self.frame_skip, num_threads)
+        self.physics.reset(range(n), [self.nominal_params] * n,
+                           np.tile(rig.default_x0(), (n, 1)))
+        self.noise = NoiseStreams(n, 64 * max(self._dist_draws + rig.step_noise_dim
+                                              + self.sensors.dim, 4))
+        self.steps = np.zeros(n, dtype=np.int64)
+        self._ready = np.zeros(n, dtype=bool)
+        self.x0 = np.zeros((n, self._nx))
+        self.obs = np.zeros((n, self.sensors.dim))
+        self.reward = np.zeros(n)
+        self.terminated = np.zeros(n, dtype=bool)
+        self.record_poses = False
+        self.info: dict[str, np.ndarray] = {
+            "state": np.zeros((n, self._nx)),
+            "t": np.zeros(n),
+            "disturbance": np.zeros((n, self._w_dim)),
+            "setpoint": np.zeros((n, r)),
+            "action_applied": np.zeros((n, self._nu)),
+            "action_clipped": np.zeros((n, self._nu), dtype=bool),
+            "manoeuvre": np.zeros((n, self._nu)),
+            "process_accel": np.zeros((n, self._j)),
+            "step_noise": np.zeros((n, rig.step_noise_dim)),
+        }
+
+    # ------------------------------------------------------------------ declarations
+    @property
+    def state_names(self) -> list[str]:
+        """The rig's state names."""
+        return list(self.rig.state_names)
+
+    @property
+    def action_names(self) -> list[str]:
+        """The rig's action names."""
+        return list(self.rig.action_names)
+
+    def units(self) -> dict[str, str]:
+        """Units of states, actions and measurement channels."""
+        units = self.rig.units()
+        for name, unit in zip(self.sensors.names, self.sensors.units, strict=True):
+            units.setdefault(name, unit)
+            units[f"measurement:{name}"] = unit
+        return units
+
+    # ------------------------------------------------------------------ options
+    def _resolve_manoeuvre(self, manoeuvre: Any, params: dict | None) -> Any:
+        if manoeuvre is None or manoeuvre == "none":
+            if params:
+                raise ValueError("manoeuvre_params given without a manoeuvre")
+            return None
+        if isinstance(manoeuvre, str):
+            if manoeuvre not in self.rig.manoeuvres:
+                raise ValueError(f"unknown manoeuvre {manoeuvre!r} for rig {self.rig.name!r}; "
+                                 f"expected one of {sorted(self.rig.manoeuvres) or 'none'}")
+            try:
+                return self.rig.manoeuvres[manoeuvre](**(params or {}))
+            except TypeError as err:
+                raise ValueError(f"bad manoeuvre_params for {manoeuvre!r}: {err}") from None
+        if params:
+            raise ValueError("manoeuvre_params is only used with a manoeuvre name")
+        if not callable(manoeuvre):
+            raise ValueError(f"manoeuvre must be a name, None or a callable t_s -> input, got "
+                             f"{manoeuvre!r}")
+        return manoeuvre
+
+    def member_options(self, options: dict | Sequence[dict | None] | None,
+                       k: int) -> list[dict[str, Any]]:
+        """One validated options dict per reset member.
+
+        One shared dict applies to every member; in it ``x0`` may be (k, n) and ``params`` a
+        sequence of k dicts. A sequence gives one dict (or None) per member.
+        """
+        def check(d: dict) -> dict:
+            if not isinstance(d, dict):
+                raise ValueError(f"reset options must be a dict, got {type(d).__name__}")
+            unknown = set(d) - set(RESET_OPTION_KEYS)
+            if unknown:
+                raise ValueError(f"unknown reset options {sorted(unknown)}; expected keys among "
+                                 f"{RESET_OPTION_KEYS}")
+            return d
+
+        if options is None or isinstance(options, dict):
+            shared = check(dict(options or {}))
+            per: list[dict[str, Any]] = [{} for _ in range(k)]
+            for key, value in shared.items():
+                if value is None:
+                    continue
+                if key == "params" and not isinstance(value, dict):
+                    values = list(value)
+                elif key == "x0" and np.ndim(value) == 2:
+                    values = list(np.asarray(value, dtype=float))
+                else:
+                    values = [value] * k
+                if len(values) != k:
+                    raise ValueError(f"options[{key!r}] has {len(values)} entries for {k} "
+                                     "members being reset")
+                for d, v in zip(per, values, strict=True):
+                    d[key] = v
+            return per
+        per = [check(dict(o or {})) for o in options]
+        if len(per) != k:
+            raise ValueError(f"got {len(per)} option dicts for {k} members being reset")
+        return per
+
+    def _index(self, registry: list, value: Any) -> int:
+        for j, known in enumerate(registry):
+            if known is value or (isinstance(known, np.ndarray) and isinstance(value, np.ndarray)
+                                  and known.shape == value.shape and np.array_equal(known, value)):
+                return j
+        registry.append(value)
+        return len(registry) - 1
+
+    # ------------------------------------------------------------------ signals
+    def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
+        groups = self._table_of[sel]
+        out = np.empty((len(t), len(self._tracked)))
+        for g in np.unique(groups):
+            table = self._tables[g]
+            mask = groups == g
+            rows = np.searchsorted(table[:, 0], t[mask], side="right") - 1
+            out[mask] = table[np.maximum(rows, 0), 1:]
+        return out
+
+    def setpoints_at(self, t_s: float | np.ndarray, members: Any = slice(None)) -> np.ndarray:
+        """References of the members at time(s) ``t_s``, shape (k, r)."""
+        groups = self._table_of[members]
+        return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
+
+    def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
+        groups = self._schedule_of[sel]
+        out = np.zeros((len(t), self._nu))
+        for g in np.unique(groups):
+            fn = self._schedules[g]
+            if fn is None:
+                continue
+            mask = groups == g
+            out[mask] = _per_time(lambda s, fn=fn: np.atleast_1d(fn(s)), t[mask], self._nu)
+        if not np.all(np.isfinite(out)):
+            raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
+        return out
+
+    def _signal(self, t: np.ndarray) -> np.ndarray:
+        return _per_time(self.disturbance.signal, t, self._w_dim)
+
+    # ------------------------------------------------------------------ API
+    def reset(self, members: np.ndarray | None = None,
+              seeds: Sequence[int | None] | None = None,
+              options: dict | Sequence[dict | None] | None = None) -> None:
+        """Reset members (default all) like ``gym.Env.reset(seed=..., options=...)``.
+
+        Parameters
+        ----------
+        members : ndarray of int, shape (k,), optional
+        seeds : sequence of (int or None), length k, optional
+            None keeps a member's generator (a new random one if it has none).
+        options : dict or sequence of k dicts, optional
+            Keys ``x0`` (n,), ``params`` ({name: scale}), ``setpoints`` (rows
+            ``(t_s, *tracked)``), ``manoeuvre`` (name, callable or None),
+            ``manoeuvre_params``. Everything is validated before any member changes.
+        """
+        index = np.arange(self.num) if members is None else np.asarray(members, int)
+        k = len(index)
+        seeds = [None] * k if seeds is None else list(seeds)
+        if len(seeds) != k:
+            raise ValueError(f"got {len(seeds)} seeds for {k} members being reset")
+        for seed in seeds:
+            if seed is not None and (not isinstance(seed, int | np.integer) or seed < 0):
+                raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        per = self.member_options(options, k)
+        params = [self.nominal_params.scaled(o.get("params") or {}) for o in per]
+        x0 = np.array([self.rig.validate_x0(o["x0"]) if o.get("x0") is not None
+                       else self.rig.default_x0() for o in per]).reshape(k, self._nx)
+        tables = [0 if o.get("setpoints") is None else
+                  self._index(self._tables, self.rig.validate_setpoints(o["setpoints"]))
+                  for o in per]
+        schedules = []
+        for o in per:
+            if "manoeuvre" in o:
+                fn = self._resolve_manoeuvre(o["manoeuvre"], o.get("manoeuvre_params"))
+            elif o.get("manoeuvre_params"):
+                default = self._schedules[0]
+                if default is None:
+                    raise ValueError("options['manoeuvre_params'] given without a manoeuvre")
+                fn = self._resolve_manoeuvre(default.name, o["manoeuvre_params"])
+            else:
+                fn = self._schedules[0]
+            schedules.append(self._index(self._schedules, fn))
+        # validated: now change state
+        for i, seed in zip(index.tolist(), seeds, strict=True):
+            self.noise.seed(i, None if seed is None else int(seed))
+        self.physics.reset(index.tolist(), params, x0)
+        self._table_of[index] = tables
+        self._schedule_of[index] = schedules
+        self._ready[index] = True
+        self.steps[index] = 0
+        self.x0[index] = x0
+        t = np.zeros(k)
+        info = self.info
+        w = self._signal(t)
+        x = self.physics.states(index)
+        info["state"][index] = x
+        info["t"][index] = 0.0
+        info["disturbance"][index] = w
+        info["setpoint"][index] = self._reference(t, index)
+        for key in ("action_applied", "action_clipped", "manoeuvre", "process_accel",
+                    "step_noise"):
+            info[key][index] = 0
+        sample = Sample(x, t, np.zeros((k, self._nu)), np.asarray(w), index)
+        noise = self.noise.view(index)
+        self.sensors.reset(sample, noise)
+        self.obs[index] = self.sensors.measure(sample, noise)
+        self.reward[index] = 0.0
+        self.terminated[index] = False
+        if self.record_poses:
+            self.physics.forward_poses(index)
+
+    def check_actions(self, actions: Any, k: int) -> np.ndarray:
+        """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
+        try:
+            u = np.asarray(actions, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"actions must be numeric with shape ({k}, {self._nu}) "
+                             f"({', '.join(self.rig.action_names)}), got {actions!r}") from None
+        if u.shape != (k, self._nu):
+            raise ValueError(f"actions must have shape ({k}, {self._nu}) "
+                             f"({', '.join(self.rig.action_names)} per member), got shape "
+                             f"{u.shape}")
+        if not np.isfinite(u).all():
+            raise ValueError("actions must be finite (no NaN/inf)")
+        return u
+
+    def step(self, actions: Any, members: np.ndarray | None = None) -> None:
+        """Apply actions (k, nu) for one control period to members (default all)."""
+        index = np.arange(self.num) if members is None else np.asarray(members, int)
+        k = len(index)
+        if not self._ready[index].all():
+            raise RuntimeError("reset() every member before stepping it")
+        u = self.check_actions(actions, k)
+        t = self.steps[index] * self.dt_s
+        clipped_u = u.clip(self._low, self._high)
+        profile = self._manoeuvre(t, index)
+        total = clipped_u + profile
+        applied = total.clip(self._low, self._high)
+        clipped = (clipped_u != u) | (applied != total)
+        noise = self.noise.view(index)
+        rig, physics, dist = self.rig, self.physics, self.disturbance
+        if rig.step_noise_dim:
+            xi = noise.normal(rig.step_noise_dim)
+            for j, i in enumerate(index):
+                rig.apply_step_noise(physics.models[i], physics.constants[i], xi[j])
+            self.info["step_noise"][index] = xi
+        qfrc = None
+        w = self._signal(t) if dist.has_signal else self.info["disturbance"][index]
+        accel: Any = np.zeros((k, self._j))
+        if dist.active:
+            if dist.G is not None:
+                accel = accel + np.matvec(dist.G[self._j:], w)
+            if dist.b is not None:
+                xi = noise.normal(self._dist_draws)
+                accel = accel + np.matvec(dist.b[self._j:], xi) / np.sqrt(self.dt_s)
+            a = np.zeros((k, physics.nv))
+            a[:, rig.dof_adr] = accel
+            qfrc = np.matvec(physics.mass[index], a)
+        physics.set_inputs(index, rig.actuation(applied, physics.constants[index]), qfrc)
+        physics.step(index, need_mass=dist.active,
+                     need_poses=self.record_poses)
+        self.steps[index] += 1
+        t = self.steps[index] * self.dt_s
+        x = physics.states(index)
+        if not np.all(np.isfinite(x)):
+            bad = index[~np.all(np.isfinite(x), axis=1)]
+            raise PhysicsDivergenceError(f"the simulation diverged (non-finite state) at "
+                                         f"t = {t[0]:.6g} s for members {bad.tolist()}")
+        ref = self._reference(t, index)
+        e = x[:, self._tracked] - ref
+        self.reward[index] = -np.sum(e * e, axis=1)
+        self.terminated[index] = rig.terminated(x)
+        w_now = self._signal(t) if dist.has_signal else np.zeros((k, 0))
+        sample = Sample(x, t, applied, np.asarray(w_now), index)
+        self.obs[index] = self.sensors.measure(sample, noise)
+        info = self.info
+        info["state"][index] = x
+        info["t"][index] = t
+        info["disturbance"][index] = w
+        info["setpoint"][index] = ref
+        info["action_applied"][index] = applied
+        info["action_clipped"][index] = clipped
+        info["manoeuvre"][index] = profile
+        info["process_accel"][index] = accel
+
+    def close(self) -> None:
+        """Stop the physics threads."""
+        self.physics.close()
