@@ -70,7 +70,10 @@ def _with_defaults(scenario: Scenario) -> Scenario:
         if getattr(scenario, key) is None:
             changes[key] = value
     name = scenario.estimator if isinstance(scenario.estimator, str) else None
-    for key, value in estimators.SCENARIO_DEFAULTS.get(name, {}).items():
+    needs = estimators.SCENARIO_DEFAULTS.get(name, {})
+    if needs.get("disturbance") not in rig.disturbance_signals:
+        needs = {}  # the rig lacks what the estimator needs: its factory says so
+    for key, value in needs.items():
         if key == "disturbance_channel":
             if scenario.sensors is None or isinstance(scenario.sensors, str):
                 changes["sensor_options"] = {**scenario.sensor_options, key: value}

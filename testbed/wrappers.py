@@ -61,7 +61,8 @@ class FilterInLoop(gym.Wrapper):
         self._index = None if measurement_index is None else np.asarray(measurement_index)
         self.state_names = list(getattr(inner, "state_names", [f"x{i}" for i in range(n)]))
         sensors = getattr(inner, "sensors", None)
-        measured = list(getattr(sensors, "measured_state_index", []))
+        measured = list(getattr(sensors, "measured_state", None)
+                        or getattr(sensors, "measured_state_index", []))
         self._metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
                                        measured, output_matrix, ratio_weight)
 

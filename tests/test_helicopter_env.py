@@ -1,4 +1,4 @@
-"""The Gymnasium contract of testbed/Helicopter2DOF-v0."""
+"""The Gymnasium contract of testbed/Helicopter2DOF-v0 (RigEnv("helicopter"))."""
 
 from __future__ import annotations
 
@@ -8,19 +8,29 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import testbed  # noqa: F401  (registers the environments)
-from testbed.disturbances import Disturbance, seed000_disturbance, seed000_w
-from testbed.envs.helicopter import Helicopter2DOFEnv
+from testbed.disturbances import Disturbance, basin_helicopter_disturbance, basin_helicopter_w
+from testbed.envs import RigEnv, RigVectorEnv
 from testbed.rigs.helicopter import PITCH_LIMIT_RAD, gravity_voltage
 
 
-def make(**kwargs) -> Helicopter2DOFEnv:
+def make(**kwargs) -> RigEnv:
     return gym.make("testbed/Helicopter2DOF-v0", **kwargs).unwrapped
+
+
+def _physics_snapshot(env: RigEnv) -> tuple:
+    """Everything a failed step must leave unchanged: physics, time, noise streams."""
+    noise = env.sim.noise
+    return (env.sim.physics.state.copy(), env.t_s, int(env.sim.steps[0]),
+            noise.generators[0].bit_generator.state, noise._pos.copy(), noise._buf.copy(),
+            env.sim.obs.copy())
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")
 @pytest.mark.parametrize("sensors", ["encoders", "encoders+gyros", "paper"])
 def test_check_env(sensors):
-    check_env(make(sensors=sensors, disturbance="seed000"), skip_render_check=True)
+    env = make(sensors=sensors, disturbance="basin-helicopter")
+    assert isinstance(env, RigEnv) and env.rig.name == "helicopter"
+    check_env(env, skip_render_check=True)
 
 
 def test_registered_with_time_limit():
@@ -36,7 +46,8 @@ def test_registered_with_time_limit():
 
 
 def rollout(seed: int, n: int = 150, **kwargs):
-    env = make(sensors="encoders+gyros", disturbance=seed000_disturbance(noise_scale=0.3),
+    env = make(sensors="encoders+gyros",
+               disturbance=basin_helicopter_disturbance(noise_scale=0.3),
                sensor_kwargs={"noise_std_rad": 0.001}, **kwargs)
     obs, info = env.reset(seed=seed)
     out = [obs, info["state"]]
@@ -55,33 +66,71 @@ def test_same_seed_is_bitwise_identical_and_other_seed_differs():
     assert any(not np.array_equal(x, y) for x, y in zip(a, c, strict=True))
 
 
+def test_vector_env_members_equal_single_envs_bitwise():
+    kwargs = {"sensors": "encoders+gyros",
+              "disturbance": basin_helicopter_disturbance(noise_scale=0.3),
+              "sensor_kwargs": {"noise_std_rad": 0.001}}
+    seeds = [3, 11, 4]
+    vec = RigVectorEnv(len(seeds), rig="helicopter", num_threads=2, **kwargs)
+    singles = [RigEnv("helicopter", **kwargs) for _ in seeds]
+    obs_v, info_v = vec.reset(seed=seeds)
+    for i, (env, seed) in enumerate(zip(singles, seeds, strict=True)):
+        obs, info = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs_v[i], obs)
+        np.testing.assert_array_equal(info_v["state"][i], info["state"])
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        actions = rng.uniform(-5, 20, (len(seeds), 2))
+        obs_v, rew_v, term_v, _, info_v = vec.step(actions)
+        for i, env in enumerate(singles):
+            obs, reward, terminated, _, info = env.step(actions[i])
+            np.testing.assert_array_equal(obs_v[i], obs)
+            assert rew_v[i] == reward and term_v[i] == terminated
+            for key in ("state", "t", "disturbance", "process_accel", "action_applied",
+                        "action_clipped", "setpoint"):
+                np.testing.assert_array_equal(info_v[key][i], info[key])
+    # the members are different episodes (different seeds)
+    assert not np.array_equal(obs_v[0], obs_v[1])
+    vec.close()
+    for env in singles:
+        env.close()
+
+
 def test_info_contents_and_reset_defaults():
-    env = make(disturbance="seed000")
+    env = make(disturbance="basin-helicopter")
     obs, info = env.reset(seed=0)
     np.testing.assert_allclose(info["state"], [-PITCH_LIMIT_RAD, 0, 0, 0])
-    assert info["t"] == 0.0
-    np.testing.assert_allclose(info["disturbance"], seed000_w(0.0))
+    np.testing.assert_array_equal(env.x0, [-PITCH_LIMIT_RAD, 0, 0, 0])
+    assert info["t"] == 0.0 and env.t_s == 0.0
+    np.testing.assert_allclose(info["disturbance"], basin_helicopter_w(0.0))
     _, reward, _, _, info = env.step(np.zeros(2))
-    assert info["t"] == pytest.approx(0.01)
+    assert info["t"] == pytest.approx(0.01) and env.t_s == pytest.approx(0.01)
     assert reward == pytest.approx(-np.sum((info["state"][:2] - info["setpoint"]) ** 2))
+    np.testing.assert_array_equal(info["setpoint"], env.setpoint(info["t"]))
     assert set(info) >= {"state", "t", "disturbance", "setpoint", "action_applied",
-                         "action_clipped"}
+                         "action_clipped", "manoeuvre", "process_accel", "step_noise"}
+    assert info["step_noise"].shape == (0,)  # the helicopter has no model noise
+    np.testing.assert_array_equal(info["manoeuvre"], [0.0, 0.0])
+    units = env.units()
+    assert units["pitch"] == "rad" and units["yaw_rate"] == "rad/s" and units["V_pitch"] == "V"
+    pos, quat = env.body_poses()
+    assert pos.shape == (env.rig.model.nbody, 3) and quat.shape == (env.rig.model.nbody, 4)
 
 
 @pytest.mark.parametrize("action", [[np.nan, 0.0], [0.0, np.inf], [1.0, 2.0, 3.0], [[1.0, 2.0]],
                                     "abc", None])
 def test_bad_action_raises_and_leaves_state_unchanged(action):
-    env = make()
+    env = make(sensors="encoders+gyros", process_noise=0.5)
     env.reset(seed=0)
     env.step(np.array([15.0, 0.0]))
-    before = (env.rig.data.qpos.copy(), env.rig.data.qvel.copy(), env.t_s,
-              env.np_random.bit_generator.state)
+    before = _physics_snapshot(env)
     with pytest.raises(ValueError, match="action"):
         env.step(action)
-    np.testing.assert_array_equal(env.rig.data.qpos, before[0])
-    np.testing.assert_array_equal(env.rig.data.qvel, before[1])
-    assert env.t_s == before[2]
-    assert env.np_random.bit_generator.state == before[3]
+    for x, y in zip(before, _physics_snapshot(env), strict=True):
+        if isinstance(x, dict):
+            assert x == y
+        else:
+            np.testing.assert_array_equal(x, y)
 
 
 def test_out_of_range_voltage_is_clipped_and_flagged():
@@ -90,7 +139,12 @@ def test_out_of_range_voltage_is_clipped_and_flagged():
     _, _, _, _, info = env.step(np.array([30.0, -3.0]))
     np.testing.assert_array_equal(info["action_applied"], [24.0, -3.0])
     np.testing.assert_array_equal(info["action_clipped"], [True, False])
-    np.testing.assert_array_equal(env.rig.data.ctrl, [24.0, -3.0])
+    # the rig moved exactly as with the clipped voltage
+    ref = make()
+    ref.reset(seed=0)
+    _, _, _, _, ref_info = ref.step(np.array([24.0, -3.0]))
+    np.testing.assert_array_equal(info["state"], ref_info["state"])
+    np.testing.assert_array_equal(ref_info["action_clipped"], [False, False])
 
 
 @pytest.mark.parametrize("options, match", [
@@ -151,6 +205,7 @@ def test_deterministic_disturbance_acts_as_paper_acceleration():
     env.reset(seed=0, options={"x0": np.zeros(4)})
     u = gravity_voltage(env.nominal_params, 0.0)
     _, _, _, _, info = env.step(u)
+    np.testing.assert_allclose(info["process_accel"], [0.0, 2.0])
     # yaw_rate after 10 ms with damping: v = a/c (1 - exp(-c t)), c = B_y/J_y
     c = 3.4955
     assert info["state"][3] == pytest.approx(2.0 / c * (1 - np.exp(-c * 0.01)), rel=2e-3)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed.envs.vehicle_roll import VehicleRollEnv
+from testbed.envs import RigEnv
 from testbed.manoeuvres import (
     MANOEUVRES,
     DoubleLaneChange,
@@ -86,20 +86,31 @@ def test_paper_decay_matches_v_k():
 
 
 def test_env_options_select_and_parameterize_the_manoeuvre():
-    env = VehicleRollEnv(manoeuvre="step-steer")
+    env = RigEnv("vehicle-roll", manoeuvre="step-steer")
+
+    def profile(n: int = 200) -> list[float]:
+        """The manoeuvre's part of the applied input over ``n`` steps of zero action."""
+        out = []
+        for _ in range(n):
+            _, _, _, _, info = env.step(np.zeros(1))
+            assert info["action_applied"][0] == info["manoeuvre"][0]  # zero action added
+            out.append(info["manoeuvre"][0])
+        return out
+
     env.reset(seed=0, options={"manoeuvre": "double-lane-change",
                                "manoeuvre_params": {"speed_m_s": 15.0}})
     expected = DoubleLaneChange(speed_m_s=15.0)
-    for k in range(200):
-        _, _, _, _, info = env.step(np.zeros(1))
-        assert info["a_y_manoeuvre"] == expected(k * env.dt_s)
-        assert info["a_y"] == info["a_y_manoeuvre"]
+    assert profile() == [expected(k * env.dt_s) for k in range(200)]
+    assert expected != DoubleLaneChange()  # the parameter was used
     env.reset(seed=0)  # back to the constructor's step steer
-    assert env.manoeuvre == StepSteer()
+    assert profile() == [StepSteer()(k * env.dt_s) for k in range(200)]
+    assert any(StepSteer()(k * env.dt_s) != 0.0 for k in range(200))
     env.reset(seed=0, options={"manoeuvre_params": {"amplitude_m_s2": 2.0}})
-    assert env.manoeuvre == StepSteer(amplitude_m_s2=2.0)
+    assert profile() == [StepSteer(amplitude_m_s2=2.0)(k * env.dt_s) for k in range(200)]
     env.reset(seed=0, options={"manoeuvre": None})
     _, _, _, _, info = env.step(np.array([1.5]))
-    assert info["a_y"] == 1.5 and info["a_y_manoeuvre"] == 0.0
+    assert info["action_applied"][0] == 1.5 and info["manoeuvre"][0] == 0.0
     with pytest.raises(ValueError, match="expected one of"):
         env.reset(options={"manoeuvre": "slalom"})
+    with pytest.raises(ValueError, match="manoeuvre_params"):
+        env.reset(options={"manoeuvre": "step-steer", "manoeuvre_params": {"sharpness": 1.0}})

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from filters.lmi_hinf import check_design, lmi_gamma_for_solution, minimal_gamma
+from testbed import runner
 from testbed.cli import main
-from testbed.envs.vehicle_roll import VehicleRollEnv
-from testbed.experiment import Experiment, run_episode
 from testbed.reproductions import zhang_lmi_hinf_vehicle_roll as rep
 from testbed.rigs.vehicle_roll import paper_model
+from testbed.scenario import Scenario
 from testbed.scenarios.zhang_hinf import (
     PAPER_K_HAT,
     PAPER_P1,
@@ -24,9 +24,7 @@ from testbed.scenarios.zhang_hinf import (
     identify_rig_step,
     paper_system,
     rig_system,
-    vehicle_lmi_estimator,
 )
-from testbed.wrappers import FilterInLoop
 
 CASES = {"x0_zero", "x0_paper"}
 KEYS = {"gamma_min", "gamma_used", "K_hat", "lmi_solve_s", "error_spectral_radius",
@@ -75,13 +73,14 @@ def test_rig_model_is_the_zoh_of_the_physics_and_close_to_mujoco():
 
 @pytest.mark.parametrize("sensors, kwargs", [("paper", {}), ("imu", {"roll_sensor": True})])
 def test_cli_estimator_flies_the_rig(sensors, kwargs):
-    env = VehicleRollEnv(sensors=sensors, sensor_kwargs=kwargs, manoeuvre="double-lane-change")
-    est, meta = vehicle_lmi_estimator(env.sensors, env.dt_s)
+    scenario = Scenario(rig="vehicle-roll", estimator="lmi-hinf", sensors=sensors,
+                        sensor_options=kwargs, duration_s=4.0, seed=0)
+    experiment = runner.build(scenario)
+    meta = experiment.meta["design"]
+    experiment.close()
     assert meta["status"] == "feasible" and meta["gamma"] >= meta["gamma_min"]
     assert meta["spectral_radius"] < 1
-    loop = FilterInLoop(env, est, output_matrix=np.array([[1.0, 0.0]]))
-    exp = Experiment(loop, lambda x: np.zeros(1), lambda: None, {"rig": "vehicle-roll"})
-    traj, summary = run_episode(exp, 4.0, seed=0)
+    traj, summary = runner.run(scenario, progress=False)
     assert traj.covariance is None and np.isfinite(traj.estimate).all()
     assert np.rad2deg(summary["rmse"]["roll"]) < 0.05  # the manoeuvre rolls ~1.4 deg
 

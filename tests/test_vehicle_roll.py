@@ -10,20 +10,46 @@ from gymnasium.utils.env_checker import check_env
 from scipy.integrate import solve_ivp
 
 import testbed  # noqa: F401  (registers the environments)
-from testbed.envs.vehicle_roll import VehicleRollEnv
-from testbed.experiment import run_episode
+from testbed.envs import RigEnv
 from testbed.rigs.helicopter import GRAVITY_M_S2
 from testbed.rigs.vehicle_roll import (
+    ROLLOVER_RAD,
     VehicleRollParams,
     VehicleRollRig,
     paper_disturbance,
     paper_model,
     physical_model,
+    process_noise_intensity,
 )
-from testbed.vehicle_experiment import build_vehicle_roll, process_noise_intensity
-from testbed.vehicle_sensors import ImuSuite, PaperRollSuite, make_vehicle_sensor_suite
+from testbed.rigs.vehicle_roll.sensors import PaperRollChannel, imu
+from testbed.runner import run
+from testbed.scenario import Scenario
+from testbed.sensors import NoiseStreams, Sample, Suite
 
 G = GRAVITY_M_S2
+
+
+def VehicleRollEnv(**kwargs) -> RigEnv:  # noqa: N802  (the old class name, kept for reading)
+    return RigEnv("vehicle-roll", **kwargs)
+
+
+def _member_model(env: RigEnv):
+    """The MuJoCo model member 0 is simulated with (its per-step damping included)."""
+    return env.sim.physics.models[0]
+
+
+def _measure(sensor, x: np.ndarray, a_y: float, seed: int = 0, num: int = 1) -> np.ndarray:
+    """Reset ``sensor`` for ``num`` members at state ``x`` and take one sample: (num, m)."""
+    sensor.allocate(num)
+    streams = NoiseStreams(num)
+    for i in range(num):
+        streams.seed(i, seed + i)
+    members = np.arange(num)
+    sample = Sample(np.tile(x, (num, 1)), np.zeros(num), np.full((num, 1), a_y),
+                    np.zeros((num, 0)), members)
+    noise = streams.view(members)
+    sensor.reset(sample, noise)
+    return sensor.measure(sample, noise)
 
 
 # ---------------------------------------------------------------- paper model vs physics
@@ -70,7 +96,7 @@ def test_linearization_matches_analytic():
     # Away from upright: cos(eta) on the input, the slopes of the nonlinear torques.
     p = rig.params
     eta, a_y = 0.1, 4.0
-    A, B = rig.linearize(np.array([eta, 0.3]), a_y_op=a_y)
+    A, B = rig.linearize(np.array([eta, 0.3]), u_op=np.array([a_y]))
     mh = p.sprung_mass_kg * p.com_height_m
     d_eta = (mh * G * np.cos(eta) - mh * a_y * np.sin(eta) - p.roll_stiffness) / p.roll_inertia
     np.testing.assert_allclose(A[1], [d_eta, -p.roll_damping / p.roll_inertia], rtol=1e-6)
@@ -116,8 +142,8 @@ def test_mujoco_rig_reproduces_eq51():
     for _ in range(1000):  # 10 s
         _, _, _, _, info = env.step(rng.uniform(-1.0, 1.0, 1))
         states.append(info["state"])
-        a_seq.append(info["a_y"])
-        w_seq.append(info["damping_noise"])
+        a_seq.append(info["action_applied"][0])
+        w_seq.append(info["step_noise"][0])
     states = np.array(states)
     assert np.abs(states[:, 0]).max() > 0.05  # about 3.4 deg of roll
     verbatim = _eq51(env.rig.params, a_seq, w_seq, env.dt_s, with_cos=False)
@@ -135,64 +161,83 @@ def test_damping_noise_is_drawn_per_step_and_applied():
     w = []
     for _ in range(400):
         _, _, _, _, info = env.step(np.array([2.0]))
-        w.append(info["damping_noise"])
-        assert env.rig.model.dof_damping[0] == pytest.approx(53071.0 + 20.0 * w[-1])
+        w.append(info["step_noise"][0])
+        assert _member_model(env).dof_damping[0] == pytest.approx(53071.0 + 20.0 * w[-1])
     w = np.array(w)
     assert abs(w.mean()) < 0.2 and 0.85 < w.std() < 1.15
     env.reset(seed=3)
-    assert env.rig.model.dof_damping[0] == 53071.0
+    assert _member_model(env).dof_damping[0] == 53071.0
 
 
 # ---------------------------------------------------------------- sensors
 def test_imu_formula_and_noise_levels():
-    suite = ImuSuite(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0)
-    quiet = ImuSuite(dt_s=0.01, roll_sensor=True, gyro_noise_density=0.0, gyro_bias_walk=0.0,
-                     accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02)
-    rng = np.random.default_rng(0)
+    suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0)
+    quiet = imu(dt_s=0.01, roll_sensor=True, gyro_noise_density=0.0, gyro_bias_walk=0.0,
+                accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02)
     x = np.array([0.05, -0.2])
-    np.testing.assert_allclose(quiet.measure(x, 0.0, rng, a_y=4.0),
+    np.testing.assert_allclose(_measure(quiet, x, 4.0)[0],
                                [-0.2, 4.0 * np.cos(0.05) + G * np.sin(0.05) + 0.02, 0.05])
-    samples = np.array([suite.measure(x, 0.0, rng, a_y=4.0) for _ in range(4000)])
+    samples = _measure(suite, x, 4.0, num=4000)  # 4000 members, one sample each
     std = samples.std(axis=0)
     expected = [np.deg2rad(0.01) * 10.0, 150e-6 * G * 10.0, np.deg2rad(0.1)]
     np.testing.assert_allclose(std, expected, rtol=0.05)
-    np.testing.assert_allclose(suite.sample_std(), expected)
-    C, R = suite.linear_model(0.01)
-    np.testing.assert_allclose(C, [[0, 1], [G, 0], [1, 0]])
-    np.testing.assert_allclose(R, np.diag(np.square(expected)))
-    np.testing.assert_array_equal(suite.feedthrough_matrix(), [[0], [1], [0]])
-    assert suite.names == ["roll_rate", "lateral_accel", "roll"]
-    assert suite.measured_state_index == [1, None, 0]
+    model = suite.linear_model()
+    np.testing.assert_allclose(np.sqrt(np.diag(model.R)), expected)
+    np.testing.assert_allclose(model.C, [[0, 1], [G, 0], [1, 0]])
+    np.testing.assert_allclose(model.R, np.diag(np.square(expected)))
+    np.testing.assert_array_equal(model.D, [[0], [1], [0]])
+    assert model.Hw.shape == (3, 0) and model.stochastic.all()
+    assert suite.names == ("roll_rate", "lateral_accel", "roll")
+    assert suite.units == ("rad/s", "m/s^2", "rad")
+    assert suite.measured_state == (1, None, 0)
+    assert imu(dt_s=0.01).names == ("roll_rate", "lateral_accel")  # roll sensor optional
 
 
 def test_imu_gyro_bias_random_walk():
-    suite = ImuSuite(dt_s=0.01, gyro_noise_density=0.0, gyro_bias_walk=0.01,
-                     gyro_bias0_std=0.0)
-    rng = np.random.default_rng(1)
-    suite.reset(rng)
-    biases = []
-    for _ in range(1000):
-        biases.append(suite.measure(np.zeros(2), 0.0, rng)[0])
+    suite = imu(dt_s=0.01, gyro_noise_density=0.0, gyro_bias_walk=0.01, gyro_bias0_std=0.0,
+                accel_noise_density=0.0)
+    suite.allocate(1)
+    streams = NoiseStreams(1)
+    streams.seed(0, 1)
+    members = np.arange(1)
+    sample = Sample(np.zeros((1, 2)), np.zeros(1), np.zeros((1, 1)), np.zeros((1, 0)),
+                    members)
+    noise = streams.view(members)
+    suite.reset(sample, noise)
+    biases = [suite.measure(sample, noise)[0, 0] for _ in range(1000)]
+    assert biases[0] == 0.0  # calibrated at reset: b_0 = 0
     increments = np.diff(biases)
     assert increments.std() == pytest.approx(0.01 * np.sqrt(0.01), rel=0.1)
-    suite.reset(rng)
-    assert suite.gyro_bias == 0.0
+    suite.reset(sample, noise)
+    assert suite.measure(sample, noise)[0, 0] == 0.0  # the bias restarts at zero
+    # with an initial bias spread, b_0 is drawn at reset
+    spread = imu(dt_s=0.01, gyro_noise_density=0.0, gyro_bias_walk=0.0, gyro_bias0_std=0.01)
+    b0 = _measure(spread, np.zeros(2), 0.0, num=4000)[:, 0]
+    assert b0.std() == pytest.approx(0.01, rel=0.05)
 
 
-def test_paper_suite_is_H_x_plus_L_v():
-    env = VehicleRollEnv(sensors="paper", manoeuvre="paper-decay")
+@pytest.mark.parametrize("disturbance", [None, "zhang-decay"])
+def test_paper_suite_is_H_x_plus_L_v(disturbance):
+    env = VehicleRollEnv(sensors="paper", manoeuvre="paper-decay", disturbance=disturbance)
+    assert isinstance(env.sensors, PaperRollChannel)
     obs, info = env.reset(seed=0, options={"x0": [0.1, 1.0]})
     pm = paper_model()
     np.testing.assert_allclose(obs, pm.H @ [0.1, 1.0] + pm.L[:, 0] * 0.01, rtol=1e-14)
     for k in range(1, 30):
         obs, _, _, _, info = env.step(np.zeros(1))
         v = paper_disturbance(k)
-        np.testing.assert_allclose(info["disturbance"], [v], rtol=1e-12)
         np.testing.assert_allclose(obs, pm.H @ info["state"] + pm.L[:, 0] * v, rtol=1e-12)
-        assert info["a_y"] == pytest.approx(paper_disturbance(k - 1))  # held over the step
-    C, R = env.sensors.linear_model(0.01)
-    np.testing.assert_array_equal(C, pm.H)
-    assert np.all(np.linalg.eigvalsh(R) > 0)
+        # the manoeuvre v_{k-1} is held over the step that ends at sample k
+        assert info["action_applied"][0] == pytest.approx(paper_disturbance(k - 1))
+        assert info["manoeuvre"][0] == info["action_applied"][0]
+        if disturbance is None:
+            assert info["disturbance"].shape == (0,)
+        else:  # the scenario's w, like the input, is the value held over the step
+            np.testing.assert_allclose(info["disturbance"], [paper_disturbance(k - 1)],
+                                       rtol=1e-12)
+    model = env.sensors.linear_model()
+    np.testing.assert_array_equal(model.C, pm.H)
+    assert np.all(np.linalg.eigvalsh(model.R) > 0)
 
 
 def test_accelerometer_on_the_rig_sees_a_y_and_gravity():
@@ -206,15 +251,23 @@ def test_accelerometer_on_the_rig_sees_a_y_and_gravity():
     assert obs[0] == info["state"][1]
 
 
-def test_sensor_suite_factory_errors():
-    assert isinstance(make_vehicle_sensor_suite("imu", 0.01), ImuSuite)
-    assert isinstance(make_vehicle_sensor_suite("paper", 0.01), PaperRollSuite)
+def test_sensor_presets_and_errors():
+    rig = VehicleRollRig()
+    suite = rig.sensors("imu", dt_s=0.01)
+    assert isinstance(suite, Suite) and suite.names == ("roll_rate", "lateral_accel")
+    assert isinstance(rig.sensors("paper", dt_s=0.01), PaperRollChannel)
+    assert rig.sensors(None, dt_s=0.01).names == suite.names  # default preset: imu
+    assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 3
     with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
-        make_vehicle_sensor_suite("encoders", 0.01)
-    with pytest.raises(ValueError, match="gyro_noise_density"):
-        make_vehicle_sensor_suite("imu", 0.01, gyro_noise_density=-1.0)
-    with pytest.raises(ValueError, match="bad arguments"):
-        make_vehicle_sensor_suite("imu", 0.01, sonar=True)
+        rig.sensors("encoders", dt_s=0.01)
+    with pytest.raises(ValueError, match="density must be finite and non-negative"):
+        rig.sensors("imu", dt_s=0.01, gyro_noise_density=-1.0)
+    with pytest.raises(ValueError, match="bad option for sensor preset 'imu'"):
+        rig.sensors("imu", dt_s=0.01, sonar=True)
+    with pytest.raises(ValueError, match="noise_std must be finite"):
+        rig.sensors("paper", dt_s=0.01, noise_std=-1.0)
+    with pytest.raises(ValueError, match="sensor_kwargs is only used with a sensor preset"):
+        VehicleRollEnv(sensors=imu(), sensor_kwargs={"roll_sensor": True})
 
 
 # ---------------------------------------------------------------- environment contract
@@ -246,8 +299,8 @@ def _rollout(seed: int, n: int = 200) -> list:
     rng = np.random.default_rng(seed)
     for _ in range(n):
         obs, reward, _, _, info = env.step(rng.uniform(-1, 1, 1))
-        out += [obs, info["state"], np.array([reward, info["t"], info["a_y"],
-                                              info["damping_noise"]]),
+        out += [obs, info["state"], np.array([reward, info["t"], info["manoeuvre"][0],
+                                              info["step_noise"][0]]),
                 info["action_applied"], info["action_clipped"]]
     return out
 
@@ -264,36 +317,53 @@ def test_info_contents_and_reset_defaults():
     obs, info = env.reset(seed=0)
     assert obs.shape == (2,) and env.observation_space.contains(obs)
     np.testing.assert_array_equal(info["state"], [0.0, 0.0])
-    assert info["t"] == 0.0 and info["a_y"] == 0.0
-    assert info["setpoint"].shape == (0,) and info["disturbance"].shape == (0,)
+    assert info["t"] == 0.0 and info["action_applied"][0] == 0.0
+    # the roll angle is the tracked state (zero reference); no disturbance signal
+    np.testing.assert_array_equal(info["setpoint"], [0.0])
+    assert info["disturbance"].shape == (0,)
     _, reward, terminated, truncated, info = env.step(np.array([3.0]))
     assert info["t"] == pytest.approx(0.01)
     assert reward == pytest.approx(-info["state"][0] ** 2)
     assert not terminated and not truncated
     np.testing.assert_array_equal(info["action_applied"], [3.0])
     np.testing.assert_array_equal(info["action_clipped"], [False])
+    np.testing.assert_array_equal(info["manoeuvre"], [0.0])
+    assert info["step_noise"].shape == (1,) and info["step_noise"][0] != 0.0
     assert info["state"][0] > 0  # a left turn (a_y > 0) rolls the body outwards (+)
-    assert set(info) >= {"state", "t", "a_y", "disturbance", "setpoint", "action_applied",
-                         "action_clipped"}
+    assert set(info) >= {"state", "t", "disturbance", "setpoint", "action_applied",
+                         "action_clipped", "manoeuvre", "step_noise", "process_accel"}
     assert env.state_names == ["roll", "roll_rate"]
-    assert env.action_names == ["a_y [m/s^2]"]
+    assert env.action_names == ["a_y"]
+    assert env.units()["a_y"] == "m/s^2" and env.units()["roll"] == "rad"
     pos, quat = env.body_poses()
     assert pos.shape == (env.rig.model.nbody, 3) and quat.shape == (env.rig.model.nbody, 4)
+
+
+def test_rollover_terminates():
+    env = VehicleRollEnv(params={"roll_stiffness": 0.0, "roll_damping": 0.0})
+    env.reset(seed=0, options={"x0": [ROLLOVER_RAD - 0.01, 1.0]})
+    terminated = False
+    for _ in range(10):
+        _, _, terminated, _, info = env.step(np.zeros(1))
+        if terminated:
+            break
+    assert terminated and abs(info["state"][0]) > ROLLOVER_RAD
 
 
 def test_actions_beyond_the_limit_are_clipped_and_flagged():
     env = VehicleRollEnv()
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([9.5]))
-    assert info["a_y"] == 8.0 and info["action_clipped"].tolist() == [True]
+    assert info["action_applied"][0] == 8.0 and info["action_clipped"].tolist() == [True]
     env = VehicleRollEnv(manoeuvre="step-steer", manoeuvre_params={"amplitude_m_s2": 7.0,
                                                                     "t_start_s": 0.0,
                                                                     "rise_time_s": 0.01})
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([0.5]))  # manoeuvre(0) = 0: no clipping
-    assert info["a_y"] == 0.5 and not info["action_clipped"][0]
+    assert info["action_applied"][0] == 0.5 and not info["action_clipped"][0]
     _, _, _, _, info = env.step(np.array([2.0]))  # 7 + 2 > 8
-    assert info["a_y"] == 8.0 and info["a_y_manoeuvre"] == 7.0 and info["action_clipped"][0]
+    assert info["action_applied"][0] == 8.0 and info["manoeuvre"][0] == 7.0
+    assert info["action_clipped"][0]
 
 
 @pytest.mark.parametrize("action", [[np.nan], [np.inf], [1.0, 2.0], [[1.0]], 1.0, "abc", None])
@@ -302,13 +372,17 @@ def test_bad_action_raises_and_leaves_state_unchanged(action):
     env.reset(seed=0)
     for _ in range(120):
         env.step(np.array([1.0]))
-    before = (env.rig.data.qpos.copy(), env.rig.data.qvel.copy(), env.t_s,
-              env.np_random.bit_generator.state, env.rig.model.dof_damping.copy(),
-              env.rig.data.xfrc_applied.copy())
+    noise = env.sim.noise
+
+    def snapshot():  # physics (qpos, qvel, xfrc_applied...), model, time, noise, sensors
+        return (env.sim.physics.state.copy(), _member_model(env).dof_damping.copy(), env.t_s,
+                noise.generators[0].bit_generator.state, noise._pos.copy(),
+                env.sim.obs.copy(), env.sim.info["step_noise"].copy())
+
+    before = snapshot()
     with pytest.raises(ValueError, match="action"):
         env.step(action)
-    after = (env.rig.data.qpos, env.rig.data.qvel, env.t_s, env.np_random.bit_generator.state,
-             env.rig.model.dof_damping, env.rig.data.xfrc_applied)
+    after = snapshot()
     for x, y in zip(before, after, strict=True):
         if isinstance(x, dict):
             assert x == y
@@ -321,8 +395,10 @@ def test_bad_names_and_unphysical_parameters():
         VehicleRollEnv(manoeuvre="slalom")
     with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
         VehicleRollEnv(sensors="lidar")
-    with pytest.raises(ValueError, match="control period"):
-        VehicleRollEnv(sensors=ImuSuite(dt_s=0.005))
+    with pytest.raises(ValueError, match="unknown disturbance 'basin-helicopter'"):
+        VehicleRollEnv(disturbance="basin-helicopter")
+    with pytest.raises(ValueError, match="no process-noise model"):
+        VehicleRollEnv(process_noise=1.0)
     for name in ("sprung_mass_kg", "roll_stiffness", "roll_damping"):
         with pytest.raises(ValueError, match=name):
             VehicleRollEnv(params={name: -1.0})
@@ -338,28 +414,38 @@ def test_bad_names_and_unphysical_parameters():
     with pytest.raises(ValueError, match="unknown params key 'mass'"):
         env.reset(options={"params": {"mass": 1.1}})
     with pytest.raises(ValueError, match="unknown reset options"):
+        env.reset(options={"bogus": 1})
+    with pytest.raises(ValueError, match="setpoints"):  # a valid key, but an empty table
         env.reset(options={"setpoints": []})
     with pytest.raises(ValueError, match="x0"):
         env.reset(options={"x0": [0.0, 0.0, 0.0]})
     with pytest.raises(ValueError, match="x0"):
         env.reset(options={"x0": [np.nan, 0.0]})
+    with pytest.raises(ValueError, match="beyond rollover"):
+        env.reset(options={"x0": [2.0, 0.0]})
 
 
 def test_model_mismatch_params_scale_the_rig():
     env = VehicleRollEnv()
     env.reset(seed=0, options={"params": {"roll_stiffness": 0.5, "damping_noise": 0.0}})
-    assert env.rig.params.roll_stiffness == pytest.approx(55314 / 2)
-    assert env.rig.model.jnt_stiffness[0] == pytest.approx(55314 / 2)
+    assert _member_model(env).jnt_stiffness[0] == pytest.approx(55314 / 2)
     env.step(np.zeros(1))
-    assert env.rig.model.dof_damping[0] == 53071.0  # D_n = 0: no damping noise
+    assert _member_model(env).dof_damping[0] == 53071.0  # D_n = 0: no damping noise
     env.reset(seed=0)
-    assert env.rig.params == VehicleRollParams()
+    assert _member_model(env).jnt_stiffness[0] == 55314.0
+    env.step(np.zeros(1))
+    assert _member_model(env).dof_damping[0] != 53071.0  # damping noise back
+    assert env.nominal_params == VehicleRollParams()
 
 
 # ---------------------------------------------------------------- experiment
+def vehicle_scenario(estimator: str = "kalman", **kwargs) -> Scenario:
+    return Scenario(rig="vehicle-roll", estimator=estimator, **kwargs)
+
+
 def test_kalman_filter_on_imu_during_double_lane_change():
-    exp = build_vehicle_roll("kalman", manoeuvre="double-lane-change", sensors="imu")
-    traj, summary = run_episode(exp, duration_s=10.0, seed=0, progress=False)
+    traj, summary = run(vehicle_scenario(manoeuvre="double-lane-change", sensors="imu",
+                                         duration_s=10.0, seed=0), progress=False)
     rmse_deg = {k: np.rad2deg(v) for k, v in summary["rmse"].items()}
     meas_deg = {k: np.rad2deg(v) for k, v in summary["measurement_rmse"].items()}
     print(f"Kalman/imu/double-lane-change RMSE: roll {rmse_deg['roll']:.4f} deg, roll_rate "
@@ -369,7 +455,9 @@ def test_kalman_filter_on_imu_during_double_lane_change():
     assert rmse_deg["roll"] < 0.5
     assert rmse_deg["roll_rate"] < meas_deg["roll_rate"]  # better than the raw gyro
     assert summary["steps"] == 1000 and summary["clipped_fraction"] == 0.0
-    assert traj.setpoint.shape == (1001, 0) and traj.setpoint_names() == []
+    # the roll angle is tracked against a zero reference
+    assert traj.setpoint.shape == (1001, 1) and traj.setpoint_names() == ["roll"]
+    assert not traj.setpoint.any()
     assert traj.action_names == ["a_y [m/s^2]"]
     assert np.abs(traj.action[:, 0]).max() == pytest.approx(6.16, abs=0.01)
 
@@ -380,12 +468,15 @@ def test_process_noise_derivation():
     q_damp = (p.damping_noise * 0.01 / p.roll_inertia * 0.2) ** 2 / 0.01  # paper's C x w
     q_ay = (0.25 * 0.01 * 0.1) ** 2 / 0.01
     np.testing.assert_allclose(Q, np.diag([0.0, q_damp + q_ay]), rtol=1e-12)
+    design = VehicleRollRig().design_model(imu(dt_s=0.01), 0.01, a_y_std=0.1,
+                                           design_roll_rate=0.2)
+    np.testing.assert_allclose(design.continuous.Q, Q, rtol=1e-12)
 
 
 @pytest.mark.parametrize("filter_name, sensors", [("kalman", "paper"), ("kalman-bucy", "imu")])
 def test_other_filters_and_suites_run(filter_name, sensors):
-    exp = build_vehicle_roll(filter_name, sensors=sensors, manoeuvre="step-steer")
-    _, summary = run_episode(exp, duration_s=2.0, seed=1, record=False, progress=False)
+    _, summary = run(vehicle_scenario(filter_name, sensors=sensors, manoeuvre="step-steer",
+                                      duration_s=2.0, seed=1), record=False, progress=False)
     assert np.rad2deg(summary["rmse"]["roll"]) < 0.5
     with pytest.raises(ValueError, match="expected one of"):
-        build_vehicle_roll("hinf")
+        run(vehicle_scenario("hinf", duration_s=0.1), record=False, progress=False)

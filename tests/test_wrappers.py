@@ -6,38 +6,97 @@ import numpy as np
 import pytest
 
 from filters import KalmanFilter, LinearSystem
-from testbed.envs.helicopter import Helicopter2DOFEnv
-from testbed.experiment import build_helicopter, run_episode
+from testbed import estimators
+from testbed.control import make_controller
+from testbed.disturbances import basin_helicopter_w
+from testbed.envs import RigEnv
 from testbed.metrics import EpisodeMetrics
 from testbed.rigs.helicopter import paper_model
+from testbed.runner import run
+from testbed.scenario import Scenario
 from testbed.wrappers import FilterInLoop
 
 
+def filter_in_loop(estimator: str = "kalman", **env_kwargs):
+    """A helicopter RigEnv wrapped with an estimator built from the rig's design model, and
+    the LQR policy acting on the wrapper's observation (the estimate)."""
+    env = RigEnv("helicopter", **env_kwargs)
+    design = env.rig.design_model(env.sensors, env.dt_s, env.disturbance)
+    est = estimators.build(estimator, design)
+
+    def transform(u, x_hat):  # the design's transform is batched: (k, nu), (k, n)
+        return design.input_transform(u[None], np.asarray(x_hat)[None])[0]
+
+    wrapped = FilterInLoop(env, est, input_transform=transform)
+    ctrl = make_controller("lqr", env.rig, design, env.setpoint)
+    ctrl.reset(1)
+
+    def policy(x_hat):
+        return ctrl(np.asarray(x_hat)[None], env.t_s)[0]
+
+    return wrapped, policy, design
+
+
+def helicopter(estimator: str = "kalman", **kwargs) -> Scenario:
+    return Scenario(rig="helicopter", estimator=estimator, controller="lqr", **kwargs)
+
+
 def test_observation_is_the_estimate_and_info_keeps_truth_and_measurement():
-    exp = build_helicopter("kalman", "lqr")
-    x_hat, info = exp.env.reset(seed=0)
-    np.testing.assert_array_equal(x_hat, exp.env.estimator.x)
+    env, policy, design = filter_in_loop()
+    x_hat, info = env.reset(seed=0)
+    np.testing.assert_array_equal(x_hat, env.estimator.x)
+    np.testing.assert_array_equal(x_hat, design.x0)
     for _ in range(5):
-        x_hat, _, _, _, info = exp.env.step(exp.policy(x_hat))
+        x_hat, _, _, _, info = env.step(policy(x_hat))
     np.testing.assert_array_equal(x_hat, info["estimate"])
+    np.testing.assert_array_equal(x_hat, env.estimator.x)
     np.testing.assert_array_equal(info["error"], info["estimate"] - info["state"])
     assert info["measurement"].shape == (2,)
     assert info["covariance"].shape == (4, 4)
-    assert exp.env.observation_space.shape == (4,)
+    assert env.observation_space.shape == (4,)
+    assert env.metrics().count == 5
+    # no deterministic disturbance: no noise-output ratio
+    assert env.metrics().noise_output_ratio() is None
 
 
 def test_estimator_prior_from_reset_options():
-    exp = build_helicopter("kalman", "lqr")
+    env, _, _ = filter_in_loop()
     x0 = np.array([-0.7, 0.1, 0.0, 0.0])
-    x_hat, _ = exp.env.reset(seed=0, options={"estimator": {"x0": x0}})
+    x_hat, _ = env.reset(seed=0, options={"estimator": {"x0": x0}})
     np.testing.assert_array_equal(x_hat, x0)
+    x_hat, _ = env.reset(seed=0)  # back to the prior it had when wrapped
+    np.testing.assert_array_equal(x_hat, env.unwrapped.rig.default_x0())
     with pytest.raises(ValueError, match="estimator"):
-        exp.env.reset(seed=0, options={"estimator": {"xx": x0}})
+        env.reset(seed=0, options={"estimator": {"xx": x0}})
+    # the other option keys still reach the environment
+    _, info = env.reset(seed=0, options={"x0": np.zeros(4), "estimator": {"x0": x0}})
+    np.testing.assert_array_equal(info["state"], np.zeros(4))
+    with pytest.raises(ValueError, match="unknown reset options"):
+        env.reset(seed=0, options={"bogus": 1})
+
+
+def test_wrapper_metrics_match_the_runner():
+    """The same estimator, controller and seed through the wrapper and through run()."""
+    env, policy, _ = filter_in_loop(disturbance="basin-helicopter", process_noise=0.1)
+    x_hat, _ = env.reset(seed=2)
+    states = []
+    for _ in range(100):
+        x_hat, _, _, _, info = env.step(policy(x_hat))
+        states.append(info["state"])
+    traj, summary = run(helicopter(disturbance="basin-helicopter", process_noise=0.1,
+                                   duration_s=1.0, seed=2), progress=False)
+    np.testing.assert_allclose(np.array(states), traj.state[1:], rtol=1e-12, atol=1e-12)
+    ours = env.metrics().summary()
+    for key in ("rmse", "measurement_rmse"):
+        for name, value in summary[key].items():
+            assert ours[key][name] == pytest.approx(value, rel=1e-9)
+    assert ours["nees_mean"] == pytest.approx(summary["nees_mean"], rel=1e-9)
+    assert ours["T_final"] == pytest.approx(summary["T_final"], rel=1e-9)
 
 
 def test_metrics_match_a_recomputation_from_the_trajectory():
-    exp = build_helicopter("kalman", "lqr", disturbance="seed000", process_noise_scale=0.1)
-    traj, summary = run_episode(exp, 3.0, seed=2)
+    traj, summary = run(helicopter(disturbance="basin-helicopter", process_noise=0.1,
+                                   duration_s=3.0, seed=2), progress=False)
     err = traj.estimate[1:] - traj.state[1:]
     rmse = np.sqrt(np.mean(err**2, axis=0))
     np.testing.assert_allclose(list(summary["rmse"].values()), rmse, rtol=1e-12)
@@ -48,10 +107,8 @@ def test_metrics_match_a_recomputation_from_the_trajectory():
                                                                strict=True)])
     assert summary["nees_mean"] == pytest.approx(nees, rel=1e-12)
     # T ratio by hand: w held over each step [t_{k-1}, t_k), error at t_k
-    from testbed.disturbances import seed000_w
-
     dt = 0.01
-    w_sq = sum(float(seed000_w(t) @ seed000_w(t)) for t in traj.t_s[:-1]) * dt
+    w_sq = sum(float(basin_helicopter_w(t) @ basin_helicopter_w(t)) for t in traj.t_s[:-1]) * dt
     z_sq = float(np.sum(err[:, :2] ** 2)) * dt
     x0 = traj.state[0]
     assert summary["T_final"] == pytest.approx(np.sqrt(z_sq / (w_sq + x0 @ x0)), rel=1e-10)
@@ -66,25 +123,25 @@ def test_no_ratio_without_deterministic_disturbance():
 
 
 def test_closed_loop_runs_are_bitwise_reproducible():
-    a, _ = run_episode(build_helicopter(process_noise_scale=0.2), 2.0, seed=5)
-    b, _ = run_episode(build_helicopter(process_noise_scale=0.2), 2.0, seed=5)
-    c, _ = run_episode(build_helicopter(process_noise_scale=0.2), 2.0, seed=6)
+    a, _ = run(helicopter(process_noise=0.2, duration_s=2.0, seed=5), progress=False)
+    b, _ = run(helicopter(process_noise=0.2, duration_s=2.0, seed=5), progress=False)
+    c, _ = run(helicopter(process_noise=0.2, duration_s=2.0, seed=6), progress=False)
     for field in ("state", "estimate", "measurement", "action", "covariance"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     assert not np.array_equal(a.state, c.state)
 
 
 def test_lqr_tracks_the_setpoints_on_the_nonlinear_rig():
-    traj, summary = run_episode(build_helicopter("kalman", "lqr"), 15.0, seed=0)
+    traj, summary = run(helicopter(duration_s=15.0, seed=0), progress=False)
     k = np.searchsorted(traj.t_s, 9.9)  # end of the second setpoint (10 deg, 30 deg)
     np.testing.assert_allclose(traj.state[k, :2], np.deg2rad([10.0, 30.0]), atol=np.deg2rad(1))
+    np.testing.assert_allclose(traj.setpoint[k], np.deg2rad([10.0, 30.0]))
     assert summary["clipped_fraction"] < 0.2
 
 
 def test_kalman_filter_beats_the_raw_measurement():
-    exp = build_helicopter("kalman", "lqr", sensor_kwargs={"noise_std_rad": 0.002},
-                           process_noise_scale=0.1)
-    _, s = run_episode(exp, 8.0, seed=1)
+    _, s = run(helicopter(sensor_options={"noise_std_rad": 0.002}, process_noise=0.1,
+                          duration_s=8.0, seed=1), record=False, progress=False)
     for angle in ("pitch", "yaw"):
         assert s["rmse"][angle] < 0.8 * s["measurement_rmse"][angle]
     assert 1.0 < s["nees_mean"] < 8.0
@@ -94,12 +151,10 @@ def test_kalman_bucy_in_the_loop_is_stable_and_consistent():
     """Kalman-Bucy on 100 Hz samples: its bandwidth is close to the sample rate here, so
     holding each sample over the interval costs accuracy against the exact discrete filter
     (a documented limitation); it must stay stable and consistent."""
-    exp = build_helicopter("kalman-bucy", "lqr", sensor_kwargs={"noise_std_rad": 0.002},
-                           process_noise_scale=0.1)
-    _, s = run_episode(exp, 8.0, seed=1)
-    _, s_kf = run_episode(build_helicopter("kalman", "lqr",
-                                           sensor_kwargs={"noise_std_rad": 0.002},
-                                           process_noise_scale=0.1), 8.0, seed=1)
+    common = {"sensor_options": {"noise_std_rad": 0.002}, "process_noise": 0.1,
+              "duration_s": 8.0, "seed": 1}
+    _, s = run(helicopter("kalman-bucy", **common), record=False, progress=False)
+    _, s_kf = run(helicopter("kalman", **common), record=False, progress=False)
     for angle in ("pitch", "yaw"):
         assert s["rmse"][angle] < 1.3 * s["measurement_rmse"][angle]
         assert s_kf["rmse"][angle] < s["rmse"][angle]
@@ -107,7 +162,7 @@ def test_kalman_bucy_in_the_loop_is_stable_and_consistent():
 
 
 def test_wrapper_uses_the_applied_action_and_input_transform():
-    env = Helicopter2DOFEnv()
+    env = RigEnv("helicopter")
     pm = paper_model()
     sysd = LinearSystem(A=pm.A, B=pm.B, C=np.eye(2, 4), Q=np.eye(4) * 1e-3,
                         R=np.eye(2) * 1e-6).discretize(env.dt_s)
@@ -115,27 +170,32 @@ def test_wrapper_uses_the_applied_action_and_input_transform():
     seen = []
 
     def transform(u, x_hat):
-        seen.append(u.copy())
+        seen.append((u.copy(), np.array(x_hat, copy=True)))
         return np.zeros(2)
 
     wrapped = FilterInLoop(env, kf, input_transform=transform)
     wrapped.reset(seed=0)
     wrapped.step(np.array([30.0, -1.0]))
-    np.testing.assert_array_equal(seen[0], [24.0, -1.0])
+    np.testing.assert_array_equal(seen[0][0], [24.0, -1.0])
+    np.testing.assert_array_equal(seen[0][1], np.zeros(4))  # the estimate before the step
 
 
 def test_ms_hinf_flies_the_rig_with_the_y2_channel():
-    exp = build_helicopter("ms-hinf", "lqr", disturbance="seed000")
-    inner = exp.env.unwrapped
-    assert inner.sensors.dim == 4 and inner.sensors.names[2:] == ["y2_0", "y2_1"]
-    traj, s = run_episode(exp, 3.0, seed=0)
+    traj, s = run(helicopter("ms-hinf", disturbance="basin-helicopter", duration_s=3.0,
+                             seed=0), progress=False)
+    names = s["meta"]["units"]
+    assert traj.measurement.shape[1] == 4
+    assert traj.measurement_names[2:] == ["y2_pitch", "y2_yaw"]
+    assert names["measurement:y2_pitch"] == "rad"
     # y2 = C2 x + H w: pitch + w3, yaw + w4 exactly (no noise on the deterministic channel)
-    from testbed.disturbances import seed000_w
-
     k = 100
-    w = seed000_w(traj.t_s[k])
+    w = basin_helicopter_w(traj.t_s[k])
     np.testing.assert_allclose(traj.measurement[k, 2:], traj.state[k, :2] + w[2:], atol=1e-12)
     assert s["T_final"] is not None and s["T_final"] < 1.1
     assert s["rmse"]["pitch"] < np.deg2rad(1.0)
-    with pytest.raises(ValueError, match="seed000"):
-        build_helicopter("ms-hinf", "lqr", disturbance="none")
+    # the filter's default disturbance and y2 channel come from the scenario defaults
+    traj_default, _ = run(helicopter("ms-hinf", duration_s=3.0, seed=0),
+                                  progress=False)
+    np.testing.assert_array_equal(traj_default.estimate, traj.estimate)
+    with pytest.raises(ValueError, match="basin-helicopter"):
+        run(helicopter("ms-hinf", disturbance="none", duration_s=0.1), progress=False)

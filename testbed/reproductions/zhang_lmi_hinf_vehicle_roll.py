@@ -12,7 +12,7 @@ vehicle roll (see docs/references.md).
   ``gamma_used``; also the gamma for which the printed ``(P1, P2, P_K)`` satisfy (48);
 - **rig**: designed the same way on the physically consistent model of the MuJoCo rig
   (:func:`testbed.scenarios.zhang_hinf.rig_system`) and run on the rig
-  (:class:`~testbed.envs.vehicle_roll.VehicleRollEnv`, ``paper`` suite, ``paper-decay``
+  (:class:`~testbed.envs.RigEnv` of ``vehicle-roll``, ``paper`` suite, ``paper-decay``
   manoeuvre ``a_y = v_k``) with the filter in the loop (:class:`~testbed.wrappers.
   FilterInLoop`).
 
@@ -92,10 +92,10 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
                   xhat0: np.ndarray, n_steps: int, runs: int, seed: int,
                   record: bool) -> dict[str, Any]:
     """``runs`` episodes of the MuJoCo rig with the filter (45) in the loop (FilterInLoop)."""
-    from testbed.envs.vehicle_roll import VehicleRollEnv
+    from testbed.envs import RigEnv
     from testbed.wrappers import FilterInLoop
 
-    env = VehicleRollEnv(sensors="paper", manoeuvre="paper-decay")
+    env = RigEnv("vehicle-roll", sensors="paper", manoeuvre="paper-decay")
     est = LMIHInfFilter.from_design(system, design_gain, x0=xhat0, dt_s=env.dt_s)
     loop = FilterInLoop(env, est, output_matrix=system.C_z)
     seeds = np.random.SeedSequence(seed).generate_state(runs)

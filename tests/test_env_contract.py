@@ -1,0 +1,78 @@
+"""One contract for every registered environment (like dm_control's suite-wide test)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import testbed
+
+IDS = list(testbed.ENV_IDS)
+#: Keyword arguments that make each environment random (where its defaults are not).
+RANDOM = {"testbed/Helicopter2DOF-v0": {"process_noise": 1.0}}
+#: Environments with no randomness at all (a fixed plant and x0, no noise).
+DETERMINISTIC = {"testbed/PolynomialCubic-v0"}
+
+
+def _rollout(env, seed, steps=20):
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    zero = np.zeros(env.action_space.shape)
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(zero)
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        out.append(obs)
+        if terminated:
+            break
+    return np.array(out)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_check_env(env_id):
+    env = gym.make(env_id).unwrapped
+    check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_same_seed_same_rollout_other_seed_differs(env_id):
+    env = gym.make(env_id, **RANDOM.get(env_id, {}))
+    a, b, c = _rollout(env, 5), _rollout(env, 5), _rollout(env, 6)
+    assert np.array_equal(a, b)
+    assert np.array_equal(a, c) == (env_id in DETERMINISTIC)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_bad_actions_rejected_with_state_unchanged(env_id):
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=0)
+    before = _rollout_state(env)
+    shape = env.action_space.shape
+    for bad in (np.full(shape, np.nan), np.zeros((shape[0] + 1,)), "x"):
+        with pytest.raises(ValueError):
+            env.step(bad)
+    assert np.array_equal(_rollout_state(env), before)
+
+
+def _rollout_state(env):
+    sim = getattr(env, "sim", None)
+    if sim is not None:
+        return sim.physics.state.copy()
+    return np.array(env.step.__self__.__dict__.get("_x", np.zeros(0)), copy=True)
+
+
+@pytest.mark.parametrize("env_id", ["testbed/Helicopter2DOF-v0", "testbed/VehicleRoll-v0"])
+def test_vector_env_equals_single_envs_bitwise(env_id):
+    kwargs = RANDOM.get(env_id, {})
+    venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
+    obs, _ = venv.reset(seed=10)
+    rows = [obs]
+    for _ in range(15):
+        obs, *_ = venv.step(np.zeros(venv.action_space.shape))
+        rows.append(obs)
+    venv.close()
+    batched = np.array(rows)
+    for i in range(3):
+        single = _rollout(gym.make(env_id, **kwargs), 10 + i, steps=15)
+        assert np.array_equal(single, batched[:, i])

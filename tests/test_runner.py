@@ -1,0 +1,97 @@
+"""The runner: run, mc and sweep follow one code path (bitwise equal), on every rig."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testbed import runner
+from testbed.cli import main
+from testbed.scenario import Scenario
+
+RIGS = [Scenario(rig="helicopter", duration_s=2.0, process_noise=1.0),
+        Scenario(rig="vehicle-roll", duration_s=2.0)]
+
+
+@pytest.mark.parametrize("scenario", RIGS, ids=["helicopter", "vehicle-roll"])
+def test_mc_run_i_equals_run_with_its_seed(scenario):
+    one = runner.monte_carlo(scenario.replace(seed=3), runs=1, progress=False)
+    _, single = runner.run(scenario.replace(seed=one["seeds"][0]), record=False, progress=False)
+    for name in single["rmse"]:  # the acceptance criterion: float equality
+        assert one["rmse_per_run"][name][0] == single["rmse"][name]
+    mc = runner.monte_carlo(scenario.replace(seed=3), runs=4, progress=False)
+    for i in (0, 3):
+        _, single = runner.run(scenario.replace(seed=mc["seeds"][i]), record=False,
+                               progress=False)
+        for name in single["rmse"]:
+            # batched linear algebra (stacked matmul/solve) may round differently from N = 1
+            assert mc["rmse_per_run"][name][i] == pytest.approx(single["rmse"][name],
+                                                                rel=1e-12)
+
+
+@pytest.mark.parametrize("scenario", RIGS, ids=["helicopter", "vehicle-roll"])
+def test_results_do_not_depend_on_batch_size(scenario):
+    a = runner.monte_carlo(scenario, runs=5, batch_size=5, progress=False)
+    b = runner.monte_carlo(scenario, runs=5, batch_size=2, progress=False)
+    assert a["seeds"] == b["seeds"]
+    for name, values in a["rmse_per_run"].items():
+        assert values == pytest.approx(b["rmse_per_run"][name], rel=1e-12)
+
+
+def test_seed_changes_outcome_and_same_seed_repeats():
+    sc = RIGS[0]
+    _, a = runner.run(sc.replace(seed=1), record=False, progress=False)
+    _, b = runner.run(sc.replace(seed=1), record=False, progress=False)
+    _, c = runner.run(sc.replace(seed=2), record=False, progress=False)
+    assert a["rmse"] == b["rmse"] and a["rmse"] != c["rmse"]
+
+
+def test_npz_holds_every_trajectory(tmp_path):
+    path = tmp_path / "t.npz"
+    res = runner.monte_carlo(RIGS[1], runs=3, progress=False, save_npz=path)
+    data = np.load(path)
+    assert data["state"].shape == (3, res["steps_per_run"] + 1, 2)
+    assert np.array_equal(data["seeds"], res["seeds"])
+
+
+def test_sweep_local_equals_the_mc_of_each_point():
+    sc = RIGS[1].replace(duration_s=1.0)
+    out = runner.sweep(sc, {"design.a_y_std": [0.05, 0.2]}, runs=2, workers=1, progress=False)
+    assert len(out["points"]) == 2
+    ref = runner.monte_carlo(sc.replace(design_options={"a_y_std": 0.2}), 2, progress=False)
+    assert out["points"][1]["result"]["rmse_per_run"] == ref["rmse_per_run"]
+
+
+@pytest.mark.slow
+def test_sweep_ray_equals_local():
+    pytest.importorskip("ray")
+    sc = RIGS[1].replace(duration_s=0.5)
+    grid = {"params.roll_damping": [0.9, 1.1]}
+    local = runner.sweep(sc, grid, runs=2, workers=2, progress=False)
+    ray = runner.sweep(sc, grid, runs=2, backend="ray", workers=2, progress=False)
+    assert runner.without_timings(local) == runner.without_timings(ray)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["run", "vehicle-roll", "--process-noise", "5"], "--process-noise"),
+    (["run", "vehicle-roll", "--encoder-noise", "1"], "--encoder-noise"),
+    (["run", "vehicle-roll", "--disturbance", "basin-helicopter"], "--disturbance"),
+    (["run", "helicopter", "--manoeuvre", "step-steer"], "manoeuvre"),
+    (["run", "helicopter", "--design-option", "a_y_std=1"], "a_y_std"),
+    (["run", "helicopter", "--filter", "nosuch"], "nosuch"),
+    (["run", "helicopter", "--filter", "nosuchmodule:make"], "nosuchmodule"),
+    (["mc", "vehicle-roll", "--filter", "ms-hinf", "--runs", "2"], "ms-hinf"),
+])
+def test_inapplicable_options_are_errors_naming_them(argv, needle, capsys):
+    assert main([*argv, "--duration", "0.1", "--no-progress"]) == 2
+    assert needle in capsys.readouterr().err
+
+
+def test_cli_mc_vehicle_roll_json(tmp_path):
+    path = tmp_path / "mc.json"
+    assert main(["mc", "vehicle-roll", "--runs", "4", "--duration", "1", "--json", str(path),
+                 "--no-progress"]) == 0
+    import json
+
+    data = json.loads(path.read_text())
+    assert data["units"]["roll"] == "rad" and len(data["seeds"]) == 4
