@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from testbed.batch import limit_blas_threads, monte_carlo  # noqa: E402
 from testbed.envs.helicopter_vector import default_num_threads  # noqa: E402
+
 from testbed.rigs.helicopter import HelicopterRig  # noqa: E402
 
 # VmHWM (peak RSS of this process image), not ru_maxrss: Linux carries ru_maxrss over fork and

@@ -44,9 +44,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from filters import KalmanFilter, LinearSystem, MeanSquareHInfFilter  # noqa: E402
 from testbed.envs.helicopter import Helicopter2DOFEnv  # noqa: E402
 from testbed.experiment import build_helicopter  # noqa: E402
+
+from filters import KalmanFilter, LinearSystem, MeanSquareHInfFilter  # noqa: E402
 from testbed.io import write_json  # noqa: E402
 from testbed.rigs.helicopter import gravity_voltage, paper_model  # noqa: E402
 
@@ -148,7 +149,6 @@ def bench_scale(quick: bool) -> dict[str, object]:
     """Monte-Carlo throughput, memory, scaling, the papers' scale and the Ray sweep speedup."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_mc import bench_monte_carlo
-
     from testbed.batch import monte_carlo
 
     out: dict[str, object] = dict(bench_monte_carlo())
@@ -167,7 +167,6 @@ def bench_ray_sweep() -> dict[str, object]:
     """16-point sweep on a local Ray instance with 1 and 2 workers (started and warmed up
     outside the timed region: the sweep's own cost, not Ray's start-up)."""
     import ray
-
     from testbed.sweep import sweep
 
     grid = {"process_noise_scale": [0.0, 0.1, 0.2, 0.3], "params.mass_kg": [0.9, 1.0, 1.1, 1.2]}

@@ -132,8 +132,9 @@ class Disturbance:
         return np.asarray(accel, dtype=float)
 
 
-def basin_helicopter_disturbance(noise_scale: float = 1.0, deterministic: bool = True) -> Disturbance:
-    """Basin et al.'s helicopter disturbance: ``G w(t)`` with the printed ``G`` and ``w``, and ``b dW``.
+def basin_helicopter_disturbance(noise_scale: float = 1.0,
+                                 deterministic: bool = True) -> Disturbance:
+    """Basin et al.'s helicopter disturbance: printed ``G w(t)`` and ``b dW``.
 
     Parameters
     ----------
@@ -147,5 +148,6 @@ def basin_helicopter_disturbance(noise_scale: float = 1.0, deterministic: bool =
     pm = paper_model()
     if not (np.isfinite(noise_scale) and noise_scale >= 0):
         raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
-    return Disturbance(G=pm.G if deterministic else None, w=basin_helicopter_w if deterministic else None,
+    return Disturbance(G=pm.G if deterministic else None,
+                       w=basin_helicopter_w if deterministic else None,
                        b=pm.b * noise_scale if noise_scale > 0 else None)

@@ -235,8 +235,8 @@ class Rig:
         try:
             table = np.asarray(setpoints, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError(f"setpoints must be numeric rows (t_s, {', '.join(self.tracked_states)})"
-                             ) from None
+            names = ", ".join(self.tracked_states)
+            raise ValueError(f"setpoints must be numeric rows (t_s, {names})") from None
         if table.ndim != 2 or table.shape[1] != 1 + r or len(table) == 0:
             raise ValueError(f"setpoints must be a sequence of (t_s, "
                              f"{', '.join(self.tracked_states)}) rows, got shape {table.shape}")
