@@ -54,4 +54,4 @@ def test_run_vehicle_roll_writes_the_three_files(tmp_path):
 
 def test_sensor_suite_must_match_the_rig(capsys):
     assert main(["run", "vehicle-roll", "--sensors", "encoders", "--duration", "0.1"]) == 2
-    assert "vehicle-roll suite" in capsys.readouterr().err
+    assert "vehicle-roll sensor preset" in capsys.readouterr().err

@@ -20,8 +20,10 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
                    capture_output=True)
     (wheel,) = wheel_dir.glob("testbed-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    for xml in sorted((ROOT / "models").glob("*.xml")):
-        assert f"testbed/models/{xml.name}" in names
+    xmls = sorted((ROOT / "testbed" / "rigs").rglob("*.xml"))
+    assert len(xmls) == 2
+    for xml in xmls:
+        assert xml.relative_to(ROOT).as_posix() in names
     for source in sorted((ROOT / "testbed").rglob("*.py")) + sorted(
             (ROOT / "filters").rglob("*.py")):
         assert source.relative_to(ROOT).as_posix() in names, source
@@ -30,10 +32,11 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet",
                     "--target", str(target), str(wheel)], check=True, capture_output=True)
-    code = ("import importlib, pkgutil, testbed, filters, mujoco, testbed.rigs.assets as a;"
+    code = ("import importlib, pkgutil, testbed, filters, mujoco;"
+            "from testbed.rigs.helicopter import HelicopterRig as H;"
             "[importlib.import_module(m.name) for pkg in (testbed, filters) for m in "
             "pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')];"  # every module ships
-            "p = a.model_path('helicopter_2dof.xml'); assert 'site' in str(p), p;"
+            "p = H.resolved_xml_path(); assert 'site' in str(p), p;"
             "print(mujoco.MjModel.from_xml_path(str(p)).nq)")
     result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True,
                             capture_output=True, text=True,

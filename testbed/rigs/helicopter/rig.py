@@ -263,6 +263,8 @@ class HelicopterRig(Rig):
         ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n)
                for n in ("pitch_motor", "yaw_motor")]
         self._act_pitch, self._act_yaw = ids
+        self._body_id = self.body_id("helicopter")
+        self._stage_id = self.body_id("yaw_stage")
         self._mass_matrix = np.zeros((self.model.nv, self.model.nv))
 
     def apply_params(self, model: mujoco.MjModel, params: HelicopterParams) -> None:
@@ -290,6 +292,11 @@ class HelicopterRig(Rig):
     def process_noise_matrix(self) -> np.ndarray:
         """Basin et al.'s white-noise matrix ``b`` (4, 2) (velocity rows)."""
         return paper_model().b
+
+    @property
+    def dof_index(self) -> np.ndarray:
+        """MuJoCo dof indices of ``[pitch, yaw]``, shape (2,)."""
+        return self.dof_adr
 
     def default_x0(self) -> np.ndarray:
         """Resting on the lower pitch stop: ``[-40.5 deg, 0, 0, 0]``."""
