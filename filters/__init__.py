@@ -11,14 +11,14 @@ Models
     :class:`PolynomialModel` (degree <= 3, tensor coefficients).
 Estimators (satisfy the :class:`Estimator` protocol)
     :class:`KalmanFilter` (``"kalman"``), :class:`KalmanBucyFilter` (``"kalman-bucy"``),
-    :class:`MeanSquareHInfFilter` (seed-000, ``"ms-hinf"``),
+    :class:`MeanSquareHInfFilter` (Basin et al., ``"ms-hinf"``),
     :class:`PolynomialHInfFilter`, :class:`NonOrthonormalPolynomialHInfFilter` and
-    :class:`LinearizedHInfFilter` (seed-001), :class:`LinearFilter` (fixed gains
+    :class:`LinearizedHInfFilter` (Basin, Shi et al.), :class:`LinearFilter` (fixed gains
     ``xhat' = G xhat + K y``, ``"linear-gain"``: the variance-constrained designs).
 Designs
-    :func:`design_lmi_hinf` / :func:`minimal_gamma` (seed-002, Theorem 4 LMI (48) with
+    :func:`design_lmi_hinf` / :func:`minimal_gamma` (Zhang et al., Theorem 4 LMI (48) with
     cvxpy; filter (45) as :class:`LMIHInfFilter`, ``"lmi-hinf"``), :func:`design_parabolic`
-    (seed-003, Theorem 1), :func:`design_discrete` (seed-004).
+    (Wang & Fang, Theorem 1), :func:`design_discrete` (Liu et al.).
 Analysis
     :mod:`filters.analysis`: noise-output ratio, :func:`hinf_norm` (Hamiltonian/symplectic
     bisection), error covariances, pole regions, :func:`robust_filter_analysis` over

@@ -15,7 +15,7 @@ Measured (median of ``--repeats`` timed blocks, after a warm-up):
 - ``kf_step_us`` / ``filterpy_step_us``: one predict + update of our ``KalmanFilter`` and of
   ``filterpy.kalman.KalmanFilter`` on the same 4-state, 2-measurement model;
   ``kf_vs_filterpy`` = their ratio (target <= 1.0);
-- ``mshinf_step_us``: one step of the mean-square H-infinity filter (seed-000's example,
+- ``mshinf_step_us``: one step of the mean-square H-infinity filter (Basin et al.'s example,
   4 states, one RK4 substep) and ``mshinf_vs_kf`` its ratio to ``kf_step_us`` (target <= 2);
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
 - Monte Carlo (``scripts/bench_mc.py``): ``raw_rollout_traj_steps_per_s``,
@@ -23,7 +23,7 @@ Measured (median of ``--repeats`` timed blocks, after a warm-up):
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
   scale: 1000 runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a 16-point
   sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long ones;
-- LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of seed-002's LMI (48) for
+- LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of Zhang et al.'s LMI (48) for
   Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
 Never used as a timed test: numbers depend on the machine; ratios much less so.
@@ -153,7 +153,7 @@ def bench_scale(quick: bool) -> dict[str, object]:
 
     out: dict[str, object] = dict(bench_monte_carlo())
     mshinf = monte_carlo("ms-hinf", runs=256, duration_s=20.0, seed=0, progress=False,
-                         disturbance="seed000")
+                         disturbance="basin-helicopter")
     out["mc_mshinf_traj_steps_per_s"] = mshinf["traj_steps_per_s"]
     if quick:
         return out

@@ -10,7 +10,7 @@ name                          profile
 ``step-steer``                ramp to a constant ``a_y`` (ISO 7401-style step steer)
 ``sine-sweep``                linear chirp between two frequencies
 ``double-lane-change``        ``v^2 y''(x)`` along a path shaped like ISO 3888-1
-``paper-decay``               seed-002's disturbance ``v_k = 0.01 * 0.9^k`` as ``a_y``
+``paper-decay``               Zhang et al.'s disturbance ``v_k = 0.01 * 0.9^k`` as ``a_y``
 ============================  ================================================================
 
 Use :func:`make_manoeuvre` (``make_manoeuvre("sine-sweep", f1_hz=2.0)``) or the classes;
@@ -195,7 +195,7 @@ class DoubleLaneChange:
 
 @dataclass(frozen=True)
 class PaperDecay:
-    """seed-002's disturbance ``v_k = 0.01 * 0.9^k`` used as a lateral acceleration.
+    """Zhang et al.'s disturbance ``v_k = 0.01 * 0.9^k`` used as a lateral acceleration.
 
     ``a_y(t) = amplitude * ratio^(t / period)`` for ``t >= 0`` (``= v_k`` at ``t = k T``,
     ``T = 0.01`` s, in m/s^2), zero before.

@@ -27,7 +27,7 @@ class EpisodeMetrics:
 
     Notes
     -----
-    The noise-output ratio follows seed-000::
+    The noise-output ratio follows Basin et al.::
 
         T = sqrt( sum_k |z_k - L xhat_k|^2 dt / (sum_k |w_k|^2 dt + x0^T R x0) )
 
@@ -139,7 +139,7 @@ class EpisodeMetrics:
         return self._out(self._nees_sum / self._nees_count) if self._nees_count else None
 
     def noise_output_ratio(self) -> float | np.ndarray | None:
-        """seed-000's ratio ``T`` over the episode so far, or None without a disturbance."""
+        """Basin et al.'s ratio ``T`` over the episode so far, or None without a disturbance."""
         if not self._has_w:
             return None
         return self._out(np.sqrt(self._z_err_sq / (self._w_sq + self._x0_weight)))

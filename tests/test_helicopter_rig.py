@@ -1,4 +1,4 @@
-"""The MuJoCo helicopter against seed-000's linear model and its own physics."""
+"""The MuJoCo helicopter against Basin et al.'s linear model and its own physics."""
 
 from __future__ import annotations
 

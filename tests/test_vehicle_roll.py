@@ -1,4 +1,4 @@
-"""Vehicle roll rig (seed-002 Example 5.2): physics, paper model, sensors, env, experiment."""
+"""Vehicle roll rig (Zhang et al. Example 5.2): physics, paper model, sensors, env, experiment."""
 
 from __future__ import annotations
 

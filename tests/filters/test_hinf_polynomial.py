@@ -1,4 +1,4 @@
-"""Central H-infinity filters for polynomial systems (seed-001): each against something
+"""Central H-infinity filters for polynomial systems (Basin, Shi et al.): each against something
 independent (Gauss-Hermite quadrature, the paper's printed special case, the linear central
 H-infinity filter of filters.hinf_mean_square, a closed-form Riccati solution, a transformed
 problem)."""
@@ -29,7 +29,7 @@ GAMMA = 1.05
 
 
 def paper_model(L):
-    """(22)-(23) written out here (independently of testbed.scenarios.seed001)."""
+    """(22)-(23) written out here (independently of testbed.scenarios.basin_polynomial_hinf)."""
     a1 = np.array([[0.0, 1.0], [0.0, 0.0]])
     a2 = np.zeros((2, 2, 2))
     a2[1, 1, 1] = 0.1

@@ -1,7 +1,7 @@
 """Quanser-style 2-DOF helicopter rig: MJCF model, physical parameters, paper model.
 
 The rig owns ``models/helicopter_2dof.xml``, its physical parameters
-(:class:`HelicopterParams`), the linear model printed in seed-000 (:func:`paper_model`,
+(:class:`HelicopterParams`), the linear model printed in Basin et al. (:func:`paper_model`,
 verbatim with the misprints corrected) and a finite-difference linearization of the MuJoCo
 model (:meth:`HelicopterRig.linearize`) so the two can be compared.
 
@@ -15,7 +15,7 @@ Physics of the MuJoCo rig (nonlinear)::
     J_y(th) psi''                 = cos(th) (K_yp V_p + K_yy V_y) - B_y psi' - (Coriolis)
     J_y(th) = J_stage + I_zz cos^2 th + I_xx sin^2 th + m l^2 cos^2 th
 
-seed-000's ``A``, ``B`` are its linearization about level pitch with gravity left out
+Basin et al.'s ``A``, ``B`` are its linearization about level pitch with gravity left out
 (``-9.2751 = -B_p/J_p``, ``2.3667 = K_pp/J_p``...). At level pitch the gravity torque has zero
 slope, so the linearization with gravity compensated by the input (``u_op`` from
 :meth:`HelicopterRig.gravity_voltage`) equals the paper's matrices.
@@ -43,7 +43,7 @@ VOLTAGE_LIMIT_V = 24.0
 class HelicopterParams(Params):
     """Physical parameters of the Quanser 2-DOF helicopter (SI units).
 
-    The inertias are not printed in seed-000; they are the values for which the damping and
+    The inertias are not printed in Basin et al.; they are the values for which the damping and
     torque gains below reproduce its ``A`` and ``B`` exactly: ``J_p = B_p / 9.2751``,
     ``J_y = B_y / 3.4955`` (total inertias at level pitch), and ``K_ij = B_ij J``.
 
@@ -140,7 +140,7 @@ class LinearModel:
     G : ndarray, shape (4, s) or None
         Deterministic disturbance input matrix.
     C1, C2, L, h, H : ndarray or None
-        Observation, output and noise matrices of seed-000 (12)-(15).
+        Observation, output and noise matrices of Basin et al. (12)-(15).
     """
 
     A: np.ndarray
@@ -155,9 +155,9 @@ class LinearModel:
 
 
 def paper_model() -> LinearModel:
-    """The linear helicopter model of seed-000, eqs. (12)-(15), as printed.
+    """The linear helicopter model of Basin et al., eqs. (12)-(15), as printed.
 
-    Corrected misprints (PAPER_NOTES):
+    Corrected misprints (docs/references.md):
 
     - ``B`` is printed with three rows; the missing first row is ``[0, 0]`` (pitch angle
       row), giving ``B = [[0,0],[0,0],[2.3667,0.0790],[0.2410,0.7913]]``.
@@ -201,7 +201,7 @@ def gravity_voltage(params: HelicopterParams, pitch_rad: float | np.ndarray) -> 
     -------
     ndarray, shape (..., 2)
         Voltages in V. At level pitch with nominal parameters this is ``[12.53, -3.82]`` V,
-        close to the constant ``u = [12.495, -3.835]`` V of seed-000's example.
+        close to the constant ``u = [12.495, -3.835]`` V of Basin et al.'s example.
     """
     torque = params.mass_kg * GRAVITY_M_S2 * params.com_m * np.cos(np.asarray(pitch_rad, float))
     return torque[..., None] * _volts_per_pitch_newton_metre(params)

@@ -1,7 +1,7 @@
-"""Vehicle roll rig: MJCF model, physical parameters, seed-002's model and the physical one.
+"""Vehicle roll rig: MJCF model, physical parameters, Zhang et al.'s model and the physical one.
 
 The rig owns ``models/vehicle_roll.xml``: the sprung mass of a light commercial vehicle
-rolling about its roll axis (seed-002 Example 5.2, eq. (51), Table 1). It provides the
+rolling about its roll axis (Zhang et al. Example 5.2, eq. (51), Table 1). It provides the
 parameters (:class:`VehicleRollParams`), the discrete model printed in the paper
 (:func:`paper_model`, verbatim), the physical continuous-time linearization
 (:func:`physical_model`, analytic, and :meth:`VehicleRollRig.linearize`, by finite
@@ -26,8 +26,8 @@ drawn once per control step (the joint damping is ``C_R + D_n w_k`` for that ste
 
 Paper model vs physics
 ----------------------
-seed-002's (52) is the forward-Euler discretization (``T = 0.01`` s) of (51) with two
-departures from it (PAPER_NOTES):
+Zhang et al.'s (52) is the forward-Euler discretization (``T = 0.01`` s) of (51) with two
+departures from it (docs/references.md):
 
 - its ``A[1, 0] = (m_s h_cr - K_R) T / I_xx`` lacks ``g`` in the gravity term: the
   destabilizing stiffness is ``m_s h_cr = 425`` (kg m, printed as if N m/rad) instead of
@@ -54,13 +54,13 @@ STATE_NAMES = ("roll", "roll_rate")
 ACTION_NAMES = ("a_y",)
 #: Lateral-acceleration limit of the action, m/s^2 (about 0.8 g: tyre friction).
 A_Y_LIMIT_M_S2 = 8.0
-#: Sampling period of seed-002's discrete model (52), s.
+#: Sampling period of Zhang et al.'s discrete model (52), s.
 PAPER_PERIOD_S = 0.01
 
 
 @dataclass(frozen=True)
 class VehicleRollParams(Params):
-    """Physical parameters of the roll model (seed-002 Table 1, SI units).
+    """Physical parameters of the roll model (Zhang et al. Table 1, SI units).
 
     Attributes
     ----------
@@ -115,7 +115,7 @@ class VehicleRollParams(Params):
 
 @dataclass(frozen=True)
 class PaperModel:
-    """seed-002's discrete vehicle-roll model (52)::
+    """Zhang et al.'s discrete vehicle-roll model (52)::
 
         x_{k+1} = A x_k + C x_k w_k + B v_k
         y_k     = H x_k + L v_k
@@ -152,7 +152,7 @@ class PaperModel:
 
 
 def paper_model(params: VehicleRollParams | None = None) -> PaperModel:
-    """The discrete model (52) of seed-002 Example 5.2, as printed.
+    """The discrete model (52) of Zhang et al. Example 5.2, as printed.
 
     ``A`` and ``C`` are evaluated from Table 1 (``params``, default the nominal values) with
     the printed formulas, including the missing ``g``; ``B``, ``H``, ``L``, ``M`` are the
@@ -178,7 +178,7 @@ def paper_model(params: VehicleRollParams | None = None) -> PaperModel:
 
 
 def paper_disturbance(k: int | np.ndarray) -> float | np.ndarray:
-    """seed-002's disturbance ``v_k = 0.01 * 0.9^k`` at step ``k`` (dimensionless)."""
+    """Zhang et al.'s disturbance ``v_k = 0.01 * 0.9^k`` at step ``k`` (dimensionless)."""
     return 0.01 * 0.9 ** np.asarray(k, dtype=float)
 
 
