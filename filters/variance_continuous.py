@@ -623,8 +623,9 @@ def solve_equation17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: P
                                       "not positive definite", method=method,
                                       status="not_admissible", details={"residual_dare": res0})
     theta = prm.gamma ** -2
+    # corrector tolerance: below the requested one, above the rounding floor of the DARE
     cont = continuation(fun, X0, theta, admissible=is_positive_definite,
-                        tol=_tol(tol, X0) * 1e-2)
+                        tol=max(_tol(tol, X0) * 1e-2, 100.0 * res0))
     X = cont.X
     res = float(np.linalg.norm(equation17(X, plant, prm, t)))
     g_reached = math.inf if cont.theta_reached <= 0 else cont.theta_reached ** -0.5
