@@ -7,18 +7,18 @@ in rad/s (continuous time) or rad/sample (discrete time, in ``[0, pi]``); arrays
 Contents
 --------
 Trajectory measures
-    :func:`noise_output_ratio` (seed-000's ``T``).
+    :func:`noise_output_ratio` (the ``T`` of Basin, Elvira-Ceja & Sanchez).
 Linear time-invariant systems ``x' = A x + B w``, ``z = C x + D w`` (or ``x(k+1) = ...``)
     :func:`hinf_norm` / :func:`hinf_norm_bounds`: H-infinity norm by bisection on the
     Hamiltonian (continuous) or symplectic (discrete) pencil, to a stated relative
     tolerance; :func:`sigma_max_response` for frequency sweeps;
     :func:`steady_state_covariance`: continuous or discrete Lyapunov equation.
 Pole regions
-    :class:`Parabola` (seed-003's ``P(a, b)``, Fact 1 / (8)), :class:`LeftHalfPlane`,
+    :class:`Parabola` (Wang & Fang's ``P(a, b)``, Fact 1 / (8)), :class:`LeftHalfPlane`,
     :class:`Disk` and :func:`unit_disk`; :func:`poles_in_region`.
 Filters ``xhat' = G xhat + K y`` on plants with norm-bounded uncertainty
     :class:`UncertainPlant` (``[dA; dC] = [M1; M2] F N``, ``F^T F <= I``),
-    :func:`error_system` (the augmented system (5) of seed-003 / (6) of seed-004),
+    :func:`error_system` (the augmented system (5) of Wang & Fang / (6) of Liu et al.),
     :func:`error_covariance`, :func:`uncertainty_samples` and
     :func:`robust_filter_analysis`: pole region, H-infinity norm and steady-state error
     variances at the vertices and on a grid of ``F``, with the worst case and where it occurs.
@@ -69,7 +69,7 @@ def noise_output_ratio(
     x0: npt.ArrayLike,
     R: npt.ArrayLike,
 ) -> FloatArray:
-    """Running noise-output ratio ``T`` of seed-000 (attenuation condition (6)).
+    """Running noise-output ratio ``T`` of Basin et al. (attenuation condition (6)).
 
     ``T(t) = ||z - L m||_2 / (||w||_2^2 + x0^T R x0)^(1/2)`` with
     ``||f||_2^2 = int_{t[0]}^{t} f^T f ds``, evaluated at every sample time. The paper's
@@ -84,7 +84,7 @@ def noise_output_ratio(
     w : array_like, shape (N, s) or (N,)
         Deterministic disturbance at the sample times.
     x0 : array_like, shape (n,)
-        Initial state weighted in the denominator; seed-000's (6) uses ``E[x(t0)]``.
+        Initial state weighted in the denominator; Basin et al.'s (6) uses ``E[x(t0)]``.
     R : array_like, shape (n, n)
         Weight of ``x0`` (the ``R`` of (6), ``S(t0) = R^-1``).
 
@@ -412,8 +412,8 @@ def steady_state_covariance(A: npt.ArrayLike, B: npt.ArrayLike, *,
                             discrete: bool = False) -> FloatArray:
     """Stationary covariance of ``dx = A x dt + B dW`` or ``x(k+1) = A x(k) + B w(k)``.
 
-    Continuous: ``A X + X A^T + B B^T = 0`` (unit-intensity white noise, seed-003 (7));
-    discrete: ``X = A X A^T + B B^T`` (unit-covariance white noise, seed-004 (9)).
+    Continuous: ``A X + X A^T + B B^T = 0`` (unit-intensity white noise, Wang & Fang (7));
+    discrete: ``X = A X A^T + B B^T`` (unit-covariance white noise, Liu et al. (9)).
 
     Parameters
     ----------
@@ -479,12 +479,12 @@ class _Region:
 
 @dataclass(frozen=True)
 class Parabola(_Region):
-    """seed-003's parabolic region ``P(a, b)``, Fact 1 / (8) (closed).
+    """Wang & Fang's parabolic region ``P(a, b)``, Fact 1 / (8) (closed).
 
     ``Im^2(lambda) <= -(2 / b) (Re(lambda) + a)``: vertex at ``-a``, opening to the left,
     ``a > 0``, ``b > 0``. Margin: ``-(2 / b)(Re + a) - Im^2`` (units of ``lambda^2``).
 
-    Note: the proof of seed-003's Theorem 1, (28), actually yields
+    Note: the proof of Wang & Fang's Theorem 1, (28), actually yields
     ``b |lambda|^2 + 2 Re(lambda) + 2 a < 0``, the open disk :meth:`proof_disk`, which lies
     inside ``P(a, b)``.
     """
@@ -571,7 +571,7 @@ def poles_in_region(M: npt.ArrayLike, region: PoleRegion) -> bool:
 # ====================================================== filters on uncertain plants
 @dataclass(frozen=True, eq=False)
 class UncertainPlant:
-    """Linear plant with norm-bounded uncertainty (seed-003 (1)-(3), seed-004 (1)-(2)).
+    """Linear plant with norm-bounded uncertainty (Wang & Fang (1)-(3), Liu et al. (1)-(2)).
 
     Continuous time (``discrete=False``)::
 
@@ -683,7 +683,7 @@ def error_system(plant: UncertainPlant, G: npt.ArrayLike, K: npt.ArrayLike,
                  F: npt.ArrayLike | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Augmented system of plant and filter ``xhat' = G xhat + K y`` in ``x_f = [x; e]``.
 
-    seed-003 (5) / seed-004 (6): ``x_f' = (A_f + M_f F N_f) x_f + D_f w``, ``z = C_f x_f``
+    Wang & Fang (5) / Liu et al. (6): ``x_f' = (A_f + M_f F N_f) x_f + D_f w``, ``z = C_f x_f``
     with ``e = x - xhat`` and::
 
         A_f = [[A, 0], [A - G - K C, G]],  D_f = [D1; D1 - K D2],  M_f = [M1; M1 - K M2],
@@ -720,7 +720,7 @@ def error_system(plant: UncertainPlant, G: npt.ArrayLike, K: npt.ArrayLike,
 
 def error_covariance(plant: UncertainPlant, G: npt.ArrayLike, K: npt.ArrayLike,
                      F: npt.ArrayLike | None = None) -> FloatArray:
-    """Steady-state error covariance ``P = lim E[e e^T]`` (seed-003 (6)-(7), seed-004 (8)-(9)).
+    """Steady-state error covariance ``P = lim E[e e^T]`` (Wang & Fang (6)-(7), Liu et al. (8)-(9)).
 
     Returns
     -------

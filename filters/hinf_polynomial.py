@@ -1,7 +1,8 @@
-"""Central H-infinity filters for polynomial systems (seed-001) and the linearized comparison.
+"""Central H-infinity filters for polynomial systems (Basin, Shi & Calderon-Alvarez) and the
+linearized comparison.
 
 Reference: M. Basin, P. Shi, D. Calderon-Alvarez, "Central suboptimal H-infinity filter design
-for nonlinear polynomial systems" (seed-001, ``/work/shared/papers/seed-001-...md``).
+for nonlinear polynomial systems".
 
 System (:class:`~filters.polynomial_model.PolynomialModel`, eqs. (1)-(4))::
 
@@ -45,8 +46,8 @@ where ``(a2 m)_kj = sum_i a2_kij m_i``, ``(a3 M)_kl = sum_ij a3_kijl M_ij``. So 
 Riccati equation whose "A" is ``A_hat = J(m) + 3 a3 P`` (``J = df/dx``): the linearized
 filter's (28) uses ``J(m)`` instead.
 
-Misprints of the paper corrected here (see ``/work/shared/PAPER_NOTES.md``)
-------------------------------------------------------------------------
+Misprints of the paper corrected here
+-------------------------------------
 * (32), Corollary 1's ``f_hat``, prints ``a3 P`` and ``a3 x x^T P`` where the derivation
   above (and Theorem 1's (14)) has ``a2 P`` and ``a3 x x x^T``: (32) is dimensionally
   wrong for ``a3 P`` (a 4-D tensor contracted with a matrix is a matrix, not a vector).
@@ -459,7 +460,7 @@ class _CentralHInfFilter(_IntegratedFilter):
 
 
 class PolynomialHInfFilter(_CentralHInfFilter):
-    """Central H-infinity filter for polynomial systems, seed-001 Theorem 1, eqs. (11)-(15).
+    """Central H-infinity filter for polynomial systems (Basin et al., Theorem 1, (11)-(15)).
 
     Equation map (paper numbering)::
 
@@ -542,7 +543,7 @@ class PolynomialHInfFilter(_CentralHInfFilter):
 
 
 class NonOrthonormalPolynomialHInfFilter(PolynomialHInfFilter):
-    """Central H-infinity filter without noise orthonormality, seed-001 Corollary 1.
+    """Central H-infinity filter without noise orthonormality, Basin et al., Corollary 1.
 
     Equation map (paper numbering)::
 

@@ -1,7 +1,7 @@
 """Polynomial system models of degree <= 3 and the finite-escape test shared by their users.
 
 Reference: M. Basin, P. Shi, D. Calderon-Alvarez, "Central suboptimal H-infinity filter design
-for nonlinear polynomial systems" (seed-001, ``/work/shared/papers/seed-001-...md``), eqs.
+for nonlinear polynomial systems", eqs.
 (1)-(4) and the polynomial of Theorem 1::
 
     dx/dt = f(x, t) + B(t) w(t) + E(t) u(t)                                  (1)
@@ -120,7 +120,7 @@ class PolynomialCoefficients:
 
 
 class PolynomialModel:
-    """Polynomial system of degree <= 3, seed-001 eqs. (1)-(4).
+    """Polynomial system of degree <= 3, Basin, Shi & Calderon-Alvarez, eqs. (1)-(4).
 
     Parameters
     ----------
