@@ -55,7 +55,8 @@ def symmetrize_tensor(a: FloatArray) -> FloatArray:
     n = a.shape[0]
     idx = _permutation_index(n, a.ndim - 1)
     flat = a.reshape(n, -1)
-    return flat[:, idx].mean(axis=1).reshape(a.shape)
+    # the mean over the permutations (np.add.reduce / count is what ndarray.mean computes)
+    return (np.add.reduce(flat[:, idx], axis=1) / idx.shape[0]).reshape(a.shape)
 
 
 @lru_cache(maxsize=16)
@@ -330,6 +331,8 @@ class EscapeTest:
     @staticmethod
     def magnitude(value: FloatArray, core_ndim: int) -> FloatArray:
         """``max|entry|`` over the trailing ``core_ndim`` axes (NaN propagates), shape (...)."""
+        if value.ndim == core_ndim:  # one quantity
+            return np.maximum.reduce(np.abs(value), axis=None)
         axes = tuple(range(-core_ndim, 0))
         return np.abs(value).max(axis=axes)
 
@@ -358,6 +361,11 @@ class EscapeTest:
             ``max|entry|`` of ``value``, to pass as ``previous`` next time.
         """
         mag = self.magnitude(value, core_ndim)
+        if mag.ndim == 0:  # one quantity: the same tests on Python floats (fast path)
+            m, p = float(mag), float(previous)
+            if m <= self.bound and not (m > self.growth_floor
+                                        and m > p * (1.0 + self.growth_rtol)):
+                return mag
         bad = ~(mag <= self.bound)  # NaN compares False
         if np.any(bad):
             worst = float(np.max(np.where(np.isnan(mag), np.inf, mag)))

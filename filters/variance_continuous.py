@@ -590,7 +590,8 @@ def solve_equation17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: P
     t : ParabolicTerms
         :func:`hat_terms` of the ``Q1`` used.
     tol : float
-        Tolerance on ``||(17)||_F`` relative to ``max(1, ||Q2||_F)``.
+        Tolerance on ``||(17)||_F`` relative to ``max(1, ||Q2||_F, ||Theta R^-1 Theta^T||_F)``
+        (the largest term: its rounding floor).
 
     Returns
     -------
@@ -628,13 +629,16 @@ def solve_equation17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: P
                         tol=max(_tol(tol, X0) * 1e-2, 100.0 * res0))
     X = cont.X
     res = float(np.linalg.norm(equation17(X, plant, prm, t)))
+    # acceptance relative to the largest term of (17) (its rounding floor), at least ||Q2||
+    R_, Th_, _ = equation17_terms(X, plant, prm, t)
+    scale = max(float(np.linalg.norm(X)), float(np.linalg.norm(Th_ @ np.linalg.solve(R_, Th_.T))))
     g_reached = math.inf if cont.theta_reached <= 0 else cont.theta_reached ** -0.5
     details = {"gamma_reached": g_reached if math.isfinite(g_reached) else None,
                "continuation_steps": cont.steps, "newton_iterations": cont.newton_iterations,
                "derivative_abscissa": (cont.derivative_abscissa
                                        if math.isfinite(cont.derivative_abscissa) else None),
                "residual_dare": res0}
-    if cont.reached_target and res <= _tol(tol, X):
+    if cont.reached_target and res <= tol * max(1.0, scale):
         return MatrixEquationSolution(
             True, X, res, cont.newton_iterations,
             f"stabilizing solution of (17): DARE at gamma = inf, continuation to gamma = "
