@@ -444,7 +444,7 @@ def _residual16(plant: UncertainPlant, prm: ParabolicDesignParameters, scale: fl
 
 
 def solve_equation16(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
-                     tol: float = 1e-10, max_iter: int = 100) -> MatrixEquationSolution:
+                     tol: float = 1e-10, max_iter: int = 300) -> MatrixEquationSolution:
     """Least solution of (16) by monotone Newton from ``Q1 = 0`` (no Riccati mapping exists).
 
     See the module docstring for the convexity argument: the iterates increase to the least

@@ -227,8 +227,11 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
                      rtol: float = 1e-4, max_iter: int = 20_000) -> float | None:
     """Supremum of the ``delta1`` for which (11) has an admissible solution at ``prm.eps``.
 
-    Existence is decided by :func:`least_solution11`; it is monotone in ``delta1`` (a larger
-    constant term only raises the iterates). Geometric bisection to relative ``rtol``.
+    Existence is decided by the monotone Newton iteration of :func:`solve_equation11` (the
+    same decision as :func:`least_solution11`, quadratically convergent; ``max_iter`` is
+    kept for compatibility and caps its iterations at ``min(max_iter, 300)``); it is
+    monotone in ``delta1`` (a larger constant term only raises the iterates). Geometric
+    bisection to relative ``rtol``.
 
     Returns
     -------
@@ -238,7 +241,19 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     _check(plant, prm)
 
     def exists(d: float) -> bool:
-        return least_solution11(plant, replace(prm, delta1=d), max_iter=max_iter)[0] is not None
+        return _monotone11(replace(prm, delta1=d), min(max_iter, 300)) is not None
+
+    def _monotone11(p: DiscreteDesignParameters, iters: int) -> FloatArray | None:
+        n, j = plant.n, plant.N.shape[0]
+        if np.abs(np.linalg.eigvals(plant.A)).max() >= 1.0:
+            return None
+        out = newton_solve(_residual11(plant, p), np.zeros((n, n)), monotone=True,
+                           admissible=lambda P: is_positive_definite(
+                               p.eps * np.eye(j) - plant.N @ P @ plant.N.T),
+                           tol=1e-13, max_iter=iters)
+        ok = out.converged or (out.status == "not_converged"
+                               and out.residual <= _tol(1e-9, out.X))  # rounding floor
+        return out.X if ok else None
 
     lo = 1e-12
     if not exists(lo):
@@ -376,7 +391,7 @@ def _monotone11(plant: UncertainPlant, prm: DiscreteDesignParameters, tol: float
         return is_positive_definite(prm.eps * np.eye(j) - plant.N @ P @ plant.N.T)
 
     out = newton_solve(_residual11(plant, prm), np.zeros((n, n)), admissible=domain,
-                       tol=tol, max_iter=100, monotone=True)
+                       tol=tol, max_iter=300, monotone=True)
     return (out.X if out.converged else None), out.iterations, out.status
 
 
