@@ -698,3 +698,29 @@ class LinearizedHInfFilter(_CentralHInfFilter):
         else:
             F = c.f(x)
         return F, np.broadcast_to(J, P.shape) if J.shape != P.shape else J
+
+    def _drift_terms(self, T: _Terms, x: FloatArray,
+                     P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`_drift` by matmul with ``T``'s contractions (same values up to rounding)."""
+        c = T.c
+        n = x.shape[-1]
+        J = c.a1
+        xxv = None
+        if T.J2 is not None:
+            J = J + (x @ T.J2).reshape(*x.shape[:-1], n, n)
+        if T.J3 is not None:
+            xxv = (x[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], n * n)
+            J = J + (xxv @ T.J3).reshape(*x.shape[:-1], n, n)
+        if self._jacobian_state:
+            F = c.a0 + (J @ x[..., None])[..., 0]
+        else:
+            F = c.a0 + x @ T.a1T
+            if T.F2 is not None or T.F3 is not None:
+                if xxv is None:
+                    xxv = (x[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], n * n)
+                if T.F2 is not None:
+                    F = F + xxv @ T.F2
+                if T.F3 is not None:
+                    x3 = (x[..., :, None] * xxv[..., None, :]).reshape(*x.shape[:-1], n**3)
+                    F = F + x3 @ T.F3
+        return F, np.broadcast_to(J, P.shape) if J.shape != P.shape else J
