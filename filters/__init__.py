@@ -13,12 +13,14 @@ Estimators (satisfy the :class:`Estimator` protocol)
     :class:`KalmanFilter` (``"kalman"``), :class:`KalmanBucyFilter` (``"kalman-bucy"``),
     :class:`MeanSquareHInfFilter` (Basin et al., ``"ms-hinf"``),
     :class:`PolynomialHInfFilter`, :class:`NonOrthonormalPolynomialHInfFilter` and
-    :class:`LinearizedHInfFilter` (Basin, Shi et al.), :class:`LinearFilter` (fixed gains
+    :class:`LinearizedHInfFilter` (Basin et al.), :class:`LinearFilter` (fixed gains
     ``xhat' = G xhat + K y``, ``"linear-gain"``: the variance-constrained designs).
 Designs
-    :func:`design_lmi_hinf` / :func:`minimal_gamma` (Zhang et al., Theorem 4 LMI (48) with
+    :func:`design_lmi_hinf` / :func:`minimal_gamma` (Theorem 4 LMI (48) with
     cvxpy; filter (45) as :class:`LMIHInfFilter`, ``"lmi-hinf"``), :func:`design_parabolic`
-    (Wang & Fang, Theorem 1), :func:`design_discrete` (Liu et al.).
+    (Wang & Fang 2006, Theorem 1), :func:`design_discrete` (Liu, Deng & Wang); their
+    optimizer-based searches :func:`search_parabolic_design` and :func:`search_discrete_design`
+    (a :class:`DesignSearchRecord`; candidates verified over the uncertainty).
 Analysis
     :mod:`filters.analysis`: noise-output ratio, :func:`hinf_norm` (Hamiltonian/symplectic
     bisection), error covariances, pole regions, :func:`robust_filter_analysis` over
@@ -56,12 +58,21 @@ from filters.lmi_hinf import (
 )
 from filters.models import DiscreteLinearSystem, LinearSystem
 from filters.polynomial_model import EscapeTest, PolynomialModel
-from filters.variance_constrained import LinearFilter, VarianceDesign
-from filters.variance_continuous import ParabolicDesignParameters, design_parabolic
-from filters.variance_discrete import DiscreteDesignParameters, design_discrete
+from filters.variance_constrained import DesignSearchRecord, LinearFilter, VarianceDesign
+from filters.variance_continuous import (
+    ParabolicDesignParameters,
+    design_parabolic,
+    search_parabolic_design,
+)
+from filters.variance_discrete import (
+    DiscreteDesignParameters,
+    design_discrete,
+    search_discrete_design,
+)
 
 __all__ = [
     "DesignCheck",
+    "DesignSearchRecord",
     "DiscreteDesignParameters",
     "DiscreteLinearSystem",
     "EscapeTest",
@@ -94,4 +105,6 @@ __all__ = [
     "hinf_norm",
     "minimal_gamma",
     "robust_filter_analysis",
+    "search_discrete_design",
+    "search_parabolic_design",
 ]

@@ -7,7 +7,7 @@ in rad/s (continuous time) or rad/sample (discrete time, in ``[0, pi]``); arrays
 Contents
 --------
 Trajectory measures
-    :func:`noise_output_ratio` (Basin et al.'s ``T``).
+    :func:`noise_output_ratio` (the ``T`` of Basin, Elvira-Ceja & Sanchez).
 Linear time-invariant systems ``x' = A x + B w``, ``z = C x + D w`` (or ``x(k+1) = ...``)
     :func:`hinf_norm` / :func:`hinf_norm_bounds`: H-infinity norm by bisection on the
     Hamiltonian (continuous) or symplectic (discrete) pencil, to a stated relative

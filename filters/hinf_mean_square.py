@@ -1,7 +1,7 @@
-"""Central suboptimal mean-square H-infinity filter (seed-000, Theorem 1).
+"""Central suboptimal mean-square H-infinity filter (Basin, Elvira-Ceja & Sanchez, Theorem 1).
 
 Reference: M. Basin, S. Elvira-Ceja, E. N. Sanchez, "Mean-square H-infinity filter design:
-application to a 2DOF helicopter" (``/work/shared/papers/seed-000-...md``).
+application to a 2DOF helicopter".
 
 System (paper eqs. (1)-(4)), all matrices possibly time-varying::
 
@@ -62,7 +62,7 @@ _PBH_RTOL = 1e-6
 
 
 class AssumptionWarning(UserWarning):
-    """A stabilizability/detectability assumption (C1)-(C3) of seed-000 fails."""
+    """A stabilizability/detectability assumption (C1)-(C3) of Basin et al. fails."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,7 +141,7 @@ def _pbh_stabilizable(A: FloatArray, B: FloatArray) -> bool:
 
 
 class MeanSquareHInfFilter(_IntegratedFilter):
-    """Central suboptimal mean-square H-infinity filter of seed-000, Theorem 1, eqs. (7)-(9).
+    """Central suboptimal mean-square H-infinity filter of Basin et al., Theorem 1, (7)-(9).
 
     Equation map (paper numbering)
         * mean ``m``: eq. (7), **with** the input term ``B u`` (see misprints below);
@@ -152,7 +152,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
           ``y2`` (gain ``S C2^T (H H^T)^-1``), ``S(t0) = R^-1`` with ``R`` the weight of
           ``x0`` in the attenuation condition (6).
 
-    Misprints of the paper corrected here (see ``/work/shared/PAPER_NOTES.md``)
+    Misprints of the paper corrected here
         * The example's filter (16) omits ``B u``; Theorem 1's (7) has it and so does this
           implementation (without it the estimate is useless under the constant voltage
           ``u = [12.495, -3.835]`` V).
@@ -174,8 +174,11 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         Noise matrix of (2); only ``h h^T`` (must be > 0) is used. With
         ``noise_intensities=True``: the intensity ``h h^T`` itself, shape (m1, m1).
     C2 : array_like, shape (m2, n), or callable
-        Deterministic observation channel (3). ``C2 = 0`` is allowed (the ``y2`` term of (7)
-        then vanishes and ``m, P`` are the Kalman-Bucy filter's).
+        Deterministic observation channel (3). ``C2 = 0`` is allowed: the ``y2`` term of (7)
+        then vanishes and ``m, P`` follow the Kalman-Bucy equations, but the filter *is* the
+        Kalman-Bucy filter only for ``gamma = math.inf``. With a finite ``gamma``, (9) becomes
+        ``S' = A S + S A^T + G G^T + gamma^-2 S L^T L S``, whose positive quadratic term makes
+        ``S`` escape in finite time (``FiniteEscapeError``) although ``m`` never uses it.
     H : array_like, shape (m2, s), or callable
         Disturbance matrix of (3); ``H H^T > 0`` and ``H G^T = 0`` (C4).
     G : array_like, shape (n, s), or callable

@@ -1,7 +1,8 @@
-"""Central H-infinity filters for polynomial systems (seed-001) and the linearized comparison.
+"""Central H-infinity filters for polynomial systems (Basin, Shi & Calderon-Alvarez) and the
+linearized comparison.
 
 Reference: M. Basin, P. Shi, D. Calderon-Alvarez, "Central suboptimal H-infinity filter design
-for nonlinear polynomial systems" (seed-001, ``/work/shared/papers/seed-001-...md``).
+for nonlinear polynomial systems".
 
 System (:class:`~filters.polynomial_model.PolynomialModel`, eqs. (1)-(4))::
 
@@ -45,8 +46,8 @@ where ``(a2 m)_kj = sum_i a2_kij m_i``, ``(a3 M)_kl = sum_ij a3_kijl M_ij``. So 
 Riccati equation whose "A" is ``A_hat = J(m) + 3 a3 P`` (``J = df/dx``): the linearized
 filter's (28) uses ``J(m)`` instead.
 
-Misprints of the paper corrected here (see ``/work/shared/PAPER_NOTES.md``)
-------------------------------------------------------------------------
+Misprints of the paper corrected here
+-------------------------------------
 * (32), Corollary 1's ``f_hat``, prints ``a3 P`` and ``a3 x x^T P`` where the derivation
   above (and Theorem 1's (14)) has ``a2 P`` and ``a3 x x x^T``: (32) is dimensionally
   wrong for ``a3 P`` (a 4-D tensor contracted with a matrix is a matrix, not a vector).
@@ -58,7 +59,7 @@ Misprints of the paper corrected here (see ``/work/shared/PAPER_NOTES.md``)
 * The example's (26) and (28) contain ``-(1 - gamma^-2) P C^T C P`` only, i.e. (13) with
   ``L = C = [1 0]``; the example's output is ``z = x`` (``L = I``), for which (13) adds
   ``+gamma^-2 P e2 e2^T P``. Both are obtained from these classes by the ``L`` of the
-  model (see :mod:`testbed.scenarios.seed001`).
+  model (see :mod:`testbed.scenarios.basin_polynomial_hinf`).
 * (27) prints ``0.2 m^2 + (0.3 + 0.3 sin 50t) m^3`` for the linearized state equation:
   that is ``J(m) m`` (the Jacobian at the estimate times the estimate), not the system's
   ``f(m) = 0.1 m^2 + (0.1 + 0.1 sin 50t) m^3``; :class:`LinearizedHInfFilter` offers both
@@ -189,7 +190,12 @@ class _Terms:
     """Coefficients at one time plus the gain factors.
 
     ``BBt = B B^T`` (n, n); ``BDt = B D^T`` (n, m) or None if zero; ``Li = chol(D D^T)^-1``
-    (m, m) or None if ``D D^T = I``, so that ``(D D^T)^-1 = Li^T Li``.
+    (m, m) or None if ``D D^T = I``, so that ``(D D^T)^-1 = Li^T Li``. The tensors as matrices
+    for matmul contractions (``None`` without the term): ``a1T = a1^T``;
+    ``F2[(i, j), k] = a2[k, i, j]`` (n^2, n), ``F3[(i, j, l), k] = a3[k, i, j, l]`` (n^3, n);
+    ``J2[i, (k, j)] = 2 a2[k, i, j]`` (n, n^2); ``J3[(i, j), (k, l)] = 3 a3[k, i, j, l]``
+    (n^2, n^2), so that ``f_hat = a0 + x a1^T + vec(x x^T + P) F2 + vec(x (x) (x x^T + 3 P))
+    F3`` and ``A_hat = a1 + unvec(x J2) + unvec(vec(x x^T + P) J3)``.
     """
 
     c: PolynomialCoefficients
@@ -198,6 +204,24 @@ class _Terms:
     Li: FloatArray | None
     CT: FloatArray
     LT: FloatArray
+    a1T: FloatArray
+    F2: FloatArray | None
+    F3: FloatArray | None
+    J2: FloatArray | None
+    J3: FloatArray | None
+
+
+def _contractions(c: PolynomialCoefficients) -> tuple[FloatArray | None, ...]:
+    """``(F2, F3, J2, J3)`` of :class:`_Terms`."""
+    n = c.a1.shape[0]
+    F2 = F3 = J2 = J3 = None
+    if c.a2 is not None:
+        F2 = np.ascontiguousarray(c.a2.reshape(n, n * n).T)
+        J2 = np.ascontiguousarray(2.0 * c.a2.transpose(1, 0, 2).reshape(n, n * n))
+    if c.a3 is not None:
+        F3 = np.ascontiguousarray(c.a3.reshape(n, n**3).T)
+        J3 = np.ascontiguousarray(3.0 * c.a3.transpose(1, 2, 0, 3).reshape(n * n, n * n))
+    return F2, F3, J2, J3
 
 
 class _CentralHInfFilter(_IntegratedFilter):
@@ -310,7 +334,8 @@ class _CentralHInfFilter(_IntegratedFilter):
         c = self._model.at(t)
         gain = self._gain_terms
         if gain is not None:
-            return _Terms(c, gain.BBt, gain.BDt, gain.Li, gain.CT, gain.LT)
+            return _Terms(c, gain.BBt, gain.BDt, gain.Li, gain.CT, gain.LT,
+                          np.ascontiguousarray(c.a1.T), *_contractions(c))
         BDt = c.B @ c.D.T
         DDt = c.D @ c.D.T
         m = DDt.shape[0]
@@ -324,8 +349,9 @@ class _CentralHInfFilter(_IntegratedFilter):
                                  f"is not at t = {t:.6g} s") from None
             Li = np.linalg.inv(Lc)
         BBt = c.B @ c.B.T
-        return _Terms(c=c, BBt=0.5 * (BBt + BBt.T), BDt=BDt if np.any(BDt) else None, Li=Li,
-                      CT=np.ascontiguousarray(c.C.T), LT=np.ascontiguousarray(c.L.T))
+        return _Terms(c, 0.5 * (BBt + BBt.T), BDt if np.any(BDt) else None, Li,
+                      np.ascontiguousarray(c.C.T), np.ascontiguousarray(c.L.T),
+                      np.ascontiguousarray(c.a1.T), *_contractions(c))
 
     def _terms(self, t: float) -> _Terms:
         if self._const_terms is not None:
@@ -346,7 +372,7 @@ class _CentralHInfFilter(_IntegratedFilter):
     def _rhs(self, T: _Terms, x: FloatArray, P: FloatArray, y: FloatArray,
              u: FloatArray | None) -> tuple[FloatArray, FloatArray]:
         c = T.c
-        F, A = self._drift(c, x, P)
+        F, A = self._drift_terms(T, x, P)
         if u is not None and c.E is not None:
             F = F + u @ c.E.T
         Kb = P @ T.CT  # (..., n, m): P C^T
@@ -358,11 +384,16 @@ class _CentralHInfFilter(_IntegratedFilter):
             innov = innov @ T.Li.T
         dx = F + (Kb @ innov[..., None])[..., 0]
         AP = A @ P
-        dP = AP + _swap(AP) + T.BBt - Kb @ _swap(Kb)
+        dP = AP + AP.swapaxes(-1, -2) + T.BBt - Kb @ Kb.swapaxes(-1, -2)
         if self._gm2:
             PL = P @ T.LT
-            dP = dP + self._gm2 * (PL @ _swap(PL))
+            dP = dP + self._gm2 * (PL @ PL.swapaxes(-1, -2))
         return dx, dP
+
+    def _drift_terms(self, T: _Terms, x: FloatArray,
+                     P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`_drift` with the precomputed contractions of ``T`` available."""
+        return self._drift(T.c, x, P)
 
     def derivatives(self, x: npt.ArrayLike, P: npt.ArrayLike, y: npt.ArrayLike, t: float,
                     u: npt.ArrayLike | None = None) -> tuple[FloatArray, FloatArray]:
@@ -459,7 +490,7 @@ class _CentralHInfFilter(_IntegratedFilter):
 
 
 class PolynomialHInfFilter(_CentralHInfFilter):
-    """Central H-infinity filter for polynomial systems, seed-001 Theorem 1, eqs. (11)-(15).
+    """Central H-infinity filter for polynomial systems (Basin et al., Theorem 1, (11)-(15)).
 
     Equation map (paper numbering)::
 
@@ -540,9 +571,32 @@ class PolynomialHInfFilter(_CentralHInfFilter):
                P: FloatArray) -> tuple[FloatArray, FloatArray]:
         return f_hat(c, x, P), moment_matrix(c, x, P)
 
+    def _drift_terms(self, T: _Terms, x: FloatArray,
+                     P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:func:`f_hat` and :func:`moment_matrix` by matmul with ``T``'s contractions."""
+        c = T.c
+        F = c.a0 + x @ T.a1T
+        A = c.a1
+        if T.F2 is None and T.F3 is None:
+            return F, np.broadcast_to(A, P.shape) if A.shape != P.shape else A
+        n = x.shape[-1]
+        xx = x[..., :, None] * x[..., None, :]
+        S = xx + P
+        Sv = S.reshape(*S.shape[:-2], n * n)
+        if T.F2 is not None:
+            F = F + Sv @ T.F2
+            A = A + (x @ T.J2).reshape(*x.shape[:-1], n, n)
+        if T.F3 is not None:
+            X3 = x[..., :, None] * (S + 2.0 * P).reshape(*S.shape[:-2], 1, n * n)
+            F = F + X3.reshape(*x.shape[:-1], n**3) @ T.F3
+            A = A + (Sv @ T.J3).reshape(*S.shape)
+        if A.shape != P.shape:
+            A = np.broadcast_to(A, P.shape)
+        return F, A
+
 
 class NonOrthonormalPolynomialHInfFilter(PolynomialHInfFilter):
-    """Central H-infinity filter without noise orthonormality, seed-001 Corollary 1.
+    """Central H-infinity filter without noise orthonormality, Basin et al., Corollary 1.
 
     Equation map (paper numbering)::
 
@@ -643,4 +697,30 @@ class LinearizedHInfFilter(_CentralHInfFilter):
             F = c.a0 + (J @ x[..., None])[..., 0]
         else:
             F = c.f(x)
+        return F, np.broadcast_to(J, P.shape) if J.shape != P.shape else J
+
+    def _drift_terms(self, T: _Terms, x: FloatArray,
+                     P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`_drift` by matmul with ``T``'s contractions (same values up to rounding)."""
+        c = T.c
+        n = x.shape[-1]
+        J = c.a1
+        xxv = None
+        if T.J2 is not None:
+            J = J + (x @ T.J2).reshape(*x.shape[:-1], n, n)
+        if T.J3 is not None:
+            xxv = (x[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], n * n)
+            J = J + (xxv @ T.J3).reshape(*x.shape[:-1], n, n)
+        if self._jacobian_state:
+            F = c.a0 + (J @ x[..., None])[..., 0]
+        else:
+            F = c.a0 + x @ T.a1T
+            if T.F2 is not None or T.F3 is not None:
+                if xxv is None:
+                    xxv = (x[..., :, None] * x[..., None, :]).reshape(*x.shape[:-1], n * n)
+                if T.F2 is not None:
+                    F = F + xxv @ T.F2
+                if T.F3 is not None:
+                    x3 = (x[..., :, None] * xxv[..., None, :]).reshape(*x.shape[:-1], n**3)
+                    F = F + x3 @ T.F3
         return F, np.broadcast_to(J, P.shape) if J.shape != P.shape else J

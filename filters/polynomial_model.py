@@ -1,7 +1,7 @@
 """Polynomial system models of degree <= 3 and the finite-escape test shared by their users.
 
 Reference: M. Basin, P. Shi, D. Calderon-Alvarez, "Central suboptimal H-infinity filter design
-for nonlinear polynomial systems" (seed-001, ``/work/shared/papers/seed-001-...md``), eqs.
+for nonlinear polynomial systems", eqs.
 (1)-(4) and the polynomial of Theorem 1::
 
     dx/dt = f(x, t) + B(t) w(t) + E(t) u(t)                                  (1)
@@ -55,7 +55,8 @@ def symmetrize_tensor(a: FloatArray) -> FloatArray:
     n = a.shape[0]
     idx = _permutation_index(n, a.ndim - 1)
     flat = a.reshape(n, -1)
-    return flat[:, idx].mean(axis=1).reshape(a.shape)
+    # the mean over the permutations (np.add.reduce / count is what ndarray.mean computes)
+    return (np.add.reduce(flat[:, idx], axis=1) / idx.shape[0]).reshape(a.shape)
 
 
 @lru_cache(maxsize=16)
@@ -120,7 +121,7 @@ class PolynomialCoefficients:
 
 
 class PolynomialModel:
-    """Polynomial system of degree <= 3, seed-001 eqs. (1)-(4).
+    """Polynomial system of degree <= 3, Basin, Shi & Calderon-Alvarez, eqs. (1)-(4).
 
     Parameters
     ----------
@@ -330,6 +331,8 @@ class EscapeTest:
     @staticmethod
     def magnitude(value: FloatArray, core_ndim: int) -> FloatArray:
         """``max|entry|`` over the trailing ``core_ndim`` axes (NaN propagates), shape (...)."""
+        if value.ndim == core_ndim:  # one quantity
+            return np.maximum.reduce(np.abs(value), axis=None)
         axes = tuple(range(-core_ndim, 0))
         return np.abs(value).max(axis=axes)
 
@@ -358,6 +361,11 @@ class EscapeTest:
             ``max|entry|`` of ``value``, to pass as ``previous`` next time.
         """
         mag = self.magnitude(value, core_ndim)
+        if mag.ndim == 0:  # one quantity: the same tests on Python floats (fast path)
+            m, p = float(mag), float(previous)
+            if m <= self.bound and not (m > self.growth_floor
+                                        and m > p * (1.0 + self.growth_rtol)):
+                return mag
         bad = ~(mag <= self.bound)  # NaN compares False
         if np.any(bad):
             worst = float(np.max(np.where(np.isnan(mag), np.inf, mag)))

@@ -1,32 +1,41 @@
-"""Variance-constrained robust H-infinity filtering: what the designs of seed-003 and seed-004
-share.
+"""Variance-constrained robust H-infinity filtering: what the designs of Wang & Fang (2006,
+continuous time, parabolic pole region) and of the discrete-time variance-constrained
+H2/H-infinity paper share.
 
-* :func:`solve_symmetric_equation`: a damped Newton method (complex-step Jacobian, backtracking
-  line search, several starts) for nonlinear matrix equations ``F(X) = 0`` in a symmetric
-  ``X`` restricted to an admissible open set (``X > 0`` plus side conditions), with a
+* :func:`solve_symmetric_equation`: a generic damped Newton method (complex-step Jacobian,
+  backtracking line search, several starts) for nonlinear matrix equations ``F(X) = 0`` in a
+  symmetric ``X`` restricted to an admissible open set (``X > 0`` plus side conditions), with a
   least-squares fallback that reports the smallest residual reached when no admissible
-  solution exists.
-* :class:`LinearFilter`: the constant-gain filter ``xhat' = G xhat + K y`` (seed-003 (4)) or
-  ``xhat(k+1) = G xhat(k) + K y(k)`` (seed-004 (3)) as an :class:`~filters.base.Estimator`.
-* :class:`VarianceDesign` (one design, solved or not), :class:`DesignSearch` (a search over
-  the free scalars) and :func:`verify_design` (the three requirements checked a posteriori
-  with :func:`filters.analysis.robust_filter_analysis`).
+  solution is found. The designs use it only as a fallback: their equations are solved by the
+  structured solvers of :mod:`filters.matrix_equations` (standard Riccati solvers where an
+  equation maps onto one, monotone Newton and continuation where it does not).
+* :class:`LinearFilter`: the constant-gain filter ``xhat' = G xhat + K y`` (Wang & Fang (4))
+  or ``xhat(k+1) = G xhat(k) + K y(k)`` (discrete paper (3)) as an
+  :class:`~filters.base.Estimator`.
+* :class:`VarianceDesign` (one design, solved or not), :class:`DesignSearch` (the grid search
+  over the free scalars), :class:`DesignSearchRecord` (the optimizer-based search of
+  :func:`~filters.variance_continuous.search_parabolic_design` and
+  :func:`~filters.variance_discrete.search_discrete_design`) and :func:`verify_design` (the
+  three requirements checked a posteriori with :func:`filters.analysis.robust_filter_analysis`).
 
-The designs themselves are in :mod:`filters.variance_continuous` (seed-003) and
-:mod:`filters.variance_discrete` (seed-004). Arrays are ``float64``; times in seconds.
+The designs themselves are in :mod:`filters.variance_continuous` (Wang & Fang 2006) and
+:mod:`filters.variance_discrete` (the discrete paper, reconstructed). Arrays are ``float64``;
+times in seconds.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize
 
 from filters._linalg import (
     FloatArray,
@@ -47,13 +56,17 @@ from filters.errors import FiniteEscapeError
 from filters.kalman import _SampledFilter
 
 __all__ = [
+    "INFEASIBLE",
     "DesignSearch",
+    "DesignSearchRecord",
     "LinearFilter",
     "MatrixEquationSolution",
+    "SearchCandidate",
     "VarianceDesign",
     "inverse_sqrt",
     "is_positive_definite",
     "passes",
+    "run_design_search",
     "solve_symmetric_equation",
     "verify_design",
 ]
@@ -125,6 +138,20 @@ class MatrixEquationSolution:
     message : str
     solutions : tuple of numpy.ndarray
         All distinct admissible solutions found, by increasing trace.
+    method : str
+        How it was solved: ``"newton-multistart"`` (:func:`solve_symmetric_equation`),
+        ``"dare"`` (:func:`scipy.linalg.solve_discrete_are` through a mapping stated in the
+        design's docstring), ``"monotone-newton"``, ``"dare+continuation"``.
+    status : str
+        ``"solved"`` or why not: ``"no_stabilizing_solution"`` (the Riccati solver found no
+        stabilizing solution), ``"not_admissible"`` (the solution found violates a side
+        condition such as ``X > 0``), ``"left_admissible_set"`` (a monotone iteration left it),
+        ``"not_converged"`` (the iteration stopped at ``residual``), ``"branch_ended"`` (a
+        continuation ended before its target), ``"unstable_derivative"``,
+        ``"no_admissible_start"``.
+    details : dict
+        Method-specific numbers (JSON-safe), e.g. ``gamma_reached`` of a continuation in
+        ``gamma``.
     """
 
     solved: bool
@@ -133,12 +160,20 @@ class MatrixEquationSolution:
     iterations: int
     message: str
     solutions: tuple[FloatArray, ...] = ()
+    method: str = "newton-multistart"
+    status: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.status:
+            object.__setattr__(self, "status", "solved" if self.solved else "not_converged")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe summary."""
         return {"solved": self.solved, "X": None if self.X is None else self.X.tolist(),
                 "residual": self.residual if math.isfinite(self.residual) else None,
-                "n_solutions": len(self.solutions), "message": self.message}
+                "n_solutions": len(self.solutions), "message": self.message,
+                "method": self.method, "status": self.status, "details": self.details}
 
 
 def _evaluate(residual: Residual, X: npt.NDArray[Any]) -> npt.NDArray[Any] | None:
@@ -332,7 +367,8 @@ def solve_symmetric_equation(residual: Residual, n: int, *,
     if best is None:
         return MatrixEquationSolution(False, None, math.inf, iterations,
                                       "no admissible starting point: the residual is "
-                                      "undefined on every start")
+                                      "undefined on every start",
+                                      status="no_admissible_start")
     res, X = best
     if polish:
         out = _least_squares(residual, adm, X, n)
@@ -341,8 +377,8 @@ def solve_symmetric_equation(residual: Residual, n: int, *,
             if res <= tol:  # the minimizer is a solution after all
                 msg = f"admissible solution found by least squares (residual {res:.2e})"
                 return MatrixEquationSolution(True, X, res, iterations, msg, (X,))
-    msg = (f"no admissible (positive definite) solution found from {len(inits)} starts; "
-           f"smallest residual reached ||F||_F = {res:.4g}")
+    msg = (f"local search: no admissible solution found from {len(inits)} starts (which does "
+           f"not prove that none exists); smallest residual reached ||F||_F = {res:.4g}")
     return MatrixEquationSolution(False, X, res, iterations, msg)
 
 
@@ -351,8 +387,8 @@ class LinearFilter(_SampledFilter):
     """Constant-gain filter ``xhat' = G xhat + K y + B u`` or ``xhat(k+1) = G xhat(k) + K y(k)
     + B u(k)``.
 
-    seed-003 (4) (continuous) and seed-004 (3) (discrete); ``B`` is an optional input term
-    (none in the papers).
+    Wang & Fang (4) (continuous) and Liu, Deng & Wang (3) (discrete); ``B`` is an optional
+    input term (none in the papers).
 
     Parameters
     ----------
@@ -499,7 +535,7 @@ class LinearFilter(_SampledFilter):
 # ============================================================ designs and checks
 @dataclass(frozen=True)
 class VarianceDesign:
-    """One design by a Theorem of seed-003 or seed-004, solved or not.
+    """One design by Theorem 1 of Wang & Fang or the discrete design, solved or not.
 
     Attributes
     ----------
@@ -513,7 +549,7 @@ class VarianceDesign:
     K : numpy.ndarray, shape (n, p), or None
     G : numpy.ndarray, shape (n, n), or None
     equation_names : tuple of str
-        The paper's numbers of the two equations (``("16", "17")`` for seed-003).
+        The paper's numbers of the two equations (``("16", "17")`` for Wang & Fang).
     message : str
     parameters : dict
         The design parameters used.
@@ -521,6 +557,9 @@ class VarianceDesign:
         Solver details.
     variance_bounds_met : bool or None
         ``diag(Q2) <= sigma^2`` (``None`` without ``sigma2`` or ``Q2``).
+    attempts : tuple of MatrixEquationSolution
+        Every solver run, in order (structured solvers first, then the multi-start fallback
+        if it ran), so that a failure says which method failed and why.
     """
 
     solved: bool
@@ -536,6 +575,7 @@ class VarianceDesign:
     equation_1: MatrixEquationSolution | None = None
     equation_2: MatrixEquationSolution | None = None
     variance_bounds_met: bool | None = None
+    attempts: tuple[MatrixEquationSolution, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe: ``solved``, ``Q1``, ``Q2``, ``residual_<eq>`` (paper numbering, also as
@@ -556,6 +596,8 @@ class VarianceDesign:
             "variance_bounds_met": self.variance_bounds_met,
             "parameters": {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                            for k, v in self.parameters.items()},
+            "solver_attempts": [{k: v for k, v in a.to_dict().items() if k != "X"}
+                                for a in self.attempts],
         }
 
 
@@ -609,7 +651,8 @@ class DesignSearch:
 def verify_design(plant: UncertainPlant, G: npt.ArrayLike, K: npt.ArrayLike, *,
                   region: PoleRegion, gamma: float, sigma2: npt.ArrayLike,
                   n_grid: int = 21) -> RobustAnalysis:
-    """Check the three requirements of seed-003 / seed-004 for all admissible ``F``.
+    """Check the three requirements of the variance-constrained designs for all admissible
+    ``F``.
 
     Thin wrapper of :func:`filters.analysis.robust_filter_analysis`: poles of the augmented
     system in ``region``, ``||H||_inf <= gamma`` and ``[P]_ii <= sigma_i^2`` at the vertices
@@ -622,3 +665,234 @@ def verify_design(plant: UncertainPlant, G: npt.ArrayLike, K: npt.ArrayLike, *,
 def passes(analysis: RobustAnalysis) -> bool:
     """All requirements recorded in ``analysis`` are met."""
     return all(v is not False for v in analysis.meets().values()) and analysis.all_stable
+
+
+# ============================================================ optimizer-based search
+@dataclass(frozen=True)
+class SearchCandidate:
+    """One local optimum (or the given parameters) of an optimizer-based design search.
+
+    Attributes
+    ----------
+    start : int
+        Index of the start (0: the given parameters, e.g. the paper's printed ones, evaluated
+        as they are).
+    parameters : dict
+        The design parameters (JSON-safe).
+    objective : float
+        The search objective at these parameters (see the search function); ``<= 1`` means
+        both equations are solved with ``max(diag(Q2) / sigma^2) <= 1``.
+    solved : bool
+        Both matrix equations solved.
+    certified : bool
+        Solved and ``diag(Q2) <= sigma^2``: the theorem then guarantees the three requirements.
+    verified : bool
+        The gains pass :func:`verify_design` (vertices and a grid of ``F``).
+    evaluations : int
+        Objective evaluations spent on this start.
+    design : VarianceDesign or None
+    verification : RobustAnalysis or None
+    message : str
+    """
+
+    start: int
+    parameters: dict[str, Any]
+    objective: float
+    solved: bool
+    certified: bool
+    verified: bool
+    evaluations: int
+    design: VarianceDesign | None = None
+    verification: RobustAnalysis | None = None
+    message: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe summary (the design's ``K``, ``G``, ``Q1``, ``Q2`` included)."""
+        return {"start": self.start, "parameters": self.parameters,
+                "objective": self.objective if math.isfinite(self.objective) else None,
+                "solved": self.solved, "certified": self.certified, "verified": self.verified,
+                "evaluations": self.evaluations, "message": self.message,
+                "design": None if self.design is None else self.design.to_dict(),
+                "verification": (None if self.verification is None
+                                 else self.verification.to_dict())}
+
+
+@dataclass(frozen=True)
+class DesignSearchRecord:
+    """Result and record of an optimizer-based design search.
+
+    Attributes
+    ----------
+    found : bool
+        A candidate passed :func:`verify_design`.
+    design : VarianceDesign or None
+        The best verified design: certified ones first, then by smallest objective.
+    verification : RobustAnalysis or None
+        Its verification.
+    candidates : tuple of SearchCandidate
+        Every candidate, in the order of the starts (the given parameters first).
+    evaluations : int
+        Objective evaluations in total.
+    seed : int
+        Seed of the random starts.
+    optimizer : str
+        ``"scipy.optimize.minimize(Nelder-Mead)"`` with its options.
+    variables : list of str
+        Names of the optimized coordinates.
+    bounds : list of (float, float)
+        Their bounds.
+    specification : dict
+        Region, ``gamma``, ``sigma2``, uncertainty shape.
+    wall_s : float
+        Wall-clock time of the search, s.
+    """
+
+    found: bool
+    design: VarianceDesign | None
+    verification: RobustAnalysis | None
+    candidates: tuple[SearchCandidate, ...]
+    evaluations: int
+    seed: int
+    optimizer: str
+    variables: list[str]
+    bounds: list[tuple[float, float]]
+    specification: dict[str, Any]
+    wall_s: float
+
+    @property
+    def best(self) -> SearchCandidate | None:
+        """The candidate of :attr:`design` (``None`` if nothing was verified)."""
+        for c in self.candidates:
+            if c.design is self.design and self.design is not None:
+                return c
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe summary including every candidate."""
+        best = self.best
+        return {
+            "found": self.found,
+            "design": None if self.design is None else self.design.to_dict(),
+            "verification": None if self.verification is None else self.verification.to_dict(),
+            "best_start": None if best is None else best.start,
+            "certified": None if best is None else best.certified,
+            "candidates": [c.to_dict() for c in self.candidates],
+            "evaluations": self.evaluations, "seed": self.seed, "optimizer": self.optimizer,
+            "variables": self.variables, "bounds": [list(b) for b in self.bounds],
+            "specification": self.specification, "wall_s": self.wall_s,
+        }
+
+
+def _single_threaded_blas() -> contextlib.AbstractContextManager[Any]:
+    """``threadpoolctl.threadpool_limits(1, "blas")`` if available, else a no-op."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+#: Objective of a failed evaluation (an equation without solution and no finer measure).
+INFEASIBLE = 1e3
+
+
+def run_design_search(objective: Callable[[FloatArray], tuple[float, VarianceDesign | None]],
+                      x_given: FloatArray, random_start: Callable[[np.random.Generator],
+                                                                  FloatArray],
+                      bounds: Sequence[tuple[float, float]], *, n_starts: int, seed: int,
+                      max_evaluations: int, verify: Callable[[VarianceDesign],
+                                                             RobustAnalysis],
+                      sigma2: FloatArray, describe: Callable[[FloatArray], dict[str, Any]],
+                      variables: list[str], specification: dict[str, Any],
+                      simplex_step: Sequence[float]) -> DesignSearchRecord:
+    """Multi-start Nelder-Mead over the design coordinates; verify every candidate.
+
+    Start 0 is ``x_given`` evaluated as it is (the printed parameters) and then also optimized
+    from; starts ``1 .. n_starts - 1`` are drawn by ``random_start`` from a generator seeded
+    with ``seed``. Each local optimum with solved equations is checked by ``verify``.
+
+    Parameters
+    ----------
+    objective : callable ``x -> (J, design or None)``
+    x_given : numpy.ndarray, shape (d,)
+    random_start : callable ``rng -> x``
+    bounds : sequence of (low, high), length d
+    n_starts : int
+        Optimizer starts (>= 1), the given point included.
+    seed : int
+    max_evaluations : int
+        Objective evaluations per start.
+    verify : callable ``design -> RobustAnalysis``
+    sigma2 : numpy.ndarray, shape (n,)
+    describe : callable ``x -> dict``
+        JSON-safe parameters of a point.
+    variables : list of str
+    specification : dict
+    simplex_step : sequence of float, length d
+        Size of the initial Nelder-Mead simplex along each coordinate.
+
+    Returns
+    -------
+    DesignSearchRecord
+
+    Notes
+    -----
+    BLAS runs single-threaded during the search (``threadpoolctl``, when installed): the
+    matrices are small, and multi-threaded OpenBLAS costs milliseconds per call on a busy
+    machine.
+    """
+    if n_starts < 1:
+        raise ValueError(f"n_starts must be >= 1, got {n_starts}")
+    if max_evaluations < 1:
+        raise ValueError(f"max_evaluations must be >= 1, got {max_evaluations}")
+    start_time = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    lo = np.array([b[0] for b in bounds])
+    hi = np.array([b[1] for b in bounds])
+    options = {"maxfev": max_evaluations, "xatol": 1e-4, "fatol": 1e-6, "adaptive": True}
+    candidates: list[SearchCandidate] = []
+    total = 0
+
+    def candidate(k: int, x: FloatArray, J: float, design: VarianceDesign | None,
+                  nfev: int, note: str) -> SearchCandidate:
+        solved = design is not None and design.solved
+        certified = bool(solved and np.all(np.diag(design.Q2) <= sigma2))
+        check = verify(design) if solved else None
+        ok = check is not None and passes(check)
+        msg = note + ("" if design is None else f"; {design.message}")
+        return SearchCandidate(k, describe(x), float(J), solved, certified, ok, nfev,
+                               design, check, msg)
+
+    starts = [np.clip(np.asarray(x_given, dtype=np.float64), lo, hi)]
+    starts += [np.clip(random_start(rng), lo, hi) for _ in range(n_starts - 1)]
+    d = lo.size
+    with _single_threaded_blas():
+        for k, x0 in enumerate(starts):
+            if k == 0:  # the given parameters as they are: the first candidate
+                J0, d0 = objective(x0)
+                total += 1
+                candidates.append(candidate(0, x0, J0, d0, 1, "given parameters"))
+            # initial simplex: x0 and a step of simplex_step[i] along each coordinate, towards
+            # the inside of the bounds
+            simplex = np.tile(x0, (d + 1, 1))
+            for i in range(d):
+                step = simplex_step[i] if x0[i] + simplex_step[i] <= hi[i] else -simplex_step[i]
+                simplex[i + 1, i] += step
+            out = minimize(lambda x: objective(x)[0], x0, method="Nelder-Mead",
+                           bounds=list(zip(lo, hi, strict=True)),
+                           options={**options, "initial_simplex": np.clip(simplex, lo, hi)})
+            total += int(out.nfev)
+            J, design = objective(out.x)
+            total += 1
+            candidates.append(candidate(k, out.x, J, design, int(out.nfev) + 1,
+                                        f"Nelder-Mead from start {k}: {out.message}"))
+    verified = [c for c in candidates if c.verified]
+    verified.sort(key=lambda c: (not c.certified, c.objective))
+    best = verified[0] if verified else None
+    return DesignSearchRecord(
+        found=best is not None, design=None if best is None else best.design,
+        verification=None if best is None else best.verification,
+        candidates=tuple(candidates), evaluations=total, seed=seed,
+        optimizer=f"scipy.optimize.minimize(Nelder-Mead, {options})", variables=variables,
+        bounds=[(float(a), float(b)) for a, b in zip(lo, hi, strict=True)],
+        specification=specification, wall_s=time.perf_counter() - start_time)

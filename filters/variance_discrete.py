@@ -1,5 +1,5 @@
-"""seed-004 (Liu, Deng & Wang, OCR damaged): discrete robust H2/H-infinity filter with error
-variance constraints.
+"""Liu, Deng & Wang (Harbin Institute of Technology; the available text is OCR damaged):
+discrete robust H2/H-infinity filter with error variance constraints.
 
 Plant (1)-(2) (:class:`~filters.analysis.UncertainPlant`, ``discrete=True``), filter (3)
 ``xhat(k+1) = G xhat(k) + K y(k)``; augmented system (4)-(6), ``H(z)`` (7), covariance (8)-(9)
@@ -25,7 +25,8 @@ What is legible and used verbatim
 What is reconstructed (the text between (11) and (23) is illegible)
 -------------------------------------------------------------------
 The second Riccati equation and the gain formula, by the construction of the paper's own
-reference [7] (Wang & Huang, IEEE TSP 2000) that seed-003 uses in continuous time: with
+reference [7] (Wang & Huang, IEEE TSP 2000) that Wang & Fang (2006) use in continuous
+time: with
 ``P = diag(P1, P2)`` and ``P_f,gamma = diag(P1, P_gamma)``, Lemma 1 (2) bounds (23) by
 ``Psi = A_f diag(Gamma, P_gamma) A_f^T + eps M_f M_f^T - P + D_f D_f^T``.
 ``Psi11 = -delta1 I`` is (11). ``Psi12 = 0`` gives ``G = A_hat - K C_hat`` with
@@ -46,6 +47,23 @@ from the inequality). ``(12r)`` is our numbering. The paper's legible ``W1``-``W
 right inverse ``C_hat^T (C_hat C_hat^T)^-1`` suggest it parametrizes the solutions ``K``
 differently (by a generalized inverse instead of ``H U``); with ``H = 0`` both give the
 central gain ``K = Theta R^-1``. The example prints no ``H`` and no legible ``delta2``.
+
+Solving (11) and (12r)
+----------------------
+Both map onto the filter-form discrete algebraic Riccati equation
+``X = A X A^T - (A X C^T + S)(C X C^T + R)^-1 (A X C^T + S)^T + Q`` solved by
+:func:`scipy.linalg.solve_discrete_are` (stabilizing solution; here ``R`` is indefinite):
+
+* (11): ``C = N``, ``R = -eps I``, ``Q = eps M1 M1^T + D1 D1^T + delta1 I``, ``S = 0``
+  (``Gamma = P1 - P1 N^T (N P1 N^T - eps I)^-1 N P1``); :func:`solve_equation11`.
+  Fallback, and proof of non-existence: monotone Newton from ``P1 = 0`` ((11) is convex).
+* (12r), for any ``gamma``: ``A = A_hat``, ``C = [L; C_hat]``, ``R = diag(-gamma^2 I, R0)``,
+  ``S = [0, S0]``; eliminating the ``L`` block first produces ``P_gamma``
+  (:func:`solve_equation12r`).
+
+The generic multi-start solver remains as a fallback (``method="auto"`` of
+:func:`design_discrete`); :func:`search_discrete_design` searches the free parameters with an
+optimizer and verifies the candidates.
 """
 
 from __future__ import annotations
@@ -58,21 +76,25 @@ import numpy as np
 import numpy.typing as npt
 
 from filters._linalg import FloatArray, matrix
-from filters.analysis import UncertainPlant, unit_disk
+from filters.analysis import PoleRegion, UncertainPlant, unit_disk
+from filters.matrix_equations import newton_solve, solve_filter_dare
 from filters.variance_constrained import (
+    INFEASIBLE,
     DesignSearch,
+    DesignSearchRecord,
     MatrixEquationSolution,
     VarianceDesign,
     inverse_sqrt,
     is_positive_definite,
     passes,
+    run_design_search,
     solve_symmetric_equation,
     verify_design,
 )
 
 __all__ = [
     "DiscreteDesignParameters",
-    "Seed004Terms",
+    "DiscreteTerms",
     "delta1_threshold",
     "design_discrete",
     "equation11",
@@ -83,6 +105,9 @@ __all__ = [
     "least_solution11",
     "p_gamma",
     "search_discrete",
+    "search_discrete_design",
+    "solve_equation11",
+    "solve_equation12r",
 ]
 
 EQUATIONS = ("11", "12r")
@@ -90,7 +115,7 @@ EQUATIONS = ("11", "12r")
 
 @dataclass(frozen=True)
 class DiscreteDesignParameters:
-    """Free parameters of the (reconstructed) seed-004 design.
+    """Free parameters of the (reconstructed) discrete design.
 
     Attributes
     ----------
@@ -134,7 +159,7 @@ class DiscreteDesignParameters:
 
 def _check(plant: UncertainPlant, prm: DiscreteDesignParameters) -> None:
     if not plant.discrete:
-        raise ValueError("plant must be discrete-time (discrete=True) for seed-004")
+        raise ValueError("plant must be discrete-time (discrete=True) for the discrete design")
     if prm.H.shape != (plant.n, plant.p):
         raise ValueError(f"H must have shape ({plant.n}, {plant.p}), got {prm.H.shape}")
 
@@ -202,8 +227,11 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
                      rtol: float = 1e-4, max_iter: int = 20_000) -> float | None:
     """Supremum of the ``delta1`` for which (11) has an admissible solution at ``prm.eps``.
 
-    Existence is decided by :func:`least_solution11`; it is monotone in ``delta1`` (a larger
-    constant term only raises the iterates). Geometric bisection to relative ``rtol``.
+    Existence is decided by the monotone Newton iteration of :func:`solve_equation11` (the
+    same decision as :func:`least_solution11`, quadratically convergent; ``max_iter`` is
+    kept for compatibility and caps its iterations at ``min(max_iter, 300)``); it is
+    monotone in ``delta1`` (a larger constant term only raises the iterates). Geometric
+    bisection to relative ``rtol``.
 
     Returns
     -------
@@ -213,7 +241,19 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     _check(plant, prm)
 
     def exists(d: float) -> bool:
-        return least_solution11(plant, replace(prm, delta1=d), max_iter=max_iter)[0] is not None
+        return _monotone11(replace(prm, delta1=d), min(max_iter, 300)) is not None
+
+    def _monotone11(p: DiscreteDesignParameters, iters: int) -> FloatArray | None:
+        n, j = plant.n, plant.N.shape[0]
+        if np.abs(np.linalg.eigvals(plant.A)).max() >= 1.0:
+            return None
+        out = newton_solve(_residual11(plant, p), np.zeros((n, n)), monotone=True,
+                           admissible=lambda P: is_positive_definite(
+                               p.eps * np.eye(j) - plant.N @ P @ plant.N.T),
+                           tol=1e-13, max_iter=iters)
+        ok = out.converged or (out.status == "not_converged"
+                               and out.residual <= _tol(1e-9, out.X))  # rounding floor
+        return out.X if ok else None
 
     lo = 1e-12
     if not exists(lo):
@@ -229,7 +269,7 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
 
 # --------------------------------------------------------------------- (12r)
 @dataclass(frozen=True)
-class Seed004Terms:
+class DiscreteTerms:
     """Quantities (10) fixed by ``P1``.
 
     Attributes
@@ -249,7 +289,7 @@ class Seed004Terms:
 
 
 def hat_terms_discrete(P1: FloatArray, plant: UncertainPlant,
-                       prm: DiscreteDesignParameters) -> Seed004Terms:
+                       prm: DiscreteDesignParameters) -> DiscreteTerms:
     """(10): ``Phi = Gamma A^T``, ``A_hat``, ``C_hat`` (pseudo-inverse if ``Phi`` is singular)."""
     A, C, M1, M2, D1, D2 = plant.A, plant.C, plant.M1, plant.M2, plant.D1, plant.D2
     Gm = _gamma(P1, plant.N, prm.eps)
@@ -258,7 +298,7 @@ def hat_terms_discrete(P1: FloatArray, plant: UncertainPlant,
     generalized = bool(np.linalg.cond(Phi) > 1e12)
     right = X @ np.linalg.pinv(Phi) if generalized else np.linalg.solve(Phi.T, X.T).T
     n = plant.n
-    return Seed004Terms(P1, Gm, Phi, A + right[:n], C + right[n:], generalized)
+    return DiscreteTerms(P1, Gm, Phi, A + right[:n], C + right[n:], generalized)
 
 
 def p_gamma(P2: npt.NDArray[Any], L: FloatArray, gamma: float) -> npt.NDArray[Any]:
@@ -268,7 +308,7 @@ def p_gamma(P2: npt.NDArray[Any], L: FloatArray, gamma: float) -> npt.NDArray[An
 
 
 def equation12r_terms(P2: npt.NDArray[Any], plant: UncertainPlant,
-                      prm: DiscreteDesignParameters, t: Seed004Terms
+                      prm: DiscreteDesignParameters, t: DiscreteTerms
                       ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], npt.NDArray[Any]]:
     """``(R, Theta, Upsilon)`` of the reconstructed (12r), shapes (p, p), (n, p), (n, n)."""
     A, C, M1, M2, D1, D2 = plant.A, plant.C, plant.M1, plant.M2, plant.D1, plant.D2
@@ -282,7 +322,7 @@ def equation12r_terms(P2: npt.NDArray[Any], plant: UncertainPlant,
 
 
 def equation12r(P2: npt.NDArray[Any], plant: UncertainPlant, prm: DiscreteDesignParameters,
-                t: Seed004Terms) -> npt.NDArray[Any]:
+                t: DiscreteTerms) -> npt.NDArray[Any]:
     """Left side of (12r): ``Upsilon - Theta R^-1 Theta^T + H H^T + delta2 I``."""
     R, Theta, Ups = equation12r_terms(P2, plant, prm, t)
     return (Ups - Theta @ np.linalg.solve(R, Theta.T) + prm.H @ prm.H.T
@@ -300,7 +340,7 @@ def _admissible12r(plant: UncertainPlant, prm: DiscreteDesignParameters):
 
 
 def gains_discrete(P2: FloatArray, plant: UncertainPlant, prm: DiscreteDesignParameters,
-                   t: Seed004Terms, U: npt.ArrayLike | None = None
+                   t: DiscreteTerms, U: npt.ArrayLike | None = None
                    ) -> tuple[FloatArray, FloatArray]:
     """``K = Theta R^-1 + H U R^-1/2``, ``G = A_hat - K C_hat`` (reconstructed).
 
@@ -315,25 +355,306 @@ def gains_discrete(P2: FloatArray, plant: UncertainPlant, prm: DiscreteDesignPar
     return K, t.A_hat - K @ t.C_hat
 
 
+# ----------------------------------------------------------- structured solvers
+def _tol(tol: float, X: FloatArray | None) -> float:
+    """Residual tolerance relative to the size of the solution (absolute for ``||X|| <= 1``)."""
+    return tol * max(1.0, 0.0 if X is None else float(np.linalg.norm(X)))
+
+
+def _residual11(plant: UncertainPlant, prm: DiscreteDesignParameters):
+    """``P1 -> (F11(P1), derivative terms)``: ``F11'(P1)[D] = (A T) D (A T)^T - D`` with
+    ``T = I + P1 N^T (eps I - N P1 N^T)^-1 N``."""
+    A, N = plant.A, plant.N
+    n, j = plant.n, N.shape[0]
+    eye = np.eye(n)
+    const = prm.eps * plant.M1 @ plant.M1.T + plant.D1 @ plant.D1.T + prm.delta1 * eye
+
+    def fun(P: FloatArray) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
+        NP = N @ P
+        X = np.linalg.solve(prm.eps * np.eye(j) - NP @ N.T, NP)
+        AT = A @ (eye + X.T @ N)
+        F = A @ (P + NP.T @ X) @ A.T - P + const
+        return F, [(AT, AT), (-eye, eye)]
+
+    return fun
+
+
+def _monotone11(plant: UncertainPlant, prm: DiscreteDesignParameters, tol: float
+                ) -> tuple[FloatArray | None, int, str]:
+    """Monotone Newton from ``P1 = 0`` for (11) (convex, resolvent-positive derivative):
+    ``(least solution or None, iterations, status)``."""
+    n, j = plant.n, plant.N.shape[0]
+    if np.abs(np.linalg.eigvals(plant.A)).max() >= 1.0:
+        return None, 0, "unstable_derivative"
+
+    def domain(P: FloatArray) -> bool:
+        return is_positive_definite(prm.eps * np.eye(j) - plant.N @ P @ plant.N.T)
+
+    out = newton_solve(_residual11(plant, prm), np.zeros((n, n)), admissible=domain,
+                       tol=tol, max_iter=300, monotone=True)
+    return (out.X if out.converged else None), out.iterations, out.status
+
+
+def solve_equation11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
+                     tol: float = 1e-10) -> MatrixEquationSolution:
+    """Least solution of (11): a DARE with indefinite weight, monotone Newton as fallback.
+
+    Mapping: with ``Gamma = P1 - P1 N^T (N P1 N^T - eps I)^-1 N P1``, (11) is the filter-form
+    DARE ``P1 = A P1 A^T - A P1 N^T (N P1 N^T + R)^-1 N P1 A^T + Q`` with ``C = N``,
+    ``R = -eps I`` (indefinite) and ``Q = eps M1 M1^T + D1 D1^T + delta1 I``
+    (:func:`~filters.matrix_equations.solve_filter_dare`). Its stabilizing solution, when
+    admissible (``P1 > 0``, ``eps I > N P1 N^T``), is the least solution. Otherwise monotone
+    Newton from ``P1 = 0`` decides (as :func:`least_solution11`, but quadratically
+    convergent): (11) is convex with a resolvent-positive derivative, so its iterates increase
+    to the least solution if there is one, and leaving ``eps I > N P1 N^T`` proves that there
+    is none.
+
+    Returns
+    -------
+    MatrixEquationSolution
+        ``method`` is ``"dare"`` or ``"monotone-newton"``.
+    """
+    _check(plant, prm)
+    n, j = plant.n, plant.N.shape[0]
+    adm = _admissible11(plant, prm)
+    c = prm.eps * plant.M1 @ plant.M1.T + plant.D1 @ plant.D1.T + prm.delta1 * np.eye(n)
+    why = ""
+    try:
+        P = solve_filter_dare(plant.A, plant.N, c, -prm.eps * np.eye(j))
+        res = float(np.linalg.norm(equation11(P, plant, prm)))
+        if adm(P) and res <= _tol(tol, P):
+            return MatrixEquationSolution(True, P, res, 0, f"least solution of (11) by the DARE "
+                                          f"mapping (residual {res:.1e})", (P,), method="dare",
+                                          status="solved")
+        why = ("the stabilizing DARE solution is not admissible" if not adm(P) else
+               f"the DARE solution has residual {res:.3g}")
+    except np.linalg.LinAlgError as exc:
+        why = f"no stabilizing DARE solution ({exc})"
+    P, it, status = _monotone11(plant, prm, tol * 1e-2)
+    if P is not None and adm(P):
+        res = float(np.linalg.norm(equation11(P, plant, prm)))
+        if res <= _tol(tol, P):
+            return MatrixEquationSolution(True, P, res, it, f"least solution of (11) by "
+                                          f"monotone Newton ({why}; residual {res:.1e})", (P,),
+                                          method="monotone-newton", status="solved")
+    msg = {"unstable_derivative": "A is not Schur stable: (11) has no positive definite "
+                                  "solution",
+           "left_admissible_set": f"(11) has no solution with eps I > N P1 N^T: the monotone "
+                                  f"Newton iteration left that set at iteration {it}"
+           }.get(status, f"monotone Newton for (11) did not converge ({status}, {it} "
+                         f"iterations)")
+    return MatrixEquationSolution(False, None, math.inf, it, f"{why}; {msg}",
+                                  method="monotone-newton", status=status)
+
+
+def _dare12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: DiscreteTerms,
+             gamma: float) -> FloatArray:
+    """The stabilizing solution of (12r) at ``gamma`` by the augmented DARE (raises
+    ``LinAlgError``)."""
+    A, C, M1, M2, D1, D2, L = (plant.A, plant.C, plant.M1, plant.M2, plant.D1, plant.D2,
+                               plant.L)
+    e, n, p, q = prm.eps, plant.n, plant.p, L.shape[0]
+    dA, dC, Gm = A - t.A_hat, C - t.C_hat, t.Gamma
+    S = dA @ Gm @ dC.T + e * M1 @ M2.T + D1 @ D2.T
+    R0 = dC @ Gm @ dC.T + e * M2 @ M2.T + D2 @ D2.T
+    Q0 = dA @ Gm @ dA.T + e * M1 @ M1.T + D1 @ D1.T + prm.H @ prm.H.T + prm.delta2 * np.eye(n)
+    if not math.isfinite(gamma):
+        return solve_filter_dare(t.A_hat, t.C_hat, Q0, R0, S)
+    W = np.vstack([L, t.C_hat])
+    R = np.zeros((q + p, q + p))
+    R[:q, :q] = -gamma**2 * np.eye(q)
+    R[q:, q:] = R0
+    return solve_filter_dare(t.A_hat, W, Q0, R, np.hstack([np.zeros((n, q)), S]))
+
+
+def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: DiscreteTerms,
+                      *, tol: float = 1e-10, find_gamma_reached: bool = False
+                      ) -> MatrixEquationSolution:
+    """Stabilizing solution of (12r) by the augmented DARE, for any ``gamma``.
+
+    Mapping: with ``W = [L; C_hat]``, ``R = diag(-gamma^2 I, R0)`` and ``S = [0, S0]``, the
+    filter-form DARE ``P2 = A_hat P2 A_hat^T - (A_hat P2 W^T + S)(W P2 W^T + R)^-1 (...)^T +
+    Q0`` *is* (12r): eliminating the ``L`` block first (Schur complement) turns ``P2`` into
+    ``P_gamma = P2 + P2 L^T (gamma^2 I - L P2 L^T)^-1 L P2`` and leaves
+    ``A_hat P_gamma A_hat^T - Theta R^-1 Theta^T + Q0``. Here ``R0 = dC Gamma dC^T + eps M2
+    M2^T + D2 D2^T``, ``S0 = dA Gamma dC^T + eps M1 M2^T + D1 D2^T``, ``Q0 = dA Gamma dA^T +
+    eps M1 M1^T + D1 D1^T + H H^T + delta2 I`` (``dA = A - A_hat``, ``dC = C - C_hat``). The
+    solution is accepted if ``P2 > 0``, ``gamma^2 I > L P2 L^T`` and the residual of
+    :func:`equation12r` is small.
+
+    Parameters
+    ----------
+    plant, prm
+    t : DiscreteTerms
+        :func:`hat_terms_discrete` of the ``P1`` used.
+    tol : float
+        Tolerance on ``||(12r)||_F`` relative to ``max(1, ||P2||_F)``.
+    find_gamma_reached : bool
+        On failure, bisect for the smallest ``gamma`` (to 0.1 %) at which the stabilizing
+        solution exists and is admissible (``details["gamma_reached"]``, ``X`` there).
+
+    Returns
+    -------
+    MatrixEquationSolution
+        ``method = "dare"``.
+    """
+    _check(plant, prm)
+    adm = _admissible12r(plant, prm)
+
+    def attempt(g: float) -> tuple[FloatArray | None, str]:
+        try:
+            P = _dare12r(plant, prm, t, g)
+        except np.linalg.LinAlgError as exc:
+            return None, f"no stabilizing solution ({exc})"
+        pg = replace(prm, gamma=g) if math.isfinite(g) else replace(prm, gamma=1e150)
+        if not _admissible12r(plant, pg)(P):
+            return None, "the stabilizing solution is not admissible (P2 > 0, gamma^2 I > L P2 L^T)"
+        return P, ""
+
+    P, why = attempt(prm.gamma)
+    if P is not None:
+        res = float(np.linalg.norm(equation12r(P, plant, prm, t)))
+        if res <= _tol(tol, P) and adm(P):
+            return MatrixEquationSolution(True, P, res, 0, f"stabilizing solution of (12r) by "
+                                          f"the augmented DARE (residual {res:.1e})", (P,),
+                                          method="dare", status="solved")
+        return MatrixEquationSolution(False, P, res, 0, f"(12r): the augmented DARE solution "
+                                      f"has residual {res:.3g}", method="dare",
+                                      status="not_converged")
+    status = "no_stabilizing_solution" if why.startswith("no") else "not_admissible"
+    details: dict[str, Any] = {}
+    X = None
+    res = math.inf
+    if find_gamma_reached:
+        Pinf, _ = attempt(math.inf)
+        if Pinf is not None:
+            lo, hi = prm.gamma, 2.0 * prm.gamma
+            Phi_, _ = attempt(hi)
+            while Phi_ is None and hi < 1e6 * prm.gamma:
+                lo, hi = hi, 4.0 * hi
+                Phi_, _ = attempt(hi)
+            X = Phi_ if Phi_ is not None else Pinf
+            while Phi_ is not None and hi / lo > 1.001:
+                mid = math.sqrt(lo * hi)
+                Pm, _ = attempt(mid)
+                if Pm is None:
+                    lo = mid
+                else:
+                    hi, X = mid, Pm
+            details["gamma_reached"] = hi if Phi_ is not None else None
+            res = float(np.linalg.norm(equation12r(X, plant, prm, t)))
+    return MatrixEquationSolution(False, X, res, 0, f"(12r) at gamma = {prm.gamma:g}: {why}",
+                                  method="dare", status=status, details=details)
+
+
 # -------------------------------------------------------------------- design
 def _solve11(plant: UncertainPlant, prm: DiscreteDesignParameters, *, tol: float,
-             n_random: int, seed: int, polish: bool) -> tuple[MatrixEquationSolution, str]:
+             n_random: int, seed: int, polish: bool, starts: list[FloatArray] | None = None
+             ) -> tuple[MatrixEquationSolution, str]:
     least, _, how = least_solution11(plant, prm)
-    starts = [] if least is None else [least]
+    st = ([] if least is None else [least]) + (starts or [])
     eq1 = solve_symmetric_equation(lambda P: equation11(P, plant, prm), plant.n,
-                                   admissible=_admissible11(plant, prm), starts=starts,
+                                   admissible=_admissible11(plant, prm), starts=st,
                                    tol=tol, n_random=n_random, seed=seed, polish=polish)
     return eq1, how
 
 
+def _met(P2: FloatArray, sigma2: npt.ArrayLike | None) -> bool | None:
+    if sigma2 is None:
+        return None
+    return bool(np.all(np.diag(P2) <= np.asarray(sigma2, dtype=float).reshape(-1)))
+
+
+def _ratio(P2: FloatArray, sigma2: npt.ArrayLike | None) -> float:
+    if sigma2 is None:
+        return float(np.trace(P2))
+    return float(np.max(np.diag(P2) / np.asarray(sigma2, dtype=float).reshape(-1)))
+
+
+def _design_structured(plant: UncertainPlant, prm: DiscreteDesignParameters,
+                       sigma2: npt.ArrayLike | None, tol: float,
+                       find_gamma_reached: bool = False) -> VarianceDesign:
+    params = prm.as_dict()
+    eq1 = solve_equation11(plant, prm, tol=tol)
+    if not eq1.solved:
+        return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
+                              f"(11): {eq1.message}", params, eq1, None, attempts=(eq1,))
+    P1 = eq1.X
+    try:
+        t = hat_terms_discrete(P1, plant, prm)
+    except np.linalg.LinAlgError:
+        return VarianceDesign(False, P1, None, eq1.residual, None, None, None, EQUATIONS,
+                              "(11) solved but (10) failed", params, eq1, None,
+                              attempts=(eq1,))
+    eq2 = solve_equation12r(plant, prm, t, tol=tol, find_gamma_reached=find_gamma_reached)
+    if not eq2.solved:
+        return VarianceDesign(False, P1, eq2.X, eq1.residual, eq2.residual, None, None,
+                              EQUATIONS, f"(11) solved (least solution); {eq2.message}",
+                              params, eq1, eq2, attempts=(eq1, eq2))
+    K, G = gains_discrete(eq2.X, plant, prm, t)
+    gi = "; Phi singular: generalized inverse used" if t.generalized_inverse else ""
+    msg = (f"(11) and (12r) solved (residuals {eq1.residual:.1e}, {eq2.residual:.1e}; "
+           f"both by DARE mappings){gi}")
+    return VarianceDesign(True, P1, eq2.X, eq1.residual, eq2.residual, K, G, EQUATIONS, msg,
+                          params, eq1, eq2, _met(eq2.X, sigma2), attempts=(eq1, eq2))
+
+
+def _design_multistart(plant: UncertainPlant, prm: DiscreteDesignParameters,
+                       sigma2: npt.ArrayLike | None, tol: float, n_random: int, seed: int,
+                       polish: bool, starts1: list[FloatArray], starts2: list[FloatArray]
+                       ) -> VarianceDesign:
+    """Generic multi-start Newton on (11), then (12r) for every admissible ``P1``; of all
+    solution pairs the one of smallest ``max(diag(P2) / sigma2)``."""
+    n = plant.n
+    params = prm.as_dict()
+    eq1, how = _solve11(plant, prm, tol=tol, n_random=n_random, seed=seed, polish=polish,
+                        starts=starts1)
+    if not eq1.solved:
+        return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
+                              f"(11): {how}; {eq1.message}", params, eq1, None,
+                              attempts=(eq1,))
+    best: tuple[float, FloatArray, MatrixEquationSolution] | None = None
+    pairs: list[tuple[float, FloatArray, FloatArray, DiscreteTerms,
+                      MatrixEquationSolution]] = []
+    attempts = [eq1]
+    for P1 in eq1.solutions:
+        try:
+            t = hat_terms_discrete(P1, plant, prm)
+        except np.linalg.LinAlgError:
+            continue
+        eq2 = solve_symmetric_equation(lambda P, t=t: equation12r(P, plant, prm, t), n,
+                                       admissible=_admissible12r(plant, prm), starts=starts2,
+                                       tol=tol, n_random=n_random, seed=seed, polish=polish)
+        attempts.append(eq2)
+        pairs += [(_ratio(P2, sigma2), P1, P2, t, eq2) for P2 in eq2.solutions]
+        if not eq2.solved and (best is None or eq2.residual < best[0]):
+            best = (eq2.residual, P1, eq2)
+    if pairs:
+        _, P1, P2, t, eq2 = min(pairs, key=lambda item: item[0])
+        K, G = gains_discrete(P2, plant, prm, t)
+        res2 = float(np.linalg.norm(equation12r(P2, plant, prm, t)))
+        gi = "; Phi singular: generalized inverse used" if t.generalized_inverse else ""
+        msg = (f"(11) and (12r) solved (residuals {eq1.residual:.1e}, {res2:.1e}){gi}")
+        eq2 = replace(eq2, X=P2, residual=res2)
+        return VarianceDesign(True, P1, P2, float(np.linalg.norm(equation11(P1, plant, prm))),
+                              res2, K, G, EQUATIONS, msg, params, eq1, eq2, _met(P2, sigma2),
+                              attempts=tuple(attempts))
+    if best is None:
+        return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
+                              "(11) solved but (10) failed for every solution", params, eq1,
+                              None, attempts=tuple(attempts))
+    res2, P1, eq2 = best
+    return VarianceDesign(False, P1, eq2.X, float(np.linalg.norm(equation11(P1, plant, prm))),
+                          res2, None, None, EQUATIONS,
+                          f"(11) solved ({how}); (12r): {eq2.message}", params, eq1, eq2,
+                          attempts=tuple(attempts))
+
+
 def design_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
                     sigma2: npt.ArrayLike | None = None, tol: float = 1e-10,
-                    n_random: int = 6, seed: int = 0, polish: bool = True) -> VarianceDesign:
+                    n_random: int = 6, seed: int = 0, polish: bool = True,
+                    method: str = "auto") -> VarianceDesign:
     """Solve (11), then (12r), then the gains; failure is a result, not an exception.
-
-    The monotone iteration :func:`least_solution11` decides whether (11) is solvable and
-    seeds the Newton solver. Every admissible ``P1`` found is tried (by increasing trace)
-    until (12r) has an admissible solution ``P2 > 0``, ``gamma^2 I > L P2 L^T``.
 
     Parameters
     ----------
@@ -342,8 +663,18 @@ def design_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     prm : DiscreteDesignParameters
     sigma2 : array_like, shape (n,), optional
         Variance bounds; sets ``variance_bounds_met`` (``diag(P2) <= sigma2``).
-    tol, n_random, seed, polish
-        Passed to :func:`~filters.variance_constrained.solve_symmetric_equation`.
+    tol : float
+        Residual tolerance, ``||F(P)||_F <= tol max(1, ||P||_F)`` (absolute in the fallback).
+    n_random, seed, polish
+        Passed to :func:`~filters.variance_constrained.solve_symmetric_equation` (fallback).
+    method : {"auto", "riccati", "multistart"}
+        ``"riccati"``: both equations by their DARE mappings (:func:`solve_equation11`, the
+        least ``P1``; :func:`solve_equation12r`, the stabilizing ``P2``). ``"multistart"``:
+        the monotone iteration :func:`least_solution11` (which decides whether (11) is
+        solvable) seeds the generic multi-start Newton solver, then (12r) for every
+        admissible ``P1``; of all pairs the one of smallest ``max(diag(P2) / sigma2)``.
+        ``"auto"`` (default): ``"riccati"``; if it fails, or ``sigma2`` is given and not met,
+        also the multi-start, and the better of the two.
 
     Returns
     -------
@@ -351,42 +682,24 @@ def design_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
         ``Q1 = P1``, ``Q2 = P2``, ``equation_names = ("11", "12r")``.
     """
     _check(plant, prm)
-    n = plant.n
-    params = prm.as_dict()
-    eq1, how = _solve11(plant, prm, tol=tol, n_random=n_random, seed=seed, polish=polish)
-    if not eq1.solved:
-        return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
-                              f"(11): {how}; {eq1.message}", params, eq1, None)
-    best: tuple[float, FloatArray, MatrixEquationSolution] | None = None
-    for P1 in eq1.solutions:
-        try:
-            t = hat_terms_discrete(P1, plant, prm)
-        except np.linalg.LinAlgError:
-            continue
-        eq2 = solve_symmetric_equation(lambda P, t=t: equation12r(P, plant, prm, t), n,
-                                       admissible=_admissible12r(plant, prm), tol=tol,
-                                       n_random=n_random, seed=seed, polish=polish)
-        if eq2.solved:
-            K, G = gains_discrete(eq2.X, plant, prm, t)
-            met = None
-            if sigma2 is not None:
-                met = bool(np.all(np.diag(eq2.X) <= np.asarray(sigma2, dtype=float)))
-            gi = "; Phi singular: generalized inverse used" if t.generalized_inverse else ""
-            msg = (f"(11) and (12r) solved (residuals {eq1.residual:.1e}, "
-                   f"{eq2.residual:.1e}){gi}")
-            return VarianceDesign(True, P1, eq2.X, float(np.linalg.norm(
-                equation11(P1, plant, prm))), eq2.residual, K, G, EQUATIONS, msg, params,
-                eq1, eq2, met)
-        if best is None or eq2.residual < best[0]:
-            best = (eq2.residual, P1, eq2)
-    if best is None:
-        return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
-                              "(11) solved but (10) failed for every solution", params, eq1,
-                              None)
-    res2, P1, eq2 = best
-    return VarianceDesign(False, P1, eq2.X, float(np.linalg.norm(equation11(P1, plant, prm))),
-                          res2, None, None, EQUATIONS,
-                          f"(11) solved ({how}); (12r): {eq2.message}", params, eq1, eq2)
+    if method not in ("auto", "riccati", "multistart"):
+        raise ValueError(f"method must be 'auto', 'riccati' or 'multistart', got {method!r}")
+    if method == "multistart":
+        return _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, [], [])
+    d = _design_structured(plant, prm, sigma2, tol)
+    if method == "riccati" or (d.solved and d.variance_bounds_met is not False):
+        return d
+    starts1 = [d.Q1] if d.Q1 is not None and is_positive_definite(d.Q1) else []
+    starts2 = [d.Q2] if d.Q2 is not None and is_positive_definite(d.Q2) else []
+    m = _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, starts1, starts2)
+    attempts = d.attempts + m.attempts
+    if d.solved and (not m.solved or _ratio(d.Q2, sigma2) <= _ratio(m.Q2, sigma2)):
+        return replace(d, attempts=attempts)
+    if m.solved:
+        return replace(m, message=f"{m.message} (multi-start fallback; structured solvers: "
+                                  f"{d.message})", attempts=attempts)
+    return replace(m, message=f"structured solvers: {d.message}. Multi-start fallback: "
+                              f"{m.message}", attempts=attempts)
 
 
 def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
@@ -394,13 +707,14 @@ def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
                     h_scales: npt.ArrayLike, h_direction: npt.ArrayLike | None = None,
                     delta_values: npt.ArrayLike | None = None, n_grid: int = 11,
                     max_verify: int = 3, seed: int = 0, tol: float = 1e-10) -> DesignSearch:
-    """Search ``eps``, the scale ``c`` of ``H = c H0`` (and ``delta1 = delta2``) for a
-    feasible design.
+    """Grid search over ``eps``, the scale ``c`` of ``H = c H0`` (and ``delta1 = delta2``).
 
-    Feasible: (11) and (12r) solved, ``diag(P2) <= sigma^2`` and the gains pass
-    :func:`~filters.variance_constrained.verify_design` (unit disk, ``||H||_inf <= gamma``,
-    variances on the vertices and a grid of ``F``). Candidates are verified by increasing
-    ``max(diag(P2) / sigma^2)``.
+    Kept for compatibility; :func:`search_discrete_design` searches all free parameters with
+    an optimizer. Each point is solved by the DARE mappings (:func:`design_discrete` with
+    ``method="riccati"``). Feasible: (11) and (12r) solved, ``diag(P2) <= sigma^2`` and the
+    gains pass :func:`~filters.variance_constrained.verify_design` (unit disk,
+    ``||H||_inf <= gamma``, variances on the vertices and a grid of ``F``). Candidates are
+    verified by increasing ``max(diag(P2) / sigma^2)``.
 
     Parameters
     ----------
@@ -413,12 +727,13 @@ def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
     delta_values : array_like, optional
         Values of ``delta1 = delta2`` (default: ``prm``'s ``delta1, delta2`` only).
     n_grid, max_verify, seed, tol
-        As in :func:`filters.variance_continuous.search_parabolic`.
+        As in :func:`filters.variance_continuous.search_parabolic` (``seed`` is unused).
 
     Returns
     -------
     DesignSearch
     """
+    del seed
     _check(plant, prm)
     H0 = prm.H if h_direction is None else matrix("h_direction", h_direction,
                                                   (plant.n, plant.p))
@@ -430,41 +745,26 @@ def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
     best_res, best_point = math.inf, {}
     candidates: list[tuple[float, VarianceDesign]] = []
     points = [(e, d) for d in (ds or [None]) for e in es]
-    for e, d in points:
-        p = replace(prm, eps=e) if d is None else replace(prm, eps=e, delta1=d, delta2=d)
-        tried += len(cs)
-        eq1, _ = _solve11(plant, p, tol=tol, n_random=2, seed=seed, polish=False)
-        if not eq1.solved:
-            continue
-        solved1 += len(cs)
+    for e, dl in points:
+        p = replace(prm, eps=e) if dl is None else replace(prm, eps=e, delta1=dl, delta2=dl)
         for c in cs:
             pc = replace(p, H=c * H0)
-            for P1 in eq1.solutions[:2]:
-                try:
-                    t = hat_terms_discrete(P1, plant, pc)
-                except np.linalg.LinAlgError:
-                    continue
-                eq2 = solve_symmetric_equation(
-                    lambda P, t=t, pc=pc: equation12r(P, plant, pc, t), plant.n,
-                    admissible=_admissible12r(plant, pc), tol=tol, n_random=2, seed=seed,
-                    polish=False)
-                if eq2.residual < best_res:
-                    best_res = eq2.residual
-                    best_point = {"eps": e, "h_scale": c, "delta1": p.delta1,
-                                  "delta2": p.delta2}
-                if not eq2.solved:
-                    continue
-                solved2 += 1
-                K, G = gains_discrete(eq2.X, plant, pc, t)
-                ratio = float(np.max(np.diag(eq2.X) / s2))
-                design = VarianceDesign(
-                    True, P1, eq2.X, float(np.linalg.norm(equation11(P1, plant, pc))),
-                    eq2.residual, K, G, EQUATIONS,
-                    f"search point eps={e:g}, delta1=delta2={p.delta1:g}, H = {c:g} H0",
-                    pc.as_dict(), eq1, eq2, ratio <= 1.0)
-                if ratio <= 1.0:
-                    candidates.append((ratio, design))
-                break
+            tried += 1
+            d = _design_structured(plant, pc, s2, tol)
+            if d.equation_1 is None or not d.equation_1.solved:
+                continue
+            solved1 += 1
+            if d.residual_2 is not None and d.residual_2 < best_res:
+                best_res = d.residual_2
+                best_point = {"eps": e, "h_scale": c, "delta1": p.delta1, "delta2": p.delta2}
+            if not d.solved:
+                continue
+            solved2 += 1
+            ratio = float(np.max(np.diag(d.Q2) / s2))
+            if ratio <= 1.0:
+                candidates.append((ratio, replace(
+                    d, message=f"search point eps={e:g}, delta1=delta2={p.delta1:g}, H = "
+                               f"{c:g} H0; {d.message}")))
     candidates.sort(key=lambda item: item[0])
     grid = {"eps": es, "h_scale": cs, "h_direction": H0.tolist(),
             "delta": ds if ds is not None else [prm.delta1]}
@@ -476,3 +776,98 @@ def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
             return DesignSearch(True, design, check, tried, solved1, solved2, best, best_point,
                                 grid)
     return DesignSearch(False, None, None, tried, solved1, solved2, best, best_point, grid)
+
+
+# ------------------------------------------------------------ optimizer search
+def search_discrete_design(plant: UncertainPlant, prm: DiscreteDesignParameters,
+                           sigma2: npt.ArrayLike, *, region: PoleRegion | None = None,
+                           n_starts: int = 8, seed: int = 0, max_evaluations: int = 300,
+                           n_grid: int = 21, eps_bounds: tuple[float, float] = (1e-4, 1e4),
+                           delta_bounds: tuple[float, float] = (1e-6, 1.0),
+                           h_bound: float = 10.0, tol: float = 1e-10) -> DesignSearchRecord:
+    """Search the discrete design's free parameters for a design meeting a specification.
+
+    The specification is ``prm.gamma``, ``sigma2``, the plant's uncertainty and the pole
+    region of the verification (default the unit disk, i.e. robust stability, which the
+    design guarantees; a smaller disk ``Disk(0, r)`` asks for spectral radius ``< r`` and is
+    only verified, not guaranteed). Coordinates: ``log10 eps``, ``log10 delta1``,
+    ``log10 delta2`` and the ``n p`` entries of ``H``; ``U`` stays ``prm.U`` (``(H, U)`` and
+    ``(H U, I)`` give the same design).
+
+    Objective: both equations solved by their DARE mappings: ``max_i [P2]_ii / sigma_i^2``;
+    (12r) unsolvable at ``gamma`` but solvable at ``gamma_reached > gamma``: that ratio there
+    plus ``10 log(gamma_reached / gamma)``; otherwise
+    :data:`~filters.variance_constrained.INFEASIBLE`. Candidates (the given ``prm`` first,
+    then each local optimum of the multi-start Nelder-Mead) are verified with
+    :func:`~filters.variance_constrained.verify_design`; see
+    :func:`~filters.variance_constrained.run_design_search`.
+
+    Parameters
+    ----------
+    plant : UncertainPlant
+        Discrete-time plant, any dimension.
+    prm : DiscreteDesignParameters
+        ``gamma`` and the first candidate.
+    sigma2 : array_like, shape (n,)
+    region : PoleRegion, optional
+    n_starts, seed, max_evaluations, n_grid, eps_bounds, delta_bounds, h_bound, tol
+        As in :func:`filters.variance_continuous.search_parabolic_design`.
+
+    Returns
+    -------
+    DesignSearchRecord
+    """
+    _check(plant, prm)
+    n, p = plant.n, plant.p
+    s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+    if s2.shape != (n,) or not np.all(np.isfinite(s2)) or np.any(s2 <= 0):
+        raise ValueError(f"sigma2 must be a positive finite array of shape ({n},), got "
+                         f"{np.shape(sigma2)}")
+    for name, bd in (("eps_bounds", eps_bounds), ("delta_bounds", delta_bounds)):
+        if not (0 < bd[0] < bd[1] < math.inf):
+            raise ValueError(f"{name} must be (low, high) with 0 < low < high, got {bd!r}")
+    if not (h_bound > 0 and math.isfinite(h_bound)):
+        raise ValueError(f"h_bound must be a positive finite float, got {h_bound!r}")
+    reg = unit_disk() if region is None else region
+    le = (math.log10(eps_bounds[0]), math.log10(eps_bounds[1]))
+    ld = (math.log10(delta_bounds[0]), math.log10(delta_bounds[1]))
+    bounds = [le, ld, ld] + [(-h_bound, h_bound)] * (n * p)
+    variables = (["log10_eps", "log10_delta1", "log10_delta2"]
+                 + [f"H[{i},{j}]" for i in range(n) for j in range(p)])
+
+    def params(x: FloatArray) -> DiscreteDesignParameters:
+        return replace(prm, eps=10.0 ** x[0], delta1=10.0 ** x[1], delta2=10.0 ** x[2],
+                       H=x[3:].reshape(n, p))
+
+    def objective(x: FloatArray) -> tuple[float, VarianceDesign | None]:
+        pr = params(x)
+        d = _design_structured(plant, pr, s2, tol, find_gamma_reached=True)
+        if d.solved:
+            return float(np.max(np.diag(d.Q2) / s2)), d
+        eq2 = d.equation_2
+        if eq2 is not None and eq2.X is not None and eq2.details.get("gamma_reached"):
+            g = float(eq2.details["gamma_reached"])
+            return float(np.max(np.diag(eq2.X) / s2)) + 10.0 * math.log(g / pr.gamma), d
+        return INFEASIBLE, d
+
+    def random_start(rng: np.random.Generator) -> FloatArray:
+        e = rng.uniform(max(le[0], -2.0), min(le[1], 1.0), 1)
+        dl = rng.uniform(max(ld[0], -4.0), min(ld[1], -1.0), 2)
+        h = rng.standard_normal(n * p)
+        h *= 10.0 ** rng.uniform(-3.0, -0.5) / max(float(np.linalg.norm(h)), 1e-300)
+        return np.concatenate([e, dl, h])
+
+    x0 = np.concatenate([[math.log10(prm.eps), math.log10(prm.delta1),
+                          math.log10(prm.delta2)], prm.H.reshape(-1)])
+
+    def verify(d: VarianceDesign):
+        return verify_design(plant, d.G, d.K, region=reg, gamma=prm.gamma, sigma2=s2,
+                             n_grid=n_grid)
+
+    spec = {"region": reg.describe(), "gamma": prm.gamma, "sigma2": s2.tolist(),
+            "f_shape": list(plant.f_shape), "U": prm.U.tolist(), "n_grid": n_grid}
+    return run_design_search(objective, x0, random_start, bounds, n_starts=n_starts,
+                             seed=seed, max_evaluations=max_evaluations, verify=verify,
+                             sigma2=s2, describe=lambda x: params(x).as_dict(),
+                             variables=variables, specification=spec,
+                             simplex_step=[0.5] * 3 + [0.05 * h_bound] * (n * p))

@@ -1,4 +1,5 @@
-"""Mean-square H-infinity filter of Basin et al. (:class:`filters.MeanSquareHInfFilter`)."""
+"""Mean-square H-infinity filter of Basin, Elvira-Ceja & Sanchez
+(:class:`filters.MeanSquareHInfFilter`)."""
 
 from __future__ import annotations
 
@@ -25,8 +26,8 @@ from filters import (
 from filters.analysis import noise_output_ratio
 from filters.hinf_mean_square import AssumptionWarning
 
-# ----------------------------------------------------------------- Basin et al.'s example
-# Section IV, with the corrections of docs/references.md (B's first row [0, 0]; G G^T computed).
+# ----------------------------------------------------------------- the helicopter example
+# Section IV, with the misprints corrected (B's first row [0, 0]; G G^T computed).
 A_EX = np.array([[0.0, 0.0, 1.0, 0.0],
                  [0.0, 0.0, 0.0, 1.0],
                  [0.0, 0.0, -9.2751, 0.0],
@@ -505,7 +506,7 @@ def simulate_paper_example(T: float, dt: float) -> tuple[np.ndarray, np.ndarray,
 def test_paper_example_noise_free_10s() -> None:
     ts, errs, ws, f = simulate_paper_example(10.0, 0.01)
     T = noise_output_ratio(ts, errs, ws, X0_EX, R_EX)
-    print(f"\nBasin et al. noise-free: T(10 s) = {T[-1]:.4f}, max over [0, 10] s = {T.max():.4f} "
+    print(f"\nhelicopter noise-free: T(10 s) = {T[-1]:.4f}, max over [0, 10] s = {T.max():.4f} "
           f"(at {ts[np.argmax(T)]:.2f} s)")
     assert T.max() < GAMMA_EX
     assert np.all(np.isfinite(T))
@@ -522,7 +523,7 @@ def test_paper_example_80s_error_tends_to_the_disturbance_bias() -> None:
     steady state); T(80 s) stays below gamma."""
     ts, errs, ws, f = simulate_paper_example(80.0, 0.01)
     T = noise_output_ratio(ts, errs, ws, X0_EX, R_EX)
-    print(f"\nBasin et al. noise-free: T(80 s) = {T[-1]:.4f}, max over [0, 80] s = {T.max():.4f}")
+    print(f"\nhelicopter noise-free: T(80 s) = {T[-1]:.4f}, max over [0, 80] s = {T.max():.4f}")
     assert T.max() < GAMMA_EX
     P, S = f.P, f.S
     F = A_EX - P @ C_EX.T @ C_EX - S @ C_EX.T @ C_EX

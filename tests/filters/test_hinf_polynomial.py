@@ -1,4 +1,5 @@
-"""Central H-infinity filters for polynomial systems (Basin, Shi et al.): each against something
+"""Central H-infinity filters for polynomial systems (Basin, Shi & Calderon-Alvarez): each
+against something
 independent (Gauss-Hermite quadrature, the paper's printed special case, the linear central
 H-infinity filter of filters.hinf_mean_square, a closed-form Riccati solution, a transformed
 problem)."""

@@ -1,4 +1,5 @@
-"""Theorem-4 LMI H-infinity design (Zhang et al.): designs, a-posteriori checks, the filter (45)."""
+"""Theorem-4 LMI H-infinity design (nonlinear discrete stochastic systems paper): designs,
+a-posteriori checks, the filter (45)."""
 
 from __future__ import annotations
 
@@ -304,7 +305,7 @@ def test_known_input_and_feedthrough():
     assert np.allclose(g.step(y1, np.array([9.0])), K @ y0)
 
 
-def test_from_state_space_is_zhang_filter_50():
+def test_from_state_space_is_the_papers_filter_50():
     f = LMIHInfFilter.from_state_space(0.5 * np.eye(2), 0.5 * np.eye(2), C_z=[[0.1, 0.1]])
     f.prime([1.0, 2.0])
     assert np.allclose(f.step([0.0, 0.0]), [0.5, 1.0])

@@ -1,5 +1,5 @@
-"""Variance-constrained designs: equation solvers, Wang & Fang Theorem 1, Liu et al.,
-the constant-gain filter."""
+"""Variance-constrained designs: equation solvers, Wang & Fang Theorem 1, Liu, Deng & Wang
+(reconstructed), the constant-gain filter."""
 
 from __future__ import annotations
 
@@ -100,7 +100,7 @@ def test_solver_respects_admissible_set():
     assert not sol.solved and adm(sol.X)
 
 
-# ============================================================== Wang & Fang
+# ============================================================== Wang & Fang (2006)
 def _p2_plant() -> UncertainPlant:
     """A two-measurement plant (p = n = 2) so that any H H^T can be realized."""
     A = np.array([[-3.0, 0.5], [0.2, -2.5]])
@@ -109,7 +109,7 @@ def _p2_plant() -> UncertainPlant:
                           [[0.1], [0.0]], [[0.2, 0.1]], [[1.0, 0.0]])
 
 
-def test_wang_fang_equations_with_a_known_solution():
+def test_parabolic_equations_with_a_known_solution():
     """Build D1 and H so that chosen Q1*, Q2* solve (16), (17); the solvers must find them."""
     base = _p2_plant()
     prm = ParabolicDesignParameters(0.5, 0.1, 2.0, 1.0, 1.0, 0.01, 0.01, np.zeros((2, 2)))
@@ -162,7 +162,7 @@ def _psi_continuous(plant, prm, d):
 
 
 @pytest.mark.parametrize("U", [1.0, -1.0])
-def test_wang_fang_theorem1_guarantees_hold(U):
+def test_parabolic_theorem1_guarantees_hold(U):
     plant, prm = _feasible_continuous()
     prm = replace(prm, U=np.array([[U]]))
     d = design_parabolic(plant, prm, sigma2=[0.1, 0.1])
@@ -185,7 +185,7 @@ def test_wang_fang_theorem1_guarantees_hold(U):
     assert {"solved", "Q1", "Q2", "residual_16", "residual_17", "K", "G"} <= set(d_dict)
 
 
-def test_wang_fang_printed_example_is_a_result_not_a_crash():
+def test_parabolic_printed_example_is_a_result_not_a_crash():
     plant = UncertainPlant([[-2.5, 0.3], [0.4, -1.5]], [[0.1, 0.1]], 0.1 * np.eye(2),
                            [[0.6, 0.2]], [[0.8], [0.8]], [[0.8]], [[0.1, 0.1]], [[0.1, 0.1]])
     prm = ParabolicDesignParameters(0.5, 0.5, 0.1, 0.58, 0.58, 0.01, 0.01, [[0.1], [0.1]])
@@ -201,7 +201,7 @@ def test_wang_fang_printed_example_is_a_result_not_a_crash():
     assert js["K"] is None and np.isfinite(js["residual_17"])
 
 
-def test_wang_fang_search_finds_the_feasible_design():
+def test_parabolic_search_finds_the_feasible_design():
     plant, prm = _feasible_continuous()
     s = search_parabolic(plant, prm, [0.1, 0.1], eps1_values=[0.3, 1.0],
                          eps2_values=[1.0], h_scales=[0.0, 1.0], n_grid=5)
@@ -210,7 +210,7 @@ def test_wang_fang_search_finds_the_feasible_design():
     assert s.to_dict()["design"]["solved"] is True
 
 
-def test_wang_fang_parameter_validation():
+def test_parabolic_parameter_validation():
     with pytest.raises(ValueError, match="gamma must"):
         ParabolicDesignParameters(0.5, 0.5, -1.0, 1, 1, 0.01, 0.01, [[0.1], [0.1]])
     with pytest.raises(ValueError, match="orthogonal"):
@@ -220,14 +220,14 @@ def test_wang_fang_parameter_validation():
         design_parabolic(plant, replace(prm, H=np.zeros((3, 1))))
 
 
-# ============================================================== Liu et al.
+# ============================================================== Liu, Deng & Wang
 def _discrete_plant() -> UncertainPlant:
     return UncertainPlant([[0.8, 0.05], [-0.08, -0.5]], [[1.0, 0.0]], 0.1 * np.eye(2),
                           [[0.1, 0.08]], [[0.1], [0.08]], [[0.1]], [[0.5, 0.5]],
                           [[0.01, 0.01]], discrete=True)
 
 
-def test_liu_least_solution_and_threshold():
+def test_discrete_least_solution_and_threshold():
     plant = _discrete_plant()
     ok = DiscreteDesignParameters(0.012, 1.89, 0.01, 0.01, np.zeros((2, 1)))
     P1, _, msg = least_solution11(plant, ok)
@@ -240,7 +240,7 @@ def test_liu_least_solution_and_threshold():
     assert least_solution11(plant, replace(ok, delta1=0.99 * thr))[0] is not None
 
 
-def test_liu_reconstructed_theorem_guarantees_hold():
+def test_discrete_reconstructed_theorem_guarantees_hold():
     plant = _discrete_plant()
     prm = DiscreteDesignParameters(0.012, 1.89, 0.01, 0.01, np.zeros((2, 1)))
     d = design_discrete(plant, prm, sigma2=[0.02, 0.076])
@@ -263,7 +263,7 @@ def test_liu_reconstructed_theorem_guarantees_hold():
         assert np.linalg.eigvalsh(d.Q2 - Pe).min() > 0
 
 
-def test_liu_printed_values_report_failure():
+def test_discrete_printed_values_report_failure():
     plant = _discrete_plant()
     prm = DiscreteDesignParameters(0.012, 1.89, 0.31, 0.31, np.zeros((2, 1)))
     d = design_discrete(plant, prm, n_random=2)
