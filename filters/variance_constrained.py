@@ -30,7 +30,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -668,6 +668,44 @@ def passes(analysis: RobustAnalysis) -> bool:
 
 
 # ============================================================ optimizer-based search
+def bound_ratio(Q2: FloatArray, sigma2: npt.ArrayLike | None) -> float:
+    """``max(diag(Q2) / sigma2)`` (``trace(Q2)`` without bounds): smaller is better."""
+    if sigma2 is None:
+        return float(np.trace(Q2))
+    return float(np.max(np.diag(Q2) / np.asarray(sigma2, dtype=float).reshape(-1)))
+
+
+def structured_then_multistart(
+        method: str, structured: Callable[[], VarianceDesign],
+        multistart: Callable[[list[FloatArray], list[FloatArray]], VarianceDesign],
+        sigma2: npt.ArrayLike | None) -> VarianceDesign:
+    """The ``method`` switch shared by both variance-constrained designs.
+
+    ``"multistart"``: only ``multistart([], [])``. ``"riccati"``: only ``structured()``.
+    ``"auto"``: ``structured()``; if it fails, or misses ``sigma2``, also the multi-start
+    (started from the structured solutions where positive definite), and the better of the
+    two by :func:`bound_ratio`, with every attempt recorded.
+    """
+    if method not in ("auto", "riccati", "multistart"):
+        raise ValueError(f"method must be 'auto', 'riccati' or 'multistart', got {method!r}")
+    if method == "multistart":
+        return multistart([], [])
+    d = structured()
+    if method == "riccati" or (d.solved and d.variance_bounds_met is not False):
+        return d
+    starts1 = [d.Q1] if d.Q1 is not None and is_positive_definite(d.Q1) else []
+    starts2 = [d.Q2] if d.Q2 is not None and is_positive_definite(d.Q2) else []
+    m = multistart(starts1, starts2)
+    attempts = d.attempts + m.attempts
+    if d.solved and (not m.solved or bound_ratio(d.Q2, sigma2) <= bound_ratio(m.Q2, sigma2)):
+        return replace(d, attempts=attempts)
+    if m.solved:
+        return replace(m, message=f"{m.message} (multi-start fallback; structured solvers: "
+                                  f"{d.message})", attempts=attempts)
+    return replace(m, message=f"structured solvers: {d.message}. Multi-start fallback: "
+                              f"{m.message}", attempts=attempts)
+
+
 @dataclass(frozen=True)
 class SearchCandidate:
     """One local optimum (or the given parameters) of an optimizer-based design search.

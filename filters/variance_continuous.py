@@ -116,11 +116,13 @@ from filters.variance_constrained import (
     DesignSearchRecord,
     MatrixEquationSolution,
     VarianceDesign,
+    bound_ratio,
     inverse_sqrt,
     is_positive_definite,
     passes,
     run_design_search,
     solve_symmetric_equation,
+    structured_then_multistart,
     verify_design,
 )
 
@@ -701,13 +703,6 @@ def _design_structured(plant: UncertainPlant, prm: ParabolicDesignParameters,
                           params, eq1, eq2, _met(eq2.X, sigma2), attempts=(eq1, eq2))
 
 
-def _ratio(Q2: FloatArray, sigma2: npt.ArrayLike | None) -> float:
-    """``max(diag(Q2) / sigma2)`` (``trace(Q2)`` without bounds): smaller is better."""
-    if sigma2 is None:
-        return float(np.trace(Q2))
-    return float(np.max(np.diag(Q2) / np.asarray(sigma2, dtype=float).reshape(-1)))
-
-
 def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
                        sigma2: npt.ArrayLike | None, tol: float, n_random: int, seed: int,
                        polish: bool, starts1: list[FloatArray], starts2: list[FloatArray]
@@ -739,7 +734,7 @@ def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
                                        starts=starts2, tol=tol, n_random=n_random, seed=seed,
                                        polish=polish)
         attempts.append(eq2)
-        pairs += [(_ratio(Q2, sigma2), Q1, Q2, t, eq2) for Q2 in eq2.solutions]
+        pairs += [(bound_ratio(Q2, sigma2), Q1, Q2, t, eq2) for Q2 in eq2.solutions]
         if not eq2.solved and (best is None or eq2.residual < best[0]):
             best = (eq2.residual, Q1, eq2)
     if pairs:
@@ -801,24 +796,13 @@ def design_parabolic(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
         ``equation_names = ("16", "17")``.
     """
     _check(plant, prm)
-    if method not in ("auto", "riccati", "multistart"):
-        raise ValueError(f"method must be 'auto', 'riccati' or 'multistart', got {method!r}")
-    if method == "multistart":
-        return _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, [], [])
-    d = _design_structured(plant, prm, sigma2, tol)
-    if method == "riccati" or (d.solved and d.variance_bounds_met is not False):
-        return d
-    starts1 = [d.Q1] if d.Q1 is not None and is_positive_definite(d.Q1) else []
-    starts2 = [d.Q2] if d.Q2 is not None and is_positive_definite(d.Q2) else []
-    m = _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, starts1, starts2)
-    attempts = d.attempts + m.attempts
-    if d.solved and (not m.solved or _ratio(d.Q2, sigma2) <= _ratio(m.Q2, sigma2)):
-        return replace(d, attempts=attempts)
-    if m.solved:
-        return replace(m, message=f"{m.message} (multi-start fallback; structured solvers: "
-                                  f"{d.message})", attempts=attempts)
-    return replace(m, message=f"structured solvers: {d.message}. Multi-start fallback: "
-                              f"{m.message}", attempts=attempts)
+
+    def multistart(starts1: list[FloatArray], starts2: list[FloatArray]) -> VarianceDesign:
+        return _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, starts1,
+                                  starts2)
+
+    return structured_then_multistart(method, lambda: _design_structured(plant, prm, sigma2, tol),
+                                      multistart, sigma2)
 
 
 def search_parabolic(plant: UncertainPlant, prm: ParabolicDesignParameters,

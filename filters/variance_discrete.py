@@ -84,11 +84,13 @@ from filters.variance_constrained import (
     DesignSearchRecord,
     MatrixEquationSolution,
     VarianceDesign,
+    bound_ratio,
     inverse_sqrt,
     is_positive_definite,
     passes,
     run_design_search,
     solve_symmetric_equation,
+    structured_then_multistart,
     verify_design,
 )
 
@@ -565,12 +567,6 @@ def _met(P2: FloatArray, sigma2: npt.ArrayLike | None) -> bool | None:
     return bool(np.all(np.diag(P2) <= np.asarray(sigma2, dtype=float).reshape(-1)))
 
 
-def _ratio(P2: FloatArray, sigma2: npt.ArrayLike | None) -> float:
-    if sigma2 is None:
-        return float(np.trace(P2))
-    return float(np.max(np.diag(P2) / np.asarray(sigma2, dtype=float).reshape(-1)))
-
-
 def _design_structured(plant: UncertainPlant, prm: DiscreteDesignParameters,
                        sigma2: npt.ArrayLike | None, tol: float,
                        find_gamma_reached: bool = False) -> VarianceDesign:
@@ -626,7 +622,7 @@ def _design_multistart(plant: UncertainPlant, prm: DiscreteDesignParameters,
                                        admissible=_admissible12r(plant, prm), starts=starts2,
                                        tol=tol, n_random=n_random, seed=seed, polish=polish)
         attempts.append(eq2)
-        pairs += [(_ratio(P2, sigma2), P1, P2, t, eq2) for P2 in eq2.solutions]
+        pairs += [(bound_ratio(P2, sigma2), P1, P2, t, eq2) for P2 in eq2.solutions]
         if not eq2.solved and (best is None or eq2.residual < best[0]):
             best = (eq2.residual, P1, eq2)
     if pairs:
@@ -682,24 +678,13 @@ def design_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
         ``Q1 = P1``, ``Q2 = P2``, ``equation_names = ("11", "12r")``.
     """
     _check(plant, prm)
-    if method not in ("auto", "riccati", "multistart"):
-        raise ValueError(f"method must be 'auto', 'riccati' or 'multistart', got {method!r}")
-    if method == "multistart":
-        return _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, [], [])
-    d = _design_structured(plant, prm, sigma2, tol)
-    if method == "riccati" or (d.solved and d.variance_bounds_met is not False):
-        return d
-    starts1 = [d.Q1] if d.Q1 is not None and is_positive_definite(d.Q1) else []
-    starts2 = [d.Q2] if d.Q2 is not None and is_positive_definite(d.Q2) else []
-    m = _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, starts1, starts2)
-    attempts = d.attempts + m.attempts
-    if d.solved and (not m.solved or _ratio(d.Q2, sigma2) <= _ratio(m.Q2, sigma2)):
-        return replace(d, attempts=attempts)
-    if m.solved:
-        return replace(m, message=f"{m.message} (multi-start fallback; structured solvers: "
-                                  f"{d.message})", attempts=attempts)
-    return replace(m, message=f"structured solvers: {d.message}. Multi-start fallback: "
-                              f"{m.message}", attempts=attempts)
+
+    def multistart(starts1: list[FloatArray], starts2: list[FloatArray]) -> VarianceDesign:
+        return _design_multistart(plant, prm, sigma2, tol, n_random, seed, polish, starts1,
+                                  starts2)
+
+    return structured_then_multistart(method, lambda: _design_structured(plant, prm, sigma2, tol),
+                                      multistart, sigma2)
 
 
 def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,

@@ -86,6 +86,7 @@ class Physics:
         self.nu, self.nv, self.nbody = model.nu, model.nv, model.nbody
         self._own_models = rig.step_noise_dim > 0  # each member perturbs its model per step
         self._cache: dict[Params, mujoco.MjModel] = {}
+        self._scratch = mujoco.MjData(model)
         self.models = [self.model_for(rig.params)] * self.num
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
         nstate = mujoco.mj_stateSize(model, _INTEGRATION)
@@ -127,11 +128,11 @@ class Physics:
             raise RuntimeError("unexpected mjSTATE_INTEGRATION layout in this MuJoCo version")
 
     def model_for(self, params: Params) -> mujoco.MjModel:
-        """A model with these parameters (cached unless members perturb their models)."""
+        """A copy of the rig's model with these parameters (cached unless members perturb
+        their models); the rig is not changed."""
         model = self._cache.get(params)
         if model is None:
-            self.rig.set_params(params)
-            model = copy.copy(self.rig.model)  # mj_copyModel
+            model = self.rig.model_with(params, self._scratch)
             if self._own_models:
                 return model
             self._cache[params] = model

@@ -146,8 +146,8 @@ def test_mujoco_rig_reproduces_eq51():
         w_seq.append(info["step_noise"][0])
     states = np.array(states)
     assert np.abs(states[:, 0]).max() > 0.05  # about 3.4 deg of roll
-    verbatim = _eq51(env.rig.params, a_seq, w_seq, env.dt_s, with_cos=False)
-    with_cos = _eq51(env.rig.params, a_seq, w_seq, env.dt_s, with_cos=True)
+    verbatim = _eq51(env.nominal_params, a_seq, w_seq, env.dt_s, with_cos=False)
+    with_cos = _eq51(env.nominal_params, a_seq, w_seq, env.dt_s, with_cos=True)
     err = np.abs(states[:, 0] - verbatim[:, 0]).max()
     err_cos = np.abs(states[:, 0] - with_cos[:, 0]).max()
     print(f"roll error vs eq. (51): {err:.2e} rad; vs eq. (51) with cos(eta): {err_cos:.2e}")

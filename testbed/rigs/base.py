@@ -12,6 +12,7 @@ named in :attr:`Rig.joints` (hinges or slides), in rad or m and rad/s or m/s.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -184,13 +185,31 @@ class Rig:
         ValueError
             Unphysical parameter (named); the model is unchanged.
         """
+        self._check_params(params)
+        self.apply_params(self.model, params)
+        mujoco.mj_setConst(self.model, self.data)
+        self.params = params
+
+    def model_with(self, params: Params, data: mujoco.MjData | None = None) -> mujoco.MjModel:
+        """A copy of :attr:`model` with ``params`` written in; the rig itself is unchanged.
+
+        Parameters
+        ----------
+        params : Params
+        data : mujoco.MjData, optional
+            Scratch data of this model for ``mj_setConst`` (default: a new one).
+        """
+        self._check_params(params)
+        model = copy.copy(self.model)  # mj_copyModel
+        self.apply_params(model, params)
+        mujoco.mj_setConst(model, mujoco.MjData(model) if data is None else data)
+        return model
+
+    def _check_params(self, params: Params) -> None:
         if not isinstance(params, self.params_type):
             raise ValueError(f"params must be a {self.params_type.__name__}, got "
                              f"{type(params).__name__}")
         params.validate()
-        self.apply_params(self.model, params)
-        mujoco.mj_setConst(self.model, self.data)
-        self.params = params
 
     def apply_params(self, model: mujoco.MjModel, params: Params) -> None:
         """Write ``params`` into ``model`` (masses, inertias, damping, gears...)."""
