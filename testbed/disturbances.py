@@ -21,17 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def basin_helicopter_w(t_s: float) -> np.ndarray:
-    """Basin et al.'s (helicopter example) deterministic disturbance ``w(t)``, shape (4,).
-
-    ``w1 = 1/(1+t)``, ``w2 = 0.1 (1 - exp(-0.3 t))``, ``w3 = 0.1745/(1+t)``,
-    ``w4 = 0.0873 (1 - exp(-0.3 t))``. ``w2`` and ``w4`` do not decay, so ``||w||_2`` grows
-    with the horizon (docs/references.md).
-    """
-    rise = 1.0 - np.exp(-0.3 * t_s)
-    return np.array([1.0 / (1.0 + t_s), 0.1 * rise, 0.1745 / (1.0 + t_s), 0.0873 * rise])
-
-
 @dataclass
 class Disturbance:
     """Deterministic signal ``G w(t)`` plus white noise ``b dW`` on the velocity rows.
@@ -130,24 +119,3 @@ class Disturbance:
         if n_vel is None:
             return np.zeros(0)
         return np.asarray(accel, dtype=float)
-
-
-def basin_helicopter_disturbance(noise_scale: float = 1.0,
-                                 deterministic: bool = True) -> Disturbance:
-    """Basin et al.'s helicopter disturbance: printed ``G w(t)`` and ``b dW``.
-
-    Parameters
-    ----------
-    noise_scale : float
-        Multiplies the printed ``b`` (0 removes the white noise).
-    deterministic : bool
-        Include ``G w(t)``.
-    """
-    from testbed.rigs.helicopter.rig import paper_model
-
-    pm = paper_model()
-    if not (np.isfinite(noise_scale) and noise_scale >= 0):
-        raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
-    return Disturbance(G=pm.G if deterministic else None,
-                       w=basin_helicopter_w if deterministic else None,
-                       b=pm.b * noise_scale if noise_scale > 0 else None)

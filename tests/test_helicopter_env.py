@@ -8,9 +8,14 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import testbed  # noqa: F401  (registers the environments)
-from testbed.disturbances import Disturbance, basin_helicopter_disturbance, basin_helicopter_w
+from testbed.disturbances import Disturbance
 from testbed.envs import RigEnv, RigVectorEnv
-from testbed.rigs.helicopter import PITCH_LIMIT_RAD, gravity_voltage
+from testbed.rigs.helicopter import (
+    PITCH_LIMIT_RAD,
+    basin_helicopter_disturbance,
+    basin_helicopter_w,
+    gravity_voltage,
+)
 
 
 def make(**kwargs) -> RigEnv:

@@ -8,10 +8,9 @@ import pytest
 from filters import KalmanFilter, LinearSystem
 from testbed import estimators
 from testbed.control import make_controller
-from testbed.disturbances import basin_helicopter_w
 from testbed.envs import RigEnv
 from testbed.metrics import EpisodeMetrics
-from testbed.rigs.helicopter import paper_model
+from testbed.rigs.helicopter import basin_helicopter_w, paper_model
 from testbed.runner import run
 from testbed.scenario import Scenario
 from testbed.wrappers import FilterInLoop

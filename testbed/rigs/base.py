@@ -21,7 +21,11 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
+from testbed.disturbances import Disturbance
 from testbed.rigs.params import scaled_copy
+
+#: Standard gravity used by every rig, m/s^2.
+GRAVITY_M_S2 = 9.81
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,8 +319,6 @@ class Rig:
         -------
         testbed.disturbances.Disturbance or None
         """
-        from testbed.disturbances import Disturbance
-
         if isinstance(name, Disturbance):
             if process_noise:
                 raise ValueError("process_noise applies to a named disturbance, not to a "

@@ -11,8 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from testbed.disturbances import basin_helicopter_w
-from testbed.rigs.helicopter import LinearModel, paper_model
+from testbed.rigs.helicopter import (
+    PAPER_GAMMA,
+    PAPER_INITIAL_WEIGHT,
+    LinearModel,
+    basin_helicopter_w,
+    paper_model,
+)
 
 
 @dataclass(frozen=True)
@@ -42,12 +47,9 @@ class MsHinfHelicopterScenario:
     x0: np.ndarray = field(default_factory=lambda: np.array([-0.7069, 0.0, 0.0, 0.0]))
     m0: np.ndarray = field(default_factory=lambda: np.array([0.1745, -0.5236, -0.15, -0.4]))
     P0: np.ndarray = field(default_factory=lambda: np.diag([10.0, 10.0, 15.0, 5.0]))
-    R: np.ndarray = field(default_factory=lambda: np.array([[0.8, 0.5, 0.2, 0.1],
-                                                            [0.5, 0.8, 0.7, 0.2],
-                                                            [0.2, 0.7, 0.9, 0.4],
-                                                            [0.1, 0.2, 0.4, 0.9]]))
+    R: np.ndarray = field(default_factory=lambda: PAPER_INITIAL_WEIGHT.copy())
     u: np.ndarray = field(default_factory=lambda: np.array([12.495, -3.835]))
-    gamma: float = 1.1
+    gamma: float = PAPER_GAMMA
     horizon_s: float = 80.0
     paper_T_max: float = 0.208
 

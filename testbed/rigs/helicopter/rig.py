@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from testbed.rigs.base import Params, Rig
+from testbed.disturbances import Disturbance
+from testbed.rigs.base import GRAVITY_M_S2, Params, Rig
 
-GRAVITY_M_S2 = 9.81
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
 STATE_NAMES = ("pitch", "yaw", "pitch_rate", "yaw_rate")
 ACTION_NAMES = ("V_pitch", "V_yaw")
@@ -215,6 +215,14 @@ def _volts_per_pitch_newton_metre(params: HelicopterParams) -> np.ndarray:
     return volts
 
 
+#: The mean-square H-infinity example's attenuation level and initial-condition weight ``R``
+#: of (6) (``S(0) = R^-1``), as printed.
+PAPER_GAMMA = 1.1
+PAPER_INITIAL_WEIGHT = np.array([[0.8, 0.5, 0.2, 0.1],
+                                 [0.5, 0.8, 0.7, 0.2],
+                                 [0.2, 0.7, 0.9, 0.4],
+                                 [0.1, 0.2, 0.4, 0.9]])
+PAPER_INITIAL_WEIGHT.flags.writeable = False
 #: Default setpoint schedule: (start time s, pitch rad, yaw rad).
 DEFAULT_SETPOINTS: tuple[tuple[float, float, float], ...] = (
     (0.0, 0.0, 0.0),
@@ -227,9 +235,37 @@ ENCODER_COUNTS = (4096, 8192)
 SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper")
 
 
-def _basin_signal():
-    from testbed.disturbances import basin_helicopter_w
+def basin_helicopter_w(t_s: float) -> np.ndarray:
+    """Basin et al.'s (helicopter example) deterministic disturbance ``w(t)``, shape (4,).
 
+    ``w1 = 1/(1+t)``, ``w2 = 0.1 (1 - exp(-0.3 t))``, ``w3 = 0.1745/(1+t)``,
+    ``w4 = 0.0873 (1 - exp(-0.3 t))``. ``w2`` and ``w4`` do not decay, so ``||w||_2`` grows
+    with the horizon (docs/references.md).
+    """
+    rise = 1.0 - np.exp(-0.3 * t_s)
+    return np.array([1.0 / (1.0 + t_s), 0.1 * rise, 0.1745 / (1.0 + t_s), 0.0873 * rise])
+
+
+def basin_helicopter_disturbance(noise_scale: float = 1.0,
+                                 deterministic: bool = True) -> Disturbance:
+    """Basin et al.'s helicopter disturbance: printed ``G w(t)`` and ``b dW``.
+
+    Parameters
+    ----------
+    noise_scale : float
+        Multiplies the printed ``b`` (0 removes the white noise).
+    deterministic : bool
+        Include ``G w(t)``.
+    """
+    pm = paper_model()
+    if not (np.isfinite(noise_scale) and noise_scale >= 0):
+        raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
+    return Disturbance(G=pm.G if deterministic else None,
+                       w=basin_helicopter_w if deterministic else None,
+                       b=pm.b * noise_scale if noise_scale > 0 else None)
+
+
+def _basin_signal():
     return paper_model().G, basin_helicopter_w
 
 
@@ -411,9 +447,6 @@ class HelicopterRig(Rig):
             if disturbance.intensity is not None:
                 Q += disturbance.intensity
             G = disturbance.G
-        from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
-
-        paper = MsHinfHelicopterScenario()
         nominal = HelicopterParams()  # what the designer knows: never the scaled truth
 
         def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
@@ -422,5 +455,5 @@ class HelicopterRig(Rig):
         return build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                             np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                             input_transform=unbalanced_input,
-                            extras={"paper_model": model, "gamma": paper.gamma,
-                                    "initial_weight": paper.R})
+                            extras={"paper_model": model, "gamma": PAPER_GAMMA,
+                                    "initial_weight": PAPER_INITIAL_WEIGHT})

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.manoeuvres import PaperDecay
-from testbed.rigs.helicopter.rig import GRAVITY_M_S2
-from testbed.rigs.vehicle_roll.rig import paper_model
+from testbed.rigs.base import GRAVITY_M_S2
+from testbed.rigs.vehicle_roll.model import paper_model
 from testbed.sensors import (
     Bias,
     BiasRandomWalk,
