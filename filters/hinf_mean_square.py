@@ -652,16 +652,17 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         h = self._dt / ns  # type: ignore[operator]
         t_start = self.t_s
         C = np.vstack([self._C1(t_start), self._C2(t_start)])
-        innovation = y - m @ C.T
+        innovation = y - np.vecmat(m, C.T)
 
         def rhs(t: float, m: FloatArray, P: FloatArray,
                 S: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
             c = self._coefficients(t)
-            e1 = y1 @ c.W1 - m @ c.M1  # (..., n); M1, N2 symmetric
-            e2 = y2 @ c.W2 - m @ c.N2
-            dm = m @ c.A.T + (P @ e1[..., None])[..., 0] + e2 @ S
+            e1 = np.vecmat(y1, c.W1) - np.vecmat(m, c.M1)  # (..., n); M1, N2 symmetric
+            e2 = np.vecmat(y2, c.W2) - np.vecmat(m, c.N2)
+            dm = (np.vecmat(m, c.A.T) + (P @ e1[..., None])[..., 0]
+                  + np.vecmat(e2, S))
             if u is not None and c.B is not None:
-                dm = dm + u @ c.B.T
+                dm = dm + np.vecmat(u, c.B.T)
             TP = (c.A - 0.5 * (P @ c.M1)) @ P
             dP = TP + np.swapaxes(TP, -1, -2) + c.Q1
             TS = (c.A - 0.5 * (S @ c.M2)) @ S

@@ -372,9 +372,9 @@ class KalmanFilter(_SampledFilter):
                 x += self._B.dot(u)
             P = F.dot(P).dot(self._FT)
         else:
-            x = self._x @ self._FT
+            x = np.vecmat(self._x, self._FT)
             if u is not None:
-                x += u @ self._BT
+                x += np.vecmat(u, self._BT)
             P = self._F @ self._P @ self._FT
         P += self._Q
         return x, P
@@ -413,9 +413,9 @@ class KalmanFilter(_SampledFilter):
             # singular prior: explicit Joseph form, symmetrized by check_covariance below
             P = IKH.dot(P).dot(IKH.T) + K.dot(R).dot(K.T)
         else:
-            innov = y - x @ self._HT
+            innov = y - np.vecmat(x, self._HT)
             if u is not None:
-                innov -= u @ self._DT  # type: ignore[operator]
+                innov -= np.vecmat(u, self._DT)  # type: ignore[operator]
             PHT = P @ self._HT
             S = H @ PHT + R
             try:
@@ -563,15 +563,15 @@ class KalmanBucyFilter(_IntegratedFilter):
         u = self._input(u)
         ybar, Bu = y, None
         if u is not None:
-            Bu = u @ self._BT
+            Bu = np.vecmat(u, self._BT)
             if self._DT is not None:
-                ybar = y - u @ self._DT
+                ybar = y - np.vecmat(u, self._DT)
         m, P = self._x, self._P
         if self._auto_substeps:
             self._substeps = self.suggested_substeps()
         h = self._dt / self._substeps  # type: ignore[operator]
         t0 = self.t_s
-        innovation = ybar - m @ self._CT
+        innovation = ybar - np.vecmat(m, self._CT)
         for i in range(self._substeps):
             k1m, k1P = self._rhs(m, P, ybar, Bu)
             k2m, k2P = self._rhs(m + 0.5 * h * k1m, P + 0.5 * h * k1P, ybar, Bu)
@@ -644,8 +644,8 @@ class KalmanBucyFilter(_IntegratedFilter):
             dP -= W.dot(W.T)  # BLAS syrk: exactly symmetric
             return dm, dP
         W = P @ self._CtLinvT  # (..., n, m)
-        z = (ybar - m @ self._CT) @ self._LinvT  # (..., m) whitened innovation
-        dm = m @ self._AT + (W @ z[..., None])[..., 0]
+        z = np.vecmat(ybar - np.vecmat(m, self._CT), self._LinvT)  # (..., m) whitened innovation
+        dm = np.vecmat(m, self._AT) + (W @ z[..., None])[..., 0]
         if Bu is not None:
             dm += Bu
         AP = self._A @ P

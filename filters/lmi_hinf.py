@@ -1293,7 +1293,7 @@ class LMIHInfFilter(_SampledFilter):
     @property
     def z(self) -> FloatArray:
         """Estimated output ``zhat = C_z xhat``, shape ``(..., n_z)``."""
-        return self._x @ self.C_z.T
+        return np.vecmat(self._x, self.C_z.T)
 
     @property
     def pending_measurement(self) -> FloatArray | None:
@@ -1315,7 +1315,7 @@ class LMIHInfFilter(_SampledFilter):
 
     def _corrected(self, y: FloatArray, u: FloatArray | None) -> FloatArray:
         if u is not None and self._DuT is not None:
-            return y - u @ self._DuT
+            return y - np.vecmat(u, self._DuT)
         return np.array(y, dtype=float)
 
     def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -1341,13 +1341,13 @@ class LMIHInfFilter(_SampledFilter):
         y = self._vector("y", y, self._m)
         u = self._input(u) if self._k else None
         if self._pending is not None:
-            x = self._x @ self._FT + self._pending @ self._GT
-            self.innovation = self._pending - self._x @ self.C_y.T
+            x = np.vecmat(self._x, self._FT) + np.vecmat(self._pending, self._GT)
+            self.innovation = self._pending - np.vecmat(self._x, self.C_y.T)
         else:  # no y_k yet (not primed): zero innovation
-            x = self._x @ self._AT
+            x = np.vecmat(self._x, self._AT)
             self.innovation = None
         if u is not None:
-            x = x + u @ self._BuT
+            x = x + np.vecmat(u, self._BuT)
         if not np.isfinite(x).all():
             raise FiniteEscapeError("state estimate became non-finite",
                                     time=self._time(self._steps + 1), quantity="x", value=x)

@@ -520,9 +520,9 @@ class LinearFilter(_SampledFilter):
         y = self._vector("y", y, self._m)
         u = self._input(u)
         with np.errstate(over="ignore", invalid="ignore"):
-            x = self._x @ self._PhiT + y @ self._GyT
+            x = np.vecmat(self._x, self._PhiT) + np.vecmat(y, self._GyT)
             if u is not None:
-                x = x + u @ self._GuT
+                x = x + np.vecmat(u, self._GuT)
         if not np.isfinite(x).all():
             raise FiniteEscapeError("estimate became non-finite", time=self._time(self._steps + 1),
                                     quantity="x", value=np.array(x))

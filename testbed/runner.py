@@ -102,8 +102,8 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                           params=scenario.params or None, num_threads=num_threads)
     rig = sim.rig
     design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
-    dist = sim.disturbance if (sim.disturbance.active or sim.disturbance.has_signal) else None
-    design = design_rig.design_model(sim.sensors, sim.dt_s, dist, **scenario.design_options)
+    design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
+                                     **scenario.design_options)
     est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
     if not getattr(est, "batched", False):
         est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,

@@ -275,6 +275,12 @@ class Simulator:
         self.dt_s = float(rig.model.opt.timestep) * self.frame_skip
         self.nominal_params = rig.params.scaled(params or {})
         self.disturbance = disturbance or Disturbance(n_positions=len(rig.joints))
+        mismatched = sorted(p for p in sensors.sample_periods_s()
+                            if not np.isclose(p, self.dt_s, rtol=1e-9, atol=0.0))
+        if mismatched:
+            raise ValueError(f"sensors were built for a sampling period of {mismatched[0]} s "
+                             f"but the control period is {self.dt_s} s (frame_skip "
+                             f"{self.frame_skip} x timestep {rig.model.opt.timestep} s)")
         self.sensors = copy.deepcopy(sensors)
         self.sensors.allocate(n)
         self._low = np.asarray(rig.action_low, float)
@@ -325,6 +331,13 @@ class Simulator:
     def action_names(self) -> list[str]:
         """The rig's action names."""
         return list(self.rig.action_names)
+
+    @property
+    def known_disturbance(self) -> Disturbance | None:
+        """The disturbance a designer is told about (None when it has neither a signal nor
+        an intensity)."""
+        d = self.disturbance
+        return d if (d.active or d.has_signal) else None
 
     def units(self) -> dict[str, str]:
         """Units of states, actions and measurement channels."""

@@ -10,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from filters import Estimator
+from testbed.loop import EstimatorStage
 from testbed.metrics import EpisodeMetrics
 
 
@@ -22,14 +23,19 @@ class FilterInLoop(gym.Wrapper):
     (or None) and ``error = estimate - state``. :meth:`metrics` returns the running
     :class:`~testbed.metrics.EpisodeMetrics`.
 
+    The estimator step is the runner's (:class:`testbed.loop.EstimatorStage`): the same input
+    transform, priming and metrics, for one episode. :meth:`from_design` builds the estimator
+    the way the runner does, from the rig's design model.
+
     Parameters
     ----------
     env : gymnasium.Env
         An environment whose ``info`` has ``state``, ``t``, ``disturbance`` and
         ``action_applied`` (all testbed envs).
     estimator : filters.Estimator
-        Anything with ``x``, ``P``, ``step(y, u)`` and ``reset(x0, P0)``.
-    input_transform : callable ``(u_applied, x_hat) -> u_model``, optional
+        Anything with ``x`` (n,), ``P`` ((n, n) or None), ``step(y, u)`` and
+        ``reset(x0, P0)``; an optional ``prime(y)`` receives the first sample.
+    input_transform : callable ``(u_applied (nu,), x_hat (n,)) -> u_model``, optional
         Maps the applied action to the estimator model's input (e.g. subtract the gravity
         voltage so a linear model sees only the unbalanced part).
     measurement_index : sequence of int, optional
@@ -41,7 +47,9 @@ class FilterInLoop(gym.Wrapper):
     -----
     ``reset(options={"estimator": {"x0": ..., "P0": ...}, ...})`` restarts the estimator
     from the given prior (default: the prior it had when wrapped); the other option keys go
-    to the environment.
+    to the environment. Both are checked before anything is reset. A ``FilterError`` raised
+    by the estimator inside :meth:`step` leaves the wrapper needing :meth:`reset` (the
+    environment has advanced, the estimate has not); a further ``step`` says so.
     """
 
     def __init__(self, env: gym.Env, estimator: Estimator, *,
@@ -51,11 +59,9 @@ class FilterInLoop(gym.Wrapper):
                  ratio_weight: np.ndarray | None = None):
         super().__init__(env)
         self.estimator = estimator
-        self.input_transform = input_transform
         P = estimator.P  # None for estimators without a covariance
-        self._prior = (np.array(estimator.x, copy=True),
-                       None if P is None else np.array(P, copy=True))
-        n = self._prior[0].shape[-1]
+        x0 = np.array(estimator.x, dtype=float, copy=True)
+        n = x0.shape[-1]
         self.observation_space = spaces.Box(-np.inf, np.inf, (n,), np.float64)
         inner = env.unwrapped
         self._index = None if measurement_index is None else np.asarray(measurement_index)
@@ -63,8 +69,48 @@ class FilterInLoop(gym.Wrapper):
         sensors = getattr(inner, "sensors", None)
         measured = list(getattr(sensors, "measured_state", None)
                         or getattr(sensors, "measured_state_index", []))
-        self._metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
-                                       measured, output_matrix, ratio_weight)
+        metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
+                                 measured, output_matrix, ratio_weight)
+        self._stage = EstimatorStage(estimator, input_transform, metrics,
+                                     (x0, None if P is None else np.array(P, copy=True)))
+        self._needs_reset = True
+
+    @classmethod
+    def from_design(cls, env: gym.Env, estimator: Any = "kalman", *, design: Any = None,
+                    **options: Any) -> FilterInLoop:
+        """Wrap a testbed rig environment with an estimator built from its design model.
+
+        Parameters
+        ----------
+        env : testbed.envs.RigEnv (possibly wrapped)
+        estimator : str or callable
+            A registered name (``"kalman"``, ...), ``"package.module:factory"``, or a factory
+            ``(design, **options) -> Estimator`` (see :mod:`testbed.estimators`).
+        design : testbed.design.DesignModel, optional
+            Default: ``rig.design_model(sensors, dt_s, disturbance)`` of the environment.
+        **options
+            Passed to the estimator factory.
+        """
+        from testbed import estimators
+
+        inner = env.unwrapped
+        if design is None:
+            design = inner.rig.design_model(inner.sensors, inner.dt_s,
+                                            inner.sim.known_disturbance)
+        est = estimators.build(estimator, design, **options)
+        if getattr(est, "batched", False):
+            est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results
+        batched_transform = design.input_transform
+        transform = None
+        if batched_transform is not None:
+            def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+                return batched_transform(u[None], np.asarray(x_hat)[None])[0]
+        return cls(env, est, input_transform=transform, output_matrix=design.output_matrix)
+
+    @property
+    def input_transform(self) -> Callable | None:
+        """The input transform applied before the estimator step (or None)."""
+        return self._stage.input_transform
 
     @property
     def measurement_index(self) -> np.ndarray | None:
@@ -73,7 +119,10 @@ class FilterInLoop(gym.Wrapper):
 
     def metrics(self) -> EpisodeMetrics:
         """Metrics of the current episode."""
-        return self._metrics
+        return self._stage.metrics
+
+    def _select(self, y: np.ndarray) -> np.ndarray:
+        return y if self._index is None else y[self._index]
 
     def _augment(self, info: dict[str, Any], y: np.ndarray) -> dict[str, Any]:
         x_hat = np.array(self.estimator.x, copy=True)
@@ -86,30 +135,73 @@ class FilterInLoop(gym.Wrapper):
         return info
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the environment, the estimator and the metrics."""
+        """Reset the environment, the estimator and the metrics (options checked first)."""
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
-        prior = options.pop("estimator", None) or {}
-        unknown = set(prior) - {"x0", "P0"}
-        if unknown:
-            raise ValueError(f"unknown options['estimator'] keys {sorted(unknown)}; expected "
-                             "'x0' and/or 'P0'")
+        x0, P0 = self._stage.priors(1, [options.pop("estimator", None)])
+        x0 = x0[0]
+        P0 = P0 if P0 is None or np.ndim(P0) == 2 else P0[0]
+        _check_prior(x0, P0, self._stage.prior[0].shape[-1])
         y, info = self.env.reset(seed=seed, options=options or None)
-        self.estimator.reset(prior.get("x0", self._prior[0]), prior.get("P0", self._prior[1]))
-        prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
-        if prime is not None:
-            prime(y if self._index is None else y[self._index])
-        self._metrics.reset(info["state"])
+        self._stage.reset(self._select(y), info["state"], x0, P0)
+        self._needs_reset = False
         return np.array(self.estimator.x, copy=True), self._augment(info, y)
 
     def step(self, action):
         """Step the environment, then the estimator on the new measurement."""
+        if self._needs_reset:
+            raise RuntimeError("FilterInLoop.step called before reset() (or after the "
+                               "estimator failed): call reset() first")
         y, reward, terminated, truncated, info = self.env.step(action)
-        u = info["action_applied"]
-        if self.input_transform is not None:
-            u = self.input_transform(u, self.estimator.x)
-        y_est = y if self._index is None else y[self._index]
-        self.estimator.step(y_est, u)
-        info = self._augment(info, y)
-        self._metrics.update(info["state"], info["estimate"], info["covariance"], y,
+        try:
+            self._stage.step(self._select(y), info["action_applied"], info["state"],
                              info.get("disturbance"))
+        except Exception:
+            self._needs_reset = True
+            raise
+        info = self._augment(info, y)
         return info["estimate"].copy(), reward, terminated, truncated, info
+
+
+class _BatchOfOne:
+    """A batch-capable estimator run as a batch of one, seen as a single estimator."""
+
+    def __init__(self, inner: Any):
+        self.inner = inner
+        self.prime = self._prime if hasattr(inner, "prime") else None
+
+    @property
+    def x(self) -> np.ndarray:
+        """Estimate, shape (n,)."""
+        return np.asarray(self.inner.x).reshape(-1)
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """Covariance (n, n) or None."""
+        P = self.inner.P
+        return None if P is None else np.asarray(P).reshape(P.shape[-2:])
+
+    def reset(self, x0: np.ndarray, P0: np.ndarray | None) -> None:
+        """Reset the batch of one from ``x0`` (n,) and ``P0`` (n, n)."""
+        self.inner.reset(np.asarray(x0, float)[None], P0)
+
+    def _prime(self, y: np.ndarray) -> None:
+        self.inner.prime(np.asarray(y)[None])
+
+    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """One step of the batch of one; returns the estimate (n,)."""
+        self.inner.step(np.asarray(y)[None], None if u is None else np.asarray(u)[None])
+        return self.x
+
+
+def _check_prior(x0: np.ndarray, P0: np.ndarray | None, n: int) -> None:
+    """``ValueError`` unless ``x0`` is finite (n,) and ``P0`` is None or finite symmetric."""
+    if x0.shape != (n,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"options['estimator']['x0'] must be a finite array of shape ({n},), "
+                         f"got {x0!r}")
+    if P0 is not None:
+        P0 = np.asarray(P0)
+        if P0.shape != (n, n) or not np.all(np.isfinite(P0)) or not np.allclose(P0, P0.T):
+            raise ValueError(f"options['estimator']['P0'] must be a finite symmetric ({n}, {n}) "
+                             f"array, got shape {P0.shape}")

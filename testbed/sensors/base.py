@@ -200,6 +200,12 @@ class Sensor:
         """The model a designer uses (see :class:`SensorModel`)."""
         raise NotImplementedError
 
+    def sample_periods_s(self) -> set[float]:
+        """Sampling periods (s) this sensor's parameters were computed for, in units of the
+        simulator's control period (default: none; the simulator checks that every one equals
+        its ``dt_s``)."""
+        return set()
+
     def __add__(self, other: Sensor) -> Suite:
         return Suite(self, other)
 
@@ -245,6 +251,10 @@ class Suite(Sensor):
         """Every sensor in order (their draws in that order), concatenated: (k, m)."""
         parts = [s.measure(sample, noise) for s in self.sensors]
         return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+    def sample_periods_s(self) -> set[float]:
+        """The union of the member sensors' periods."""
+        return set().union(*(s.sample_periods_s() for s in self.sensors))
 
     def linear_model(self) -> SensorModel:
         """The stacked models of the member sensors."""

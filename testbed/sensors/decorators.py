@@ -58,6 +58,11 @@ class Decorator(Sensor):
         """The inner sensor's model (the change is not modelled)."""
         return self.inner.linear_model()
 
+    def sample_periods_s(self) -> set[float]:
+        """The inner sensor's periods plus this decorator's ``dt_s`` (if it has one)."""
+        own = getattr(self, "dt_s", None)
+        return self.inner.sample_periods_s() | (set() if own is None else {float(own)})
+
     def describe(self) -> str:
         """``name(inner)``."""
         return f"{type(self).__name__.lower()}({self.inner.describe()})"
@@ -126,6 +131,8 @@ class WhiteNoise(Decorator):
             if dt_s is None or not (np.isfinite(dt_s) and dt_s > 0):
                 raise ValueError(f"dt_s must be a positive sampling period in s with "
                                  f"{given[0]}, got {dt_s}")
+        #: The sampling period the intensity or density was converted with (None: std/cov).
+        self.dt_s = None if intensity is None and density is None else float(dt_s)
         self._chol: np.ndarray | None = None
         self._std: np.ndarray | None = None
         if std is not None:
@@ -288,6 +295,10 @@ class SampleAndHold(Decorator):
         super().allocate(num)
         self._held = np.zeros((num, self.dim))
         self._count = np.zeros(num, int)
+
+    def sample_periods_s(self) -> set[float]:
+        """The inner sensor samples every ``every`` control periods: its periods / every."""
+        return {p / self.every for p in self.inner.sample_periods_s()}
 
     def reset(self, sample: Sample, noise: Noise) -> None:
         """Inner reset; the next sample is taken."""

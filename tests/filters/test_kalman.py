@@ -130,11 +130,16 @@ def test_batch_equals_separate_filters(k: int) -> None:
     us = rng.standard_normal((30, batch, k))
     batched = KalmanFilter(system, x0, P0)
     singles = [KalmanFilter(system, x0[j], P0[j]) for j in range(batch)]
+    ones = [KalmanFilter(system, x0[j:j + 1], P0[j:j + 1]) for j in range(batch)]
     assert batched.batch_shape == (batch,)
     for i in range(30):
         batched.step(ys[i], us[i] if k else None)
         for j, f in enumerate(singles):
             f.step(ys[i, j], us[i, j] if k else None)
+            ones[j].step(ys[i, j:j + 1], us[i, j:j + 1] if k else None)
+    for j, f in enumerate(ones):  # row-wise arithmetic: a row does not see the batch size
+        np.testing.assert_array_equal(batched.x[j], f.x[0])
+        np.testing.assert_array_equal(batched.P[j], f.P[0])
     for j, f in enumerate(singles):
         np.testing.assert_allclose(batched.x[j], f.x, rtol=0, atol=1e-14)
         np.testing.assert_allclose(batched.P[j], f.P, rtol=0, atol=1e-14)
