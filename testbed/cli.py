@@ -23,6 +23,7 @@ from testbed.io import write_json
 from testbed.rigs import RIGS, resolve_rig
 from testbed.rigs.base import Rig
 from testbed.scenario import Scenario
+from testbed.units import display
 
 
 def _name_value(text: str) -> tuple[str, float]:
@@ -174,19 +175,10 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
                     duration_s=args.duration, seed=args.seed)
 
 
-def _scale(unit: str) -> tuple[float, str]:
-    """Display radians as degrees (units come from the rig's declarations)."""
-    if unit == "rad":
-        return 180 / np.pi, "deg"
-    if unit == "rad/s":
-        return 180 / np.pi, "deg/s"
-    return 1.0, unit
-
-
 def _format_table(summary: dict, units: dict[str, str]) -> str:
     lines = [f"{'state':<14}{'estimate RMSE':>18}{'measurement RMSE':>22}"]
     for name, value in summary["rmse"].items():
-        scale, unit = _scale(units.get(name, ""))
+        scale, unit = display(units.get(name, ""))
         meas = summary["measurement_rmse"].get(name)
         meas_txt = f"{meas * scale:.4f} {unit}" if meas is not None else "-"
         lines.append(f"{name:<14}{value * scale:>11.4f} {unit:<6}{meas_txt:>22}")
@@ -237,7 +229,7 @@ def _print_mc(result: dict) -> None:
           f"({result['traj_steps_per_s']:,.0f} trajectory-steps/s)")
     print(f"{'state':<14}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
     for name, stats in result["rmse"].items():
-        scale, unit = _scale(result["units"].get(name, ""))
+        scale, unit = display(result["units"].get(name, ""))
         print(f"{name:<14}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
               f"{stats['q95'] * scale:>12.4f}  {unit}")
     if result.get("nees_mean") is not None:
@@ -280,13 +272,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
           f"in {result['wall_s']:.2f} s")
     first = result["points"][0]["result"]
     states = list(first["rmse"])[:2]
-    header = "".join(f"{s + ' RMSE ' + _scale(first['units'].get(s, ''))[1]:>22}"
+    header = "".join(f"{s + ' RMSE ' + display(first['units'].get(s, ''))[1]:>22}"
                      for s in states)
     print("  ".join(f"{n:>16}" for n in names) + header)
     for entry in result["points"]:
         rmse, units = entry["result"]["rmse"], entry["result"]["units"]
         print("  ".join(f"{entry['point'][n]:>16g}" for n in names)
-              + "".join(f"{rmse[s]['mean'] * _scale(units.get(s, ''))[0]:>22.4f}"
+              + "".join(f"{rmse[s]['mean'] * display(units.get(s, ''))[0]:>22.4f}"
                         for s in states))
     if args.json:
         print(f"wrote {write_json(args.json, result)}")

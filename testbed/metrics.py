@@ -51,7 +51,7 @@ class EpisodeMetrics:
         self.state_names = list(state_names)
         self.dt_s = dt_s
         self.measured_state_index = list(measured_state_index)
-        self.output_matrix = np.eye(2, n) if output_matrix is None else np.asarray(output_matrix)
+        self.output_matrix = np.eye(n) if output_matrix is None else np.asarray(output_matrix)
         self.ratio_weight = np.eye(n) if ratio_weight is None else np.asarray(ratio_weight)
         self.reset(np.zeros(n))
 

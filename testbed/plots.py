@@ -3,12 +3,12 @@
 Layout: one row per state, left the state (truth in black, estimate in color,
 measurements of that state as dots, setpoint dashed), right the estimation error with a
 +-3 sigma band when a covariance exists; a last row with the actions. States are plotted
-in degrees (deg/s for names containing ``rate``): radians inside, degrees at the edges.
+with the units the rig declares (``traj.meta["units"]``), angles in degrees: radians
+inside, degrees at the edges (:mod:`testbed.units`).
 """
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -18,19 +18,9 @@ from matplotlib.figure import Figure
 
 from testbed.io import atomic_path
 from testbed.trajectory import Trajectory
+from testbed.units import display, label
 
 _COLORS = [f"C{i}" for i in range(10)]
-
-
-
-
-def _angle_scale(name: str) -> tuple[float, str]:
-    """Factor and unit taking a state from rad (rad/s for names with 'rate') to deg (deg/s)."""
-    return math.degrees(1.0), "deg/s" if "rate" in name.lower() else "deg"
-
-
-
-
 
 
 def _error_ylim(error: np.ndarray, bound: np.ndarray | None) -> tuple[float, float]:
@@ -105,7 +95,7 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
     grid = fig.add_gridspec(n_states + 1, n_cols)
     left0 = None
     for i, name in enumerate(traj.state_names):
-        factor, unit = _angle_scale(name)
+        factor, unit = display(traj.unit(name))
         color = _COLORS[i % len(_COLORS)]
         ax = fig.add_subplot(grid[i, 0], sharex=left0)
         left0 = left0 or ax
@@ -121,7 +111,7 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
         if setpoint is not None and name in sp_names:
             ax.plot(t, factor * setpoint[:, sp_names.index(name)], "--", color="0.3", lw=1.0,
                     label="setpoint", zorder=2)
-        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_ylabel(label(name, unit))
         ax.grid(True, alpha=0.3)
         last = i == n_states - 1  # time tick labels on the last state row only
         ax.tick_params(labelbottom=last)
@@ -138,13 +128,15 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
         ax_err.plot(t, error, color=color, lw=1.0, label="error (estimate − truth)")
         ax_err.set_ylim(*_error_ylim(error, bound))
         ax_err.axhline(0.0, color="black", lw=0.5)
-        ax_err.set_ylabel(f"{name} error [{unit}]")
+        ax_err.set_ylabel(label(f"{name} error", unit))
         ax_err.grid(True, alpha=0.3)
 
     ax_act = fig.add_subplot(grid[n_states, :], sharex=left0)
     for k, name in enumerate(traj.action_names):
         ax_act.plot(t, action[:, k], lw=1.0, color=_COLORS[k % len(_COLORS)], label=name)
-    ax_act.set_ylabel("action")
+    action_units = {name.rpartition(" [")[2].rstrip("]") for name in traj.action_names
+                    if name.endswith("]")}
+    ax_act.set_ylabel(label("action", action_units.pop() if len(action_units) == 1 else ""))
     ax_act.set_xlabel("time [s]")
     ax_act.grid(True, alpha=0.3)
     if traj.action_names:
@@ -155,8 +147,8 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike, *, title: str | N
     for ax in fig.axes:
         if ax is ax_act:
             continue
-        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(label, handle)
+        for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(text, handle)
     if handles:
         fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
                    ncols=len(handles), fontsize="small")

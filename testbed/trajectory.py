@@ -66,6 +66,15 @@ class Trajectory:
     body_quat_wxyz: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
 
+    def unit(self, name: str, kind: str = "state") -> str:
+        """Declared unit of a state (``kind="state"``), measurement channel
+        (``"measurement"``) or action (``"action"``) from ``meta["units"]`` (``""`` if
+        unknown)."""
+        units = self.meta.get("units") or {}
+        if kind == "measurement":
+            return units.get(f"measurement:{name}", units.get(name, ""))
+        return units.get(name, "")
+
     def __post_init__(self) -> None:
         self.t_s = np.asarray(self.t_s, dtype=float)
         n_rows = len(self.t_s)

@@ -17,11 +17,10 @@ Entity layout (every temporal entity is on the ``time`` timeline, a duration in 
     rig/<body>                     Transform3D, T rows: world pose of the body
     rig/<body>/geom_<i>            static Transform3D (local geom pose) + shape
 
-Angle conversion: the state, its estimate, the errors, the sigma bounds, the setpoint and
-the measurements that observe a state directly are logged in degrees (deg/s for states
-whose name contains ``rate``), like the PNG plots, unless ``degrees=False``. Actions and
-measurements that observe no single state are logged unchanged. Series names carry the
-unit.
+Units: every series is logged in the unit the rig declares (``traj.meta["units"]``), with
+angles (rad, rad/s) converted to degrees like the PNG plots unless ``degrees=False``
+(:mod:`testbed.units`). Series names carry the unit; a quantity without a declared unit is
+logged unchanged and unlabelled.
 
 Entity names come from the trajectory's names with a trailing bracketed unit dropped and
 other characters than letters, digits, ``_ - .`` replaced by ``_`` (``"pitch_voltage [V]"``
@@ -35,7 +34,6 @@ threads behind (the recording stream Rerun builds internally for the blueprint).
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import uuid
@@ -47,6 +45,7 @@ import numpy as np
 
 from testbed.io import atomic_path
 from testbed.trajectory import Trajectory
+from testbed.units import display
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import mujoco
@@ -88,8 +87,6 @@ def quat_wxyz_to_xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
     return quat[..., [1, 2, 3, 0]].copy()
 
 
-
-
 def _check_finite(traj: Trajectory) -> None:
     """Raise ``ValueError`` naming the first field of ``traj`` holding NaN or inf."""
     for name in _FIELDS:
@@ -103,8 +100,6 @@ def _check_finite(traj: Trajectory) -> None:
                 f"Trajectory.{name} contains non-finite values (first at index "
                 f"{tuple(int(i) for i in bad)}); refusing to write them to an .rrd file"
             )
-
-
 
 
 def _entity_part(name: str) -> str:
@@ -129,16 +124,6 @@ def _entity_parts(names: list[str]) -> list[str]:
             part = f"{base}_{n}"
         out.append(part)
     return out
-
-
-def _angle_scale(name: str, degrees: bool) -> tuple[float, str]:
-    """Factor and unit for one state: rad -> deg, rad/s -> deg/s (names with 'rate')."""
-    rate = "rate" in name.lower()
-    if degrees:
-        return math.degrees(1.0), "deg/s" if rate else "deg"
-    return 1.0, "rad/s" if rate else "rad"
-
-
 
 
 def _geom_rgba(model: mujoco.MjModel, geom: int) -> np.ndarray:
@@ -414,7 +399,7 @@ def _log_series(rec: rr.RecordingStream, traj: Trajectory, layout: _Layout,
     state, meas, action = traj.state, traj.measurement, traj.action
     estimate = None if traj.estimate is None else traj.estimate
     std = traj.std() if estimate is not None else None
-    scales = [_angle_scale(n, degrees) for n in traj.state_names]
+    scales = [display(traj.unit(n), degrees) for n in traj.state_names]
     for i, (name, part) in enumerate(zip(traj.state_names, layout.state, strict=True)):
         factor, unit = scales[i]
         color = _PALETTE[i % len(_PALETTE)]
@@ -435,7 +420,7 @@ def _log_series(rec: rr.RecordingStream, traj: Trajectory, layout: _Layout,
     for j, (name, part) in enumerate(zip(traj.measurement_names, layout.measurement,
                                          strict=True)):
         i = layout.meas_state[j]
-        factor, unit = scales[i] if i is not None else (1.0, "")
+        factor, unit = display(traj.unit(name, "measurement"), degrees)
         color = _PALETTE[(i if i is not None else len(layout.state) + j) % len(_PALETTE)]
         style = rr.SeriesPoints(names=[f"{name} [{unit}]" if unit else name],
                                 colors=[color], markers=["circle"], marker_sizes=[1.5])

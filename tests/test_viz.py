@@ -75,7 +75,10 @@ def make_trajectory(model: mujoco.MjModel | None = None, *, covariance: bool = T
         measurement_names=["pitch_enc", "yaw_enc"], action=action,
         action_names=["pitch_voltage [V]", "yaw_voltage [V]"], estimate=est, covariance=cov,
         measured_state_index=[0, 1], setpoint=setpoint, body_pos=body_pos,
-        body_quat_wxyz=body_quat, meta={"rig": "toy"},
+        body_quat_wxyz=body_quat,
+        meta={"rig": "toy", "units": {"pitch": "rad", "yaw": "rad", "pitch_rate": "rad/s",
+                                      "yaw_rate": "rad/s", "measurement:pitch_enc": "rad",
+                                      "measurement:yaw_enc": "rad"}},
     )
 
 
@@ -152,6 +155,14 @@ def test_rig_quaternion_matches_mujoco(rrd_file, model):
     np.testing.assert_allclose(quats[row], expected, atol=1e-6)
     _, trans = _component(path, "/rig/tip", "Transform3D:translation")
     np.testing.assert_allclose(trans[row], data.xpos[tip], atol=1e-6)
+
+
+def test_without_declared_units_values_are_logged_unchanged(tmp_path):
+    traj = make_trajectory()
+    traj.meta = {"rig": "toy"}
+    path = write_rrd(traj, tmp_path / "plain.rrd")
+    _, values = _component(path, "/state/pitch_rate/truth", "Scalars:scalars")
+    np.testing.assert_allclose(values, traj.state[:, 2])
 
 
 def test_scalar_values_in_degrees(rrd_file):
