@@ -12,9 +12,8 @@ vehicle roll (see docs/references.md).
   ``gamma_used``; also the gamma for which the printed ``(P1, P2, P_K)`` satisfy (48);
 - **rig**: designed the same way on the physically consistent model of the MuJoCo rig
   (:func:`testbed.scenarios.zhang_hinf.rig_system`) and run on the rig
-  (:class:`~testbed.envs.RigEnv` of ``vehicle-roll``, ``paper`` suite, ``paper-decay``
-  manoeuvre ``a_y = v_k``) with the filter in the loop (:class:`~testbed.wrappers.
-  FilterInLoop`).
+  (the runner's closed loop on ``vehicle-roll``: ``paper`` sensors, ``paper-decay``
+  manoeuvre ``a_y = v_k``, the filter as a user factory).
 
 Each: 100 Monte-Carlo runs (multiplicative noise ``w_k ~ N(0, 1)``), ``v_k = 0.01 * 0.9^k``,
 ``xhat_0 = 0``, for ``x0 = 0`` (what the inequality (7) is about: Lemma 2 needs
@@ -91,44 +90,36 @@ def _simulate_model(system: StochasticLinearSystem, gain: np.ndarray, x0: np.nda
 def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: np.ndarray,
                   xhat0: np.ndarray, n_steps: int, runs: int, seed: int,
                   record: bool) -> dict[str, Any]:
-    """``runs`` episodes of the MuJoCo rig with the filter (45) in the loop (FilterInLoop)."""
-    from testbed.envs import RigEnv
-    from testbed.wrappers import FilterInLoop
+    """``runs`` episodes of the MuJoCo rig with the filter (45) in the loop: the runner's
+    closed loop (``paper`` sensors, ``paper-decay`` manoeuvre ``a_y = v_k``, open loop),
+    run ``r`` with seed ``runner.run_seeds(seed, runs)[r]``."""
+    from testbed import runner
+    from testbed.scenario import Scenario
 
-    env = RigEnv("vehicle-roll", sensors="paper", manoeuvre="paper-decay")
-    est = LMIHInfFilter.from_design(system, design_gain, x0=xhat0, dt_s=env.dt_s)
-    loop = FilterInLoop(env, est, output_matrix=system.C_z)
-    seeds = np.random.SeedSequence(seed).generate_state(runs)
-    z_err = np.empty((runs, n_steps))
-    xs = np.empty((runs, n_steps + 1, 2))
-    xh = np.empty((runs, n_steps + 1, 2))
-    zero = np.zeros(1)
-    rows: dict[str, list] = {k: [] for k in ("t", "meas", "act", "pos", "quat")}
-    for r in range(runs):
-        _, info = loop.reset(seed=int(seeds[r]), options={"x0": x0,
-                                                           "estimator": {"x0": xhat0}})
-        est.prime(info["measurement"])
-        xs[r, 0], xh[r, 0] = info["state"], info["estimate"]
-        keep = record and r == 0
-        for k in range(n_steps):
-            if keep:
-                _keep(rows, info, env)
-            _, _, _, _, info = loop.step(zero)
-            xs[r, k + 1], xh[r, k + 1] = info["state"], info["estimate"]
-        if keep:
-            _keep(rows, info, env)
-    z_err[:] = (xs[:, :n_steps] - xh[:, :n_steps]) @ system.C_z[0]
-    return {"x": xs, "xhat": xh, "z_err": z_err, "rows": rows if record else None,
-            "model": env.rig.model}
+    def factory(design: Any) -> LMIHInfFilter:
+        est = LMIHInfFilter.from_design(system, design_gain, x0=xhat0, dt_s=design.dt_s)
+        est.batched = True
+        return est
 
-
-def _keep(rows: dict[str, list], info: dict[str, Any], env: Any) -> None:
-    rows["t"].append(info["t"])
-    rows["meas"].append(info["measurement"])
-    rows["act"].append(info["action_applied"])
-    pos, quat = env.body_poses()
-    rows["pos"].append(pos)
-    rows["quat"].append(quat)
+    scenario = Scenario(rig="vehicle-roll", estimator=factory, sensors="paper",
+                        manoeuvre="paper-decay", controller="open-loop", seed=seed)
+    experiment = runner.build(scenario, runs)
+    loop = experiment.loop
+    try:
+        result = loop.run(runner.run_seeds(seed, runs), n_steps * loop.sim.dt_s,
+                          {"x0": np.asarray(x0, float), "estimator": {"x0": xhat0}},
+                          record=True, poses=record)
+    finally:
+        experiment.close()
+    traj = result.trajectory
+    xs, xh = traj["state"], traj["estimate"]
+    z_err = (xs[:, :n_steps] - xh[:, :n_steps]) @ system.C_z[0]
+    rows = None
+    if record:
+        rows = {"t": traj["t_s"], "meas": traj["measurement"][0], "act": traj["action"][0],
+                "pos": traj["body_pos"][0], "quat": traj["body_quat_wxyz"][0]}
+    return {"x": xs, "xhat": xh, "z_err": z_err, "rows": rows, "model": loop.sim.rig.model,
+            "units": experiment.meta["units"]}
 
 
 # ------------------------------------------------------------------ evaluation
@@ -344,7 +335,7 @@ def _trajectory(sim: dict[str, Any]) -> Trajectory:
                       estimate=sim["xhat"][0, :n], body_pos=np.asarray(rows["pos"]),
                       body_quat_wxyz=np.asarray(rows["quat"]),
                       meta={"scenario": NAME, "run": "rig, x0 = [0.1, 1], first run",
-                            "filter": "lmi-hinf"})
+                            "filter": "lmi-hinf", "units": sim["units"]})
 
 
 def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Path) -> None:
