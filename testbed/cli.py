@@ -368,6 +368,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     row = module.row(result)
     print(f"{args.name}\n  paper: {row['claim']}\n  ours:  {row['ours']}\n"
           f"  agree: {row['agree']}")
+    if result.get("claims"):
+        from testbed.reproductions.outputs import format_claims
+
+        print("  claims (paper | ours):\n" + format_claims(result["claims"]))
     for path in (args.json, args.plot, args.rrd):
         if path:
             print(f"wrote {path}")

@@ -88,7 +88,7 @@ MEASUREMENT_SIZE = 1.2
 _PALETTE = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (140, 86, 75),
             (227, 119, 194), (255, 127, 14), (23, 190, 207)]
 #: Half-angle (deg) of the cone the default camera fits the rig's bounding sphere in.
-CAMERA_HALF_ANGLE_DEG = 20.0
+CAMERA_HALF_ANGLE_DEG = 14.0
 #: Direction (world, Z up) from the rig towards the default camera: front-right, above.
 CAMERA_DIRECTION = (1.0, -1.0, 0.7)
 _MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
