@@ -229,7 +229,7 @@ class LiveView:
         to the data of ``traj`` when given (auto range before)."""
         import rerun.blueprint as rrb
 
-        from testbed.viz import rig_camera
+        from testbed.viz_rig import rig_camera
 
         limits = None if traj is None else self.layout.error_limits(traj)
         container = self.layout.container(

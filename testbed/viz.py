@@ -17,9 +17,7 @@ seconds; a run logged with a ``prefix`` has the same tree under ``<prefix>/``)::
     measurement/<measurement>      Scalars               (+ static SeriesPoints style)
     action/<action>                Scalars
     setpoint/<setpoint>            Scalars               (only with traj.setpoint)
-    rig                            static ViewCoordinates (MuJoCo is Z-up)
-    rig/<body>                     Transform3D per row: world pose of the body
-    rig/<body>/<geom>              static Transform3D (local geom pose) + shape
+    rig, rig/<body>, rig/<body>/<geom>   the rig in 3D (:mod:`testbed.viz_rig`)
 
 Styles: every series has an explicit colour, width and name ending in its unit. The roles
 keep one colour in every view, chosen of middle luminance so that it reads on the
@@ -31,9 +29,9 @@ lines show through), setpoint green, the error in the estimate's colour between 
 +-3 sigma lines (one legend entry).
 
 Layout (blueprint, stored in the file): the 3D rig on the left, framed by a camera
-computed from the MJCF geometry (:func:`rig_camera`), with the description below it; on
-the right a grid with, per state, a view of truth, estimate, its measurements and its
-setpoint, and a view of the error whose default range fits the steady state
+computed from the MJCF geometry (:func:`testbed.viz_rig.rig_camera`), with the
+description below it; on the right a grid with, per state, a view of truth, estimate,
+its measurements and its setpoint, and a view of the error whose default range fits the steady state
 (:func:`testbed.axes.steady_state_limit`; zoom out for the transient); then other
 measurements and the actions. Every time axis spans exactly the data's time range.
 
@@ -64,8 +62,15 @@ import numpy as np
 
 from testbed.axes import steady_state_limit
 from testbed.io import atomic_path
+from testbed.names import entity_parts
 from testbed.trajectory import Trajectory
 from testbed.units import display
+from testbed.viz_rig import (
+    log_rig_static,
+    rig_bodies,
+    rig_camera,
+    send_body_poses,
+)
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import mujoco
@@ -87,32 +92,8 @@ MEASUREMENT_SIZE = 1.2
 # Actions and measurements of no single state: tab10 without its light members.
 _PALETTE = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (140, 86, 75),
             (227, 119, 194), (255, 127, 14), (23, 190, 207)]
-#: Half-angle (deg) of the cone the default camera fits the rig's bounding sphere in.
-CAMERA_HALF_ANGLE_DEG = 14.0
-#: Direction (world, Z up) from the rig towards the default camera: front-right, above.
-CAMERA_DIRECTION = (1.0, -1.0, 0.7)
-_MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
 _FIELDS = ("t_s", "state", "estimate", "covariance", "measurement", "action", "setpoint",
            "body_pos", "body_quat_wxyz")
-
-
-def quat_wxyz_to_xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
-    """Reorder quaternions from MuJoCo's (w, x, y, z) to Rerun's (x, y, z, w).
-
-    Parameters
-    ----------
-    quat_wxyz : ndarray, shape (..., 4)
-        Quaternions, scalar first.
-
-    Returns
-    -------
-    ndarray, shape (..., 4)
-        The same quaternions, scalar last (a new array).
-    """
-    quat = np.asarray(quat_wxyz, dtype=float)
-    if quat.shape[-1] != 4:
-        raise ValueError(f"quaternions need a last axis of length 4, got shape {quat.shape}")
-    return quat[..., [1, 2, 3, 0]].copy()
 
 
 def check_finite(traj: Trajectory) -> None:
@@ -130,207 +111,8 @@ def check_finite(traj: Trajectory) -> None:
             )
 
 
-def _entity_part(name: str) -> str:
-    """Make ``name`` a plain entity-path part.
-
-    A trailing unit in brackets is dropped (``"pitch_voltage [V]"`` -> ``"pitch_voltage"``)
-    and every character other than letters, digits, ``_``, ``-`` and ``.`` becomes ``_``
-    (Rerun would otherwise escape them, e.g. ``[`` -> ``\\[``).
-    """
-    stripped = re.sub(r"\s*[\[(][^\])]*[\])]\s*$", "", str(name).strip())
-    part = re.sub(r"[^\w.\-]+", "_", stripped).strip("_")
-    return part or "unnamed"
-
-
-def _entity_parts(names: Sequence[str]) -> list[str]:
-    """:func:`_entity_part` of each name, made unique with ``_2``, ``_3``... suffixes."""
-    out: list[str] = []
-    for name in names:
-        part, base, n = _entity_part(name), _entity_part(name), 1
-        while part in out:
-            n += 1
-            part = f"{base}_{n}"
-        out.append(part)
-    return out
-
-
 def _with_unit(text: str, unit: str) -> str:
     return f"{text} [{unit}]" if unit else text
-
-
-# ------------------------------------------------------------------------ the rig in 3D
-def _geom_rgba(model: mujoco.MjModel, geom: int) -> np.ndarray:
-    """RGBA (0-255, uint8) of a geom, taking its material color when it has the default."""
-    rgba = np.asarray(model.geom_rgba[geom], dtype=float)
-    matid = int(model.geom_matid[geom])
-    if matid >= 0 and np.allclose(rgba, _MUJOCO_DEFAULT_RGBA):
-        rgba = np.asarray(model.mat_rgba[matid], dtype=float)
-    return np.clip(np.round(rgba * 255.0), 0, 255).astype(np.uint8)
-
-
-def _geom_archetype(model: mujoco.MjModel, geom: int) -> rr.AsComponents | None:
-    """Rerun archetype drawing one MuJoCo geom in its own (geom) frame, or None.
-
-    Boxes, spheres, ellipsoids, capsules and cylinders are exact; a plane is a 2 mm thick
-    box (an infinite plane, size 0, gets the model extent); meshes are drawn as
-    triangle meshes; height fields and SDFs as their bounding box.
-    """
-    import mujoco
-    import rerun as rr
-
-    gtype = int(model.geom_type[geom])
-    size = np.asarray(model.geom_size[geom], dtype=float)
-    color = _geom_rgba(model, geom)
-    solid = rr.components.FillMode.Solid
-    g = mujoco.mjtGeom
-    if gtype == g.mjGEOM_BOX:
-        return rr.Boxes3D(half_sizes=[size], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_SPHERE:
-        return rr.Ellipsoids3D(radii=[size[0]], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_ELLIPSOID:
-        return rr.Ellipsoids3D(half_sizes=[size], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_CAPSULE:
-        # MuJoCo: centered on the origin along z, half-length size[1]. Rerun: one end of
-        # the segment at the origin, extending along +z.
-        return rr.Capsules3D(lengths=[2.0 * size[1]], radii=[size[0]],
-                             translations=[[0.0, 0.0, -size[1]]], colors=[color],
-                             fill_mode=solid)
-    if gtype == g.mjGEOM_CYLINDER:
-        return rr.Cylinders3D(lengths=[2.0 * size[1]], radii=[size[0]], colors=[color],
-                              fill_mode=solid)
-    if gtype == g.mjGEOM_PLANE:
-        extent = float(model.stat.extent) if model.stat.extent > 0 else 1.0
-        half_x = size[0] if size[0] > 0 else extent
-        half_y = size[1] if size[1] > 0 else extent
-        return rr.Boxes3D(half_sizes=[[half_x, half_y, 0.001]], centers=[[0.0, 0.0, -0.001]],
-                          colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_MESH:
-        mesh = int(model.geom_dataid[geom])
-        if mesh >= 0:
-            v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
-            f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
-            if nv > 0 and nf > 0:
-                return rr.Mesh3D(vertex_positions=np.asarray(model.mesh_vert[v0:v0 + nv]),
-                                 triangle_indices=np.asarray(model.mesh_face[f0:f0 + nf]),
-                                 albedo_factor=color)
-    if gtype in (g.mjGEOM_MESH, g.mjGEOM_HFIELD, g.mjGEOM_SDF):
-        aabb = np.asarray(model.geom_aabb[geom], dtype=float)  # center (3), half-size (3)
-        return rr.Boxes3D(half_sizes=[aabb[3:]], centers=[aabb[:3]], colors=[color],
-                          fill_mode=rr.components.FillMode.MajorWireframe)
-    return None
-
-
-def _geom_names(model: mujoco.MjModel, geoms: list[int]) -> list[str]:
-    """Entity names of one body's geoms: the MJCF name, else the type (``capsule``,
-    ``box_2`` for the second unnamed box, ``mesh_<mesh name>``), unique within the body."""
-    import mujoco
-
-    names = []
-    for gi in geoms:
-        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, gi)
-        if not name:
-            gtype = mujoco.mjtGeom(int(model.geom_type[gi])).name.removeprefix("mjGEOM_")
-            name = gtype.lower()
-            mesh = int(model.geom_dataid[gi])
-            if name == "mesh" and mesh >= 0:
-                name = f"mesh_{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_MESH, mesh) or mesh}"
-        names.append(name)
-    return _entity_parts(names)
-
-
-def _rig_bodies(model: mujoco.MjModel) -> list[tuple[int, str, list[tuple[int, str]]]]:
-    """Bodies with at least one visible geom (MuJoCo groups 0-2).
-
-    Returns
-    -------
-    list of (int, str, list of (int, str))
-        Body id, entity name (``mj_id2name``, sanitized and unique; ``body_<id>`` when
-        unnamed) and its visible geoms as (geom id, entity name).
-    """
-    import mujoco
-
-    names = _entity_parts([mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
-                           or f"body_{b}" for b in range(model.nbody)])
-    geom_body = np.asarray(model.geom_bodyid)
-    out = []
-    for body in range(model.nbody):
-        geoms = [int(gi) for gi in np.flatnonzero(geom_body == body)
-                 if int(model.geom_group[gi]) <= 2]
-        if geoms:
-            out.append((body, names[body], list(zip(geoms, _geom_names(model, geoms),
-                                                    strict=True))))
-    return out
-
-
-def rig_camera(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    """A camera framing the rig: its position and look target (world, metres).
-
-    The target is the centre of the axis-aligned box around the visible geoms other
-    than planes (the floor or road would dominate), at the model's initial pose
-    (``qpos0``); the camera sits along :data:`CAMERA_DIRECTION` at the distance where
-    the box's bounding sphere fills a cone of half-angle :data:`CAMERA_HALF_ANGLE_DEG`.
-
-    Parameters
-    ----------
-    model : mujoco.MjModel
-
-    Returns
-    -------
-    position, look_target : ndarray, shape (3,)
-    """
-    import mujoco
-
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T  # (8, 3)
-    corners = []
-    for gi in range(model.ngeom):
-        if int(model.geom_group[gi]) > 2 or int(model.geom_type[gi]) == mujoco.mjtGeom.mjGEOM_PLANE:
-            continue
-        aabb = np.asarray(model.geom_aabb[gi], dtype=float)
-        local = aabb[:3] + signs * aabb[3:]
-        corners.append(data.geom_xpos[gi] + local @ data.geom_xmat[gi].reshape(3, 3).T)
-    if not corners:
-        center, radius = np.asarray(model.stat.center, float), max(float(model.stat.extent), 1.0)
-    else:
-        pts = np.concatenate(corners)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        center, radius = 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)
-    direction = np.asarray(CAMERA_DIRECTION, dtype=float)
-    direction /= np.linalg.norm(direction)
-    distance = radius / np.sin(np.radians(CAMERA_HALF_ANGLE_DEG))
-    return center + distance * direction, center
-
-
-def _log_rig_static(rec: rr.RecordingStream, model: mujoco.MjModel,
-                    bodies: list[tuple[int, str, list[tuple[int, str]]]], prefix: str) -> None:
-    """View coordinates and the static geometry under ``<prefix>rig/<body>/<geom>``."""
-    import rerun as rr
-
-    rec.log(f"{prefix}rig", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    for _, name, geoms in bodies:
-        for gi, gname in geoms:
-            shape = _geom_archetype(model, gi)
-            if shape is None:
-                continue
-            rec.log(f"{prefix}rig/{name}/{gname}",
-                    rr.Transform3D(translation=np.asarray(model.geom_pos[gi], dtype=float),
-                                   quaternion=quat_wxyz_to_xyzw(model.geom_quat[gi])),
-                    shape, static=True)
-
-
-def _send_rig_poses(rec: rr.RecordingStream, bodies: list[tuple[int, str, list]],
-                    index: list[rr.TimeColumn], body_pos: np.ndarray,
-                    body_quat_wxyz: np.ndarray, prefix: str) -> None:
-    """Per-row world poses of the bodies, ``body_pos`` (T, nbody, 3), quats (T, nbody, 4)."""
-    import rerun as rr
-
-    for body, name, _ in bodies:
-        rec.send_columns(
-            f"{prefix}rig/{name}", indexes=index,
-            columns=rr.Transform3D.columns(
-                translation=body_pos[:, body, :],
-                quaternion=quat_wxyz_to_xyzw(body_quat_wxyz[:, body, :])))
 
 
 # ------------------------------------------------------------------------ time series
@@ -369,15 +151,15 @@ class Layout:
         sp_labels = traj.setpoint_names()
         sp_state = [traj.state_names.index(s) if s in traj.state_names else None
                     for s in sp_labels]
-        state_parts = _entity_parts(traj.state_names)
+        state_parts = entity_parts(traj.state_names)
         # A setpoint of a state shares the state's entity name: setpoint/pitch.
-        sp_parts = _entity_parts([state_parts[i] if i is not None else s
+        sp_parts = entity_parts([state_parts[i] if i is not None else s
                                   for s, i in zip(sp_labels, sp_state, strict=True)])
         return cls(
             prefix=f"{prefix.strip('/')}/" if prefix.strip("/") else "",
             state_names=list(traj.state_names), state=state_parts,
-            measurement=_entity_parts(traj.measurement_names),
-            action=_entity_parts(traj.action_names), setpoint=sp_parts,
+            measurement=entity_parts(traj.measurement_names),
+            action=entity_parts(traj.action_names), setpoint=sp_parts,
             setpoint_labels=sp_labels, meas_state=meas_state, setpoint_state=sp_state,
             state_scale=[display(traj.unit(s), degrees) for s in traj.state_names],
             meas_scale=[display(traj.unit(m, "measurement"), degrees)
@@ -592,7 +374,7 @@ def send_rig_poses(rec: rr.RecordingStream, model: mujoco.MjModel, prefix: str,
     import rerun as rr
 
     index = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, dtype=float))]
-    _send_rig_poses(rec, _rig_bodies(model), index, np.asarray(body_pos, dtype=float),
+    send_body_poses(rec, rig_bodies(model), index, np.asarray(body_pos, dtype=float),
                     np.asarray(body_quat_wxyz, dtype=float), prefix)
 
 
@@ -608,7 +390,7 @@ def log_static(rec: rr.RecordingStream, layout: Layout, *, model: Any = None,
                                                          media_type=rr.MediaType.MARKDOWN),
                 static=True)
     if model is not None:
-        _log_rig_static(rec, model, _rig_bodies(model), layout.prefix)
+        log_rig_static(rec, model, rig_bodies(model), layout.prefix)
 
 
 def blueprint_for(runs: Sequence[Run], layouts: Sequence[Layout],

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from testbed.trajectory import Trajectory
-from testbed.viz import quat_wxyz_to_xyzw, rrd_summary, write_rrd
+from testbed.viz import rrd_summary, write_rrd
+from testbed.viz_rig import quat_wxyz_to_xyzw
 
 T = 200
 STATES = ["pitch", "yaw", "pitch_rate", "yaw_rate"]

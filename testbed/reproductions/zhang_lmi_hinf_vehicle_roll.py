@@ -421,7 +421,7 @@ def _runs(curves: dict, result: dict[str, Any], s: VehicleRollLMIScenario) -> li
         measurement_names=["y1", "y2"], measured_state_index=[None, None],
         action=v[:, None], action_names=["v [m/s^2]"], estimate=sim["xhat"][0],
         meta={"scenario": NAME, "filter": "lmi-hinf (printed Khat)",
-              "units": {**units, "measurement:y1": "", "measurement:y2": ""}})
+              "units": units})
     out.append(Run(traj, "model52_x0_paper", (
         f"# Model (52), printed Khat, x0 = {s.x0.tolist()}\n\nFirst of "
         f"{result['runs']} Monte-Carlo runs of the paper's discrete model (52) verbatim "
