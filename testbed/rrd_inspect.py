@@ -78,6 +78,16 @@ def _column(batch: Any, name: str) -> list | None:
     return batch.column(name).to_pylist() if name in batch.schema.names else None
 
 
+def _reader(path: str | os.PathLike) -> Any:
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():  # a streamed file has no footer: Rerun warns, reads all
+        warnings.simplefilter("ignore")
+        return RrdReader(Path(path))
+
+
 def series(path: str | os.PathLike, entity: str, component: str = "Scalars:scalars"
            ) -> tuple[np.ndarray, np.ndarray]:
     """(time in s, values) of one temporal component, sorted by time.
@@ -90,11 +100,9 @@ def series(path: str | os.PathLike, entity: str, component: str = "Scalars:scala
     component : str
         Column name, e.g. ``"Scalars:scalars"`` or ``"Transform3D:quaternion"``.
     """
-    from rerun.chunk import RrdReader
-
     entity = "/" + entity.lstrip("/")
     times, values = [], []
-    for chunk in RrdReader(Path(path)).stream():
+    for chunk in _reader(path).stream():
         if chunk.entity_path != entity or chunk.is_static:
             continue
         batch = chunk.to_record_batch()
@@ -120,14 +128,8 @@ def inspect_rrd(path: str | os.PathLike) -> RrdContents:
     -------
     RrdContents
     """
-    import warnings
-
-    from rerun.chunk import RrdReader
-
     out = RrdContents()
-    with warnings.catch_warnings():  # a streamed file has no footer: Rerun warns, reads all
-        warnings.simplefilter("ignore")
-        reader = RrdReader(Path(path))
+    reader = _reader(path)
     recordings = reader.recordings()
     if recordings:
         out.application_id = recordings[0].application_id
