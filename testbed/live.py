@@ -107,7 +107,8 @@ class LiveView:
     rec : rerun.RecordingStream
         From :func:`open_recording` (or any sink).
     description : str, optional
-        Markdown logged as ``about``.
+        Markdown logged as ``about`` (default: the scenario, from
+        :func:`testbed.viz.run_description`).
     flush_s : float
         Wall time between two sends (0: every step).
     degrees : bool
@@ -151,6 +152,10 @@ class LiveView:
             meta=dict(experiment.meta, setpoint_names=list(rig.tracked_states)))
         self._model = rig.model
         self._duration_s = float(experiment.scenario.duration_s)
+        if self.description is None:
+            from testbed.viz import run_description
+
+            self.description = run_description(experiment.meta)
         self.layout = Layout.of(self._empty, degrees=self.degrees)
         log_static(self.rec, self.layout, model=self._model, description=self.description)
         self.rec.send_blueprint(self._blueprint(None), make_active=True, make_default=True)
@@ -201,12 +206,13 @@ class LiveView:
         import rerun as rr
 
         self.send()
+        if description:
+            self.description = description
+            self.rec.log("about", rr.TextDocument(description, media_type=rr.MediaType.MARKDOWN),
+                         static=True)
         if self.layout is not None and self._history["t_s"]:
             self.rec.send_blueprint(self._blueprint(self._final_trajectory()),
                                     make_active=True, make_default=True)
-        if description:
-            self.rec.log("about", rr.TextDocument(description, media_type=rr.MediaType.MARKDOWN),
-                         static=True)
         self.rec.flush()
 
     # -- helpers

@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import rerun as rr
 
 #: Half-angle (deg) of the cone the default camera fits the rig's bounding sphere in.
-CAMERA_HALF_ANGLE_DEG = 14.0
+CAMERA_HALF_ANGLE_DEG = 12.0
 #: Direction (world, Z up) from the rig towards the default camera: front-right, above.
 CAMERA_DIRECTION = (1.0, -1.0, 0.7)
 _MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)

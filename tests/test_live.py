@@ -135,6 +135,10 @@ def test_cli_run_connect(grpc_sink, capsys):
     assert c.rows["state/roll/actual"] == 51
     assert c.styles["measurement/lateral_accel"]["names"] == ["measured lateral_accel [m/s^2]"]
     assert "RMSE" in c.texts["about"]  # the description with the run's metrics
+    # the final blueprint: error views fitted to the steady state, the description shown
+    assert c.view("roll error [deg]").y_range is not None
+    assert c.view("roll [deg]").time_range_s == pytest.approx((0.0, 0.5))
+    assert c.view("about") and c.view("rig").eye_position is not None
 
 
 def test_cli_live_options_are_checked_before_running(capsys):
@@ -190,3 +194,25 @@ def test_cli_run_serve_prints_a_url_and_serves_the_run(tmp_path):
         if client is not None:
             _stop(client)
         _stop(cli)
+
+
+def test_spawn_starts_this_environments_viewer(monkeypatch):
+    """``--spawn`` needs a display, so only the call is checked: Rerun's ``spawn`` with the
+    ``rerun`` next to this Python, on the requested port, connected to our recording."""
+    import rerun as rr
+
+    from testbed.live import open_recording, stop
+
+    calls = []
+    monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
+    rec, url = open_recording("testbed/x", spawn=True, grpc_port=_free_port())
+    try:
+        assert url is None and len(calls) == 1
+        assert calls[0]["recording"] is rec and calls[0]["connect"] is True
+        assert calls[0]["executable_path"] in (str(RERUN), None)
+    finally:
+        stop(rec)
+    with pytest.raises(ValueError, match="exactly one"):
+        open_recording("testbed/x", spawn=True, serve=True)
+    with pytest.raises(ValueError, match="port"):
+        open_recording("testbed/x", serve=True, web_port=70000)
