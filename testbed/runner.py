@@ -145,7 +145,7 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     observe : callable, optional
         Called once with the built :class:`Experiment` before the episode starts; returns
         the per-step observer ``on_step(k, row)`` of :meth:`ClosedLoop.run` (e.g.
-        :func:`testbed.live.observer` logging to a live viewer). Body poses are recorded
+        :meth:`testbed.live.LiveView.attach`, logging to a live viewer). Body poses are recorded
         for it. The run is the same with or without it.
 
     Returns
@@ -272,6 +272,10 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         raise ValueError(f"runs must be a positive integer, got {runs}")
     if batch_size is not None and (int(batch_size) != batch_size or batch_size < 1):
         raise ValueError(f"batch_size must be a positive integer, got {batch_size}")
+    if envelope_points is not None and (isinstance(envelope_points, bool)
+                                        or int(envelope_points) != envelope_points
+                                        or envelope_points < 2):
+        raise ValueError(f"envelope_points must be an integer >= 2, got {envelope_points}")
     runs = int(runs)
     batch_size = min(runs, int(batch_size or DEFAULT_BATCH_SIZE))
     start_time = time.perf_counter()

@@ -52,6 +52,8 @@ def test_envelope_does_not_change_the_study(mc_with_npz):
 def test_envelope_validates_points():
     with pytest.raises(ValueError, match="points"):
         ErrorEnvelope(3, 10, 0.01, ["a"], points=1)
+    with pytest.raises(ValueError, match="envelope_points"):
+        monte_carlo(VEHICLE, 2, envelope_points=1)
     assert len(ErrorEnvelope(3, 10, 0.01, ["a"], points=500).steps) == 11
 
 
