@@ -97,6 +97,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--rrd", help="write a Rerun recording here")
     run.add_argument("--json", help="write the summary JSON here")
     run.add_argument("--plot", help="write a PNG plot here")
+    live = run.add_mutually_exclusive_group()
+    live.add_argument("--spawn", action="store_true",
+                      help="stream the run to a native Rerun viewer started here")
+    live.add_argument("--connect", metavar="URL", help="stream the run to a running viewer, "
+                      "e.g. rerun+http://127.0.0.1:9876/proxy")
+    live.add_argument("--serve", action="store_true", help="serve the run to Rerun's web "
+                      "viewer (headless machines): prints the URL, serves until Ctrl-C")
+    run.add_argument("--grpc-port", type=int, default=9876,
+                     help="with --spawn/--serve: the viewer's gRPC port")
+    run.add_argument("--web-port", type=int, default=9090, help="with --serve: the web port")
 
     mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
     _add_scenario_options(mc, 10.0)
@@ -104,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--batch-size", type=int, default=None)
     mc.add_argument("--json", help="write the results here")
     mc.add_argument("--save-npz", help="also write every trajectory to this .npz")
+    mc.add_argument("--plot", help="write the RMSE distribution and error envelope (PNG) here")
 
     sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
     _add_scenario_options(sw, 10.0)
@@ -115,6 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--workers", type=int, default=None)
     sw.add_argument("--address", default=None, help="Ray cluster address (backend ray)")
     sw.add_argument("--json", help="write the results here")
+    sw.add_argument("--plot", help="write RMSE versus the first --grid parameter (PNG) here")
 
     from testbed.reproductions import REPRODUCTIONS
 
@@ -195,10 +207,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed import runner
 
     scenario = scenario_from_args(args)
+    live = _open_live(args, scenario)
     start = time.perf_counter()
-    traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd),
-                               progress=False if args.no_progress else None)
+    try:
+        traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd),
+                                   progress=False if args.no_progress else None,
+                                   observe=None if live is None else live.attach)
+    except BaseException:
+        if live is not None:
+            from testbed.live import stop
+
+            stop(live.rec)
+        raise
     wall_s = time.perf_counter() - start
+    if live is not None:
+        from testbed.viz import run_description
+
+        live.close(run_description(summary["meta"], summary))
     meta = summary.pop("meta")
     result = {"rig": meta["rig"], "filter": meta["scenario"]["estimator"],
               "controller": meta["scenario"]["controller"], "seed": scenario.seed,
@@ -214,14 +239,47 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         title = (f"{meta['rig']}: {result['filter']} filter, {result['controller']} controller, "
                  f"seed {scenario.seed}")
-        print(f"wrote {plot_trajectory(traj, args.plot, title=title)}")
+        print(f"wrote {plot_trajectory(traj, args.plot, title=title, summary=summary)}")
     if args.rrd:
-        from testbed.viz import write_rrd
+        from testbed.viz import run_description, write_rrd
 
         model = resolve_rig(scenario.rig)().model
         app = f"testbed/{meta['rig']}"
-        print(f"wrote {write_rrd(traj, args.rrd, model=model, application_id=app)}")
+        path = write_rrd(traj, args.rrd, model=model, application_id=app,
+                         description=run_description(meta, summary))
+        print(f"wrote {path}")
+    if live is not None:
+        _finish_live(args, live)
     return 0
+
+
+def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
+    """The live view asked for by --spawn / --connect / --serve, or None."""
+    if not (args.spawn or args.connect or args.serve):
+        return None
+    from testbed.live import LiveView, open_recording
+
+    rec, url = open_recording(f"testbed/{resolve_rig(scenario.rig).name}", spawn=args.spawn,
+                              connect=args.connect, serve=args.serve,
+                              grpc_port=args.grpc_port, web_port=args.web_port)
+    if url is not None:
+        print(f"Rerun web viewer: open {url}", flush=True)
+    return LiveView(rec)
+
+
+def _finish_live(args: argparse.Namespace, live: Any) -> None:
+    """Keep a --serve server up until Ctrl-C; disconnect the others."""
+    from testbed.live import stop
+
+    try:
+        if args.serve:
+            print("serving the run; press Ctrl-C to stop", flush=True)
+            while True:
+                time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stop(live.rec)
 
 
 def _print_mc(result: dict) -> None:
@@ -243,10 +301,15 @@ def cmd_mc(args: argparse.Namespace) -> int:
     from testbed.runner import monte_carlo
 
     result = monte_carlo(scenario_from_args(args), args.runs, batch_size=args.batch_size,
-                         progress=not args.no_progress, save_npz=args.save_npz)
+                         progress=not args.no_progress, save_npz=args.save_npz,
+                         envelope_points=200 if args.plot else None)
     _print_mc(result)
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
+    if args.plot:
+        from testbed.study_plots import plot_monte_carlo
+
+        print(f"wrote {plot_monte_carlo(result, args.plot)}")
     return 0
 
 
@@ -282,6 +345,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                         for s in states))
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
+    if args.plot:
+        from testbed.study_plots import plot_sweep
+
+        print(f"wrote {plot_sweep(result, args.plot, x=names[0])}")
     return 0
 
 
@@ -301,6 +368,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     row = module.row(result)
     print(f"{args.name}\n  paper: {row['claim']}\n  ours:  {row['ours']}\n"
           f"  agree: {row['agree']}")
+    if result.get("claims"):
+        from testbed.reproductions.outputs import format_claims
+
+        print("  claims (paper | ours):\n" + format_claims(result["claims"]))
     for path in (args.json, args.plot, args.rrd):
         if path:
             print(f"wrote {path}")

@@ -127,7 +127,8 @@ class ClosedLoop:
 
     def run(self, seeds: np.ndarray, duration_s: float, options: Any = None, *,
             record: bool | dict[str, np.ndarray] = False, poses: bool = False,
-            bar: tqdm | None = None) -> LoopResult:
+            bar: tqdm | None = None,
+            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> LoopResult:
         """Run ``len(seeds)`` episodes of ``duration_s`` (rounded to control periods).
 
         Parameters
@@ -142,6 +143,11 @@ class ClosedLoop:
             Also record body poses (for the 3D view).
         bar : tqdm, optional
             Advanced by one per step.
+        on_step : callable ``(k, row) -> None``, optional
+            Observer called after the reset (``k = 0``) and after each step ``k``, with
+            ``row`` = :meth:`row` (``t_s`` and the current arrays of all N members, read-only
+            views valid during the call: copy what you keep). It only reads; the run is the
+            same with or without it.
         """
         sim, stage, ctrl = self.sim, self.stage, self.controller
         n = sim.num
@@ -168,6 +174,8 @@ class ClosedLoop:
         rec = self._recorder(record, n_steps)
         if rec is not None:
             self._record(rec, 0)
+        if on_step is not None:
+            on_step(0, self.row(0.0))
         clipped = np.zeros(n, dtype=np.int64)
         with threadpool_limits(1):
             for k in range(n_steps):
@@ -177,6 +185,8 @@ class ClosedLoop:
                 clipped += info["action_clipped"].any(axis=1)
                 if rec is not None:
                     self._record(rec, k + 1)
+                if on_step is not None:
+                    on_step(k + 1, self.row((k + 1) * sim.dt_s))
                 if bar is not None:
                     bar.update()
                 if sim.terminated.any():
@@ -215,6 +225,26 @@ class ClosedLoop:
             if key not in record or record[key].shape != shape:
                 raise ValueError(f"record[{key!r}] must have shape {shape}")
         return dict(record)
+
+    def row(self, t_s: float) -> dict[str, Any]:
+        """The current values of all members, as :meth:`run` records them.
+
+        Returns
+        -------
+        dict
+            ``t_s`` (float) and views ``state``/``estimate`` (N, n), ``covariance``
+            (N, n, n) or None, ``measurement`` (N, m), ``action`` (N, nu), ``setpoint``
+            (N, r), and with recorded poses ``body_pos`` (N, nbody, 3) and
+            ``body_quat_wxyz`` (N, nbody, 4).
+        """
+        sim, est = self.sim, self.stage.estimator
+        info = sim.info
+        row = {"t_s": t_s, "state": info["state"], "estimate": np.asarray(est.x),
+               "covariance": est.P, "measurement": sim.obs,
+               "action": info["action_applied"], "setpoint": info["setpoint"]}
+        if sim.record_poses:
+            row["body_pos"], row["body_quat_wxyz"] = sim.physics.poses
+        return row
 
     def _record(self, rec: dict[str, np.ndarray], k: int) -> None:
         sim, est = self.sim, self.stage.estimator

@@ -16,6 +16,7 @@ import shutil
 import tempfile
 import time
 import zipfile
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -28,6 +29,7 @@ from tqdm import tqdm
 from testbed import estimators
 from testbed.control import make_controller
 from testbed.design import DesignModel
+from testbed.envelope import ErrorEnvelope
 from testbed.envs.rig_env import build_simulator
 from testbed.io import atomic_path
 from testbed.loop import ClosedLoop, EstimatorStage
@@ -128,9 +130,23 @@ def _summary(result, index: int = 0) -> dict[str, Any]:
     return result.summary(index)
 
 
-def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
+def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None,
+        observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None
         ) -> tuple[Trajectory | None, dict[str, Any]]:
     """One closed-loop episode of ``scenario`` (seed ``scenario.seed``).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    record : bool
+        Keep the trajectory (with body poses, for the 3D view).
+    progress : bool, optional
+        Progress bar (None: only when the run takes more than two seconds).
+    observe : callable, optional
+        Called once with the built :class:`Experiment` before the episode starts; returns
+        the per-step observer ``on_step(k, row)`` of :meth:`ClosedLoop.run` (e.g.
+        :meth:`testbed.live.LiveView.attach`, logging to a live viewer). Body poses are recorded
+        for it. The run is the same with or without it.
 
     Returns
     -------
@@ -146,9 +162,10 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     bar = tqdm(total=n_steps, desc=experiment.meta["rig"], unit="step",
                disable=progress is False, delay=0 if progress else 2.0, leave=False)
     try:
+        on_step = observe(experiment) if observe is not None else None
         with bar:
             result = loop.run(np.array([scenario.seed]), scenario.duration_s, record=record,
-                              poses=record, bar=bar)
+                              poses=record or on_step is not None, bar=bar, on_step=on_step)
     finally:
         experiment.close()
     summary = _summary(result)
@@ -223,7 +240,8 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 
 def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None = None,
                 progress: bool = True, save_npz: str | Path | None = None,
-                num_threads: int | None = None) -> dict[str, Any]:
+                num_threads: int | None = None,
+                envelope_points: int | None = None) -> dict[str, Any]:
     """``runs`` episodes of ``scenario``, stepped in batches.
 
     Parameters
@@ -238,6 +256,10 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
         Physics threads.
+    envelope_points : int, optional
+        Also gather the error envelope over runs on this many time points
+        (:class:`testbed.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
+        result then has ``error_envelope``.
 
     Returns
     -------
@@ -250,6 +272,10 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         raise ValueError(f"runs must be a positive integer, got {runs}")
     if batch_size is not None and (int(batch_size) != batch_size or batch_size < 1):
         raise ValueError(f"batch_size must be a positive integer, got {batch_size}")
+    if envelope_points is not None and (isinstance(envelope_points, bool)
+                                        or int(envelope_points) != envelope_points
+                                        or envelope_points < 2):
+        raise ValueError(f"envelope_points must be an integer >= 2, got {envelope_points}")
     runs = int(runs)
     batch_size = min(runs, int(batch_size or DEFAULT_BATCH_SIZE))
     start_time = time.perf_counter()
@@ -273,6 +299,9 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         shapes = {k: (runs, *s[1:]) for k, s in first.loop.trajectory_shapes(n_steps).items()}
         stream = _NpzStream(save_npz, shapes)
     state_names = list(first.loop.sim.rig.state_names)
+    envelope = None
+    if envelope_points is not None:
+        envelope = ErrorEnvelope(runs, n_steps, dt_s, state_names, envelope_points)
     rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
     meas: dict[str, list[np.ndarray]] = {}
     per_run: dict[str, list] = {"nees": [], "T": [], "clipped": []}
@@ -285,7 +314,8 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
                 loop = experiment_for(size).loop
                 record = stream.rows(start, start + size) if stream is not None else False
                 result = loop.run(seeds[start:start + size], scenario.duration_s,
-                                  record=record, bar=bar)
+                                  record=record, bar=bar,
+                                  on_step=None if envelope is None else envelope.observer(start))
                 for k, v in result.metrics.rmse().items():
                     rmse[k].append(v)
                 for k, v in result.metrics.measurement_rmse().items():
@@ -318,6 +348,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
             extra["T_final"] = T
         stream.finish(extra)
     wall_s = time.perf_counter() - start_time
+    extra_keys = {} if envelope is None else {"error_envelope": envelope.result()}
     return {
         "filter": scenario.describe()["estimator"],
         "runs": runs,
@@ -340,6 +371,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         "npz": None if save_npz is None else str(save_npz),
         "units": first.meta["units"],
         "meta": first.meta,
+        **extra_keys,
     }
 
 

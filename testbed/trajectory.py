@@ -69,10 +69,17 @@ class Trajectory:
     def unit(self, name: str, kind: str = "state") -> str:
         """Declared unit of a state (``kind="state"``), measurement channel
         (``"measurement"``) or action (``"action"``) from ``meta["units"]`` (``""`` if
-        unknown)."""
+        unknown). An action name may carry its unit (``"a_y [m/s^2]"``): the declaration
+        of the bare name wins, else that bracketed unit."""
         units = self.meta.get("units") or {}
         if kind == "measurement":
             return units.get(f"measurement:{name}", units.get(name, ""))
+        if kind == "action":
+            bare, bracket, rest = name.partition(" [")
+            declared = units.get(name) or units.get(bare.strip())
+            if declared:
+                return declared
+            return rest.rstrip("]") if bracket and name.endswith("]") else ""
         return units.get(name, "")
 
     def __post_init__(self) -> None:

@@ -1,32 +1,48 @@
-"""Rerun ``.rrd`` export of one run: time series, estimation errors and the rig in 3D.
+"""Rerun ``.rrd`` export of runs: time series, estimation errors and the rig in 3D.
 
-One file per run, written atomically (:func:`testbed.io.atomic_path`) and never
-containing NaN. Open it with ``rerun path/to/run.rrd``.
+One file per call, written atomically (:func:`testbed.io.atomic_path`) and never
+containing NaN. Open it with ``rerun FILE.rrd`` (a desktop) or ``rerun --web-viewer
+FILE.rrd`` (a headless machine: prints the URL to open in a browser). The same layout is
+streamed live by :mod:`testbed.live`.
 
-Entity layout (every temporal entity is on the ``time`` timeline, a duration in seconds)::
+Entity layout of one run (every temporal entity is on the ``time`` timeline, a duration in
+seconds; a run logged with a ``prefix`` has the same tree under ``<prefix>/``)::
 
-    state/<state>/truth            Scalars, T rows   (+ static SeriesLines style)
-    state/<state>/estimate         Scalars, T rows   (only when traj.estimate exists)
-    error/<state>/value            Scalars, T rows   estimate - truth
-    error/<state>/plus_3sigma      Scalars, T rows   +3 sqrt(P_ii) (only with a covariance)
-    error/<state>/minus_3sigma     Scalars, T rows   -3 sqrt(P_ii)
-    measurement/<measurement>      Scalars, T rows   (+ static SeriesPoints style)
-    action/<action>                Scalars, T rows
-    setpoint/<setpoint>            Scalars, T rows   (only when traj.setpoint exists)
-    rig                            static ViewCoordinates (MuJoCo is Z-up)
-    rig/<body>                     Transform3D, T rows: world pose of the body
-    rig/<body>/geom_<i>            static Transform3D (local geom pose) + shape
+    about                          static TextDocument: what the run is (when given)
+    state/<state>/actual           Scalars: the truth        (+ static SeriesLines style)
+    state/<state>/estimate         Scalars: the estimate     (only with traj.estimate)
+    error/<state>/value            Scalars: estimate - truth
+    error/<state>/plus_3sigma      Scalars: +3 sqrt(P_ii)    (only with a covariance)
+    error/<state>/minus_3sigma     Scalars: -3 sqrt(P_ii)
+    measurement/<measurement>      Scalars               (+ static SeriesPoints style)
+    action/<action>                Scalars
+    setpoint/<setpoint>            Scalars               (only with traj.setpoint)
+    rig, rig/<body>, rig/<body>/<geom>   the rig in 3D (:mod:`testbed.viz_rig`)
+
+Styles: every series has an explicit colour, width and name ending in its unit. The roles
+keep one colour in every view, chosen of middle luminance so that it reads on the
+viewer's light and dark themes alike: truth grey and wide, estimate vermilion and
+narrow on top of it (Rerun 0.41 draws the lines of a view in entity-tree order, children
+sorted by name before their parent, then all points: hence ``actual`` < ``estimate``),
+measurements semi-transparent blue points named ``measured <name>`` (drawn last, so the
+lines show through), setpoint green, the error in the estimate's colour between grey
++-3 sigma lines (one legend entry).
+
+Layout (blueprint, stored in the file): the 3D rig on the left, framed by a camera
+computed from the MJCF geometry (:func:`testbed.viz_rig.rig_camera`), with the
+description below it; on the right a grid with, per state, a view of truth, estimate,
+its measurements and its setpoint, and a view of the error whose default range fits the steady state
+(:func:`testbed.axes.steady_state_limit`; zoom out for the transient); then other
+measurements and the actions. Every time axis spans exactly the data's time range.
 
 Units: every series is logged in the unit the rig declares (``traj.meta["units"]``), with
-angles (rad, rad/s) converted to degrees like the PNG plots unless ``degrees=False``
-(:mod:`testbed.units`). Series names carry the unit; a quantity without a declared unit is
-logged unchanged and unlabelled.
+angles (rad, rad/s) converted to degrees unless ``degrees=False`` (:mod:`testbed.units`).
 
-Entity names come from the trajectory's names with a trailing bracketed unit dropped and
-other characters than letters, digits, ``_ - .`` replaced by ``_`` (``"pitch_voltage [V]"``
--> ``action/pitch_voltage``); body names from ``mj_id2name`` (``body_<id>`` if unnamed).
-Geom entities are numbered by MuJoCo geom id; geoms of group 3 and above (collision-only
-by MuJoCo convention) are not drawn.
+Entity names: the trajectory's names with a trailing bracketed unit dropped and other
+characters than letters, digits, ``_ - .`` replaced by ``_`` (``"pitch_voltage [V]"`` ->
+``action/pitch_voltage``); bodies and geoms by their MJCF names; an unnamed geom by its
+type (``capsule``; ``box_2`` for the second unnamed box of a body; ``mesh_<mesh name>``).
+Geoms of group 3 and above (collision-only by MuJoCo convention) are not drawn.
 
 Caveat (rerun 0.41, rerun-io/rerun#2116): each :func:`write_rrd` call leaves two idle
 threads behind (the recording stream Rerun builds internally for the blueprint).
@@ -37,15 +53,24 @@ from __future__ import annotations
 import os
 import re
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from testbed.axes import steady_state_limit
 from testbed.io import atomic_path
+from testbed.names import entity_parts
 from testbed.trajectory import Trajectory
 from testbed.units import display
+from testbed.viz_rig import (
+    log_rig_static,
+    rig_bodies,
+    rig_camera,
+    send_body_poses,
+)
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import mujoco
@@ -55,39 +80,23 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 TIMELINE = "time"
 """Name of the Rerun timeline (durations in seconds) every temporal entity is logged on."""
 
-# tab10, as 0-255 RGB, for per-state colors.
-_PALETTE = [
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
-]
-_TRUTH_COLOR = (220, 220, 220)  # light grey: the viewer background is dark
-_SIGMA_COLOR = (160, 160, 160)
-_SETPOINT_COLOR = (255, 215, 0)
-_MUJOCO_DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
+# Role colours (0-255 RGB), Okabe-Ito, relative luminance 0.15-0.26: contrast >= 3.5 on
+# white and on the viewer's near-black background.
+TRUTH_COLOR = (128, 128, 128)
+ESTIMATE_COLOR = (213, 94, 0)
+MEASUREMENT_COLOR = (0, 114, 178, 120)  # RGBA: points are drawn over the lines
+SETPOINT_COLOR = (0, 158, 115)
+SIGMA_COLOR = (128, 128, 128)
+TRUTH_WIDTH, ESTIMATE_WIDTH, SIGMA_WIDTH, SETPOINT_WIDTH = 3.0, 1.5, 1.0, 1.5
+MEASUREMENT_SIZE = 1.2
+# Actions and measurements of no single state: tab10 without its light members.
+_PALETTE = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (140, 86, 75),
+            (227, 119, 194), (255, 127, 14), (23, 190, 207)]
 _FIELDS = ("t_s", "state", "estimate", "covariance", "measurement", "action", "setpoint",
            "body_pos", "body_quat_wxyz")
 
 
-def quat_wxyz_to_xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
-    """Reorder quaternions from MuJoCo's (w, x, y, z) to Rerun's (x, y, z, w).
-
-    Parameters
-    ----------
-    quat_wxyz : ndarray, shape (..., 4)
-        Quaternions, scalar first.
-
-    Returns
-    -------
-    ndarray, shape (..., 4)
-        The same quaternions, scalar last (a new array).
-    """
-    quat = np.asarray(quat_wxyz, dtype=float)
-    if quat.shape[-1] != 4:
-        raise ValueError(f"quaternions need a last axis of length 4, got shape {quat.shape}")
-    return quat[..., [1, 2, 3, 0]].copy()
-
-
-def _check_finite(traj: Trajectory) -> None:
+def check_finite(traj: Trajectory) -> None:
     """Raise ``ValueError`` naming the first field of ``traj`` holding NaN or inf."""
     for name in _FIELDS:
         value = getattr(traj, name)
@@ -102,118 +111,22 @@ def _check_finite(traj: Trajectory) -> None:
             )
 
 
-def _entity_part(name: str) -> str:
-    """Make ``name`` a plain entity-path part.
-
-    A trailing unit in brackets is dropped (``"pitch_voltage [V]"`` -> ``"pitch_voltage"``)
-    and every character other than letters, digits, ``_``, ``-`` and ``.`` becomes ``_``
-    (Rerun would otherwise escape them, e.g. ``[`` -> ``\\[``).
-    """
-    stripped = re.sub(r"\s*[\[(][^\])]*[\])]\s*$", "", str(name).strip())
-    part = re.sub(r"[^\w.\-]+", "_", stripped).strip("_")
-    return part or "unnamed"
+def _with_unit(text: str, unit: str) -> str:
+    return f"{text} [{unit}]" if unit else text
 
 
-def _entity_parts(names: list[str]) -> list[str]:
-    """:func:`_entity_part` of each name, made unique with ``_2``, ``_3``... suffixes."""
-    out: list[str] = []
-    for name in names:
-        part, base, n = _entity_part(name), _entity_part(name), 1
-        while part in out:
-            n += 1
-            part = f"{base}_{n}"
-        out.append(part)
-    return out
-
-
-def _geom_rgba(model: mujoco.MjModel, geom: int) -> np.ndarray:
-    """RGBA (0-255, uint8) of a geom, taking its material color when it has the default."""
-    rgba = np.asarray(model.geom_rgba[geom], dtype=float)
-    matid = int(model.geom_matid[geom])
-    if matid >= 0 and np.allclose(rgba, _MUJOCO_DEFAULT_RGBA):
-        rgba = np.asarray(model.mat_rgba[matid], dtype=float)
-    return np.clip(np.round(rgba * 255.0), 0, 255).astype(np.uint8)
-
-
-def _geom_archetype(model: mujoco.MjModel, geom: int) -> rr.AsComponents | None:
-    """Rerun archetype drawing one MuJoCo geom in its own (geom) frame, or None.
-
-    Boxes, spheres, ellipsoids, capsules and cylinders are exact; a plane is a 2 mm thick
-    box (an infinite plane, size 0, gets the model extent); meshes are drawn as
-    triangle meshes; height fields and SDFs as their bounding box.
-    """
-    import mujoco
-    import rerun as rr
-
-    gtype = int(model.geom_type[geom])
-    size = np.asarray(model.geom_size[geom], dtype=float)
-    color = _geom_rgba(model, geom)
-    solid = rr.components.FillMode.Solid
-    g = mujoco.mjtGeom
-    if gtype == g.mjGEOM_BOX:
-        return rr.Boxes3D(half_sizes=[size], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_SPHERE:
-        return rr.Ellipsoids3D(radii=[size[0]], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_ELLIPSOID:
-        return rr.Ellipsoids3D(half_sizes=[size], colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_CAPSULE:
-        # MuJoCo: centered on the origin along z, half-length size[1]. Rerun: one end of
-        # the segment at the origin, extending along +z.
-        return rr.Capsules3D(lengths=[2.0 * size[1]], radii=[size[0]],
-                             translations=[[0.0, 0.0, -size[1]]], colors=[color],
-                             fill_mode=solid)
-    if gtype == g.mjGEOM_CYLINDER:
-        return rr.Cylinders3D(lengths=[2.0 * size[1]], radii=[size[0]], colors=[color],
-                              fill_mode=solid)
-    if gtype == g.mjGEOM_PLANE:
-        extent = float(model.stat.extent) if model.stat.extent > 0 else 1.0
-        half_x = size[0] if size[0] > 0 else extent
-        half_y = size[1] if size[1] > 0 else extent
-        return rr.Boxes3D(half_sizes=[[half_x, half_y, 0.001]], centers=[[0.0, 0.0, -0.001]],
-                          colors=[color], fill_mode=solid)
-    if gtype == g.mjGEOM_MESH:
-        mesh = int(model.geom_dataid[geom])
-        if mesh >= 0:
-            v0, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
-            f0, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
-            if nv > 0 and nf > 0:
-                return rr.Mesh3D(vertex_positions=np.asarray(model.mesh_vert[v0:v0 + nv]),
-                                 triangle_indices=np.asarray(model.mesh_face[f0:f0 + nf]),
-                                 albedo_factor=color)
-    if gtype in (g.mjGEOM_MESH, g.mjGEOM_HFIELD, g.mjGEOM_SDF):
-        aabb = np.asarray(model.geom_aabb[geom], dtype=float)  # center (3), half-size (3)
-        return rr.Boxes3D(half_sizes=[aabb[3:]], centers=[aabb[:3]], colors=[color],
-                          fill_mode=rr.components.FillMode.MajorWireframe)
-    return None
-
-
-def _rig_bodies(model: mujoco.MjModel) -> list[tuple[int, str, list[int]]]:
-    """Bodies with at least one visible geom (MuJoCo groups 0-2).
-
-    Returns
-    -------
-    list of (int, str, list of int)
-        Body id, entity name (``mj_id2name``, sanitized and unique; ``body_<id>`` when
-        unnamed) and the ids of its visible geoms.
-    """
-    import mujoco
-
-    names = _entity_parts([mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b)
-                           or f"body_{b}" for b in range(model.nbody)])
-    geom_body = np.asarray(model.geom_bodyid)
-    out = []
-    for body in range(model.nbody):
-        geoms = [int(gi) for gi in np.flatnonzero(geom_body == body)
-                 if int(model.geom_group[gi]) <= 2]
-        if geoms:
-            out.append((body, names[body], geoms))
-    return out
-
-
+# ------------------------------------------------------------------------ time series
 @dataclass
-class _Layout:
-    """Entity-path parts of one trajectory and how its series relate to the states."""
+class Layout:
+    """Entity paths, names and styles of one run's series (from its names and units).
 
+    Build it with :meth:`of`; it needs no data, only the names, the units in ``meta`` and
+    which state each measurement and setpoint belongs to, so the live stream uses it
+    before the first sample.
+    """
+
+    prefix: str
+    state_names: list[str]
     state: list[str]
     measurement: list[str]
     action: list[str]
@@ -221,9 +134,16 @@ class _Layout:
     setpoint_labels: list[str]
     meas_state: list[int | None]  # state observed by each measurement, or None
     setpoint_state: list[int | None]  # state tracked by each setpoint component, or None
+    state_scale: list[tuple[float, str]]  # display factor and unit per state
+    meas_scale: list[tuple[float, str]]
+    action_units: list[str]
+    has_estimate: bool
+    has_covariance: bool
+    has_setpoint: bool
 
     @classmethod
-    def of(cls, traj: Trajectory) -> _Layout:
+    def of(cls, traj: Trajectory, *, prefix: str = "", degrees: bool = True) -> Layout:
+        """The layout of ``traj`` under ``prefix`` (``""`` or ``"name"``)."""
         n = len(traj.state_names)
         msi = list(traj.measured_state_index or [])
         msi += [None] * (len(traj.measurement_names) - len(msi))
@@ -231,54 +151,341 @@ class _Layout:
         sp_labels = traj.setpoint_names()
         sp_state = [traj.state_names.index(s) if s in traj.state_names else None
                     for s in sp_labels]
-        state_parts = _entity_parts(traj.state_names)
+        state_parts = entity_parts(traj.state_names)
         # A setpoint of a state shares the state's entity name: setpoint/pitch.
-        sp_parts = _entity_parts([state_parts[i] if i is not None else s
+        sp_parts = entity_parts([state_parts[i] if i is not None else s
                                   for s, i in zip(sp_labels, sp_state, strict=True)])
-        return cls(state=state_parts, measurement=_entity_parts(traj.measurement_names),
-                   action=_entity_parts(traj.action_names), setpoint=sp_parts,
-                   setpoint_labels=sp_labels, meas_state=meas_state, setpoint_state=sp_state)
+        return cls(
+            prefix=f"{prefix.strip('/')}/" if prefix.strip("/") else "",
+            state_names=list(traj.state_names), state=state_parts,
+            measurement=entity_parts(traj.measurement_names),
+            action=entity_parts(traj.action_names), setpoint=sp_parts,
+            setpoint_labels=sp_labels, meas_state=meas_state, setpoint_state=sp_state,
+            state_scale=[display(traj.unit(s), degrees) for s in traj.state_names],
+            meas_scale=[display(traj.unit(m, "measurement"), degrees)
+                        for m in traj.measurement_names],
+            action_units=[traj.unit(a, "action") for a in traj.action_names],
+            has_estimate=traj.estimate is not None, has_covariance=traj.covariance is not None,
+            has_setpoint=traj.setpoint is not None)
+
+    # -- styles
+    def styles(self) -> list[tuple[str, rr.AsComponents]]:
+        """(entity, static style) of every series: explicit colour, width, name + unit."""
+        import rerun as rr
+
+        def lines(label: str, color: tuple[int, int, int], width: float) -> rr.SeriesLines:
+            return rr.SeriesLines(names=[label], colors=[color], widths=[width])
+
+        p, out = self.prefix, []
+        for i, part in enumerate(self.state):
+            unit = self.state_scale[i][1]
+            out.append((f"{p}state/{part}/actual", lines(_with_unit("truth", unit),
+                                                         TRUTH_COLOR, TRUTH_WIDTH)))
+            if not self.has_estimate:
+                continue
+            out.append((f"{p}state/{part}/estimate",
+                        lines(_with_unit("estimate", unit), ESTIMATE_COLOR, ESTIMATE_WIDTH)))
+            out.append((f"{p}error/{part}/value",
+                        lines(_with_unit("error", unit), ESTIMATE_COLOR, ESTIMATE_WIDTH)))
+            if self.has_covariance:
+                for side in ("plus", "minus"):  # one legend entry: same name for both
+                    out.append((f"{p}error/{part}/{side}_3sigma",
+                                lines(_with_unit("±3σ", unit), SIGMA_COLOR, SIGMA_WIDTH)))
+        for j, part in enumerate(self.measurement):
+            i = self.meas_state[j]
+            color = MEASUREMENT_COLOR if i is not None else (*_PALETTE[j % len(_PALETTE)], 160)
+            out.append((f"{p}measurement/{part}", rr.SeriesPoints(
+                names=[_with_unit(f"measured {part}", self.meas_scale[j][1])], colors=[color],
+                markers=["circle"], marker_sizes=[MEASUREMENT_SIZE])))
+        for k, part in enumerate(self.action):
+            out.append((f"{p}action/{part}", lines(_with_unit(part, self.action_units[k]),
+                                                   _PALETTE[k % len(_PALETTE)], 1.5)))
+        if self.has_setpoint:
+            for r, part in enumerate(self.setpoint):
+                i = self.setpoint_state[r]
+                unit = self.state_scale[i][1] if i is not None else ""
+                name = "setpoint" if i is not None else f"{self.setpoint_labels[r]} setpoint"
+                out.append((f"{p}setpoint/{part}", lines(_with_unit(name, unit),
+                                                         SETPOINT_COLOR, SETPOINT_WIDTH)))
+        return out
+
+    # -- data
+    def columns(self, traj: Trajectory) -> list[tuple[str, np.ndarray]]:
+        """(entity, values (T,)) of every series of ``traj``, in display units."""
+        p, out = self.prefix, []
+        state = traj.state
+        std = traj.std() if self.has_estimate else None
+        for i, part in enumerate(self.state):
+            factor = self.state_scale[i][0]
+            out.append((f"{p}state/{part}/actual", factor * state[:, i]))
+            if not self.has_estimate:
+                continue
+            estimate = traj.estimate[:, i]
+            out.append((f"{p}state/{part}/estimate", factor * estimate))
+            out.append((f"{p}error/{part}/value", factor * (estimate - state[:, i])))
+            if std is not None:
+                out.append((f"{p}error/{part}/plus_3sigma", 3.0 * factor * std[:, i]))
+                out.append((f"{p}error/{part}/minus_3sigma", -3.0 * factor * std[:, i]))
+        for j, part in enumerate(self.measurement):
+            out.append((f"{p}measurement/{part}", self.meas_scale[j][0] * traj.measurement[:, j]))
+        for k, part in enumerate(self.action):
+            out.append((f"{p}action/{part}", traj.action[:, k]))
+        if self.has_setpoint and traj.setpoint is not None:
+            for r, part in enumerate(self.setpoint):
+                i = self.setpoint_state[r]
+                factor = self.state_scale[i][0] if i is not None else 1.0
+                out.append((f"{p}setpoint/{part}", factor * traj.setpoint[:, r]))
+        return out
+
+    def error_limits(self, traj: Trajectory) -> list[float | None]:
+        """Per state, the steady-state half-range of its error view (display units)."""
+        if not self.has_estimate:
+            return [None] * len(self.state)
+        std = traj.std()
+        out: list[float | None] = []
+        for i in range(len(self.state)):
+            factor = self.state_scale[i][0]
+            bound = None if std is None else 3.0 * factor * std[:, i]
+            error = factor * (traj.estimate[:, i] - traj.state[:, i])
+            out.append(steady_state_limit(traj.t_s, error, bound))
+        return out
+
+    # -- blueprint
+    def views(self, time_range_s: tuple[float, float] | None,
+              error_limits: Sequence[float | None] | None = None) -> list[rrb.View]:
+        """Time-series views: per state its values and its error, then the others."""
+        import rerun as rr
+        import rerun.blueprint as rrb
+
+        p = f"/{self.prefix}"
+        axis_x = None
+        if time_range_s is not None:
+            axis_x = rrb.TimeAxis(link="Independent", zoom_lock=False, view_range=rr.TimeRange(
+                start=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[0])),
+                end=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[1]))))
+        legend = rrb.PlotLegend(corner="RightBottom", visible=True)
+
+        def series_view(contents: list[str], name: str, axis_y: Any = None) -> rrb.View:
+            return rrb.TimeSeriesView(origin="/", contents=contents, name=name,
+                                      axis_x=axis_x, axis_y=axis_y, plot_legend=legend)
+
+        views = []
+        for i, (name, part) in enumerate(zip(self.state_names, self.state, strict=True)):
+            unit = self.state_scale[i][1]
+            contents = [f"{p}state/{part}/**"]
+            contents += [f"{p}measurement/{m}"
+                         for m, s in zip(self.measurement, self.meas_state, strict=True)
+                         if s == i]
+            contents += [f"{p}setpoint/{sp}"
+                         for sp, s in zip(self.setpoint, self.setpoint_state, strict=True)
+                         if s == i and self.has_setpoint]
+            views.append(series_view(contents, _with_unit(name, unit)))
+            if self.has_estimate:
+                lim = None if error_limits is None else error_limits[i]
+                axis_y = None if lim is None else rrb.ScalarAxis(range=(-lim, lim),
+                                                                  zoom_lock=False)
+                views.append(series_view([f"{p}error/{part}/**"],
+                                         _with_unit(f"{name} error", unit), axis_y))
+        other = [f"{p}measurement/{m}"
+                 for m, s in zip(self.measurement, self.meas_state, strict=True) if s is None]
+        if self.has_setpoint:
+            other += [f"{p}setpoint/{sp}"
+                      for sp, s in zip(self.setpoint, self.setpoint_state, strict=True)
+                      if s is None]
+        if other:
+            views.append(series_view(other, "other signals"))
+        if self.action:
+            units = sorted({u for u in self.action_units if u})
+            views.append(series_view([f"{p}action/**"], _with_unit("actions", ", ".join(units))))
+        return views
+
+    def container(self, *, camera: tuple[np.ndarray, np.ndarray] | None, with_rig: bool,
+                  with_about: bool, time_range_s: tuple[float, float] | None,
+                  error_limits: Sequence[float | None] | None = None,
+                  name: str | None = None) -> rrb.Container:
+        """The run's layout: rig and description on the left, the series grid right."""
+        import rerun.blueprint as rrb
+
+        grid = rrb.Grid(*self.views(time_range_s, error_limits),
+                        grid_columns=2 if self.has_estimate else 1)
+        left = []
+        if with_rig:
+            eye = None
+            if camera is not None:
+                eye = rrb.EyeControls3D(position=camera[0].tolist(),
+                                        look_target=camera[1].tolist(), eye_up=[0.0, 0.0, 1.0])
+            left.append(rrb.Spatial3DView(origin=f"/{self.prefix}rig", name="rig",
+                                          eye_controls=eye))
+        if with_about:
+            left.append(rrb.TextDocumentView(origin=f"/{self.prefix}about", name="about"))
+        if not left:
+            return rrb.Horizontal(grid, name=name) if name else grid
+        column = left[0] if len(left) == 1 else rrb.Vertical(*left, row_shares=[3.0, 1.0])
+        return rrb.Horizontal(column, grid, column_shares=[1.0, 2.0], name=name)
 
 
-def _blueprint(traj: Trajectory, layout: _Layout, *, with_rig: bool) -> rrb.Blueprint:
-    """Default layout: the 3D rig on the left; on the right a grid with, per state, a view
-    of truth + estimate + its measurements + its setpoint and a view of the error with the
-    +-3 sigma series; then other measurements and the actions."""
+# ------------------------------------------------------------------------ writing
+@dataclass
+class Run:
+    """One run of a recording: its trajectory, entity prefix and description.
+
+    Attributes
+    ----------
+    traj : Trajectory
+    prefix : str
+        Entity path the run is logged under (``""``: the root).
+    description : str, optional
+        Markdown saying what the run is, logged as ``<prefix>/about``.
+    model : mujoco.MjModel, optional
+        Enables the 3D rig (needs ``traj.body_pos`` and ``traj.body_quat_wxyz``).
+    """
+
+    traj: Trajectory
+    prefix: str = ""
+    description: str | None = None
+    model: Any = None
+
+
+def _check_bodies(run: Run) -> bool:
+    """Whether the run has a 3D rig; ``ValueError`` if its body arrays do not fit."""
+    traj, model = run.traj, run.model
+    if model is None or traj.body_pos is None or traj.body_quat_wxyz is None:
+        return False
+    n_rows = len(traj.t_s)
+    shape_p, shape_q = np.shape(traj.body_pos), np.shape(traj.body_quat_wxyz)
+    if shape_p != (n_rows, model.nbody, 3) or shape_q != (n_rows, model.nbody, 4):
+        raise ValueError(f"body_pos {shape_p} / body_quat_wxyz {shape_q} do not match "
+                         f"(T={n_rows}, nbody={model.nbody}, 3 / 4)")
+    return True
+
+
+def send_series(rec: rr.RecordingStream, layout: Layout, traj: Trajectory) -> None:
+    """Send the rows of ``traj`` (one chunk per entity) with ``send_columns``."""
+    import rerun as rr
+
+    index = [rr.TimeColumn(TIMELINE, duration=np.asarray(traj.t_s, dtype=float))]
+    for entity, values in layout.columns(traj):
+        rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=values))
+
+
+def send_rig_poses(rec: rr.RecordingStream, model: mujoco.MjModel, prefix: str,
+                   t_s: np.ndarray, body_pos: np.ndarray, body_quat_wxyz: np.ndarray) -> None:
+    """Send per-row body poses (T, nbody, 3) / (T, nbody, 4) of the rig under ``prefix``."""
+    import rerun as rr
+
+    index = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, dtype=float))]
+    send_body_poses(rec, rig_bodies(model), index, np.asarray(body_pos, dtype=float),
+                    np.asarray(body_quat_wxyz, dtype=float), prefix)
+
+
+def log_static(rec: rr.RecordingStream, layout: Layout, *, model: Any = None,
+               description: str | None = None) -> None:
+    """Styles, the description and the rig's geometry (all static)."""
+    import rerun as rr
+
+    for entity, style in layout.styles():
+        rec.log(entity, style, static=True)
+    if description:
+        rec.log(f"{layout.prefix}about", rr.TextDocument(description,
+                                                         media_type=rr.MediaType.MARKDOWN),
+                static=True)
+    if model is not None:
+        log_rig_static(rec, model, rig_bodies(model), layout.prefix)
+
+
+def blueprint_for(runs: Sequence[Run], layouts: Sequence[Layout],
+                  with_rig: Sequence[bool]) -> rrb.Blueprint:
+    """One run: its layout; several: a tab per run."""
     import rerun.blueprint as rrb
 
-    views = []
-    for i, (name, part) in enumerate(zip(traj.state_names, layout.state, strict=True)):
-        contents = [f"/state/{part}/**"]
-        contents += [f"/measurement/{m}"
-                     for m, s in zip(layout.measurement, layout.meas_state, strict=True) if s == i]
-        contents += [f"/setpoint/{p}"
-                     for p, s in zip(layout.setpoint, layout.setpoint_state, strict=True) if s == i]
-        views.append(rrb.TimeSeriesView(origin="/", contents=contents, name=name))
-        if traj.estimate is not None:
-            views.append(rrb.TimeSeriesView(origin=f"/error/{part}", name=f"{name} error"))
-    other = [f"/measurement/{m}"
-             for m, s in zip(layout.measurement, layout.meas_state, strict=True) if s is None]
-    other += [f"/setpoint/{p}"
-              for p, s in zip(layout.setpoint, layout.setpoint_state, strict=True) if s is None]
-    if other:
-        views.append(rrb.TimeSeriesView(origin="/", contents=other, name="other signals"))
-    if layout.action:
-        views.append(rrb.TimeSeriesView(origin="/action", name="actions"))
-    grid = rrb.Grid(*views, grid_columns=2 if traj.estimate is not None else 1)
-    if not with_rig:
-        return rrb.Blueprint(grid)
-    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="/rig", name="rig"), grid,
-                                        column_shares=[1.0, 2.0]))
+    containers = []
+    for run, layout, rig in zip(runs, layouts, with_rig, strict=True):
+        t = run.traj.t_s
+        containers.append(layout.container(
+            camera=rig_camera(run.model) if rig else None, with_rig=rig,
+            with_about=bool(run.description), time_range_s=(float(t[0]), float(t[-1])),
+            error_limits=layout.error_limits(run.traj),
+            name=(run.prefix.strip("/") or None) if len(runs) > 1 else None))
+    root = containers[0] if len(containers) == 1 else rrb.Tabs(*containers, active_tab=0)
+    return rrb.Blueprint(root, rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
+
+
+def new_recording(application_id: str) -> rr.RecordingStream:
+    """A fresh recording stream; ``/`` and ``.`` in the id become ``-`` (Rerun 0.41 would
+    otherwise rename the id with a hash suffix and warn)."""
+    import rerun as rr
+
+    rec = rr.RecordingStream(re.sub(r"[/\\.]", "-", application_id), recording_id=uuid.uuid4())
+    if not rec.is_enabled():
+        raise RuntimeError("Rerun logging is disabled (RERUN env var?); cannot record")
+    return rec
+
+
+def write_runs(runs: Sequence[Run], path: str | os.PathLike, *,
+               application_id: str = "testbed", degrees: bool = True) -> Path:
+    """Write several runs into one ``.rrd`` file, atomically, each under its prefix.
+
+    Parameters
+    ----------
+    runs : sequence of Run
+        Distinct prefixes (``""`` allowed for a single run).
+    path : str or PathLike
+        Destination ``.rrd`` file (parent directories are created).
+    application_id : str
+        Rerun application id (the viewer keeps one active layout per id).
+    degrees : bool
+        Log angles in deg and deg/s instead of rad and rad/s.
+
+    Returns
+    -------
+    Path
+        The written path.
+
+    Raises
+    ------
+    ValueError
+        Non-finite values (naming the field), body arrays not matching the model, or
+        duplicate prefixes; no file is written then.
+    RuntimeError
+        If Rerun logging is disabled (e.g. ``RERUN=off`` in the environment).
+    """
+    prefixes = [r.prefix.strip("/") for r in runs]
+    if not runs or len(set(prefixes)) != len(prefixes) or (len(runs) > 1 and "" in prefixes):
+        raise ValueError(f"runs need distinct, non-empty prefixes, got {prefixes}")
+    for run in runs:
+        check_finite(run.traj)
+    rigs = [_check_bodies(run) for run in runs]
+    layouts = [Layout.of(run.traj, prefix=run.prefix, degrees=degrees) for run in runs]
+    blueprint = blueprint_for(runs, layouts, rigs)
+    rec = new_recording(application_id)
+    try:
+        with atomic_path(path) as tmp:
+            rec.save(tmp, default_blueprint=blueprint)
+            try:
+                for run, layout, rig in zip(runs, layouts, rigs, strict=True):
+                    log_static(rec, layout, model=run.model if rig else None,
+                               description=run.description)
+                    send_series(rec, layout, run.traj)
+                    if rig:
+                        send_rig_poses(rec, run.model, layout.prefix, run.traj.t_s,
+                                       run.traj.body_pos, run.traj.body_quat_wxyz)
+                rec.flush()
+            finally:
+                rec.disconnect()  # closes the file before it is renamed (or removed)
+    finally:
+        del rec
+        release_recordings()
+    return Path(path)
 
 
 def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
               model: mujoco.MjModel | None = None, application_id: str = "testbed",
-              degrees: bool = True) -> Path:
+              degrees: bool = True, description: str | None = None) -> Path:
     """Write one run to a Rerun ``.rrd`` file, atomically.
 
-    See the module docstring for the entity layout. Whole series are sent with
-    ``send_columns`` (one chunk per entity); styles and geometry are static. The default
-    blueprint (layout) is stored in the same file.
+    See the module docstring for the entity layout and the styles. Whole series are sent
+    with ``send_columns`` (one chunk per entity); styles and geometry are static. The
+    default blueprint (layout) is stored in the same file.
 
     Parameters
     ----------
@@ -291,12 +498,12 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
         The model the run was simulated with; enables the ``rig/...`` entities (needs
         ``traj.body_pos`` and ``traj.body_quat_wxyz``, with ``nbody`` matching the model).
     application_id : str
-        Rerun application id; the viewer keeps one active layout per application id.
-        ``/`` and ``.`` become ``-`` (``"testbed/helicopter"`` -> ``"testbed-helicopter"``):
-        Rerun 0.41 would otherwise rename the id with a hash suffix and warn.
+        Rerun application id; ``/`` and ``.`` become ``-``.
     degrees : bool
-        Log angles (states, errors, sigma bounds, setpoints of a state, direct
-        measurements of a state) in deg and deg/s instead of rad and rad/s.
+        Log angles (states, errors, sigma bounds, setpoints of a state, measurements in
+        rad) in deg and deg/s instead of rad and rad/s.
+    description : str, optional
+        Markdown logged as ``about`` (what the run is).
 
     Returns
     -------
@@ -312,46 +519,11 @@ def write_rrd(traj: Trajectory, path: str | os.PathLike, *,
     RuntimeError
         If Rerun logging is disabled (e.g. ``RERUN=off`` in the environment).
     """
-    import rerun as rr
-
-    _check_finite(traj)
-    n_rows = len(traj.t_s)
-    with_rig = (model is not None and traj.body_pos is not None
-                and traj.body_quat_wxyz is not None)
-    if with_rig:
-        shape_p, shape_q = np.shape(traj.body_pos), np.shape(traj.body_quat_wxyz)
-        if shape_p != (n_rows, model.nbody, 3) or shape_q != (n_rows, model.nbody, 4):
-            raise ValueError(
-                f"body_pos {shape_p} / body_quat_wxyz {shape_q} do not match "
-                f"(T={n_rows}, nbody={model.nbody}, 3 / 4)")
-
-    layout = _Layout.of(traj)
-    bodies = _rig_bodies(model) if with_rig else []
-    blueprint = _blueprint(traj, layout, with_rig=bool(bodies))
-
-    rec = rr.RecordingStream(re.sub(r"[/\\.]", "-", application_id),
-                             recording_id=uuid.uuid4())
-    try:
-        if not rec.is_enabled():
-            raise RuntimeError("Rerun logging is disabled (RERUN env var?); cannot write .rrd")
-        with atomic_path(path) as tmp:
-            rec.save(tmp, default_blueprint=blueprint)
-            try:
-                index = [rr.TimeColumn(TIMELINE, duration=np.asarray(traj.t_s, dtype=float))]
-                _log_series(rec, traj, layout, index, degrees=degrees)
-                if bodies:
-                    _log_rig(rec, model, bodies, index, np.asarray(traj.body_pos, dtype=float),
-                             np.asarray(traj.body_quat_wxyz, dtype=float))
-                rec.flush()
-            finally:
-                rec.disconnect()  # closes the file before it is renamed (or removed)
-    finally:
-        del rec
-        _release_recordings()
-    return Path(path)
+    return write_runs([Run(traj, "", description, model)], path,
+                      application_id=application_id, degrees=degrees)
 
 
-def _release_recordings() -> None:
+def release_recordings() -> None:
     """Stop the threads of dropped recording streams.
 
     Rerun keeps the batcher and forwarding threads of a Python ``RecordingStream`` alive
@@ -370,111 +542,26 @@ def _release_recordings() -> None:
         cleanup()
 
 
-def _log_series(rec: rr.RecordingStream, traj: Trajectory, layout: _Layout,
-                index: list[rr.TimeColumn], *, degrees: bool) -> None:
-    """Log the state, estimate, error, measurement, action and setpoint series.
-
-    Parameters
-    ----------
-    rec : rerun.RecordingStream
-        Open recording.
-    traj : Trajectory
-        The run, already checked (finite, consistent shapes).
-    layout : _Layout
-        Entity names and state associations of ``traj``.
-    index : list of rerun.TimeColumn
-        The ``time`` column, length T.
-    degrees : bool
-        Convert angles to deg (deg/s).
-    """
-    import rerun as rr
-
-    def series(entity: str, values: np.ndarray, style: rr.AsComponents) -> None:
-        rec.log(entity, style, static=True)
-        rec.send_columns(entity, indexes=index, columns=rr.Scalars.columns(scalars=values))
-
-    def lines(label: str, color: tuple[int, int, int], width: float = 1.5) -> rr.SeriesLines:
-        return rr.SeriesLines(names=[label], colors=[color], widths=[width])
-
-    state, meas, action = traj.state, traj.measurement, traj.action
-    estimate = None if traj.estimate is None else traj.estimate
-    std = traj.std() if estimate is not None else None
-    scales = [display(traj.unit(n), degrees) for n in traj.state_names]
-    for i, (name, part) in enumerate(zip(traj.state_names, layout.state, strict=True)):
-        factor, unit = scales[i]
-        color = _PALETTE[i % len(_PALETTE)]
-        series(f"state/{part}/truth", factor * state[:, i],
-               lines(f"{name} truth [{unit}]", _TRUTH_COLOR))
-        if estimate is None:
-            continue
-        series(f"state/{part}/estimate", factor * estimate[:, i],
-               lines(f"{name} estimate [{unit}]", color))
-        series(f"error/{part}/value", factor * (estimate[:, i] - state[:, i]),
-               lines(f"{name} error [{unit}]", color))
-        if std is not None:
-            bound = 3.0 * factor * std[:, i]
-            series(f"error/{part}/plus_3sigma", bound,
-                   lines(f"+3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
-            series(f"error/{part}/minus_3sigma", -bound,
-                   lines(f"-3 sigma [{unit}]", _SIGMA_COLOR, 1.0))
-    for j, (name, part) in enumerate(zip(traj.measurement_names, layout.measurement,
-                                         strict=True)):
-        i = layout.meas_state[j]
-        factor, unit = display(traj.unit(name, "measurement"), degrees)
-        color = _PALETTE[(i if i is not None else len(layout.state) + j) % len(_PALETTE)]
-        style = rr.SeriesPoints(names=[f"{name} [{unit}]" if unit else name],
-                                colors=[color], markers=["circle"], marker_sizes=[1.5])
-        series(f"measurement/{part}", factor * meas[:, j], style)
-    for k, (name, part) in enumerate(zip(traj.action_names, layout.action, strict=True)):
-        series(f"action/{part}", action[:, k], lines(name, _PALETTE[k % len(_PALETTE)]))
-    if traj.setpoint is not None:
-        setpoint = traj.setpoint
-        for r, (name, part) in enumerate(zip(layout.setpoint_labels, layout.setpoint,
-                                             strict=True)):
-            i = layout.setpoint_state[r]
-            factor, unit = scales[i] if i is not None else (1.0, "")
-            label = f"{name} setpoint [{unit}]" if unit else f"{name} setpoint"
-            series(f"setpoint/{part}", factor * setpoint[:, r],
-                   lines(label, _SETPOINT_COLOR, 1.0))
-
-
-def _log_rig(rec: rr.RecordingStream, model: mujoco.MjModel,
-             bodies: list[tuple[int, str, list[int]]], index: list[rr.TimeColumn],
-             body_pos: np.ndarray, body_quat_wxyz: np.ndarray) -> None:
-    """Log the rig: static geometry under ``rig/<body>/geom_<i>``, per-step body poses.
-
-    Parameters
-    ----------
-    rec : rerun.RecordingStream
-        Open recording.
-    model : mujoco.MjModel
-        Source of the geometry.
-    bodies : list of (int, str, list of int)
-        Body id, entity name and visible geom ids (from :func:`_rig_bodies`).
-    index : list of rerun.TimeColumn
-        The ``time`` column, length T.
-    body_pos : ndarray, shape (T, nbody, 3)
-        World body positions.
-    body_quat_wxyz : ndarray, shape (T, nbody, 4)
-        World body orientations, MuJoCo order.
-    """
-    import rerun as rr
-
-    rec.log("rig", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    for body, name, geoms in bodies:
-        for gi in geoms:
-            shape = _geom_archetype(model, gi)
-            if shape is None:
-                continue
-            rec.log(f"rig/{name}/geom_{gi}",
-                    rr.Transform3D(translation=np.asarray(model.geom_pos[gi], dtype=float),
-                                   quaternion=quat_wxyz_to_xyzw(model.geom_quat[gi])),
-                    shape, static=True)
-        rec.send_columns(
-            f"rig/{name}", indexes=index,
-            columns=rr.Transform3D.columns(
-                translation=body_pos[:, body, :],
-                quaternion=quat_wxyz_to_xyzw(body_quat_wxyz[:, body, :])))
+def run_description(meta: dict[str, Any], summary: dict[str, Any] | None = None) -> str:
+    """Markdown describing a run of the runner: rig, filter, controller, sensors, seed and,
+    with ``summary``, the RMSE per state and the mean NEES."""
+    scenario = meta.get("scenario", {})
+    lines = [f"# {meta.get('rig', 'run')}", "",
+             f"- filter: `{scenario.get('estimator', '?')}`",
+             f"- controller: `{scenario.get('controller', '?')}`",
+             f"- sensors: {meta.get('sensors', '?')}",
+             f"- seed {scenario.get('seed', '?')}, {scenario.get('duration_s', '?')} s, "
+             f"control period {meta.get('control_dt_s', '?')} s"]
+    if summary:
+        units = summary.get("units", meta.get("units", {}))
+        lines += ["", "| state | RMSE |", "|---|---|"]
+        for name, value in summary.get("rmse", {}).items():
+            factor, unit = display(units.get(name, ""))
+            lines.append(f"| {name} | {value * factor:.4g} {unit} |")
+        if summary.get("nees_mean") is not None:
+            lines += ["", f"mean NEES {summary['nees_mean']:.3f} "
+                          f"({len(summary.get('rmse', {}))} for a consistent filter)"]
+    return "\n".join(lines)
 
 
 def rrd_summary(path: str | os.PathLike) -> dict[str, int]:
@@ -488,9 +575,9 @@ def rrd_summary(path: str | os.PathLike) -> dict[str, int]:
     Returns
     -------
     dict of str to int
-        Entity path without the leading slash (``"state/pitch/truth"``) -> number of rows
-        on the ``time`` timeline, summed over chunks. Entities holding only static data
-        (styles aside, e.g. ``rig`` or ``rig/<body>/geom_<i>``) are included with 0.
+        Entity path without the leading slash (``"state/pitch/actual"``) -> number of rows on
+        the ``time`` timeline, summed over chunks. Entities holding only static data
+        (styles aside, e.g. ``rig`` or ``rig/<body>/<geom>``) are included with 0.
         Rerun-internal entities (``__properties``...) are left out. Only the first
         recording store of the file is read (blueprints are ignored).
     """

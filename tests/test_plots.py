@@ -95,3 +95,73 @@ def test_no_actions_no_measurements(tmp_path):
     traj.measurement, traj.measurement_names = np.zeros((T, 0)), []
     traj.measured_state_index = None
     _check_png(plot_trajectory(traj, tmp_path / "run.png", dpi=50))
+
+
+# ------------------------------------------------------------------ what the figure shows
+def with_units(traj):
+    traj.meta.update(units={"pitch": "rad", "yaw": "rad", "pitch_rate": "rad/s",
+                            "yaw_rate": "rad/s", "pitch_voltage": "V", "yaw_voltage": "V"},
+                     sensors="quantize(pitch + yaw)")
+    return traj
+
+
+def test_figure_labels_units_fonts_and_legend_outside(figure_checks):
+    from testbed.plots import trajectory_figure
+
+    fig = trajectory_figure(with_units(make_trajectory()))
+    figure_checks.readable(fig)
+    figure_checks.legend_outside_axes(fig)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert {"pitch [deg]", "yaw_rate [deg/s]", "pitch error [deg]", "action [V]"} <= set(labels)
+    assert fig.axes[-1].get_xlabel() == "time [s]"
+    title = fig._suptitle.get_text()
+    assert "sensors: quantize(pitch + yaw)" in title
+    assert "RMSE pitch" in title and "deg" in title and "mean NEES" in title
+
+
+def test_title_metrics_come_from_the_summary_when_given():
+    from testbed.plots import trajectory_figure
+
+    summary = {"rmse": {"pitch": np.radians(0.5), "yaw": 0.0, "pitch_rate": 0.0,
+                        "yaw_rate": 0.0}, "nees_mean": 4.25}
+    title = trajectory_figure(with_units(make_trajectory()), summary=summary)._suptitle
+    assert "pitch 0.5 deg" in title.get_text() and "mean NEES 4.25" in title.get_text()
+
+
+def test_trajectory_metrics_match_the_definition():
+    from testbed.plots import trajectory_metrics
+
+    traj = make_trajectory()
+    err = traj.estimate[1:] - traj.state[1:]
+    m = trajectory_metrics(traj)
+    assert m["rmse"]["yaw"] == pytest.approx(np.sqrt(np.mean(err[:, 1] ** 2)))
+    P = traj.covariance[1]  # constant
+    assert m["nees_mean"] == pytest.approx(np.mean(np.sum(err**2 / np.diag(P), axis=1)))
+
+
+def test_clipped_error_spikes_are_marked():
+    from testbed.plots import trajectory_figure
+
+    traj = make_trajectory()
+    traj.estimate[20, 0] += 0.5  # a spike in the first half: outside the steady-state axis
+    fig = trajectory_figure(traj)
+    ax = next(a for a in fig.axes if a.get_ylabel().startswith("pitch error"))
+    marks = [ln for ln in ax.get_lines() if ln.get_label() == "beyond the axis"]
+    assert len(marks) == 1
+    lo, hi = ax.get_ylim()
+    assert marks[0].get_ydata()[0] == pytest.approx(hi)
+    assert marks[0].get_xdata()[0] == pytest.approx(traj.t_s[20])
+    other = next(a for a in fig.axes if a.get_ylabel().startswith("yaw error"))
+    assert not [ln for ln in other.get_lines() if ln.get_label() == "beyond the axis"]
+
+
+def test_setpoint_does_not_jump_on_the_last_sample():
+    from testbed.plots import trajectory_figure
+
+    traj = make_trajectory()
+    traj.setpoint[-1] = [1.0, 1.0]  # the schedule switches exactly at the end
+    fig = trajectory_figure(traj)
+    line = next(ln for ln in fig.axes[0].get_lines() if ln.get_label() == "setpoint")
+    y = line.get_ydata()
+    assert line.get_drawstyle() == "steps-post"
+    assert y[-1] == y[-2] == pytest.approx(0.3)  # no declared units: shown as given

@@ -113,6 +113,50 @@ def test_reproduction_short_run_writes_all_keys(tmp_path):
     row = rep.row(r)
     assert set(row) == {"paper", "claim", "ours", "agree", "why"}
     assert f"{r['gamma_min']:.3g}" in row["ours"]
+    # claims as data: verdicts follow the numbers above
+    claims = {c["claim"].split(":")[0]: c for c in r["claims"]}
+    assert len(r["claims"]) == 7 and row["agree"].startswith("5 of 7 claims agree")
+    assert claims["Fig. 7, x0 = [0.1, 1]"]["verdict"] == "differs"
+    assert claims["(7) from eta_0 = 0 (x0 = xhat_0 = 0)"]["verdict"] == "agrees"
+    assert claims["the printed Khat equals P2^-1 P_K"]["verdict"] == "differs"
+    assert "6.997" in claims["the printed P1, P2, P_K solve LMI (48)"]["ours"]
+    # the .rrd: each run under its own path with a text saying what it is
+    from testbed.rrd_inspect import inspect_rrd
+
+    c = inspect_rrd(tmp_path / "o.rrd")
+    assert set(c.texts) == {"rig_x0_paper/about", "rig_x0_zero/about", "model52_x0_paper/about"}
+    assert "x0 = 0" in c.texts["rig_x0_zero/about"]
+    for prefix in ("rig_x0_paper", "rig_x0_zero", "model52_x0_paper"):
+        assert c.rows[f"{prefix}/state/roll/actual"] == 51
+    assert c.rows["rig_x0_zero/rig/sprung_mass"] == 51
+    assert c.time_range_s == pytest.approx((0.0, 0.5))
+    assert c.styles["rig_x0_paper/measurement/y1"]["names"][0].startswith("measured y1")
+
+
+def test_claims_mechanism(figure_checks):
+    from testbed.plots import new_figure
+    from testbed.reproductions.outputs import (
+        Claim,
+        agree_text,
+        claims_height_in,
+        claims_json,
+        draw_claims,
+        format_claims,
+    )
+
+    claims = [Claim("a", "1", "1.0", Claim.judge(True)),
+              Claim("b", "2", "3", Claim.judge(False), "because"),
+              Claim("c", "x", "-", "not checked")]
+    with pytest.raises(ValueError, match="verdict"):
+        Claim("d", "1", "1", "maybe")
+    assert agree_text(claims) == "1 of 3 claims agree; differs: b"
+    text = format_claims(claims_json(claims))
+    assert text.splitlines()[1] == "  [differs] b: paper 2 | ours 3 (because)"
+    fig = new_figure(8, 1 + claims_height_in(claims))
+    draw_claims(fig.add_subplot(), claims)
+    shown = [t.get_text() for t in figure_checks.texts(fig)]
+    assert "[differs]" in shown and any("b: paper 2; ours 3 (because)" in t for t in shown)
+    figure_checks.readable(fig)
 
 
 def test_bench_lmi_keys():

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from testbed.trajectory import Trajectory
-from testbed.viz import quat_wxyz_to_xyzw, rrd_summary, write_rrd
+from testbed.viz import rrd_summary, write_rrd
+from testbed.viz_rig import quat_wxyz_to_xyzw
 
 T = 200
 STATES = ["pitch", "yaw", "pitch_rate", "yaw_rate"]
@@ -116,7 +117,7 @@ def test_state_error_measurement_entities_have_t_samples(rrd_file):
     path, _ = rrd_file
     summary = rrd_summary(path)
     for name in STATES:
-        for entity in (f"state/{name}/truth", f"state/{name}/estimate",
+        for entity in (f"state/{name}/actual", f"state/{name}/estimate",
                        f"error/{name}/value", f"error/{name}/plus_3sigma",
                        f"error/{name}/minus_3sigma"):
             assert summary.get(entity) == T, entity
@@ -133,11 +134,10 @@ def test_rig_transforms_and_geometry(rrd_file):
     for body in ("world", "arm", "tip"):
         assert summary.get(f"rig/{body}") == T, body
     geoms = sorted(e for e in summary if e.count("/") == 2 and e.startswith("rig/"))
-    # floor + base on world, capsule/box/cylinder on arm, sphere + mesh on tip;
-    # the group-3 (collision-only) box is not drawn.
-    assert geoms == ["rig/arm/geom_2", "rig/arm/geom_3", "rig/arm/geom_4",
-                     "rig/tip/geom_5", "rig/tip/geom_6", "rig/world/geom_0",
-                     "rig/world/geom_1"]
+    # floor + base on world (MJCF names), capsule/box/cylinder on arm, sphere + mesh on tip
+    # (unnamed: by type); the group-3 (collision-only) box is not drawn.
+    assert geoms == ["rig/arm/box", "rig/arm/capsule", "rig/arm/cylinder", "rig/tip/mesh_tet",
+                     "rig/tip/sphere", "rig/world/base", "rig/world/floor"]
     assert all(summary[g] == 0 for g in geoms)  # static
 
 
@@ -161,13 +161,13 @@ def test_without_declared_units_values_are_logged_unchanged(tmp_path):
     traj = make_trajectory()
     traj.meta = {"rig": "toy"}
     path = write_rrd(traj, tmp_path / "plain.rrd")
-    _, values = _component(path, "/state/pitch_rate/truth", "Scalars:scalars")
+    _, values = _component(path, "/state/pitch_rate/actual", "Scalars:scalars")
     np.testing.assert_allclose(values, traj.state[:, 2])
 
 
 def test_scalar_values_in_degrees(rrd_file):
     path, traj = rrd_file
-    time_ns, values = _component(path, "/state/pitch_rate/truth", "Scalars:scalars")
+    time_ns, values = _component(path, "/state/pitch_rate/actual", "Scalars:scalars")
     np.testing.assert_allclose(time_ns, np.round(traj.t_s * 1e9))
     np.testing.assert_allclose(values, np.degrees(traj.state[:, 2]))
     _, sigma = _component(path, "/error/yaw/plus_3sigma", "Scalars:scalars")
@@ -187,7 +187,8 @@ def test_blueprint_is_stored(rrd_file):
             names.update(v[0] for v in batch.column("ViewBlueprint:display_name").to_pylist())
         if "ViewContents:query" in batch.schema.names:
             queries += batch.column("ViewContents:query").to_pylist()[0]
-    assert {"rig", "actions", *STATES, *(f"{s} error" for s in STATES)} <= names
+    assert {"rig", "actions [V]", "pitch [deg]", "pitch_rate [deg/s]", "yaw error [deg]",
+            "yaw_rate error [deg/s]"} <= names
     assert "/measurement/pitch_enc" in queries and "/setpoint/yaw" in queries
 
 
@@ -222,7 +223,7 @@ def test_without_estimate(tmp_path):
     path = write_rrd(traj, tmp_path / "truth_only.rrd", application_id="testbed/toy.v1")
     assert RrdReader(path).recordings()[0].application_id == "testbed-toy-v1"
     summary = rrd_summary(path)
-    assert summary["state/pitch/truth"] == T
+    assert summary["state/pitch/actual"] == T
     assert not any(e.startswith(("error", "state/pitch/estimate")) for e in summary)
 
 
@@ -280,5 +281,136 @@ def test_no_actions_no_measurements(tmp_path):
     traj.measurement, traj.measurement_names = np.zeros((T, 0)), []
     traj.measured_state_index = []
     summary = rrd_summary(write_rrd(traj, tmp_path / "r.rrd"))
-    assert summary["state/pitch/truth"] == T
+    assert summary["state/pitch/actual"] == T
     assert not any(e.startswith(("action", "measurement")) for e in summary)
+
+
+# ------------------------------------------------------------------ read back: styles, ranges
+def _with_transient(model=None) -> Trajectory:
+    """A run whose covariance starts 100x wider than its steady state (a transient)."""
+    traj = make_trajectory(model)
+    decay = 1.0 + 99.0 * np.exp(-traj.t_s / 0.1)
+    traj.covariance = traj.covariance * (decay**2)[:, None, None]
+    return traj
+
+
+@pytest.fixture(scope="module")
+def contents(tmp_path_factory, model):
+    from testbed.rrd_inspect import inspect_rrd
+
+    traj = _with_transient(model)
+    path = write_rrd(traj, tmp_path_factory.mktemp("inspect") / "run.rrd", model=model,
+                     description="# toy\n\nwhat this run is")
+    return inspect_rrd(path), traj
+
+
+def test_every_series_has_an_explicit_style_with_its_unit(contents):
+    c, _ = contents
+    series = [e for e, n in c.rows.items() if n and not e.startswith("rig")]
+    assert series and set(series) <= set(c.styles)
+    for entity in series:
+        style = c.styles[entity]
+        assert len(style["colors"]) == 1 and style["sizes"], entity
+        assert style["names"][0].endswith("]"), (entity, style["names"])  # a unit
+    assert c.styles["state/pitch/actual"]["names"] == ["truth [deg]"]
+    assert c.styles["state/pitch_rate/estimate"]["names"] == ["estimate [deg/s]"]
+    assert c.styles["action/pitch_voltage"]["names"] == ["pitch_voltage [V]"]
+    meas = c.styles["measurement/pitch_enc"]
+    assert meas["kind"] == "points" and meas["names"] == ["measured pitch_enc [deg]"]
+    assert c.styles["error/yaw/plus_3sigma"]["names"] == c.styles["error/yaw/minus_3sigma"][
+        "names"] == ["±3σ [deg]"]
+
+
+def test_roles_are_distinct_and_readable_on_light_and_dark(contents):
+    c, _ = contents
+
+    def luminance(rgb):
+        lin = [(v / 255) / 12.92 if v / 255 <= 0.04045 else ((v / 255 + 0.055) / 1.055) ** 2.4
+               for v in rgb[:3]]
+        return 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2]
+
+    roles = {"truth": "state/pitch/actual", "estimate": "state/pitch/estimate",
+             "measurement": "measurement/pitch_enc", "setpoint": "setpoint/pitch",
+             "sigma": "error/pitch/plus_3sigma"}
+    colors = {r: c.styles[e]["colors"][0] for r, e in roles.items()}
+    assert len({colors[r][:3] for r in ("truth", "estimate", "measurement", "setpoint")}) == 4
+    for role, rgba in colors.items():
+        lum = luminance(rgba)
+        on_white, on_black = 1.05 / (lum + 0.05), (lum + 0.05) / 0.05
+        assert min(on_white, on_black) >= 3.0, (role, rgba, on_white, on_black)
+    # truth wide under a narrow estimate; points translucent (drawn after the lines)
+    assert c.styles[roles["truth"]]["sizes"][0] > c.styles[roles["estimate"]]["sizes"][0]
+    assert colors["measurement"][3] < 255
+    # Rerun 0.41 draws a view's lines in sorted entity order: the truth must sort first
+    assert sorted(["actual", "estimate"]) == ["actual", "estimate"]
+
+
+def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
+    from testbed.axes import steady_state_limit
+
+    c, traj = contents
+    t0, t1 = float(traj.t_s[0]), float(traj.t_s[-1])
+    assert c.time_range_s == pytest.approx((t0, t1))
+    series_views = [v for v in c.views if v.name not in ("rig", "about")]
+    assert series_views and all(v.time_range_s == pytest.approx((t0, t1)) for v in series_views)
+    view = c.view("pitch error [deg]")
+    lo, hi = view.y_range
+    error = np.degrees(traj.estimate[:, 0] - traj.state[:, 0])
+    bound = 3.0 * np.degrees(traj.std()[:, 0])
+    late = traj.t_s >= t1 / 2
+    assert lo == -hi
+    assert hi >= np.abs(error[late]).max() and hi >= bound[late].max()  # steady state in view
+    assert hi < 0.1 * bound[0]  # the transient (zoom out for it) does not set the range
+    assert hi == pytest.approx(steady_state_limit(traj.t_s, error, bound))
+    assert c.view("pitch [deg]").y_range is None  # values: auto range
+
+
+def test_description_and_camera(contents, model):
+    c, _ = contents
+    assert c.texts["about"].startswith("# toy")
+    rig = c.view("rig")
+    assert rig.eye_position is not None and rig.eye_target is not None
+
+
+@pytest.mark.parametrize("rig_name", ["helicopter", "vehicle-roll"])
+def test_camera_frames_every_visible_geom_of_the_rig(rig_name):
+    """All corners of the visible, non-plane geoms (world, initial pose, computed here from
+    MuJoCo) lie inside the camera's cone: nothing of the rig is cut off."""
+    from testbed.rigs import resolve_rig
+    from testbed.viz_rig import CAMERA_HALF_ANGLE_DEG, rig_camera
+
+    model = resolve_rig(rig_name)().model
+    eye, target = rig_camera(model)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    axis = (target - eye) / np.linalg.norm(target - eye)
+    worst = 0.0
+    for g in range(model.ngeom):
+        if model.geom_group[g] > 2 or model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            continue
+        center, half = model.geom_aabb[g][:3], model.geom_aabb[g][3:]
+        for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
+            p = data.geom_xpos[g] + data.geom_xmat[g].reshape(3, 3) @ (center + signs * half)
+            v = p - eye
+            worst = max(worst, np.degrees(np.arccos(v @ axis / np.linalg.norm(v))))
+    assert worst <= CAMERA_HALF_ANGLE_DEG
+    assert worst >= 0.4 * CAMERA_HALF_ANGLE_DEG  # and the rig fills a good part of the view
+
+
+def test_several_runs_each_under_its_prefix_with_a_text(tmp_path, model):
+    from testbed.rrd_inspect import inspect_rrd
+    from testbed.viz import Run, write_runs
+
+    runs = [Run(make_trajectory(model), "noise_free", "# noise-free run", model),
+            Run(make_trajectory(None, covariance=False), "noisy", "# noisy run")]
+    c = inspect_rrd(write_runs(runs, tmp_path / "two.rrd"))
+    assert c.texts == {"noise_free/about": "# noise-free run", "noisy/about": "# noisy run"}
+    assert c.rows["noise_free/state/pitch/actual"] == T == c.rows["noisy/state/pitch/actual"]
+    assert c.rows["noise_free/rig/arm"] == T and not any(e.startswith("noisy/rig") for e in
+                                                          c.rows)
+    assert "noisy/error/pitch/plus_3sigma" not in c.rows
+    names = [v.name for v in c.views]
+    assert names.count("pitch error [deg]") == 2 and names.count("about") == 2
+    with pytest.raises(ValueError, match="prefixes"):
+        write_runs([runs[0], Run(make_trajectory(), "noise_free")], tmp_path / "bad.rrd")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["two.rrd"]

@@ -1,18 +1,145 @@
-"""Writing a reproduction's outputs: the JSON result, the PNG figure and the Rerun file."""
+"""What a reproduction shows: its claims as data, its figure and its Rerun file.
+
+**Claims.** A reproduction states, one :class:`Claim` per line, what the paper claims,
+the paper's value, ours and a verdict computed from our numbers (never typed in):
+``agrees``, ``differs`` or ``not checked``. The same list goes
+
+- into the JSON result (``result["claims"]``, via :func:`claims_json`),
+- onto the figure (:func:`draw_claims`: a block under the panels, verdicts coloured),
+- into the printed summary (:func:`format_claims`, printed by ``testbed reproduce``),
+- into ``docs/reproductions.md`` (:func:`agree_text` for the "agree" column).
+
+**Runs.** :func:`write_outputs` writes the JSON, the PNG and the ``.rrd``; the Rerun file
+holds every run the reproduction wants to show (e.g. noise-free and noisy), each under its
+own entity path with a text entry saying what it is (:class:`testbed.viz.Run`, one tab per
+run in the viewer).
+"""
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from testbed.trajectory import Trajectory
+
+VERDICTS = ("agrees", "differs", "not checked")
+_VERDICT_TEXT = {"agrees": "#1b7a33", "differs": "#b3261e", "not checked": "#555555"}
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One claim of a paper next to our number.
+
+    Attributes
+    ----------
+    claim : str
+        What the paper claims (short, names the figure/equation).
+    paper : str
+        The paper's value or statement.
+    ours : str
+        Our value.
+    verdict : str
+        One of :data:`VERDICTS`, computed from our result.
+    why : str
+        Cause of a difference (or what limits the check); may be empty.
+    """
+
+    claim: str
+    paper: str
+    ours: str
+    verdict: str
+    why: str = ""
+
+    def __post_init__(self) -> None:
+        if self.verdict not in VERDICTS:
+            raise ValueError(f"verdict must be one of {VERDICTS}, got {self.verdict!r}")
+
+    @staticmethod
+    def judge(agrees: bool) -> str:
+        """``"agrees"`` or ``"differs"``."""
+        return "agrees" if agrees else "differs"
+
+
+def claims_json(claims: Sequence[Claim]) -> list[dict[str, str]]:
+    """The claims as JSON-ready dicts."""
+    return [asdict(c) for c in claims]
+
+
+def _as_claims(claims: Sequence[Claim | dict[str, str]]) -> list[Claim]:
+    return [c if isinstance(c, Claim) else Claim(**c) for c in claims]
+
+
+def format_claims(claims: Sequence[Claim | dict[str, str]]) -> str:
+    """One line per claim: ``[verdict] claim: paper <value> | ours <value> (why)``."""
+    lines = []
+    for c in _as_claims(claims):
+        why = f" ({c.why})" if c.why else ""
+        lines.append(f"  [{c.verdict}] {c.claim}: paper {c.paper} | ours {c.ours}{why}")
+    return "\n".join(lines)
+
+
+def agree_text(claims: Sequence[Claim | dict[str, str]]) -> str:
+    """``"k of n claims agree"`` and the claims that differ, for the docs table."""
+    claims = _as_claims(claims)
+    agree = sum(c.verdict == "agrees" for c in claims)
+    differ = [c.claim for c in claims if c.verdict == "differs"]
+    text = f"{agree} of {len(claims)} claims agree"
+    return text + (f"; differs: {'; '.join(differ)}" if differ else "")
+
+
+def _claim_lines(claim: Claim, wrap: int) -> list[str]:
+    import textwrap
+
+    text = f"{claim.claim}: paper {claim.paper}; ours {claim.ours}"
+    if claim.why:
+        text += f" ({claim.why})"
+    return textwrap.wrap(text, wrap) or [""]
+
+
+def claims_height_in(claims: Sequence[Claim | dict[str, str]], *, wrap: int = 150,
+                     fontsize: float = 8.0) -> float:
+    """Height (inches) :func:`draw_claims` needs, to size the figure row it goes in."""
+    lines = sum(len(_claim_lines(c, wrap)) for c in _as_claims(claims))
+    return (lines * 1.3 + 2.0 * len(claims) * 0.3 + 1.5) * fontsize / 72.0
+
+
+def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int = 150,
+                fontsize: float = 8.0) -> None:
+    """Draw the claims in ``ax`` (frame hidden), one block per claim: the verdict in
+    colour, then ``claim: paper ...; ours ... (why)`` wrapped to ``wrap`` characters.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        A panel reserved for the claims, at least :func:`claims_height_in` high.
+    claims : sequence of Claim
+    wrap : int
+        Characters per line.
+    fontsize : float
+        Points (at least 8).
+    """
+    fontsize = max(fontsize, 8.0)
+    ax.set_axis_off()
+    offset = 0.0
+    for c in _as_claims(claims):
+        lines = _claim_lines(c, wrap)
+        ax.annotate(f"[{c.verdict}]", xy=(0.0, 1.0), xycoords="axes fraction",
+                    xytext=(0.0, -offset), textcoords="offset points", va="top",
+                    fontsize=fontsize, weight="bold", color=_VERDICT_TEXT[c.verdict],
+                    annotation_clip=False)
+        ax.annotate("\n".join(lines), xy=(0.0, 1.0), xycoords="axes fraction",
+                    xytext=(8.0 * fontsize, -offset), textcoords="offset points", va="top",
+                    fontsize=fontsize, family="monospace", annotation_clip=False)
+        offset += (len(lines) * 1.3 + 0.6) * fontsize
 
 
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
                   plot: Callable[[str | os.PathLike], None],
-                  trajectory: Callable[[], Trajectory], application_id: str,
+                  trajectory: Callable[[], Trajectory] | None = None,
+                  runs: Callable[[], list[Any]] | None = None, application_id: str,
                   **rrd_kwargs: Any) -> None:
     """Write whichever outputs were asked for (each atomically).
 
@@ -24,13 +151,21 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         Destinations; None skips that output.
     plot : callable ``path -> None``
         Draws the reproduction's figure into ``path``.
-    trajectory : callable ``() -> Trajectory``
-        Builds the run logged to the ``.rrd`` (only called when ``rrd_path`` is given).
+    trajectory : callable ``() -> Trajectory``, optional
+        One run for the ``.rrd`` (logged at the root; ``rrd_kwargs`` go to
+        :func:`testbed.viz.write_rrd`).
+    runs : callable ``() -> list of testbed.viz.Run``, optional
+        Several runs for the ``.rrd``, each under its own prefix with its description
+        (:func:`testbed.viz.write_runs`). Only called when ``rrd_path`` is given; give
+        ``runs`` or ``trajectory``.
     application_id : str
         Rerun application id.
     **rrd_kwargs
-        Passed to :func:`testbed.viz.write_rrd` (``model``, ``degrees``).
+        Passed to :func:`testbed.viz.write_rrd` (``model``, ``degrees``) or, with ``runs``,
+        to :func:`testbed.viz.write_runs` (``degrees``).
     """
+    if rrd_path and (trajectory is None) == (runs is None):
+        raise ValueError("write_outputs needs exactly one of trajectory and runs for the .rrd")
     if json_path:
         from testbed.io import write_json
 
@@ -38,6 +173,9 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
     if plot_path:
         plot(plot_path)
     if rrd_path:
-        from testbed.viz import write_rrd
+        from testbed.viz import write_rrd, write_runs
 
-        write_rrd(trajectory(), rrd_path, application_id=application_id, **rrd_kwargs)
+        if runs is not None:
+            write_runs(runs(), rrd_path, application_id=application_id, **rrd_kwargs)
+        else:
+            write_rrd(trajectory(), rrd_path, application_id=application_id, **rrd_kwargs)

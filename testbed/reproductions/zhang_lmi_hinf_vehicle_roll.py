@@ -43,7 +43,14 @@ from filters.lmi_hinf import (
     ms_spectral_radius,
     output_error_moments,
 )
-from testbed.reproductions.outputs import write_outputs
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    claims_json,
+    draw_claims,
+    write_outputs,
+)
 from testbed.scenarios.zhang_hinf import (
     PAPER_K_HAT,
     PAPER_P1,
@@ -57,6 +64,7 @@ from testbed.scenarios.zhang_hinf import (
     rig_system,
 )
 from testbed.trajectory import Trajectory
+from testbed.viz import Run
 
 NAME = "zhang-lmi-hinf-vehicle-roll"
 CASES = ("x0_zero", "x0_paper")
@@ -74,17 +82,20 @@ def _simulate_model(system: StochasticLinearSystem, gain: np.ndarray, x0: np.nda
     x = np.tile(np.asarray(x0, float), (runs, 1))
     xs = np.empty((runs, n_steps + 1, s.n))
     xh = np.empty((runs, n_steps + 1, s.n))
+    ys = np.empty((runs, n_steps + 1, s.C_y.shape[0]))
     xs[:, 0], xh[:, 0] = x, filt.x
-    filt.prime(x @ s.C_y.T + (v[0] * np.ones(s.n_v)) @ s.D_y.T)
+    ys[:, 0] = x @ s.C_y.T + (v[0] * np.ones(s.n_v)) @ s.D_y.T
+    filt.prime(ys[:, 0])
     ones = np.ones(s.n_v)
     for k in range(n_steps):
         vk = v[k] * ones
         x = x @ s.A.T + vk @ s.B.T + w[:, k, None] * (x @ s.A_w.T + vk @ s.B_w.T)
         v_next = v[k + 1] * ones if k + 1 < n_steps else 0.0 * ones
-        filt.step(x @ s.C_y.T + v_next @ s.D_y.T)
+        ys[:, k + 1] = x @ s.C_y.T + v_next @ s.D_y.T
+        filt.step(ys[:, k + 1])
         xs[:, k + 1], xh[:, k + 1] = x, filt.x
     z_err = (xs[:, :n_steps] - xh[:, :n_steps]) @ s.C_z.T + (v[:, None] @ s.D_z.T)[None]
-    return {"x": xs, "xhat": xh, "z_err": z_err[..., 0]}
+    return {"x": xs, "xhat": xh, "y": ys, "z_err": z_err[..., 0]}
 
 
 def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: np.ndarray,
@@ -150,7 +161,7 @@ def _evaluate(system: StochasticLinearSystem, design: Any, gamma: float, s: Vehi
         x0 = np.zeros(2) if case == "x0_zero" else s.x0
         if rig:
             sim = _simulate_rig(gain, system, x0, s.xhat0, len(v), runs, seed + i,
-                                record=record and case == "x0_paper")
+                                record=record)
         else:
             sim = _simulate_model(system, gain, x0, s.xhat0, v, runs,
                                   np.random.default_rng([seed, i]))
@@ -316,84 +327,173 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
             result.update(entry)
         else:
             result[label] = entry
+    result["claims"] = claims_json(claims(result))
     result["wall_s"] = time.perf_counter() - start
-    sim = curves["rig"]["x0_paper"]["sim"]
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(curves, result, s, path),
-                  trajectory=lambda: _trajectory(sim), model=sim["model"],
-                  application_id="testbed-" + NAME)
+                  runs=lambda: _runs(curves, result, s), application_id="testbed-" + NAME)
     return result
 
 
-def _trajectory(sim: dict[str, Any]) -> Trajectory:
-    rows = sim["rows"]
-    n = len(rows["t"])
-    return Trajectory(t_s=np.asarray(rows["t"]), state=sim["x"][0, :n],
-                      state_names=["roll", "roll_rate"], measurement=np.asarray(rows["meas"]),
-                      measurement_names=["y1", "y2"], measured_state_index=[None, None],
-                      action=np.asarray(rows["act"]), action_names=["a_y = v [m/s^2]"],
-                      estimate=sim["xhat"][0, :n], body_pos=np.asarray(rows["pos"]),
-                      body_quat_wxyz=np.asarray(rows["quat"]),
-                      meta={"scenario": NAME, "run": "rig, x0 = [0.1, 1], first run",
-                            "filter": "lmi-hinf", "units": sim["units"]})
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours, verdicts computed from ``result``."""
+    p = result["paper_K_hat"]
+    printed = np.asarray(PAPER_K_HAT)
+    p2inv_pk = np.asarray(p["P2inv_P_K"])
+    rel = float(np.abs(p2inv_pk - printed).max() / np.abs(printed).max())
+    sol_gamma = p["printed_solution_gamma"]
+    ok_design = (result["lmi_status"] == "feasible" and result["gari_max_eig"] < 0
+                 and result["error_spectral_radius"] < 1)
+
+    def holds(entry: dict[str, Any], case: str) -> str:
+        return (f"{'holds' if entry['inequality_holds'][case] else 'fails'} at gamma = "
+                f"{entry['gamma_used']:.3g} (needs gamma >= {entry['gamma_needed'][case]:.3g})")
+
+    return [
+        Claim("Theorem 4: LMI (48) gives an H-infinity filter (45) for (52)",
+              "feasible; filter (53)",
+              f"feasible from gamma_min = {result['gamma_min']:.3g}; GARI (47) max eig "
+              f"{result['gari_max_eig']:.2g}, error MS spectral radius "
+              f"{result['error_spectral_radius']:.3f}", Claim.judge(ok_design)),
+        Claim("the printed P1, P2, P_K solve LMI (48)", "a solution (gamma not stated)",
+              "only for gamma > " + ("none" if sol_gamma is None else f"{sol_gamma:.4g}"),
+              Claim.judge(sol_gamma is not None),
+              "the paper does not state gamma, so any finite bound agrees"),
+        Claim("the printed Khat equals P2^-1 P_K", f"Khat = {np.round(printed, 4).tolist()}",
+              f"P2^-1 P_K = {np.round(p2inv_pk, 4).tolist()} (max rel. diff {rel:.2g})",
+              Claim.judge(rel < 1e-2),
+              f"P2 is ill-conditioned (cond {p['P2_condition']:.2g}): the printed digits "
+              "do not determine P2^-1 P_K"),
+        Claim("the printed Khat is a Theorem-4 filter", "yes (some gamma)",
+              f"certified from gamma = {p['gamma_min']:.3g}",
+              Claim.judge(p["gamma_min"] is not None and p["error_spectral_radius"] < 1)),
+        Claim("Fig. 7, x0 = [0.1, 1]: sum E|ztilde|^2 <= gamma^2 sum |v|^2 at every k "
+              f"({result['runs']} runs)", "holds",
+              "printed Khat: " + holds(p, "x0_paper") + "; ours: " + holds(result, "x0_paper"),
+              Claim.judge(p["inequality_holds"]["x0_paper"]),
+              "(7) is proved for eta_0 = 0 (Lemma 2); the initial error adds V(eta_0)"),
+        Claim("(7) from eta_0 = 0 (x0 = xhat_0 = 0)", "holds (Lemma 2)",
+              "printed Khat: " + holds(p, "x0_zero") + "; ours: " + holds(result, "x0_zero"),
+              Claim.judge(p["inequality_holds"]["x0_zero"]
+                          and result["inequality_holds"]["x0_zero"])),
+        Claim("the proof's bound (13): sum E|ztilde|^2 <= gamma^2 sum |v|^2 + V(eta_0)",
+              "holds for any x0",
+              "x0 = [0.1, 1]: " + ("holds" if result["bound_13_holds"]["x0_paper"]
+                                   and p["bound_13_holds"]["x0_paper"] else "fails")
+              + " (ours and printed Khat)",
+              Claim.judge(result["bound_13_holds"]["x0_paper"]
+                          and p["bound_13_holds"]["x0_paper"])),
+    ]
+
+
+_STATE_NAMES = ["roll", "roll_rate"]
+
+
+def _runs(curves: dict, result: dict[str, Any], s: VehicleRollLMIScenario) -> list[Run]:
+    """The runs of the ``.rrd``: the rig from both initial states, and model (52) with the
+    printed gain (first Monte-Carlo run of each)."""
+    out = []
+    rig_gamma = result["rig"]["gamma_used"]
+    for case, x0_text in (("x0_paper", f"x0 = {s.x0.tolist()}"), ("x0_zero", "x0 = 0")):
+        sim = curves["rig"][case]["sim"]
+        rows = sim["rows"]
+        n = len(rows["t"])
+        traj = Trajectory(
+            t_s=np.asarray(rows["t"]), state=sim["x"][0, :n], state_names=_STATE_NAMES,
+            measurement=np.asarray(rows["meas"]), measurement_names=["y1", "y2"],
+            measured_state_index=[None, None], action=np.asarray(rows["act"]),
+            action_names=["a_y = v [m/s^2]"], estimate=sim["xhat"][0, :n],
+            body_pos=np.asarray(rows["pos"]), body_quat_wxyz=np.asarray(rows["quat"]),
+            meta={"scenario": NAME, "filter": "lmi-hinf", "units": sim["units"]})
+        out.append(Run(traj, f"rig_{case}", (
+            f"# MuJoCo rig, {x0_text}\n\nFirst of {result['runs']} Monte-Carlo runs "
+            f"(multiplicative damping noise w_k ~ N(0, 1), a_y = v_k = 0.01 * 0.9^k): the "
+            f"vehicle-roll rig with the `paper` sensors y1, y2 and the Theorem-4 filter "
+            f"designed on the rig's ZOH model at gamma = {rig_gamma:.3g}. xhat_0 = 0."),
+            sim["model"]))
+    sim = curves["paper_K_hat"]["x0_paper"]["sim"]
+    units = curves["rig"]["x0_paper"]["sim"]["units"]
+    n = sim["x"].shape[1]
+    t = np.arange(n) * s.dt_s
+    v = np.asarray(s.v(np.arange(n)), dtype=float)
+    traj = Trajectory(
+        t_s=t, state=sim["x"][0], state_names=_STATE_NAMES, measurement=sim["y"][0],
+        measurement_names=["y1", "y2"], measured_state_index=[None, None],
+        action=v[:, None], action_names=["v [m/s^2]"], estimate=sim["xhat"][0],
+        meta={"scenario": NAME, "filter": "lmi-hinf (printed Khat)",
+              "units": units})
+    out.append(Run(traj, "model52_x0_paper", (
+        f"# Model (52), printed Khat, x0 = {s.x0.tolist()}\n\nFirst of "
+        f"{result['runs']} Monte-Carlo runs of the paper's discrete model (52) verbatim "
+        f"(no MuJoCo) with the printed filter (53), certified from gamma = "
+        f"{result['paper_K_hat']['gamma_min']:.3g}; v is the disturbance 0.01 * 0.9^k. "
+        "What Figs. 4-6 average.")))
+    return out
 
 
 def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from testbed.plots import FONT_PT, new_figure, save_figure, set_title
 
-    from testbed.io import atomic_path
-
-    fig = Figure(figsize=(13, 10), layout="constrained")
-    FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(3, 2)
+    claims_in = claims_height_in(result["claims"], wrap=150)
+    fig = new_figure(13, 13 + claims_in)
+    grid = fig.add_gridspec(4, 2, height_ratios=[4.0, 4.0, 4.0, 3.0 * claims_in / 3.6])
     k = np.arange(result["steps"] + 1)
+    k_label = f"k [steps of {s.dt_s:g} s]"
     paper_sim = curves["paper_K_hat"]["x0_paper"]["sim"]
     ours_sim = curves["ours"]["x0_paper"]["sim"]
+
+    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
+        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.2),
+                  ncols=ncols, frameon=False)
+
     ax = fig.add_subplot(grid[0, 0])
-    for i, name in enumerate(("x(1) = roll", "x(2)")):
-        ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), label=f"{name}, mean of runs")
-    ax.set(title="Fig. 4: state x_k of (52), x0 = [0.1, 1]", xlabel="k")
-    ax.legend(fontsize=8)
+    for i, name in enumerate(("x(1) = roll [rad]", "x(2) = roll rate [rad/s]")):
+        ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), label=name)
+    ax.set(title=f"Fig. 4: state x_k of (52), x0 = {s.x0.tolist()} (mean of runs)",
+           xlabel=k_label, ylabel="x_k [rad; rad/s]")
+    legend(ax)
     ax = fig.add_subplot(grid[0, 1])
     for i in range(2):
         ax.plot(k, paper_sim["xhat"][:, :, i].mean(axis=0), label=f"xhat({i + 1}), printed Khat")
         ax.plot(k, ours_sim["xhat"][:, :, i].mean(axis=0), "--",
                 label=f"xhat({i + 1}), ours (H2/H-inf)")
-    ax.set(title="Fig. 5: estimate xhat_k of (53)", xlabel="k")
-    ax.legend(fontsize=8)
+    ax.set(title="Fig. 5: estimate xhat_k of (53) (mean of runs)", xlabel=k_label,
+           ylabel="xhat_k [rad; rad/s]")
+    legend(ax)
     ax = fig.add_subplot(grid[1, 0])
     for label, c in (("printed Khat", curves["paper_K_hat"]), ("ours", curves["ours"]),
                      ("ours on the MuJoCo rig", curves["rig"])):
         ax.plot(k[:-1], c["x0_paper"]["sim"]["z_err"].mean(axis=0), label=label)
     ax.set(title="Fig. 6: ztilde_k = x_k(1) - xhat_k(1), x0 = [0.1, 1] (mean of runs)",
-           xlabel="k")
-    ax.legend(fontsize=8)
+           xlabel=k_label, ylabel="ztilde_k [rad]")
+    legend(ax, 3)
     for case, cell in zip(CASES, (grid[1, 1], grid[2, 0]), strict=True):
         ax = fig.add_subplot(cell)
         for (label, key), color in zip((("printed Khat", "paper_K_hat"), ("ours", "ours"),
                                         ("rig", "rig")), ("C0", "C1", "C2"), strict=True):
             c = curves[key][case]
             gamma = (result[key] if key != "ours" else result)["gamma_used"]
-            ax.plot(k[:-1], c["z"], color=color, label=f"sum E|ztilde|^2, {label}")
-            ax.plot(k[:-1], c["v"], color=color, ls="--",
-                    label=f"gamma^2 sum |v|^2, {label} (gamma = {gamma:.3g})")
+            ax.plot(k[:-1], c["z"], color=color, label=f"{label}, gamma = {gamma:.3g}")
+            ax.plot(k[:-1], c["v"], color=color, ls="--")
+        ax.plot([], [], color="0.3", label="solid: sum E|ztilde|^2")
+        ax.plot([], [], color="0.3", ls="--", label="dashed: gamma^2 sum |v|^2")
         ax.set_yscale("log")
         ax.set_ylim(bottom=1e-18)
-        ax.set(title=f"Fig. 7: cumulative sums, {case.replace('_', ' = ')}", xlabel="k")
-        ax.legend(fontsize=7)
+        ax.set(title=f"Fig. 7: cumulative sums, {case.replace('_', ' = ')}", xlabel=k_label,
+               ylabel="cumulative sum [rad^2]")
+        legend(ax)
     ax = fig.add_subplot(grid[2, 1])
     rig_sim = curves["rig"]["x0_paper"]["sim"]
-    for i, name in enumerate(("roll", "roll rate")):
+    for i, name in enumerate(("roll [rad]", "roll rate [rad/s]")):
         ax.plot(k, rig_sim["x"][:, :, i].mean(axis=0), label=f"{name}, MuJoCo rig")
         ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), ":", label=f"{name}, model (52)")
-    ax.set(title="rig vs (52): state from x0 = [0.1, 1] (rad, rad/s; mean of runs)",
-           xlabel="k")
-    ax.legend(fontsize=8)
-    fig.suptitle("Zhang, Deng & Zhang (2018), Example 5.2: Theorem-4 H-infinity filter, "
-                 f"vehicle roll ({result['runs']} runs)")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+    ax.set(title="rig vs (52): state from x0 = [0.1, 1] (mean of runs)", xlabel=k_label,
+           ylabel="x_k [rad; rad/s]")
+    legend(ax)
+    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=150)
+    set_title(fig, ["Zhang, Deng & Zhang (2018), Example 5.2: Theorem-4 H-infinity filter, "
+                    f"vehicle roll ({result['runs']} runs)", agree_text(result["claims"])])
+    save_figure(fig, path)
 
 
 def row(result: dict[str, Any]) -> dict[str, str]:
@@ -411,7 +511,6 @@ def row(result: dict[str, Any]) -> dict[str, str]:
 
     dec = result["exact_decoupling"]
     mm = rig["model_mismatch"]
-    agree = result["inequality_holds"]["x0_zero"] and p["inequality_holds"]["x0_zero"]
     return {
         "paper": "Zhang, Deng & Zhang (2018), Example 5.2",
         "claim": "Theorem 4 gives the filter (53) (printed Khat); with x0 = [0.1, 1], 100 runs, "
@@ -422,7 +521,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                  f"{sums(p)} (the paper's x0 needs gamma >= "
                  f"{p['gamma_needed']['x0_paper']:.3g}). MuJoCo rig (ZOH of the physics): "
                  f"gamma_min = {rig['gamma_min']:.3g}, {sums(rig)}"),
-        "agree": "partly" if agree else "no",
+        "agree": agree_text(result["claims"]),
         "why": ("(7) is proved for eta_0 = 0 (Lemma 2); with x0 = [0.1, 1] and xhat_0 = 0 the "
                 "initial error adds V(eta_0) = eta_0' P eta_0 (proof, (13)), which dwarfs the "
                 f"disturbance energy, so Fig. 7 cannot hold near the certified gamma; the bound "
