@@ -161,9 +161,23 @@ def inspect_rrd(path: str | os.PathLike) -> RrdContents:
     if np.isfinite(lo):
         out.time_range_s = (float(lo), float(hi))
     out.rows = dict(sorted(out.rows.items()))
-    blueprints = reader.blueprints()
-    if blueprints:
-        out.views = _views(reader, blueprints[0])
+    # a live run sends its blueprint twice (auto ranges, then fitted): the stores are merged
+    # by (view name, occurrence), a property set in any store kept (the reader's store order
+    # is not fixed)
+    merged: dict[tuple[str, int], View] = {}
+    for store in reader.blueprints():
+        seen: dict[str, int] = {}
+        for v in _views(reader, store):
+            key = (v.name, seen.setdefault(v.name, 0))
+            seen[v.name] += 1
+            if key not in merged:
+                merged[key] = v
+                continue
+            kept = merged[key]
+            for key, value in vars(v).items():
+                if value is not None and getattr(kept, key) is None:
+                    setattr(kept, key, value)
+    out.views = list(merged.values())
     return out
 
 
