@@ -46,7 +46,7 @@ import numpy as np
 from filters.analysis import noise_output_ratio
 from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
-from testbed.reproductions.outputs import write_outputs
+from testbed.reproductions.outputs import agreement, write_outputs
 from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario, paper_model
 from testbed.trajectory import Trajectory
 
@@ -452,6 +452,14 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                   f"||T_zw|| = {paper['T_poly']} < gamma = {gamma}, the linearized filter "
                   f"(27)-(28) {paper['T_linearized']} > gamma"),
         "ours": ours,
-        "agree": "yes" if survives and close and better else ("partly" if better else "no"),
+        "agree": agreement([
+            {"label": f"(25)-(26) exist on [0, {paper['horizon']:g}]", "agree": survives},
+            {"label": f"||T_zw|| = {paper['T_poly']} and {paper['T_linearized']} at "
+                      f"t = {paper['horizon']:g}", "agree": survives and close},
+            {"label": "polynomial filter below gamma and below the linearized one where both "
+                      "exist", "agree": better},
+            {"label": "linearized filter above gamma at the horizon",
+             "agree": at_paper["linearized"] is not None and at_paper["linearized"] > gamma},
+        ]),
         "why": why,
     }
