@@ -456,7 +456,7 @@ def test_fast_step_batch_equals_single_and_escapes_like_the_slow_path(rng):
     slow = PolynomialHInfFilter(model, GAMMA, np.eye(2), 1e-2, x0, substeps=3)
     slow._cubic = None
     err_fast = err_slow = None
-    for k in range(200):  # P22 of the printed (26) escapes near t = 1.02 s
+    for _ in range(200):  # P22 of the printed (26) escapes near t = 1.02 s
         y = rng.normal(size=(4, 1))
         try:
             fast.step(y)
