@@ -26,6 +26,13 @@ All three integrate, over each sample interval with ``y`` (and ``u``) held::
 and differ only in ``F`` and ``A`` (with (C3) the gain is ``P C^T`` and
 ``- K (D B^T + C P) = - P C^T C P``, i.e. (11) and (13)).
 
+Evaluation: for small systems (``n = 2`` or 3) with constant ``B, C, D, L, E``,
+:meth:`~PolynomialHInfFilter.step` evaluates this right-hand side as one cubic form in
+``z = [1, x_f, vec(P), y, u]`` (:mod:`filters._hinf_cubic`: a few array operations per RK4
+stage, the batch on the last axis); otherwise, and in :meth:`~PolynomialHInfFilter.derivatives`,
+term by term. Both give the same values up to rounding (tested to 1e-12). A batch of ``N``
+filters is one object with ``x0`` of shape ``(N, n)``, stepped with ``y`` of shape ``(N, m)``.
+
 Derivation of ``f_hat`` and ``g_hat`` (14)-(15)
 -----------------------------------------------
 Theorem 1 is built on the optimal polynomial filter of Basin, Calderon-Alvarez, Skliar
