@@ -280,10 +280,9 @@ class PolynomialModel:
         numpy.ndarray, shape (n,), (n, n), (n, n, n) or (n, n, n, n), or None
             ``None`` for an absent (or all-zero constant) coefficient.
         """
-        coefs = {"a0": self._a0, "a1": self._a1, "a2": self._a2, "a3": self._a3}
-        if name not in coefs:
-            raise ValueError(f"name must be one of {sorted(coefs)}, got {name!r}")
-        c = coefs[name]
+        if name not in ("a0", "a1", "a2", "a3"):
+            raise ValueError(f"name must be one of ['a0', 'a1', 'a2', 'a3'], got {name!r}")
+        c = getattr(self, "_" + name)
         return None if c is None else c(t)
 
     def at(self, t: float) -> PolynomialCoefficients:
