@@ -5,6 +5,7 @@ Nothing here is public API. All arrays are ``float64``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -266,4 +267,10 @@ class TimeFunction:
         """The value at time ``t`` (s)."""
         if self.func is None:
             return self.value
-        return checked_array(self.name, self.func(t), self.shape, t)
+        v = self.func(t)
+        # fast path (a float64 array of the right shape whose sum is finite), else the full
+        # conversion and checks with their error messages
+        if (type(v) is np.ndarray and v.dtype == np.float64 and v.shape == self.shape
+                and math.isfinite(v.sum())):
+            return v.copy()
+        return checked_array(self.name, v, self.shape, t)

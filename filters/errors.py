@@ -137,8 +137,9 @@ def check_symmetric_covariance(
     Parameters
     ----------
     Ps : numpy.ndarray, shape (n, n) or (..., n, n)
-        Exactly symmetric ``float64`` matrix or stack (only the upper triangle is
-        read on the fast path).
+        Exactly symmetric ``float64`` matrix or stack (only the lower triangle is read on
+        the fast path: a bounded stack whose Cholesky factorization succeeds passes; anything
+        else gets the exact eigenvalue test).
     time, quantity, escape_bound
         As in :func:`check_covariance`.
 
@@ -147,10 +148,17 @@ def check_symmetric_covariance(
     FiniteEscapeError, LossOfDefinitenessError
         As in :func:`check_covariance`.
     """
-    if Ps.ndim == 2:
-        v = Ps.ravel()
-        if v.dot(v) <= escape_bound * escape_bound and _dpotrf(Ps)[1] == 0:
-            return
+    v = Ps.ravel()
+    if v.dot(v) <= escape_bound * escape_bound:  # all entries bounded (False for NaN)
+        if Ps.ndim == 2:
+            if _dpotrf(Ps)[1] == 0:
+                return
+        elif Ps.size:
+            try:  # positive definite stack: nothing more to check
+                np.linalg.cholesky(Ps)
+                return
+            except np.linalg.LinAlgError:
+                pass
     _check_exact(Ps, time=time, quantity=quantity, escape_bound=escape_bound)
 
 

@@ -26,6 +26,13 @@ All three integrate, over each sample interval with ``y`` (and ``u``) held::
 and differ only in ``F`` and ``A`` (with (C3) the gain is ``P C^T`` and
 ``- K (D B^T + C P) = - P C^T C P``, i.e. (11) and (13)).
 
+Evaluation: for small systems (``n = 2`` or 3) with constant ``B, C, D, L, E``,
+:meth:`~PolynomialHInfFilter.step` evaluates this right-hand side as one cubic form in
+``z = [1, x_f, vec(P), y, u]`` (:mod:`filters._hinf_cubic`: a few array operations per RK4
+stage, the batch on the last axis); otherwise, and in :meth:`~PolynomialHInfFilter.derivatives`,
+term by term. Both give the same values up to rounding (tested to 1e-12). A batch of ``N``
+filters is one object with ``x0`` of shape ``(N, n)``, stepped with ``y`` of shape ``(N, m)``.
+
 Derivation of ``f_hat`` and ``g_hat`` (14)-(15)
 -----------------------------------------------
 Theorem 1 is built on the optimal polynomial filter of Basin, Calderon-Alvarez, Skliar
@@ -85,6 +92,7 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from filters._hinf_cubic import MAX_ENTRIES, CubicForm
 from filters._linalg import FloatArray, positive_time, readonly, to_float_array
 from filters.errors import check_symmetric_covariance
 from filters.kalman import _IntegratedFilter
@@ -292,6 +300,13 @@ class _CentralHInfFilter(_IntegratedFilter):
             self._gain_terms = first
         self._const_terms = first if model.constant else None
         self._check_model(self._terms(t0))
+        self._cubic: CubicForm | None = None
+        self._magnitudes: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        variant = self._cubic_variant()
+        if (variant is not None and model.constant_matrices
+                and CubicForm.size(model) <= MAX_ENTRIES):
+            self._cubic = CubicForm(model, variant, self._gm2, t0)
+            self._CT = first.CT
         self.reset(np.zeros(n) if x0 is None else x0, self._P0)
 
     # ------------------------------------------------------------ properties
@@ -364,6 +379,11 @@ class _CentralHInfFilter(_IntegratedFilter):
         return terms
 
     # ------------------------------------------------------------- equations
+    def _cubic_variant(self) -> str | None:
+        """Hook: the :class:`~filters._hinf_cubic.CubicForm` variant of this filter (None:
+        always evaluate the equations term by term)."""
+        return None
+
     def _drift(self, c: PolynomialCoefficients, x: FloatArray,
                P: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``(F, A)``: state-equation drift (..., n) and Riccati "A" (..., n, n)."""
@@ -460,6 +480,11 @@ class _CentralHInfFilter(_IntegratedFilter):
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
+        if self._cubic is not None:
+            x, P = self._step_cubic(self._cubic, y, u)
+            self._commit(x, P, self._steps + 1)
+            self.innovation = y - self._x_start @ self._CT
+            return x
         x, P = self._x, self._P
         ns = self._substeps
         h = self._dt / ns  # type: ignore[operator]
@@ -487,6 +512,75 @@ class _CentralHInfFilter(_IntegratedFilter):
         self._commit(x, P, self._steps + 1)
         self.innovation = innovation
         return x
+
+
+    def _step_cubic(self, fz: CubicForm, y: FloatArray, u: FloatArray | None
+                    ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`step`'s RK4 substeps with the right-hand side as one cubic form (same
+        equations, stage times and tests; equal to the term-by-term evaluation up to
+        rounding). The batch is flattened onto the last axis: ``z`` is ``(d, N)``."""
+        x, P = self._x, self._P
+        self._x_start = x
+        batch = x.shape[:-1]
+        n, m, k, ns = self._n, self._m, fz.k, fz.ns
+        if batch:
+            N = math.prod(batch)
+            z = np.empty((fz.d, N))
+            z[1 + ns:1 + ns + m] = np.broadcast_to(y, (*batch, m)).reshape(N, m).T
+            if k:
+                z[1 + ns + m:] = (0.0 if u is None else
+                                  np.broadcast_to(u, (*batch, k)).reshape(N, k).T)
+            sv = np.concatenate([x.reshape(N, n).T, P.reshape(N, n * n).T])
+            sq = (n, n, N)
+        else:
+            z = np.empty(fz.d)
+            z[1 + ns:1 + ns + m] = y
+            if k:
+                z[1 + ns + m:] = 0.0 if u is None else u
+            sv = np.concatenate([x, P.ravel()])
+            sq = (n, n)
+        z[0] = 1.0
+        zs = z[1:1 + ns]
+        ia, ib, ic = fz.A, fz.B, fz.C
+
+        def rhs(v: FloatArray, R: FloatArray) -> FloatArray:
+            zs[...] = v
+            return R.dot(z[ia] * z[ib] * z[ic])
+
+        nsub = self._substeps
+        h = self._dt / nsub  # type: ignore[operator]
+        t0, n0 = self._t0, self._steps * nsub  # stage times as in the term-by-term path
+        esc = self._escape
+        q = self._magnitudes
+        qx, qP = (q[1], q[2]) if q is not None and q[0] is x else (esc.magnitude(x, 1),
+                                                                  esc.magnitude(P, 2))
+        half, sixth = 0.5 * h, h / 6.0
+        with np.errstate(over="ignore", invalid="ignore"):
+            for i in range(nsub):
+                R1 = fz.matrix(t0 + (n0 + i) * h)
+                Rh = fz.matrix(t0 + (n0 + i + 0.5) * h)
+                R2 = fz.matrix(t0 + (n0 + i + 1) * h)
+                k1 = rhs(sv, R1)
+                k2 = rhs(sv + half * k1, Rh)
+                k3 = rhs(sv + half * k2, Rh)
+                k4 = rhs(sv + h * k3, R2)
+                sv = sv + sixth * (k1 + 2.0 * (k2 + k3) + k4)
+                Pq = sv[n:].reshape(sq)
+                Pq = 0.5 * (Pq + Pq.swapaxes(0, 1))
+                if batch:
+                    x = np.ascontiguousarray(sv[:n].T).reshape(*batch, n)
+                    P = np.ascontiguousarray(Pq.transpose(2, 0, 1)).reshape(*batch, n, n)
+                else:
+                    x, P = sv[:n].copy(), Pq
+                t_end = t0 + (n0 + i + 1) * h
+                qP = esc.check("P", qP, P, time=t_end, step_s=h, core_ndim=2)
+                qx = esc.check("x", qx, x, time=t_end, step_s=h, core_ndim=1)
+                check_symmetric_covariance(P, time=t_end, quantity="P",
+                                           escape_bound=esc.bound)
+                if i + 1 < nsub:
+                    sv = np.concatenate([sv[:n], Pq.reshape(n * n, *sv.shape[1:])])
+        self._magnitudes = (x, qx, qP)  # for the next step's growth test
+        return x, P
 
 
 class PolynomialHInfFilter(_CentralHInfFilter):
@@ -566,6 +660,9 @@ class PolynomialHInfFilter(_CentralHInfFilter):
                 f"assumption (C3) violated at t0 = {terms.c.t:.6g} s: need D B^T = 0 and "
                 f"D D^T = I, got max|D B^T| = {err_b:.3g}, max|D D^T - I| = {err_d:.3g}; use "
                 "NonOrthonormalPolynomialHInfFilter (Corollary 1)")
+
+    def _cubic_variant(self) -> str | None:
+        return "poly"
 
     def _drift(self, c: PolynomialCoefficients, x: FloatArray,
                P: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -689,6 +786,9 @@ class LinearizedHInfFilter(_CentralHInfFilter):
     def state_equation(self) -> str:
         """``"system"`` (``f(m)``) or ``"jacobian"`` (``a0 + J(m) m``, (27) as printed)."""
         return "jacobian" if self._jacobian_state else "system"
+
+    def _cubic_variant(self) -> str | None:
+        return self.state_equation
 
     def _drift(self, c: PolynomialCoefficients, x: FloatArray,
                P: FloatArray) -> tuple[FloatArray, FloatArray]:

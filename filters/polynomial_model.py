@@ -259,6 +259,32 @@ class PolynomialModel:
         args = {**self._args, **changes}
         return PolynomialModel(**args, n=self.n, t0=self._t0)  # type: ignore[arg-type]
 
+    @property
+    def varying(self) -> tuple[str, ...]:
+        """Names of the polynomial coefficients (among ``a0``..``a3``) given as callables."""
+        return tuple(name for name, c in (("a0", self._a0), ("a1", self._a1),
+                                          ("a2", self._a2), ("a3", self._a3))
+                     if c is not None and not c.constant)
+
+    def coefficient(self, name: str, t: float) -> FloatArray | None:
+        """One polynomial coefficient at time ``t`` as given (validated, not symmetrized).
+
+        Parameters
+        ----------
+        name : {"a0", "a1", "a2", "a3"}
+        t : float
+            Time in s.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,), (n, n), (n, n, n) or (n, n, n, n), or None
+            ``None`` for an absent (or all-zero constant) coefficient.
+        """
+        if name not in ("a0", "a1", "a2", "a3"):
+            raise ValueError(f"name must be one of ['a0', 'a1', 'a2', 'a3'], got {name!r}")
+        c = getattr(self, "_" + name)
+        return None if c is None else c(t)
+
     def at(self, t: float) -> PolynomialCoefficients:
         """All coefficients at time ``t`` (s), tensors symmetrized, absent terms ``None``."""
         if self._const is not None:
@@ -365,6 +391,12 @@ class EscapeTest:
             m, p = float(mag), float(previous)
             if m <= self.bound and not (m > self.growth_floor
                                         and m > p * (1.0 + self.growth_rtol)):
+                return mag
+        else:  # a batch: the same tests on the largest magnitude first (fast path)
+            top = float(mag.max())  # NaN fails both comparisons below
+            if top <= self.bound and (top <= self.growth_floor or not np.any(
+                    mag > np.maximum(np.multiply(previous, 1.0 + self.growth_rtol),
+                                     self.growth_floor))):
                 return mag
         bad = ~(mag <= self.bound)  # NaN compares False
         if np.any(bad):

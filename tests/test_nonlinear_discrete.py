@@ -178,12 +178,30 @@ def test_reproduction_defaults_and_outputs(tmp_path):
     # ztilde_0 = z_0 = 0.2 against v_0 = 2: the k = 0 term sets the smallest gamma
     assert r["smallest_gamma_mc"] == pytest.approx(0.1, rel=1e-9)
     assert r["corollary3_max_violation"] > 0 and r["hji_27"]["max_violation"] <= 0
+    # (27) is sampled for negative v too, and fails on a wider state box; (26) cannot hold
+    assert r["hji_27"]["v_range"] == [-10.0, 10.0]
+    assert r["hji_27_wide"]["max_violation"] > 0
+    assert r["condition_26"]["possible"] is False
     assert r["bound_13_holds"]
     assert (tmp_path / "r.png").stat().st_size > 10_000
     assert (tmp_path / "r.rrd").stat().st_size > 1_000
     row = rep.row(r)
     assert set(row) == {"paper", "claim", "ours", "agree", "why"}
     assert f"{r['sum_E_z2']:.4g}" in row["ours"]
+
+
+def test_condition26_cannot_hold():
+    """|ztilde(eta, 0)|^2 vanishes on a 3-dimensional subspace of eta: no positive W fits."""
+    out = plant.condition26_check()
+    assert out["possible"] is False and out["null_space_dim"] == 3
+    assert out["min_on_unit_sphere"] == pytest.approx(0.0, abs=1e-15)
+    eta = np.array(out["null_direction"])
+    assert np.linalg.norm(eta) == pytest.approx(1.0)
+    # ztilde = z - zhat at this eta, from the plant's own output map: zero
+    assert abs(plant.output(eta[:2]) - plant.output(eta[2:])) < 1e-15
+    # and it is positive off the subspace (e.g. along c)
+    c = np.array(out["c"])
+    assert plant.output(c[:2]) - plant.output(c[2:]) == pytest.approx(c @ c)
 
 
 def test_reproduction_parameters():

@@ -36,7 +36,11 @@ condition. For Example 5.1: ``f1 = [0.6 x1^3 / (1 + |x|^2); 0.65 x2 + 0.1 x1 x2]
 
 Besides Corollary 3, :func:`hji_values` evaluates the HJI (27) of Corollary 2 itself,
 ``H(eta, v) - gamma^2 v^2 = E V(eta+) - V(eta) + |z - zhat|^2 - gamma^2 v^2``, exactly (``V``
-is quadratic and ``w`` enters linearly: ``E V = V(mean) + V(noise coefficient)``).
+is quadratic and ``w`` enters linearly: ``E V = V(mean) + V(noise coefficient)``). (27) must
+hold for every ``eta`` and every ``v``; a grid check (:func:`hji_check`) samples a box and a
+range of ``v`` only. Corollary 2 also needs (26), ``|ztilde(eta, 0)|^2 >= W(eta)`` for a
+positive, radially unbounded ``W``, which (27) does not imply; :func:`condition26_check`
+tests whether ``|ztilde(eta, 0)|^2`` can dominate such a ``W`` at all.
 
 All functions take a leading batch axis: states of shape ``(..., 2)``.
 """
@@ -294,7 +298,8 @@ def hji_check(gamma: float, halfwidth: float = 2.0, points: int = 13,
               v_values: npt.ArrayLike | None = None) -> dict[str, float | list[float]]:
     """Largest value of :func:`hji_values` on the state grid times a set of ``v``.
 
-    ``v_values`` default: 11 values in ``[0, 2]`` (the range of the paper's ``v_k``).
+    ``v_values`` default: 11 values in ``[0, 2]`` (the range of the paper's ``v_k``; (27)
+    must hold for every real ``v``, so pass a wider set to test it).
 
     Returns
     -------
@@ -312,4 +317,32 @@ def hji_check(gamma: float, halfwidth: float = 2.0, points: int = 13,
         "fraction_violated": float(np.mean(vals > 0)),
         "halfwidth": float(halfwidth),
         "points": int(points),
+        "v_range": [float(vs.min()), float(vs.max())],
+        "v_points": int(vs.size),
     }
+
+
+def condition26_check() -> dict[str, object]:
+    """Whether (26), ``|ztilde(eta, 0)|^2 >= W(eta)`` with ``W`` positive and radially
+    unbounded, can hold for (49)-(50).
+
+    ``ztilde(eta, 0) = m(x) - mhat(xhat)`` is linear here, ``c . eta`` with ``c`` read off
+    :func:`output` at the unit vectors, so ``|ztilde|^2 = eta' (c c') eta``. (26) needs it
+    positive for every ``eta != 0``: ``c c'`` positive definite, impossible for a rank-one
+    matrix in four dimensions. The eigen-decomposition gives the smallest value of
+    ``|ztilde|^2`` on the unit sphere and the directions where it vanishes.
+
+    Returns
+    -------
+    dict
+        ``c`` (4,), ``min_on_unit_sphere``, ``null_space_dim``, ``null_direction`` (4,)
+        (a unit ``eta`` with ``ztilde(eta, 0) = 0``), ``possible`` (bool).
+    """
+    basis = np.eye(4)
+    c = output(basis[:, :2]) - output(basis[:, 2:])
+    M = np.outer(c, c)
+    eig, vec = np.linalg.eigh(M)
+    tol = 1e-12 * max(float(eig[-1]), 1e-300)
+    null = int(np.sum(eig <= tol))
+    return {"c": c.tolist(), "min_on_unit_sphere": float(eig[0]), "null_space_dim": null,
+            "null_direction": vec[:, 0].tolist(), "possible": bool(eig[0] > tol)}

@@ -14,9 +14,15 @@ filter (50) (see docs/references.md).
   |xhat|^2``, the paper's), is reported too.
 - **Corollary 3**: the sufficient conditions (35)-(36) with ``Q1 = Q2 = I`` on a grid of
   ``(x, xhat)`` (corrected forms, :mod:`testbed.plants.nonlinear_discrete`), their largest
-  violation, the same for the printed forms, the curvature of (36) at the origin, and the HJI
-  (27) of Corollary 2 itself (which (35)-(36) are sufficient for) on the grid times
-  ``v in [0, 2]``.
+  violation, the same for the printed forms, the curvature of (36) at the origin.
+- **Corollary 2**: the HJI (27) itself (which (35)-(36) are sufficient for) with
+  ``V = |x|^2 + |xhat|^2`` on the grid times ``v in [-10, 10]`` and on a wider state box
+  (``hji_27``, ``hji_27_wide``): a grid samples (27), which must hold for all ``eta`` and
+  ``v``, and certifies nothing outside it. Corollary 2 also needs (26),
+  ``|ztilde(eta, 0)|^2 >= W(eta)`` with ``W`` positive and radially unbounded
+  (``condition_26``): here ``ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2)`` vanishes on a
+  three-dimensional subspace, so no such ``W`` exists and the HJI alone does not make (50)
+  an H-infinity filter in the paper's sense (internal stability is not certified).
 - One run through ``testbed/NonlinearDiscrete-v0`` with the filter (50) in the loop
   (:class:`~testbed.wrappers.FilterInLoop`) for the ``.rrd`` and Figures 1-2.
 """
@@ -31,11 +37,16 @@ import numpy as np
 
 from filters.lmi_hinf import LMIHInfFilter
 from testbed.plants import nonlinear_discrete as plant
-from testbed.reproductions.outputs import write_outputs
+from testbed.reproductions.outputs import agreement, write_outputs
 from testbed.scenarios.zhang_hinf import NonlinearDiscreteScenario
 from testbed.trajectory import Trajectory
 
 NAME = "zhang-nonlinear-discrete"
+#: The HJI (27) must hold for every v: it is sampled on [-HJI_V_MAX, HJI_V_MAX] (the paper's
+#: v_k lie in (0, 2]), on the scenario's state box and on a wider one.
+HJI_V_MAX = 10.0
+HJI_V_POINTS = 41
+HJI_WIDE_HALFWIDTH = 10.0
 
 
 def filter50(x0: np.ndarray | None = None) -> LMIHInfFilter:
@@ -136,7 +147,9 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     ratio = sum_z / sum_v
     cor = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points)
     cor_printed = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points, printed=True)
-    hji = plant.hji_check(gamma, s.grid_halfwidth)
+    v_test = np.linspace(-HJI_V_MAX, HJI_V_MAX, HJI_V_POINTS)
+    hji = plant.hji_check(gamma, s.grid_halfwidth, v_values=v_test)
+    hji_wide = plant.hji_check(gamma, HJI_WIDE_HALFWIDTH, v_values=v_test)
     result: dict[str, Any] = {
         "scenario": NAME,
         "x0": x0.tolist(),
@@ -161,6 +174,8 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         "corollary3": cor,
         "corollary3_printed": cor_printed,
         "hji_27": hji,
+        "hji_27_wide": hji_wide,
+        "condition_26": plant.condition26_check(),
         "max_abs_state": float(np.abs(x).max()),
     }
     loop = run_in_loop(x0, steps, seed) if (plot_path or rrd_path) else None
@@ -227,7 +242,10 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
 def row(result: dict[str, Any]) -> dict[str, str]:
     """The line of ``docs/reproductions.md`` for this reproduction."""
     cor, pr, hji = result["corollary3"], result["corollary3_printed"], result["hji_27"]
+    wide, c26 = result["hji_27_wide"], result["condition_26"]
+    v0, v1 = hji["v_range"]
     held = "holds" if result["inequality_holds"] else "fails"
+    findings = _findings(result)
     return {
         "paper": "Zhang, Deng & Zhang (2018), Example 5.1",
         "claim": "(35)-(36) 'easily' hold with Q1 = Q2 = I, so (50) is an H-infinity filter; "
@@ -239,14 +257,48 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                  f"on [-{cor['halfwidth']:g}, {cor['halfwidth']:g}]^4: max violation "
                  f"{cor['max_violation']:.3g} ((36): {cor['max_36']:.3g} on "
                  f"{cor['fraction_violated_36']:.1%} of the grid; as printed "
-                 f"{pr['max_violation']:.3g}); HJI (27) itself: max "
-                 f"{hji['max_violation']:.3g}"),
-        "agree": "partly",
+                 f"{pr['max_violation']:.3g}); HJI (27) itself, v in [{v0:g}, {v1:g}]: max "
+                 f"{hji['max_violation']:.3g} on [-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4,"
+                 f" {wide['max_violation']:.3g} on [-{wide['halfwidth']:g}, "
+                 f"{wide['halfwidth']:g}]^4 ({wide['fraction_violated']:.1%} of that grid "
+                 f"violated); (26): |ztilde(eta, 0)|^2 = 0 on a {c26['null_space_dim']}-"
+                 "dimensional subspace"),
+        "agree": agreement(findings),
         "why": ("The Monte-Carlo inequality holds, but Corollary 3 does not certify (50): (36) is "
                 "violated even arbitrarily close to 0 (Hessian eigenvalue "
                 f"{cor['hessian_36_max_eig_at_0']:.3g} > 0), and the printed (35)-(36) also miss "
-                "the noise terms h2, f2 and have +xhat'Q2 xhat instead of -xhat'Q2 xhat. The "
-                "HJI (27) (Corollary 2) does hold on the grid for this gamma. The sums are "
-                f"dominated by k = 0 (ztilde_0 = z_0 with xhat_0 = 0): smallest gamma "
+                "the noise terms h2, f2 and have +xhat'Q2 xhat instead of -xhat'Q2 xhat. "
+                "Corollary 2 does not certify it either: the HJI (27) with V = |x|^2 + "
+                f"|xhat|^2 holds on [-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4 for "
+                f"gamma = {result['gamma']:g} (a grid check, v in [{v0:g}, {v1:g}]; the "
+                "paper's v_k are in (0, 2]) but not globally (violated on "
+                f"[-{wide['halfwidth']:g}, {wide['halfwidth']:g}]^4), and its condition (26) "
+                "cannot hold: ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2) vanishes for "
+                "eta != 0 (e.g. eta = [1, -1, 0, 0] / sqrt 2), so no positive W is below "
+                "|ztilde|^2. The HJI alone does not imply (26). The sums are dominated by "
+                "k = 0 (ztilde_0 = z_0 with xhat_0 = 0): smallest gamma "
                 f"{result['smallest_gamma_mc_after_k0']:.3g} without it."),
     }
+
+
+def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """Each claim of the example, whether we agree, and our number."""
+    cor, hji, wide = result["corollary3"], result["hji_27"], result["hji_27_wide"]
+    c26 = result["condition_26"]
+    return [
+        {"label": "Monte-Carlo inequality (Fig. 3)",
+         "claim": "sum E ztilde^2 < gamma^2 sum v^2 at every k (1000 runs)",
+         "agree": bool(result["inequality_holds"]),
+         "ours": f"{result['sum_E_z2']:.4g} vs {result['gamma2_sum_v2']:.4g}"},
+        {"label": "(35)-(36) hold with Q1 = Q2 = I",
+         "claim": "(35)-(36) hold with Q1 = Q2 = I",
+         "agree": bool(cor["max_violation"] <= 0),
+         "ours": f"max violation {cor['max_violation']:.3g} on the grid"},
+        {"label": "(50) certified as an H-infinity filter (Corollary 2)",
+         "claim": "(50) is an H-infinity filter for (49)",
+         "agree": bool(c26["possible"] and hji["max_violation"] <= 0
+                       and wide["max_violation"] <= 0),
+         "ours": (f"HJI (27) max {hji['max_violation']:.3g} on the small box, "
+                  f"{wide['max_violation']:.3g} on the wide one; (26) possible: "
+                  f"{c26['possible']}")},
+    ]

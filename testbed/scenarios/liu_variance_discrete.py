@@ -40,8 +40,6 @@ class VarianceConstrainedDiscreteScenario:
         Not legible; assumed equal to ``delta1``.
     H : ndarray, shape (2, 1)
         Not printed; 0 (central gain).
-    H0 : ndarray, shape (2, 1)
-        Direction of ``H`` in the search (ours): ``[0.1, 0.1]^T``.
     paper_bound : ndarray, shape (2, 2)
         The printed matrix ``diag(0.02, 0.076)`` next to the design values (the variance bounds
         as a matrix; its role in the damaged text is unclear).
@@ -65,7 +63,6 @@ class VarianceConstrainedDiscreteScenario:
     delta1: float = 0.31
     delta2: float = 0.31
     H: np.ndarray = field(default_factory=lambda: np.zeros((2, 1)))
-    H0: np.ndarray = field(default_factory=lambda: _a([[0.1], [0.1]]))
     paper_bound: np.ndarray = field(default_factory=lambda: _a([[0.02, 0.0], [0.0, 0.076]]))
     paper_G: np.ndarray = field(default_factory=lambda: _a([[-0.17795, 0.09257],
                                                             [-0.01529, -0.58288]]))

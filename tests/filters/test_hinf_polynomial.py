@@ -356,3 +356,130 @@ def test_protocol_reset_input_and_validation():
     with pytest.raises(ValueError, match="D D"):
         NonOrthonormalPolynomialHInfFilter(paper_model(np.eye(2)).replace(D=[[0.0, 0.0]]),
                                            GAMMA, np.eye(2), 1e-3)
+
+
+# ------------------------------------------------------------------ fast step (cubic form)
+def rk4_reference(model, variant, gamma, x, P, ys, us, dt, t0=0.0):
+    """RK4 of the filter equations with the public einsum formulas f_hat / moment_matrix (and
+    the Jacobian for the linearized filter), written here; ``us`` may be None."""
+    gm2 = gamma**-2
+
+    def rhs(t, x, P, y, u):
+        c = model.at(t)
+        if variant == "poly":
+            F, A = f_hat(c, x, P), moment_matrix(c, x, P)
+        else:
+            A = c.jacobian(x)
+            F = c.f(x) if variant == "system" else c.a0 + A @ x
+        if u is not None and c.E is not None:
+            F = F + c.E @ u
+        W = np.linalg.inv(c.D @ c.D.T)
+        K = (P @ c.C.T + c.B @ c.D.T) @ W
+        dx = F + K @ (y - c.C @ x)
+        dP = (A @ P + P @ A.T + c.B @ c.B.T - K @ (c.D @ c.B.T + c.C @ P)
+              + gm2 * P @ c.L.T @ c.L @ P)
+        return dx, dP
+
+    out = []
+    for k, y in enumerate(ys):
+        u = None if us is None else us[k]
+        t = t0 + k * dt
+        k1 = rhs(t, x, P, y, u)
+        k2 = rhs(t + dt / 2, x + dt / 2 * k1[0], P + dt / 2 * k1[1], y, u)
+        k3 = rhs(t + dt / 2, x + dt / 2 * k2[0], P + dt / 2 * k2[1], y, u)
+        k4 = rhs(t + dt, x + dt * k3[0], P + dt * k3[1], y, u)
+        x = x + dt / 6 * (k1[0] + 2 * (k2[0] + k3[0]) + k4[0])
+        P = P + dt / 6 * (k1[1] + 2 * (k2[1] + k3[1]) + k4[1])
+        P = 0.5 * (P + P.T)
+        out.append((x, P))
+    return out
+
+
+def general_model(rng, n=3, time_varying=True):
+    """A stable random cubic system with B D^T != 0, D D^T != I, an input and time-varying
+    a0 and a3 (a full, non-symmetric tensor)."""
+    a3_fixed = rng.normal(size=(n, n, n, n))
+
+    def a3(t):
+        out = 0.01 * np.sin(3 * t) * a3_fixed
+        out[np.arange(n), np.arange(n), np.arange(n), np.arange(n)] -= 0.1
+        return out
+
+    a0_fixed = rng.normal(size=n)
+    return PolynomialModel(a0=(lambda t: 0.1 * np.cos(t) * a0_fixed) if time_varying else
+                           0.1 * a0_fixed,
+                           a1=0.3 * rng.normal(size=(n, n)) - np.eye(n),
+                           a2=0.05 * rng.normal(size=(n, n, n)),
+                           a3=a3 if time_varying else a3(0.3), B=rng.normal(size=(n, 2)),
+                           C=rng.normal(size=(2, n)), D=rng.normal(size=(2, 2)) + 2 * np.eye(2),
+                           L=rng.normal(size=(1, n)), E=rng.normal(size=(n, 1)))
+
+
+@pytest.mark.parametrize("variant", ["poly", "system", "jacobian"])
+def test_fast_step_equals_the_term_by_term_formulas(rng, variant):
+    """step() (the cubic form) against an RK4 of f_hat / moment_matrix / the Jacobian written
+    in the test, and against the term-by-term evaluation, to 1e-12: the paper's model with
+    both output matrices, and a general 3-state model (B D^T != 0, D D^T != I, input,
+    time-varying a0 and a3)."""
+    def make(model, gamma, dt, x0):
+        if variant == "poly":
+            cls = (PolynomialHInfFilter if np.allclose(model.at(0).B @ model.at(0).D.T, 0)
+                   else NonOrthonormalPolynomialHInfFilter)
+            return cls(model, gamma, np.eye(model.n), dt, x0)
+        return LinearizedHInfFilter(model, gamma, np.eye(model.n), dt, x0,
+                                    state_equation=variant)
+
+    cases = [(paper_model(np.eye(2)), GAMMA, 1e-2, 40, None),
+             (paper_model(np.array([[1.0, 0.0]])), GAMMA, 1e-2, 40, None),
+             (general_model(rng), 5.0, 1e-2, 40, rng.normal(size=(40, 1)))]
+    for model, gamma, dt, steps, us in cases:
+        x0 = 0.1 * rng.normal(size=model.n)
+        ys = rng.normal(size=(steps, model.m))
+        fast, slow = make(model, gamma, dt, x0), make(model, gamma, dt, x0)
+        assert fast._cubic is not None
+        slow._cubic = None  # the term-by-term evaluation
+        ref = rk4_reference(model, variant, gamma, x0, np.eye(model.n), ys, us, dt)
+        for k, y in enumerate(ys):
+            u = None if us is None else us[k]
+            fast.step(y, u)
+            slow.step(y, u)
+            for got in (fast, slow):
+                assert rel_err(got.x, ref[k][0]) < 1e-12 and rel_err(got.P, ref[k][1]) < 1e-12
+        np.testing.assert_array_equal(fast.P, fast.P.swapaxes(-1, -2))
+        np.testing.assert_allclose(fast.innovation, slow.innovation, rtol=1e-12, atol=1e-12)
+
+
+def test_fast_step_batch_equals_single_and_escapes_like_the_slow_path(rng):
+    model = paper_model(np.array([[1.0, 0.0]]))
+    x0 = rng.normal(scale=0.3, size=(4, 2))
+    fast = PolynomialHInfFilter(model, GAMMA, np.eye(2), 1e-2, x0, substeps=3)
+    slow = PolynomialHInfFilter(model, GAMMA, np.eye(2), 1e-2, x0, substeps=3)
+    slow._cubic = None
+    err_fast = err_slow = None
+    for _ in range(200):  # P22 of the printed (26) escapes near t = 1.02 s
+        y = rng.normal(size=(4, 1))
+        try:
+            fast.step(y)
+        except FiniteEscapeError as exc:
+            err_fast = exc
+        try:
+            slow.step(y)
+        except FiniteEscapeError as exc:
+            err_slow = exc
+        assert rel_err(fast.x, slow.x) < 1e-12 and rel_err(fast.P, slow.P) < 1e-12
+        if err_fast or err_slow:
+            break
+    assert err_fast is not None and err_slow is not None
+    assert (err_fast.quantity, err_fast.time) == (err_slow.quantity, err_slow.time)
+    assert "batch index" in str(err_fast)
+
+
+def test_fast_step_only_for_small_constant_matrix_models(rng):
+    big = PolynomialModel(a1=-np.eye(4), a3=np.zeros((4, 4, 4, 4)) - 0.01, B=np.eye(4),
+                          C=np.eye(4)[:1], D=np.ones((1, 4)) / 2.0, L=np.eye(4))
+    assert NonOrthonormalPolynomialHInfFilter(big, 2.0, np.eye(4), 1e-2)._cubic is None
+    varying_c = paper_model(np.eye(2)).replace(C=lambda t: [[1.0, 0.1 * np.sin(t)]])
+    filt = PolynomialHInfFilter(varying_c, GAMMA, np.eye(2), 1e-3)
+    assert filt._cubic is None
+    filt.step([0.3])  # the term-by-term path still works
+    assert filt.x.shape == (2,)

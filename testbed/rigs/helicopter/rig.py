@@ -201,7 +201,11 @@ def gravity_voltage(params: HelicopterParams, pitch_rad: float | np.ndarray) -> 
     -------
     ndarray, shape (..., 2)
         Voltages in V. At level pitch with nominal parameters this is ``[12.53, -3.82]`` V,
-        close to the constant ``u = [12.495, -3.835]`` V of Basin et al.'s example.
+        close to the constant ``u = [12.495, -3.835]`` V of Basin et al.'s example: on this
+        rig, with gravity, that ``u`` about holds level pitch. The paper's linear model
+        leaves gravity out; there the same ``u`` drives pitch without bound (about 250 rad
+        after 80 s, ``testbed reproduce basin-ms-hinf-helicopter``), so the example is the
+        rig hovering only on the MuJoCo rig.
     """
     torque = params.mass_kg * GRAVITY_M_S2 * params.com_m * np.cos(np.asarray(pitch_rad, float))
     return torque[..., None] * _volts_per_pitch_newton_metre(params)
