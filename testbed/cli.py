@@ -59,6 +59,9 @@ def _non_negative_int(text: str) -> int:
 
 def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     p.add_argument("rig", help=f"one of {', '.join(RIGS)} or package.module:RigClass")
+    p.add_argument("--profile", default="paper", choices=("paper", "hardware"),
+                   help="paper: the papers' idealizations; hardware: motor lag, amplifier "
+                   "limits, deadband, IMU and sensor timing of the real rig (see docs)")
     p.add_argument("--filter", default="kalman",
                    help=f"{', '.join(ESTIMATORS)} or package.module:factory")
     p.add_argument("--filter-option", type=_name_value, action="append", default=[],
@@ -165,7 +168,7 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
     if unknown:
         refuse(f"--design-option {sorted(unknown)[0]}",
                f"its design options: {sorted(rig.scenario_options) or 'none'}")
-    return Scenario(rig=args.rig, estimator=args.filter,
+    return Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
                     estimator_options=dict(args.filter_option), controller=args.controller,
                     sensors=args.sensors, sensor_options=sensor_options,
                     disturbance=args.disturbance, process_noise=args.process_noise or 0.0,

@@ -21,6 +21,10 @@ class Scenario:
     ----------
     rig : str or Rig subclass
         Registered name (``"helicopter"``, ``"vehicle-roll"``), ``module:Class`` or a class.
+    profile : str
+        Simulation profile of the rig: ``"paper"`` (the papers' idealizations) or
+        ``"hardware"`` (actuator and sensor effects of the real rig); the estimator's design
+        model is the same in both.
     estimator : str or callable
         Registered filter name, ``package.module:factory`` or a factory.
     estimator_options : dict
@@ -52,6 +56,7 @@ class Scenario:
     """
 
     rig: Any = "helicopter"
+    profile: str = "paper"
     estimator: Any = "kalman"
     estimator_options: dict[str, Any] = field(default_factory=dict)
     controller: str | None = None
@@ -91,6 +96,9 @@ class Scenario:
                 and self.duration_s > 0):
             raise ValueError(f"duration_s must be a positive finite time in s, got "
                              f"{self.duration_s!r}")
+        if self.profile not in rig.profiles:
+            raise ValueError(f"profile must be one of {rig.profiles} for rig {rig.name!r}, got "
+                             f"{self.profile!r}")
         if not isinstance(self.seed, int | np.integer) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         unknown = set(self.design_options) - set(rig.scenario_options)

@@ -184,10 +184,18 @@ class Physics:
               need_poses: bool) -> None:
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
+        substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         for i in rows:
             model, row = models[i], state[i]
             set_state(model, data, row, _INTEGRATION)
-            step(model, data, nstep)
+            if substep is None:
+                step(model, data, nstep)
+            else:  # ctrl from the held command and the actuator state, every physics step
+                command = data.ctrl.copy()
+                for _ in range(nstep):
+                    data.ctrl[:] = substep(command, data.act, self.constants[i])
+                    step(model, data)
+                data.ctrl[:] = command
             get_state(model, data, row, _INTEGRATION)
             if need_mass:
                 mujoco.mj_fullM(model, data, mass[i])

@@ -258,7 +258,7 @@ def test_sensor_presets_and_errors():
     assert isinstance(rig.sensors("paper", dt_s=0.01), PaperRollChannel)
     assert rig.sensors(None, dt_s=0.01).names == suite.names  # default preset: imu
     assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 3
-    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper', 'hardware'\)"):
         rig.sensors("encoders", dt_s=0.01)
     with pytest.raises(ValueError, match="density must be finite and non-negative"):
         rig.sensors("imu", dt_s=0.01, gyro_noise_density=-1.0)
@@ -393,7 +393,7 @@ def test_bad_action_raises_and_leaves_state_unchanged(action):
 def test_bad_names_and_unphysical_parameters():
     with pytest.raises(ValueError, match=r"expected one of \['double-lane-change'"):
         VehicleRollEnv(manoeuvre="slalom")
-    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper', 'hardware'\)"):
         VehicleRollEnv(sensors="lidar")
     with pytest.raises(ValueError, match="unknown disturbance 'basin-helicopter'"):
         VehicleRollEnv(disturbance="basin-helicopter")

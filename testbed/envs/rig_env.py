@@ -22,7 +22,9 @@ profile's part of the applied input), ``process_accel`` (disturbance acceleratio
 ``-|x_tracked - reference|^2`` after each step (estimator studies can ignore it).
 
 ## Arguments
-``rig`` (registered name or :class:`~testbed.rigs.base.Rig` subclass), ``physics_dt_s``,
+``rig`` (registered name or :class:`~testbed.rigs.base.Rig` subclass), ``profile``
+(``"paper"``: the papers' idealizations, or ``"hardware"``: the real rig's actuator and
+sensor effects, see the rig's docs), ``physics_dt_s``,
 ``frame_skip``, ``sensors`` (a preset name of the rig or a :class:`~testbed.sensors.Sensor`)
 with ``sensor_kwargs``, ``disturbance`` (name of the rig's disturbances, a
 :class:`~testbed.disturbances.Disturbance` or None), ``process_noise`` (scale of the rig's
@@ -52,9 +54,9 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                     process_noise: float = 0.0, setpoints: Any = None, manoeuvre: Any = None,
                     manoeuvre_params: dict[str, Any] | None = None,
                     params: dict[str, float] | None = None,
-                    num_threads: int | None = None) -> Simulator:
+                    num_threads: int | None = None, profile: str = "paper") -> Simulator:
     """A :class:`Simulator` of ``num`` members from the environments' arguments."""
-    rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s)
+    rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
     if int(frame_skip) != frame_skip or frame_skip < 1:
         raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
     dt_s = physics_dt_s * int(frame_skip)

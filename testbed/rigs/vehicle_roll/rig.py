@@ -22,7 +22,7 @@ from testbed.rigs.vehicle_roll.model import (
 
 #: Roll angle beyond which the vehicle has rolled over (episode terminates), rad.
 ROLLOVER_RAD = float(np.pi / 2)
-SENSOR_PRESETS = ("imu", "paper")
+SENSOR_PRESETS = ("imu", "paper", "hardware")
 
 
 def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
@@ -73,9 +73,14 @@ class VehicleRollRig(Rig):
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
     scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
+    #: ``hardware`` changes the default sensors only (the input is a physical acceleration,
+    #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
+    #: CAN latency.
+    profiles = ("paper", "hardware")
 
-    def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001):
-        super().__init__(params, physics_dt_s)
+    def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001,
+                 profile: str = "paper"):
+        super().__init__(params, physics_dt_s, profile)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
         self._body_id = self.body_id("sprung_mass")
         from testbed.manoeuvres import MANOEUVRES
@@ -122,21 +127,26 @@ class VehicleRollRig(Rig):
         """Rolled over: ``|roll| > 90 deg``."""
         return np.abs(x[:, 0]) > ROLLOVER_RAD
 
-    def sensors(self, preset: str | None = "imu", *, dt_s: float = 0.01, **options):
-        """``imu`` (gyro, lateral accelerometer, optional roll sensor) or ``paper`` channels.
+    def sensors(self, preset: str | None = None, *, dt_s: float = 0.01, **options):
+        """``imu`` (gyro, lateral accelerometer, optional roll sensor), ``hardware`` (the
+        same with offsets, sensitivity errors and latency) or ``paper`` channels.
 
-        See :func:`testbed.rigs.vehicle_roll.sensors.imu` and
+        Default: ``imu`` in the ``paper`` profile, ``hardware`` in the ``hardware`` profile.
+        See :func:`testbed.rigs.vehicle_roll.sensors.imu`,
+        :func:`testbed.rigs.vehicle_roll.sensors.hardware` and
         :class:`testbed.rigs.vehicle_roll.sensors.PaperRollChannel` for the options.
         """
         from testbed.rigs.vehicle_roll import sensors
 
-        preset = preset or "imu"
+        preset = preset or ("imu" if self.profile == "paper" else "hardware")
         if preset not in SENSOR_PRESETS:
             raise ValueError(f"unknown vehicle-roll sensor preset {preset!r}; expected one of "
                              f"{SENSOR_PRESETS}")
         try:
             if preset == "imu":
                 return sensors.imu(dt_s=dt_s, **options)
+            if preset == "hardware":
+                return sensors.hardware(dt_s=dt_s, **options)
             return sensors.PaperRollChannel(**options)
         except TypeError as err:
             raise ValueError(f"bad option for sensor preset {preset!r}: {err}") from None

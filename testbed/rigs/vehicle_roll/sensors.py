@@ -15,8 +15,10 @@ from testbed.rigs.vehicle_roll.model import paper_model
 from testbed.sensors import (
     Bias,
     BiasRandomWalk,
+    Delay,
     Noise,
     Sample,
+    ScaleFactor,
     Sensor,
     SensorModel,
     StateChannel,
@@ -32,6 +34,16 @@ GYRO_BIAS_WALK = float(np.deg2rad(1e-4))
 ACCEL_NOISE_DENSITY = 150e-6 * GRAVITY_M_S2
 #: Representative roll-angle sensor noise (e.g. a dual-antenna GNSS/INS), rad per sample.
 ROLL_NOISE_STD = float(np.deg2rad(0.1))
+
+#: ``hardware`` preset (assumptions, docs/vehicle_roll.md): gyro offset left after the
+#: standstill calibration, rad/s (per episode).
+HW_GYRO_BIAS0_STD = float(np.deg2rad(0.05))
+#: Accelerometer offset (mounting tilt and calibration residual), m/s^2 (per episode).
+HW_ACCEL_BIAS0_STD = 0.02
+#: Sensitivity (scale-factor) error of gyro and accelerometer, fraction (per episode).
+HW_SCALE_FACTOR_STD = 0.01
+#: Latency of the sensor cluster's CAN messages, s (rounded to whole samples, >= 1).
+HW_CAN_DELAY_S = 0.01
 
 
 class LateralAccelerometer(Sensor):
@@ -57,7 +69,9 @@ class LateralAccelerometer(Sensor):
 def imu(dt_s: float = 0.01, gyro_noise_density: float = GYRO_NOISE_DENSITY,
         gyro_bias_walk: float = GYRO_BIAS_WALK, gyro_bias0_std: float = 0.0,
         accel_noise_density: float = ACCEL_NOISE_DENSITY, accel_bias: float = 0.0,
-        roll_sensor: bool = False, roll_noise_std: float = ROLL_NOISE_STD) -> Suite:
+        roll_sensor: bool = False, roll_noise_std: float = ROLL_NOISE_STD,
+        accel_bias0_std: float = 0.0, scale_factor_std: float = 0.0,
+        delay_samples: int = 0) -> Suite:
     """Roll-rate gyro, lateral accelerometer and an optional roll-angle sensor.
 
     Channels: ``roll_rate`` (rad/s) = ``roll_rate + n_g + b_k`` with a bias random walk;
@@ -65,16 +79,47 @@ def imu(dt_s: float = 0.01, gyro_noise_density: float = GYRO_NOISE_DENSITY,
     (rad) = ``roll + n_r``. Defaults are representative of automotive MEMS IMUs (Bosch
     BMI088/SMI, ST ASM330 class): at 100 Hz ``sigma_g = 0.1 deg/s``,
     ``sigma_a = 0.0147 m/s^2`` per sample.
+
+    Hardware effects (off by default; the ``hardware`` preset turns them on): a random
+    accelerometer offset ``accel_bias0_std`` per episode, a sensitivity error
+    ``scale_factor_std`` per episode on gyro and accelerometer, and a transport delay of
+    ``delay_samples`` samples on both (CAN latency).
     """
-    gyro = BiasRandomWalk(WhiteNoise(StateChannel(1, 2, 1, "roll_rate", "rad/s"),
+    if int(delay_samples) != delay_samples or delay_samples < 0:
+        raise ValueError(f"delay_samples must be a non-negative integer, got {delay_samples!r}")
+
+    def scaled(channel: Sensor) -> Sensor:
+        return ScaleFactor(channel, initial_std=scale_factor_std) if scale_factor_std else channel
+
+    def delayed(channel: Sensor) -> Sensor:
+        return Delay(channel, int(delay_samples)) if delay_samples else channel
+
+    gyro = BiasRandomWalk(WhiteNoise(scaled(StateChannel(1, 2, 1, "roll_rate", "rad/s")),
                                      density=gyro_noise_density, dt_s=dt_s),
                           walk=gyro_bias_walk, dt_s=dt_s, initial_std=gyro_bias0_std)
-    accel = WhiteNoise(Bias(LateralAccelerometer(), accel_bias), density=accel_noise_density,
-                       dt_s=dt_s)
-    parts: list[Sensor] = [gyro, accel]
+    accel: Sensor = Bias(scaled(LateralAccelerometer()), accel_bias)
+    if accel_bias0_std:
+        accel = BiasRandomWalk(accel, walk=0.0, dt_s=dt_s, initial_std=accel_bias0_std)
+    accel = WhiteNoise(accel, density=accel_noise_density, dt_s=dt_s)
+    parts: list[Sensor] = [delayed(gyro), delayed(accel)]
     if roll_sensor:
         parts.append(WhiteNoise(StateChannel(0, 2, 1, "roll", "rad"), std=roll_noise_std))
     return Suite(*parts)
+
+
+def hardware(dt_s: float = 0.01, **options) -> Suite:
+    """The ``hardware`` preset: :func:`imu` with the documented hardware effects on.
+
+    Gyro offset ``HW_GYRO_BIAS0_STD`` and accelerometer offset ``HW_ACCEL_BIAS0_STD`` per
+    episode, sensitivity error ``HW_SCALE_FACTOR_STD``, CAN latency ``HW_CAN_DELAY_S``
+    (whole samples, at least one). ``options`` override any :func:`imu` argument.
+    """
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be a positive sampling period in s, got {dt_s}")
+    defaults = {"gyro_bias0_std": HW_GYRO_BIAS0_STD, "accel_bias0_std": HW_ACCEL_BIAS0_STD,
+                "scale_factor_std": HW_SCALE_FACTOR_STD,
+                "delay_samples": max(1, int(round(HW_CAN_DELAY_S / dt_s)))}
+    return imu(dt_s=dt_s, **{**defaults, **options})
 
 
 class PaperRollChannel(Sensor):
