@@ -81,6 +81,12 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
                    help="a named disturbance of the rig (helicopter: basin-helicopter)")
     p.add_argument("--process-noise", type=float, default=None,
                    help="scale of the rig's white process noise (helicopter)")
+    p.add_argument("--ambient-noise", type=float, default=1.0,
+                   help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
+                   "default 1, 0: none)")
+    p.add_argument("--reset-noise-scale", type=float, default=1.0,
+                   help="scale of the rig's initial-state distribution (default 1; 0: the "
+                   "fixed initial state of the papers)")
     p.add_argument("--design-option", type=_name_value, action="append", default=[],
                    metavar="NAME=VALUE", help="rig design option (helicopter: "
                    "process_noise_floor; vehicle-roll: a_y_std, design_roll_rate)")
@@ -172,6 +178,7 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
                     estimator_options=dict(args.filter_option), controller=args.controller,
                     sensors=args.sensors, sensor_options=sensor_options,
                     disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
+                    ambient_noise=args.ambient_noise, reset_noise_scale=args.reset_noise_scale,
                     manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
                     params=dict(args.param), design_options=dict(args.design_option),
                     duration_s=args.duration, seed=args.seed)

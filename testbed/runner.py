@@ -100,7 +100,8 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                           manoeuvre=scenario.manoeuvre,
                           manoeuvre_params=scenario.manoeuvre_params or None,
                           params=scenario.params or None, num_threads=num_threads,
-                          profile=scenario.profile)
+                          profile=scenario.profile, ambient_noise=scenario.ambient_noise,
+                          reset_noise_scale=scenario.reset_noise_scale)
     rig = sim.rig
     design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
     dist = sim.disturbance if (sim.disturbance.active or sim.disturbance.has_signal) else None

@@ -39,6 +39,12 @@ class Scenario:
         A named signal of the rig (``"basin-helicopter"``).
     process_noise : float
         Scale of the rig's white process noise (0: none).
+    ambient_noise : float
+        Scale of the rig's small documented ambient disturbance (air turbulence, gusts;
+        default 1, 0: none). The design model's ``Q`` includes it.
+    reset_noise_scale : float
+        Scale of the rig's documented initial-state distribution (default 1; 0: the fixed
+        default state, as in the papers).
     manoeuvre : str, optional
         Open-loop input profile of the rig (default: the rig's; ``"none"`` for none).
     manoeuvre_params : dict
@@ -64,6 +70,8 @@ class Scenario:
     sensor_options: dict[str, Any] = field(default_factory=dict)
     disturbance: str | None = None
     process_noise: float = 0.0
+    ambient_noise: float = 1.0
+    reset_noise_scale: float = 1.0
     manoeuvre: Any = None
     manoeuvre_params: dict[str, Any] = field(default_factory=dict)
     setpoints: Any = None

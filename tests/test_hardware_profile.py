@@ -163,7 +163,7 @@ def test_imu_channels_equal_mujoco_gyro_and_accelerometer():
 
 def test_hardware_sensor_noise_levels_and_delay():
     hw = HelicopterHardware()
-    env = RigEnv("helicopter", profile="hardware")
+    env = RigEnv("helicopter", profile="hardware", ambient_noise=0.0, reset_noise_scale=0.0)
     assert env.sensors.names == ("pitch", "yaw", "gyro_pitch", "gyro_yaw", "accel_x")
     # at rest on the stop: the gyros read bias + noise, the accelerometer g sin(pitch)
     obs = []

@@ -135,7 +135,8 @@ def test_mujoco_rig_reproduces_eq51():
     # A hard step steer plus random perturbations, and D_n x 500 so the multiplicative
     # damping noise matters: the replay uses the a_y and w_k the env reports.
     env = VehicleRollEnv(manoeuvre="step-steer", manoeuvre_params={"amplitude_m_s2": 7.0},
-                         params={"damping_noise": 500.0})
+                         params={"damping_noise": 500.0}, ambient_noise=0.0,
+                         reset_noise_scale=0.0)
     env.reset(seed=0)
     rng = np.random.default_rng(1)
     states, a_seq, w_seq = [], [], []
@@ -313,7 +314,7 @@ def test_same_seed_is_bitwise_identical_and_other_seed_differs():
 
 
 def test_info_contents_and_reset_defaults():
-    env = VehicleRollEnv()
+    env = VehicleRollEnv(reset_noise_scale=0.0)
     obs, info = env.reset(seed=0)
     assert obs.shape == (2,) and env.observation_space.contains(obs)
     np.testing.assert_array_equal(info["state"], [0.0, 0.0])

@@ -28,8 +28,11 @@ sensor effects, see the rig's docs), ``physics_dt_s``,
 ``frame_skip``, ``sensors`` (a preset name of the rig or a :class:`~testbed.sensors.Sensor`)
 with ``sensor_kwargs``, ``disturbance`` (name of the rig's disturbances, a
 :class:`~testbed.disturbances.Disturbance` or None), ``process_noise`` (scale of the rig's
-white process noise), ``setpoints``, ``manoeuvre`` with ``manoeuvre_params``, ``params``
-(default parameter scale factors). ``reset(seed=, options={"x0", "params", "setpoints",
+white process noise), ``ambient_noise`` (scale of the rig's small documented ambient
+disturbance: air turbulence, gusts; default 1, 0 for none), ``reset_noise_scale`` (scale of
+the rig's documented initial-state distribution; default 1, 0 for the fixed default state),
+``setpoints``, ``manoeuvre`` with ``manoeuvre_params``, ``params`` (default parameter scale
+factors). ``reset(seed=, options={"x0", "params", "setpoints",
 "manoeuvre", "manoeuvre_params"})``.
 """
 
@@ -54,8 +57,14 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                     process_noise: float = 0.0, setpoints: Any = None, manoeuvre: Any = None,
                     manoeuvre_params: dict[str, Any] | None = None,
                     params: dict[str, float] | None = None,
-                    num_threads: int | None = None, profile: str = "paper") -> Simulator:
-    """A :class:`Simulator` of ``num`` members from the environments' arguments."""
+                    num_threads: int | None = None, profile: str = "paper",
+                    reset_noise_scale: float = 1.0, ambient_noise: float = 1.0) -> Simulator:
+    """A :class:`Simulator` of ``num`` members from the environments' arguments.
+
+    By default the initial state is drawn from the rig's documented distribution
+    (``reset_noise_scale = 1``) and the rig's small ambient disturbance is on
+    (``ambient_noise = 1``); 0 turns either off.
+    """
     rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
     if int(frame_skip) != frame_skip or frame_skip < 1:
         raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
@@ -64,10 +73,11 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
         sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))
     elif sensor_kwargs:
         raise ValueError("sensor_kwargs is only used with a sensor preset name")
-    dist = rig_obj.disturbance(disturbance, process_noise)
+    dist = rig_obj.disturbance(disturbance, process_noise, ambient_noise)
     return Simulator(rig_obj, sensors, num, frame_skip, disturbance=dist, params=params,
                      setpoints=setpoints, manoeuvre=manoeuvre,
-                     manoeuvre_params=manoeuvre_params, num_threads=num_threads)
+                     manoeuvre_params=manoeuvre_params, num_threads=num_threads,
+                     reset_noise_scale=reset_noise_scale)
 
 
 def _squeeze(info: dict[str, np.ndarray], i: int = 0) -> dict[str, Any]:

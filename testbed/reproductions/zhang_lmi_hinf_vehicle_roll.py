@@ -95,7 +95,7 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
     from testbed.envs import RigEnv
     from testbed.wrappers import FilterInLoop
 
-    env = RigEnv("vehicle-roll", sensors="paper", manoeuvre="paper-decay")
+    env = RigEnv("vehicle-roll", sensors="paper", manoeuvre="paper-decay", ambient_noise=0.0)
     est = LMIHInfFilter.from_design(system, design_gain, x0=xhat0, dt_s=env.dt_s)
     loop = FilterInLoop(env, est, output_matrix=system.C_z)
     seeds = np.random.SeedSequence(seed).generate_state(runs)

@@ -91,6 +91,8 @@ class Rig:
     #: Standard normals per member and control step that perturb the model
     #: (:meth:`apply_step_noise`); 0 for none.
     step_noise_dim: ClassVar[int] = 0
+    #: Standard normals per member that :meth:`random_x0` turns into an initial state.
+    x0_draws: ClassVar[int] = 0
     #: Open-loop input profiles by name (``reset(options={"manoeuvre": name})``).
     manoeuvres: ClassVar[dict[str, Callable[..., Any]]] = {}
     #: Default reference schedule ``((t_s, *tracked values), ...)``; empty: zero reference.
@@ -263,6 +265,18 @@ class Rig:
         """Initial state when a reset gives none, shape (n,) (default: rest at zero)."""
         return np.zeros(self.n_states)
 
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """Initial states from the rig's documented distribution, shape (k, n).
+
+        Parameters
+        ----------
+        xi : ndarray, shape (k, x0_draws)
+            Standard normals (times the scenario's ``reset_noise_scale``), one row per member.
+
+        Default: :meth:`default_x0` for every member (no randomness).
+        """
+        return np.tile(self.default_x0(), (len(xi), 1))
+
     def validate_x0(self, x0: Any) -> np.ndarray:
         """``options['x0']`` as a finite array of shape (n,), else ``ValueError``."""
         try:
@@ -347,8 +361,15 @@ class Rig:
         """White process-noise input ``b`` (n, p) scaled by ``process_noise`` (None: none)."""
         return None
 
-    def disturbance(self, name: Any = None, process_noise: float = 0.0):
-        """The scenario's disturbance: a named signal ``G w(t)`` and/or ``process_noise b dW``.
+    def ambient_noise_matrix(self) -> np.ndarray | None:
+        """White-noise input ``b`` (n, p) of the rig's small ambient disturbance (air
+        turbulence, gusts), scaled by ``ambient_noise`` (None: the rig has none)."""
+        return None
+
+    def disturbance(self, name: Any = None, process_noise: float = 0.0,
+                    ambient_noise: float = 0.0):
+        """The scenario's disturbance: a named signal ``G w(t)``, ``process_noise b dW`` and
+        ``ambient_noise b_a dW_a``.
 
         Parameters
         ----------
@@ -356,16 +377,28 @@ class Rig:
             A key of :attr:`disturbance_signals` (``None``/``"none"``: no signal).
         process_noise : float
             Scale of :meth:`process_noise_matrix` (0: none).
+        ambient_noise : float
+            Scale of :meth:`ambient_noise_matrix` (0: none; ignored by rigs without one).
 
         Returns
         -------
         testbed.disturbances.Disturbance or None
         """
+        try:
+            ambient = float(ambient_noise)
+        except (TypeError, ValueError):
+            raise ValueError(f"ambient_noise must be a number, got {ambient_noise!r}") from None
+        if not (np.isfinite(ambient) and ambient >= 0):
+            raise ValueError(f"ambient_noise must be finite and >= 0, got {ambient_noise}")
+        b_ambient = self.ambient_noise_matrix() if ambient > 0 else None
         if isinstance(name, Disturbance):
             if process_noise:
                 raise ValueError("process_noise applies to a named disturbance, not to a "
                                  "Disturbance object")
-            return name
+            if b_ambient is None:
+                return name
+            b = b_ambient * ambient if name.b is None else np.hstack([name.b, b_ambient * ambient])
+            return dataclasses.replace(name, b=b)
         try:
             scale = float(process_noise)
         except (TypeError, ValueError):
@@ -384,6 +417,8 @@ class Rig:
                 raise ValueError(f"rig {self.name!r} has no process-noise model; "
                                  "process_noise must be 0")
             b = b0 * scale
+        if b_ambient is not None:
+            b = b_ambient * ambient if b is None else np.hstack([b, b_ambient * ambient])
         if w is None and b is None:
             return None
         return Disturbance(G=G, w=w, b=b, n_positions=len(self.joints))

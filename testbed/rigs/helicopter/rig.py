@@ -231,6 +231,15 @@ DEFAULT_SETPOINTS: tuple[tuple[float, float, float], ...] = (
     (10.0, float(np.deg2rad(-5.0)), float(np.deg2rad(-20.0))),
     (15.0, float(np.deg2rad(5.0)), 0.0),
 )
+#: Initial-state spread of the default scenario: yaw and yaw rate standard deviations
+#: (rad, rad/s), the design prior's (``P0 = 1e-4 I``); pitch rests on its stop, still.
+X0_YAW_STD_RAD = 0.01
+X0_YAW_RATE_STD_RAD_S = 0.01
+#: Ambient disturbance of the default scenario ("air turbulence on the rotors"): white-noise
+#: angular accelerations on pitch and yaw, rad/s^(3/2). From a thrust-torque fluctuation of
+#: 1 % of the hover torque m g l (0.293 rad/s^2 rms) with a 0.05 s correlation time:
+#: intensity 2 sigma^2 tau_c = 0.0086 rad^2/s^3, b = 0.093 (assumption, docs/helicopter.md).
+AMBIENT_NOISE_RAD_S15 = 0.093
 #: Encoder resolutions (pitch, yaw), counts per revolution (Quanser's).
 ENCODER_COUNTS = (4096, 8192)
 SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper", "hardware")
@@ -391,6 +400,22 @@ class HelicopterRig(Rig):
     def default_x0(self) -> np.ndarray:
         """Resting on the lower pitch stop: ``[-40.5 deg, 0, 0, 0]``."""
         return np.array([-PITCH_LIMIT_RAD, 0.0, 0.0, 0.0])
+
+    x0_draws = 2
+
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """On the lower stop, still in pitch; yaw ``~ N(0, 0.01^2)`` rad, yaw rate
+        ``~ N(0, 0.01^2)`` rad/s (the design prior): shape (k, 4) from ``xi`` (k, 2)."""
+        x = np.tile(self.default_x0(), (len(xi), 1))
+        x[:, 1] = X0_YAW_STD_RAD * xi[:, 0]
+        x[:, 3] = X0_YAW_RATE_STD_RAD_S * xi[:, 1]
+        return x
+
+    def ambient_noise_matrix(self) -> np.ndarray:
+        """Air turbulence on the rotors: ``b = diag(0.093, 0.093)`` on the acceleration rows."""
+        b = np.zeros((4, 2))
+        b[2, 0] = b[3, 1] = AMBIENT_NOISE_RAD_S15
+        return b
 
     def validate_x0(self, x0) -> np.ndarray:
         """Shape (4,), finite, pitch within the stops."""

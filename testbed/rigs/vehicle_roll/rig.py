@@ -23,6 +23,14 @@ from testbed.rigs.vehicle_roll.model import (
 #: Roll angle beyond which the vehicle has rolled over (episode terminates), rad.
 ROLLOVER_RAD = float(np.pi / 2)
 SENSOR_PRESETS = ("imu", "paper", "hardware")
+#: Initial-state spread of the default scenario: roll (rad) and roll-rate (rad/s) standard
+#: deviations, the design prior's (0.5 deg, 1 deg/s).
+X0_STD = (float(np.deg2rad(0.5)), float(np.deg2rad(1.0)))
+#: Ambient disturbance of the default scenario (crosswind gusts): white-noise roll
+#: acceleration, rad/s^(3/2). From a lateral gust force of 250 N rms acting 0.6 m above the
+#: roll axis (0.088 rad/s^2 rms) with a 0.1 s correlation time: intensity
+#: 2 sigma^2 tau_c = 1.6e-3 rad^2/s^3, b = 0.04 (assumption, docs/vehicle_roll.md).
+AMBIENT_NOISE_RAD_S15 = 0.04
 
 
 def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
@@ -114,6 +122,17 @@ class VehicleRollRig(Rig):
                          xi: np.ndarray) -> None:
         """Damping ``C_R + D_n w_k`` for the next step."""
         model.dof_damping[self.dof_adr[0]] = constants[1] + constants[2] * xi[0]
+
+    x0_draws = 2
+
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """``roll ~ N(0, (0.5 deg)^2)``, ``roll_rate ~ N(0, (1 deg/s)^2)`` (the design
+        prior): shape (k, 2) from ``xi`` (k, 2)."""
+        return np.asarray(xi, float) * np.array(X0_STD)
+
+    def ambient_noise_matrix(self) -> np.ndarray:
+        """Crosswind gusts: ``b = [[0], [0.04]]`` (roll acceleration)."""
+        return np.array([[0.0], [AMBIENT_NOISE_RAD_S15]])
 
     def validate_x0(self, x0) -> np.ndarray:
         """Shape (2,), finite, roll short of rollover."""
