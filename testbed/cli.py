@@ -81,6 +81,9 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
                    help="a named disturbance of the rig (helicopter: basin-helicopter)")
     p.add_argument("--process-noise", type=float, default=None,
                    help="scale of the rig's white process noise (helicopter)")
+    p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
+                   help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
+                   "(measured; auto = when the sensors have them) or exact (oracle)")
     p.add_argument("--ambient-noise", type=float, default=1.0,
                    help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
                    "default 1, 0: none)")
@@ -174,13 +177,18 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
     if unknown:
         refuse(f"--design-option {sorted(unknown)[0]}",
                f"its design options: {sorted(rig.scenario_options) or 'none'}")
+    design_options: dict[str, Any] = dict(args.design_option)
+    if args.a_y_source is not None:
+        if "a_y_source" not in rig.scenario_options:
+            refuse("--a-y-source", "its input is not a lateral acceleration")
+        design_options["a_y_source"] = args.a_y_source
     return Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
                     estimator_options=dict(args.filter_option), controller=args.controller,
                     sensors=args.sensors, sensor_options=sensor_options,
                     disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
                     ambient_noise=args.ambient_noise, reset_noise_scale=args.reset_noise_scale,
                     manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
-                    params=dict(args.param), design_options=dict(args.design_option),
+                    params=dict(args.param), design_options=design_options,
                     duration_s=args.duration, seed=args.seed)
 
 

@@ -172,9 +172,10 @@ def test_damping_noise_is_drawn_per_step_and_applied():
 
 # ---------------------------------------------------------------- sensors
 def test_imu_formula_and_noise_levels():
-    suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0)
+    suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0, speed_yaw_rate=False)
     quiet = imu(dt_s=0.01, roll_sensor=True, gyro_noise_density=0.0, gyro_bias_walk=0.0,
-                accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02)
+                accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02,
+                speed_yaw_rate=False)
     x = np.array([0.05, -0.2])
     np.testing.assert_allclose(_measure(quiet, x, 4.0)[0],
                                [-0.2, 4.0 * np.cos(0.05) + G * np.sin(0.05) + 0.02, 0.05])
@@ -191,7 +192,8 @@ def test_imu_formula_and_noise_levels():
     assert suite.names == ("roll_rate", "lateral_accel", "roll")
     assert suite.units == ("rad/s", "m/s^2", "rad")
     assert suite.measured_state == (1, None, 0)
-    assert imu(dt_s=0.01).names == ("roll_rate", "lateral_accel")  # roll sensor optional
+    # roll sensor optional; the input channels (speed, yaw rate) by default
+    assert imu(dt_s=0.01).names == ("roll_rate", "lateral_accel", "speed", "yaw_rate")
 
 
 def test_imu_gyro_bias_random_walk():
@@ -255,10 +257,11 @@ def test_accelerometer_on_the_rig_sees_a_y_and_gravity():
 def test_sensor_presets_and_errors():
     rig = VehicleRollRig()
     suite = rig.sensors("imu", dt_s=0.01)
-    assert isinstance(suite, Suite) and suite.names == ("roll_rate", "lateral_accel")
+    assert isinstance(suite, Suite) and suite.names == ("roll_rate", "lateral_accel", "speed",
+                                                        "yaw_rate")
     assert isinstance(rig.sensors("paper", dt_s=0.01), PaperRollChannel)
     assert rig.sensors(None, dt_s=0.01).names == suite.names  # default preset: imu
-    assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 3
+    assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 5
     with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper', 'hardware'\)"):
         rig.sensors("encoders", dt_s=0.01)
     with pytest.raises(ValueError, match="density must be finite and non-negative"):
@@ -316,7 +319,7 @@ def test_same_seed_is_bitwise_identical_and_other_seed_differs():
 def test_info_contents_and_reset_defaults():
     env = VehicleRollEnv(reset_noise_scale=0.0)
     obs, info = env.reset(seed=0)
-    assert obs.shape == (2,) and env.observation_space.contains(obs)
+    assert obs.shape == (4,) and env.observation_space.contains(obs)
     np.testing.assert_array_equal(info["state"], [0.0, 0.0])
     assert info["t"] == 0.0 and info["action_applied"][0] == 0.0
     # the roll angle is the tracked state (zero reference); no disturbance signal

@@ -22,9 +22,10 @@ from testbed.sensors.decorators import (
     Quantize,
     SampleAndHold,
     ScaleFactor,
+    Tap,
     WhiteNoise,
 )
 
 __all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "LinearChannel", "Noise",
            "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "ScaleFactor", "Sensor",
-           "SensorModel", "StateChannel", "Suite", "WhiteNoise"]
+           "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise"]

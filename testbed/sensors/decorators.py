@@ -14,6 +14,7 @@ decorator                output                                          linear 
 :class:`ScaleFactor`     ``(1 + s) y``, ``s`` fixed plus drawn at reset     unmodelled
 :class:`Delay`           ``y`` of ``d`` samples ago                      unmodelled
 :class:`SampleAndHold`   ``y`` updated every ``every`` samples           unmodelled
+:class:`Tap`             ``y``, kept per member in ``last``                unchanged
 =======================  ==============================================  ==================
 """
 
@@ -352,3 +353,26 @@ class SampleAndHold(Decorator):
         self._held[m] = held
         self._count[m] = count + 1
         return held.copy()
+
+
+class Tap(Decorator):
+    """Pass the inner measurement through and keep it per member in :attr:`last` (num, m).
+
+    For inputs computed from measurements: a design's ``input_transform`` reads the latest
+    sample of the channels it taps (e.g. the vehicle's ``a_y`` = speed times yaw rate), so
+    every estimator in the loop gets the measured input.
+    """
+
+    def __init__(self, inner: Sensor):
+        super().__init__(inner)
+        self.last = np.zeros((0, inner.dim))
+
+    def allocate(self, num: int) -> None:
+        """A row of the latest values per member."""
+        super().allocate(num)
+        self.last = np.zeros((num, self.dim))
+
+    def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
+        """``y``, also stored in ``last``."""
+        self.last[sample.members] = y
+        return y

@@ -23,6 +23,8 @@ from testbed.rigs.vehicle_roll.model import (
 #: Roll angle beyond which the vehicle has rolled over (episode terminates), rad.
 ROLLOVER_RAD = float(np.pi / 2)
 SENSOR_PRESETS = ("imu", "paper", "hardware")
+#: Where the estimator's input ``a_y`` comes from (see :meth:`VehicleRollRig.design_model`).
+A_Y_SOURCES = ("auto", "measured", "oracle")
 #: Initial-state spread of the default scenario: roll (rad) and roll-rate (rad/s) standard
 #: deviations, the design prior's (0.5 deg, 1 deg/s).
 X0_STD = (float(np.deg2rad(0.5)), float(np.deg2rad(1.0)))
@@ -79,7 +81,7 @@ class VehicleRollRig(Rig):
     tracked_states = ("roll",)
     step_noise_dim = 1
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
-    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2}
+    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2, "a_y_source": "auto"}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
     #: ``hardware`` changes the default sensors only (the input is a physical acceleration,
     #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
@@ -171,18 +173,46 @@ class VehicleRollRig(Rig):
             raise ValueError(f"bad option for sensor preset {preset!r}: {err}") from None
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *, a_y_std: float = 0.1,
-                     design_roll_rate: float = 0.2):
+                     design_roll_rate: float = 0.2, a_y_source: str = "auto"):
         """The physical linearization (with ``g``), nominal parameters, exact ZOH.
 
         ``Q`` from :func:`process_noise_intensity`; prior ``0``,
         ``diag((0.5 deg)^2, (1 deg/s)^2)``. ``extras["lmi_system"]`` holds the system of
         the LMI design (Zhang et al.'s Theorem 4 with the multiplicative damping noise).
+
+        Parameters
+        ----------
+        a_y_source : {"auto", "measured", "oracle"}
+            The estimator's input ``a_y``: ``measured`` = speed times yaw rate of the
+            sensors' tapped input channels (:func:`~testbed.rigs.vehicle_roll.sensors.
+            measured_lateral_acceleration`, the ``imu`` and ``hardware`` presets have them);
+            ``oracle`` = the applied ``a_y`` exactly; ``auto`` = measured when the sensors
+            have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
         """
         from testbed.design import build_design
+        from testbed.rigs.vehicle_roll.sensors import find_tap, measured_lateral_acceleration
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{key} must be finite and >= 0, got {value}")
+        if a_y_source not in A_Y_SOURCES:
+            raise ValueError(f"a_y_source must be one of {A_Y_SOURCES}, got {a_y_source!r}")
+        tap = find_tap(sensors)
+        if a_y_source == "measured" and tap is None:
+            raise ValueError("a_y_source 'measured' needs the speed and yaw_rate channels "
+                             "(sensor presets 'imu' or 'hardware' with speed_yaw_rate=True); "
+                             "use a_y_source 'oracle' for the exact a_y")
+        source = "measured" if (a_y_source != "oracle" and tap is not None) else "oracle"
+        from testbed.rigs.vehicle_roll.sensors import measured_a_y_variance
+        transform = None
+        if source == "measured":
+            def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+                a_y = measured_lateral_acceleration(tap)
+                if len(a_y) != len(u):
+                    raise ValueError(f"the measured a_y has {len(a_y)} members, the input "
+                                     f"{len(u)}: build the design from the simulator's own "
+                                     "sensors (env.unwrapped.sensors)")
+                return a_y
         nominal = VehicleRollParams()
         A, B = physical_model(nominal)
         Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
@@ -190,10 +220,12 @@ class VehicleRollRig(Rig):
             Q = Q + disturbance.intensity
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
-                              output_matrix=paper_model().M)
+                              output_matrix=paper_model().M, input_transform=transform,
+                              input_noise_cov=(measured_a_y_variance(tap) if transform
+                                               else None))
         from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_estimator
 
-        design.extras.update(paper_model=paper_model(), a_y_std=a_y_std,
+        design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_estimator,
                              lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
         return design
