@@ -108,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--rrd", help="write a Rerun recording here")
     run.add_argument("--json", help="write the summary JSON here")
     run.add_argument("--plot", help="write a PNG plot here")
+    run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
+                     "extra: imageio-ffmpeg)")
 
     mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
     _add_scenario_options(mc, 10.0)
@@ -221,8 +223,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed import runner
 
     scenario = scenario_from_args(args)
+    if args.video:
+        from testbed.render import check_video_path
+
+        check_video_path(args.video)
     start = time.perf_counter()
-    traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd),
+    traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd or args.video),
                                progress=False if args.no_progress else None)
     wall_s = time.perf_counter() - start
     meta = summary.pop("meta")
@@ -247,6 +253,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         model = resolve_rig(scenario.rig)().model
         app = f"testbed/{meta['rig']}"
         print(f"wrote {write_rrd(traj, args.rrd, model=model, application_id=app)}")
+    if args.video:
+        from testbed.render import frame_stride, iter_frames, write_video
+
+        rig = resolve_rig(scenario.rig)(profile=scenario.profile)
+        stride = frame_stride(summary_dt := traj.t_s[1] - traj.t_s[0])
+        frames = iter_frames(rig, traj.state, stride)
+        print(f"wrote {write_video(args.video, frames, 1.0 / (summary_dt * stride))}")
     return 0
 
 

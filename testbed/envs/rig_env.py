@@ -89,15 +89,21 @@ def _squeeze(info: dict[str, np.ndarray], i: int = 0) -> dict[str, Any]:
 class RigEnv(gym.Env):
     """Any registered rig as a Gymnasium environment (the simulator with N = 1).
 
-    See the module docstring for spaces, info, reward and arguments.
+    See the module docstring for spaces, info, reward and arguments. ``render_mode=
+    "rgb_array"``: :meth:`render` returns the rig's current pose seen from its documented
+    camera (:mod:`testbed.render`; headless: ``MUJOCO_GL=egl`` or ``osmesa``), so
+    Gymnasium's ``RecordVideo`` works.
     """
 
-    metadata = {"render_modes": [], "render_fps": 100}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
 
     def __init__(self, rig: Any = "helicopter", render_mode: str | None = None, **kwargs: Any):
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (headless rig), got {render_mode!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self._renderer = None
         self.sim = build_simulator(rig, 1, num_threads=1, **kwargs)
+        self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.sim.dt_s}
         self.rig = self.sim.rig
         self.sensors = self.sim.sensors
         self.dt_s = self.sim.dt_s
@@ -163,8 +169,23 @@ class RigEnv(gym.Env):
             physics.forward_poses(np.array([0]))
         return physics.poses[0][0].copy(), physics.poses[1][0].copy()
 
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: the current pose, (height, width, 3) uint8."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode (use render_mode="
+                            "'rgb_array')")
+            return None
+        if self._renderer is None:
+            from testbed.render import RigRenderer
+
+            self._renderer = RigRenderer(self.rig)
+        return self._renderer.render(self.sim.info["state"][0])
+
     def close(self) -> None:
-        """Stop the physics threads."""
+        """Stop the physics threads and free the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         self.sim.close()
 
 

@@ -317,6 +317,7 @@ class HelicopterRig(Rig):
     disturbance_signals = {"basin-helicopter": lambda: _basin_signal()}
     scenario_options = {"process_noise_floor": 0.05}
     profiles = ("paper", "hardware")
+    render_camera = "overview"
 
     def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001,
                  profile: str = "paper", hardware: HelicopterHardware | None = None):

@@ -87,6 +87,7 @@ class VehicleRollRig(Rig):
     #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
     #: CAN latency.
     profiles = ("paper", "hardware")
+    render_camera = "rear"
 
     def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001,
                  profile: str = "paper"):
