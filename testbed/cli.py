@@ -110,6 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--plot", help="write a PNG plot here")
     run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
                      "extra: imageio-ffmpeg)")
+    run.add_argument("--realtime", action="store_true", help="pace the run to the wall clock "
+                     "(a background thread samples the rig; late commands count as overruns)")
+    run.add_argument("--realtime-factor", type=_positive, default=1.0,
+                     help="with --realtime: simulated seconds per wall-clock second")
 
     mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
     _add_scenario_options(mc, 10.0)
@@ -223,6 +227,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed import runner
 
     scenario = scenario_from_args(args)
+    if args.realtime:
+        return _cmd_run_realtime(args, scenario)
     if args.video:
         from testbed.render import check_video_path
 
@@ -257,9 +263,35 @@ def cmd_run(args: argparse.Namespace) -> int:
         from testbed.render import frame_stride, iter_frames, write_video
 
         rig = resolve_rig(scenario.rig)(profile=scenario.profile)
-        stride = frame_stride(summary_dt := traj.t_s[1] - traj.t_s[0])
+        dt_s = traj.t_s[1] - traj.t_s[0]
+        stride = frame_stride(dt_s)
         frames = iter_frames(rig, traj.state, stride)
-        print(f"wrote {write_video(args.video, frames, 1.0 / (summary_dt * stride))}")
+        print(f"wrote {write_video(args.video, frames, 1.0 / (dt_s * stride))}")
+    return 0
+
+
+def _cmd_run_realtime(args: argparse.Namespace, scenario: Scenario) -> int:
+    """``testbed run --realtime``: the episode paced to the wall clock (testbed.realtime)."""
+    from testbed.realtime import run_scenario
+
+    for flag, value in (("--plot", args.plot), ("--rrd", args.rrd), ("--video", args.video)):
+        if value:
+            raise ValueError(f"{flag} is not available with --realtime (use --json)")
+    factor = args.realtime_factor
+    print(f"running {scenario.duration_s:g} s of simulated time paced at {factor:g}x real time")
+    summary = run_scenario(scenario, factor)
+    meta = summary.pop("meta")
+    pacing = summary["pacing"]
+    print(f"{meta['rig']} | filter {meta['scenario']['estimator']} | sensors {meta['sensors']} "
+          f"| {pacing['steps']} steps in {pacing['wall_s']:.3f} s wall (target "
+          f"{pacing['target_wall_s']:.3f} s, pacing error {100 * pacing['pacing_error']:+.2f} %)")
+    print(f"overruns (late commands) {pacing['overruns']}, missed samples "
+          f"{pacing['missed_samples']}, simulation overruns {pacing['sim_overruns']}, max "
+          f"lateness {1e3 * pacing['max_lateness_s']:.2f} ms")
+    print(_format_table(summary, summary["units"]))
+    if args.json:
+        result = {"rig": meta["rig"], "seed": scenario.seed, **summary, "config": meta}
+        print(f"wrote {write_json(args.json, result)}")
     return 0
 
 
