@@ -115,6 +115,11 @@ def test_deadband_and_voltage_limits():
         RigEnv("helicopter", profile="lab")
     with pytest.raises(ValueError, match="back_emf_fraction"):
         HelicopterHardware(back_emf_fraction=(1.0, 0.5))
+    with pytest.raises(ValueError, match="apply to profile 'hardware'"):
+        HelicopterRig(hardware=HelicopterHardware())
+    slow = HelicopterRig(profile="hardware",
+                         hardware=HelicopterHardware(motor_time_constant_s=(0.1, 0.1)))
+    np.testing.assert_allclose(slow.model.actuator_dynprm[:, 0], [0.1, 0.1])
 
 
 def test_linearize_with_and_without_motor_states():

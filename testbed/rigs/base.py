@@ -63,6 +63,8 @@ class Rig:
         Physical parameters (default: the nominal ``params_type()``).
     physics_dt_s : float
         MuJoCo time step, s.
+    profile : str
+        One of :attr:`profiles` (default ``"paper"``, the MJCF as written).
 
     Attributes
     ----------

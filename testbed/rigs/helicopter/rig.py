@@ -323,6 +323,8 @@ class HelicopterRig(Rig):
                  profile: str = "paper", hardware: HelicopterHardware | None = None):
         if hardware is not None and not isinstance(hardware, HelicopterHardware):
             raise ValueError(f"hardware must be a HelicopterHardware, got {hardware!r}")
+        if hardware is not None and profile != "hardware":
+            raise ValueError(f"hardware parameters apply to profile 'hardware', not {profile!r}")
         #: Parameters of the ``hardware`` profile (None in the ``paper`` profile).
         self.hardware = (hardware or HelicopterHardware()) if profile == "hardware" else None
         if self.hardware is not None:
