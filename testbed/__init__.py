@@ -10,7 +10,15 @@ Importing the package registers the Gymnasium environments::
 
 from __future__ import annotations
 
+import os
+import sys
+
 import gymnasium as gym
+
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
+        and "mujoco" not in sys.modules:
+    # headless rendering (testbed.render): MuJoCo picks its OpenGL backend at import
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 __version__ = "0.1.0"
 

@@ -60,6 +60,9 @@ def _non_negative_int(text: str) -> int:
 
 def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     p.add_argument("rig", help=f"one of {', '.join(RIGS)} or package.module:RigClass")
+    p.add_argument("--profile", default="paper", choices=("paper", "hardware"),
+                   help="paper: the papers' idealizations; hardware: motor lag, amplifier "
+                   "limits, deadband, IMU and sensor timing of the real rig (see docs)")
     p.add_argument("--filter", default="kalman",
                    help=f"{', '.join(ESTIMATORS)} or package.module:factory")
     p.add_argument("--filter-option", type=_name_value, action="append", default=[],
@@ -79,6 +82,15 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
                    help="a named disturbance of the rig (helicopter: basin-helicopter)")
     p.add_argument("--process-noise", type=float, default=None,
                    help="scale of the rig's white process noise (helicopter)")
+    p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
+                   help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
+                   "(measured; auto = when the sensors have them) or exact (oracle)")
+    p.add_argument("--ambient-noise", type=float, default=1.0,
+                   help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
+                   "default 1, 0: none)")
+    p.add_argument("--reset-noise-scale", type=float, default=1.0,
+                   help="scale of the rig's initial-state distribution (default 1; 0: the "
+                   "fixed initial state of the papers)")
     p.add_argument("--design-option", type=_name_value, action="append", default=[],
                    metavar="NAME=VALUE", help="rig design option (helicopter: "
                    "process_noise_floor; vehicle-roll: a_y_std, design_roll_rate)")
@@ -107,6 +119,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--grpc-port", type=int, default=9876,
                      help="with --spawn/--serve: the viewer's gRPC port")
     run.add_argument("--web-port", type=int, default=9090, help="with --serve: the web port")
+    run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
+                     "extra: imageio-ffmpeg)")
+    run.add_argument("--realtime", action="store_true", help="pace the run to the wall clock "
+                     "(a background thread samples the rig; late commands count as overruns)")
+    run.add_argument("--realtime-factor", type=_positive, default=1.0,
+                     help="with --realtime: simulated seconds per wall-clock second")
 
     mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
     _add_scenario_options(mc, 10.0)
@@ -178,12 +196,18 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
     if unknown:
         refuse(f"--design-option {sorted(unknown)[0]}",
                f"its design options: {sorted(rig.scenario_options) or 'none'}")
-    return Scenario(rig=args.rig, estimator=args.filter,
+    design_options: dict[str, Any] = dict(args.design_option)
+    if args.a_y_source is not None:
+        if "a_y_source" not in rig.scenario_options:
+            refuse("--a-y-source", "its input is not a lateral acceleration")
+        design_options["a_y_source"] = args.a_y_source
+    return Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
                     estimator_options=dict(args.filter_option), controller=args.controller,
                     sensors=args.sensors, sensor_options=sensor_options,
                     disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
+                    ambient_noise=args.ambient_noise, reset_noise_scale=args.reset_noise_scale,
                     manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
-                    params=dict(args.param), design_options=dict(args.design_option),
+                    params=dict(args.param), design_options=design_options,
                     duration_s=args.duration, seed=args.seed)
 
 
@@ -207,10 +231,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed import runner
 
     scenario = scenario_from_args(args)
+    if args.realtime:
+        return _cmd_run_realtime(args, scenario)
+    if args.video:
+        from testbed.render import check_video_path
+
+        check_video_path(args.video)
     live = _open_live(args, scenario)
     start = time.perf_counter()
     try:
-        traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd),
+        traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd or args.video),
                                    progress=False if args.no_progress else None,
                                    observe=None if live is None else live.attach)
     except BaseException:
@@ -243,13 +273,46 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.rrd:
         from testbed.viz import run_description, write_rrd
 
-        model = resolve_rig(scenario.rig)().model
+        model = resolve_rig(scenario.rig)(profile=scenario.profile).model
         app = f"testbed/{meta['rig']}"
         path = write_rrd(traj, args.rrd, model=model, application_id=app,
                          description=run_description(meta, summary))
         print(f"wrote {path}")
+    if args.video:
+        from testbed.render import frame_stride, iter_frames, write_video
+
+        rig = resolve_rig(scenario.rig)(profile=scenario.profile)
+        dt_s = traj.t_s[1] - traj.t_s[0]
+        stride = frame_stride(dt_s)
+        frames = iter_frames(rig, traj.state, stride)
+        print(f"wrote {write_video(args.video, frames, 1.0 / (dt_s * stride))}")
     if live is not None:
         _finish_live(args, live)
+    return 0
+
+
+def _cmd_run_realtime(args: argparse.Namespace, scenario: Scenario) -> int:
+    """``testbed run --realtime``: the episode paced to the wall clock (testbed.realtime)."""
+    from testbed.realtime import run_scenario
+
+    for flag, value in (("--plot", args.plot), ("--rrd", args.rrd), ("--video", args.video)):
+        if value:
+            raise ValueError(f"{flag} is not available with --realtime (use --json)")
+    factor = args.realtime_factor
+    print(f"running {scenario.duration_s:g} s of simulated time paced at {factor:g}x real time")
+    summary = run_scenario(scenario, factor)
+    meta = summary.pop("meta")
+    pacing = summary["pacing"]
+    print(f"{meta['rig']} | filter {meta['scenario']['estimator']} | sensors {meta['sensors']} "
+          f"| {pacing['steps']} steps in {pacing['wall_s']:.3f} s wall (target "
+          f"{pacing['target_wall_s']:.3f} s, pacing error {100 * pacing['pacing_error']:+.2f} %)")
+    print(f"overruns (late commands) {pacing['overruns']}, missed samples "
+          f"{pacing['missed_samples']}, simulation overruns {pacing['sim_overruns']}, max "
+          f"lateness {1e3 * pacing['max_lateness_s']:.2f} ms")
+    print(_format_table(summary, summary["units"]))
+    if args.json:
+        result = {"rig": meta["rig"], "seed": scenario.seed, **summary, "config": meta}
+        print(f"wrote {write_json(args.json, result)}")
     return 0
 
 

@@ -40,7 +40,8 @@ class DesignModel:
     measurement_names, measurement_units : tuple of str
         All sensor channels (the ``y`` an estimator's ``step`` receives).
     measurement_index : ndarray of int
-        Channels of ``y`` that ``continuous``/``discrete`` model (the stochastic ones).
+        Channels of ``y`` that ``continuous``/``discrete`` model (the stochastic ones; not
+        the channels an input is computed from, ``sensors.inputs``).
     sensors : SensorModel
         Linear model of every channel (``C``, ``D``, ``R``, ``Hw``, ``stochastic``).
     output_matrix : ndarray, shape (q, n)
@@ -80,7 +81,7 @@ class DesignModel:
     @property
     def deterministic_index(self) -> np.ndarray:
         """Channels that are noise-free functions of ``x`` and ``w`` (``y2 = C2 x + H w``)."""
-        return np.flatnonzero(~self.sensors.stochastic)
+        return np.flatnonzero(~self.sensors.stochastic & ~self.sensors.inputs)
 
 
 def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray,
@@ -88,7 +89,8 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
                  disturbance_matrix: np.ndarray | None = None,
                  input_transform: Callable | None = None,
                  output_matrix: np.ndarray | None = None,
-                 extras: dict[str, Any] | None = None) -> DesignModel:
+                 extras: dict[str, Any] | None = None,
+                 input_noise_cov: np.ndarray | None = None) -> DesignModel:
     """A :class:`DesignModel` from continuous ``A, B, Q`` and the sensors' linear model.
 
     Parameters
@@ -103,10 +105,15 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         Prior.
     disturbance_matrix, input_transform, output_matrix, extras
         See :class:`DesignModel`; ``output_matrix`` defaults to the tracked states' rows.
+    input_noise_cov : ndarray, shape (nu, nu), optional
+        Per-sample covariance of the error of a measured input (the input transform's
+        output): adds ``D S D^T`` to ``R`` of the channels the input enters.
     """
     model = sensors.linear_model()
-    index = np.flatnonzero(model.stochastic)
+    index = np.flatnonzero(model.stochastic & ~model.inputs)
     C, D, R = model.C[index], model.D[index], model.R[np.ix_(index, index)]
+    if input_noise_cov is not None:
+        R = R + D @ np.asarray(input_noise_cov, float) @ D.T
     has_d = bool(np.any(D))
     plant = LinearSystem(A=A, B=B, C=C, Q=Q, R=R * dt_s, D=D if has_d else None)
     if output_matrix is None:

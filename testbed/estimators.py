@@ -75,6 +75,9 @@ class ChannelSelect:
     def __getattr__(self, name: str) -> Any:
         if name == "inner":
             raise AttributeError(name)
+        if name == "prime":  # only when the inner estimator primes; on the same channels
+            prime = self.inner.prime
+            return lambda y: prime(np.asarray(y)[..., self.index])
         return getattr(self.inner, name)
 
 

@@ -101,7 +101,9 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                           process_noise=scenario.process_noise, setpoints=scenario.setpoints,
                           manoeuvre=scenario.manoeuvre,
                           manoeuvre_params=scenario.manoeuvre_params or None,
-                          params=scenario.params or None, num_threads=num_threads)
+                          params=scenario.params or None, num_threads=num_threads,
+                          profile=scenario.profile, ambient_noise=scenario.ambient_noise,
+                          reset_noise_scale=scenario.reset_noise_scale)
     rig = sim.rig
     design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
     design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,

@@ -21,6 +21,10 @@ class Scenario:
     ----------
     rig : str or Rig subclass
         Registered name (``"helicopter"``, ``"vehicle-roll"``), ``module:Class`` or a class.
+    profile : str
+        Simulation profile of the rig: ``"paper"`` (the papers' idealizations) or
+        ``"hardware"`` (actuator and sensor effects of the real rig); the estimator's design
+        model is the same in both.
     estimator : str or callable
         Registered filter name, ``package.module:factory`` or a factory.
     estimator_options : dict
@@ -35,6 +39,12 @@ class Scenario:
         A named signal of the rig (``"basin-helicopter"``).
     process_noise : float
         Scale of the rig's white process noise (0: none).
+    ambient_noise : float
+        Scale of the rig's small documented ambient disturbance (air turbulence, gusts;
+        default 1, 0: none). The design model's ``Q`` includes it.
+    reset_noise_scale : float
+        Scale of the rig's documented initial-state distribution (default 1; 0: the fixed
+        default state, as in the papers).
     manoeuvre : str, optional
         Open-loop input profile of the rig (default: the rig's; ``"none"`` for none).
     manoeuvre_params : dict
@@ -52,6 +62,7 @@ class Scenario:
     """
 
     rig: Any = "helicopter"
+    profile: str = "paper"
     estimator: Any = "kalman"
     estimator_options: dict[str, Any] = field(default_factory=dict)
     controller: str | None = None
@@ -59,6 +70,8 @@ class Scenario:
     sensor_options: dict[str, Any] = field(default_factory=dict)
     disturbance: str | None = None
     process_noise: float = 0.0
+    ambient_noise: float = 1.0
+    reset_noise_scale: float = 1.0
     manoeuvre: Any = None
     manoeuvre_params: dict[str, Any] = field(default_factory=dict)
     setpoints: Any = None
@@ -91,6 +104,9 @@ class Scenario:
                 and self.duration_s > 0):
             raise ValueError(f"duration_s must be a positive finite time in s, got "
                              f"{self.duration_s!r}")
+        if self.profile not in rig.profiles:
+            raise ValueError(f"profile must be one of {rig.profiles} for rig {rig.name!r}, got "
+                             f"{self.profile!r}")
         if not isinstance(self.seed, int | np.integer) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         unknown = set(self.design_options) - set(rig.scenario_options)

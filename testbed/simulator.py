@@ -184,10 +184,18 @@ class Physics:
               need_poses: bool) -> None:
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
+        substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         for i in rows:
             model, row = models[i], state[i]
             set_state(model, data, row, _INTEGRATION)
-            step(model, data, nstep)
+            if substep is None:
+                step(model, data, nstep)
+            else:  # ctrl from the held command and the actuator state, every physics step
+                command = data.ctrl.copy()
+                for _ in range(nstep):
+                    data.ctrl[:] = substep(command, data.act, self.constants[i])
+                    step(model, data)
+                data.ctrl[:] = command
             get_state(model, data, row, _INTEGRATION)
             if need_mass:
                 mujoco.mj_fullM(model, data, mass[i])
@@ -244,6 +252,10 @@ class Simulator:
         Default open-loop input profile (a name of ``rig.manoeuvres`` or ``t_s -> (nu,)``).
     manoeuvre_params : dict, optional
     num_threads : int, optional
+    reset_noise_scale : float
+        Scale of the rig's initial-state distribution (:meth:`Rig.random_x0`) for members
+        reset without ``options["x0"]``; 0 (default here): the rig's fixed ``default_x0``.
+        The draws come first in the member's stream, at reset.
 
     Attributes
     ----------
@@ -262,7 +274,12 @@ class Simulator:
                  disturbance: Disturbance | None = None, params: dict | None = None,
                  setpoints: Sequence[Sequence[float]] | None = None,
                  manoeuvre: Any = None, manoeuvre_params: dict | None = None,
-                 num_threads: int | None = None):
+                 num_threads: int | None = None, reset_noise_scale: float = 0.0):
+        if not (isinstance(reset_noise_scale, int | float) and np.isfinite(reset_noise_scale)
+                and reset_noise_scale >= 0):
+            raise ValueError(f"reset_noise_scale must be finite and >= 0, got "
+                             f"{reset_noise_scale!r}")
+        self.reset_noise_scale = float(reset_noise_scale)
         if int(num) != num or num < 1:
             raise ValueError(f"num must be a positive integer, got {num}")
         if int(frame_skip) != frame_skip or frame_skip < 1:
@@ -301,7 +318,7 @@ class Simulator:
         self.physics.reset(range(n), [self.nominal_params] * n,
                            np.tile(rig.default_x0(), (n, 1)))
         self.noise = NoiseStreams(n, 64 * max(self._dist_draws + rig.step_noise_dim
-                                              + self.sensors.dim, 4))
+                                              + self.sensors.dim + rig.x0_draws, 4))
         self.steps = np.zeros(n, dtype=np.int64)
         self._ready = np.zeros(n, dtype=bool)
         self.x0 = np.zeros((n, self._nx))
@@ -493,6 +510,10 @@ class Simulator:
         # validated: now change state
         for i, seed in zip(index.tolist(), seeds, strict=True):
             self.noise.seed(i, None if seed is None else int(seed))
+        drawn = [j for j, o in enumerate(per) if o.get("x0") is None]
+        if drawn and self.reset_noise_scale > 0 and self.rig.x0_draws:
+            xi = self.noise.view(index[drawn]).normal(self.rig.x0_draws)
+            x0[drawn] = self.rig.random_x0(xi * self.reset_noise_scale)
         self.physics.reset(index.tolist(), params, x0)
         self._table_of[index] = tables
         self._schedule_of[index] = schedules

@@ -10,10 +10,13 @@ from gymnasium.utils.env_checker import check_env
 import testbed
 
 IDS = list(testbed.ENV_IDS)
-#: Keyword arguments that make each environment random (where its defaults are not).
-RANDOM = {"testbed/Helicopter2DOF-v0": {"process_noise": 1.0}}
+#: Keyword arguments that make each environment random (where its defaults are not): none,
+#: every rig env draws its initial state and has an ambient disturbance by default.
+RANDOM: dict[str, dict] = {}
 #: Environments with no randomness at all (a fixed plant and x0, no noise).
 DETERMINISTIC = {"testbed/PolynomialCubic-v0"}
+#: The MuJoCo rig environments.
+RIG_IDS = ["testbed/Helicopter2DOF-v0", "testbed/VehicleRoll-v0"]
 
 
 def _rollout(env, seed, steps=20):
@@ -41,6 +44,23 @@ def test_same_seed_same_rollout_other_seed_differs(env_id):
     a, b, c = _rollout(env, 5), _rollout(env, 5), _rollout(env, 6)
     assert np.array_equal(a, b)
     assert np.array_equal(a, c) == (env_id in DETERMINISTIC)
+
+
+@pytest.mark.parametrize("env_id", RIG_IDS)
+def test_default_rig_env_seed_changes_the_outcome(env_id):
+    """With default arguments the seed changes the initial state and the whole run."""
+    env = gym.make(env_id)
+    x0 = {seed: env.reset(seed=seed)[1]["state"] for seed in (0, 1, 7)}
+    assert not np.array_equal(x0[0], x0[1]) and not np.array_equal(x0[1], x0[7])
+    np.testing.assert_array_equal(env.reset(seed=1)[1]["state"], x0[1])
+    runs = {seed: _rollout(env, seed, steps=30) for seed in (0, 1)}
+    assert not np.array_equal(runs[0], runs[1])
+    np.testing.assert_array_equal(_rollout(env, 1, steps=30), runs[1])
+    # the spread is off with reset_noise_scale=0 and ambient_noise=0: the fixed default state
+    quiet = gym.make(env_id, reset_noise_scale=0.0, ambient_noise=0.0).unwrapped
+    a, b = quiet.reset(seed=0)[1]["state"], quiet.reset(seed=1)[1]["state"]
+    np.testing.assert_array_equal(a, quiet.rig.default_x0())
+    np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("env_id", IDS)

@@ -102,7 +102,7 @@ def test_vector_env_members_equal_single_envs_bitwise():
 
 
 def test_info_contents_and_reset_defaults():
-    env = make(disturbance="basin-helicopter")
+    env = make(disturbance="basin-helicopter", reset_noise_scale=0.0)
     obs, info = env.reset(seed=0)
     np.testing.assert_allclose(info["state"], [-PITCH_LIMIT_RAD, 0, 0, 0])
     np.testing.assert_array_equal(env.x0, [-PITCH_LIMIT_RAD, 0, 0, 0])
@@ -206,7 +206,7 @@ def test_deterministic_disturbance_acts_as_paper_acceleration():
     """Free rig at level pitch with gravity balanced: yaw accelerates by (G w)_yaw."""
     G = np.zeros((4, 1))
     G[3, 0] = 1.0
-    env = make(disturbance=Disturbance(G=G, w=lambda t: np.array([2.0])))
+    env = make(disturbance=Disturbance(G=G, w=lambda t: np.array([2.0])), ambient_noise=0.0)
     env.reset(seed=0, options={"x0": np.zeros(4)})
     u = gravity_voltage(env.nominal_params, 0.0)
     _, _, _, _, info = env.step(u)

@@ -74,7 +74,8 @@ def test_rig_model_is_the_zoh_of_the_physics_and_close_to_mujoco():
 @pytest.mark.parametrize("sensors, kwargs", [("paper", {}), ("imu", {"roll_sensor": True})])
 def test_cli_estimator_flies_the_rig(sensors, kwargs):
     scenario = Scenario(rig="vehicle-roll", estimator="lmi-hinf", sensors=sensors,
-                        sensor_options=kwargs, duration_s=4.0, seed=0)
+                        sensor_options=kwargs, duration_s=4.0, seed=0, ambient_noise=0.0,
+                        reset_noise_scale=0.0)
     experiment = runner.build(scenario)
     meta = experiment.meta["design"]
     experiment.close()

@@ -135,7 +135,8 @@ def test_mujoco_rig_reproduces_eq51():
     # A hard step steer plus random perturbations, and D_n x 500 so the multiplicative
     # damping noise matters: the replay uses the a_y and w_k the env reports.
     env = VehicleRollEnv(manoeuvre="step-steer", manoeuvre_params={"amplitude_m_s2": 7.0},
-                         params={"damping_noise": 500.0})
+                         params={"damping_noise": 500.0}, ambient_noise=0.0,
+                         reset_noise_scale=0.0)
     env.reset(seed=0)
     rng = np.random.default_rng(1)
     states, a_seq, w_seq = [], [], []
@@ -171,9 +172,10 @@ def test_damping_noise_is_drawn_per_step_and_applied():
 
 # ---------------------------------------------------------------- sensors
 def test_imu_formula_and_noise_levels():
-    suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0)
+    suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0, speed_yaw_rate=False)
     quiet = imu(dt_s=0.01, roll_sensor=True, gyro_noise_density=0.0, gyro_bias_walk=0.0,
-                accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02)
+                accel_noise_density=0.0, roll_noise_std=0.0, accel_bias=0.02,
+                speed_yaw_rate=False)
     x = np.array([0.05, -0.2])
     np.testing.assert_allclose(_measure(quiet, x, 4.0)[0],
                                [-0.2, 4.0 * np.cos(0.05) + G * np.sin(0.05) + 0.02, 0.05])
@@ -190,7 +192,8 @@ def test_imu_formula_and_noise_levels():
     assert suite.names == ("roll_rate", "lateral_accel", "roll")
     assert suite.units == ("rad/s", "m/s^2", "rad")
     assert suite.measured_state == (1, None, 0)
-    assert imu(dt_s=0.01).names == ("roll_rate", "lateral_accel")  # roll sensor optional
+    # roll sensor optional; the input channels (speed, yaw rate) by default
+    assert imu(dt_s=0.01).names == ("roll_rate", "lateral_accel", "speed", "yaw_rate")
 
 
 def test_imu_gyro_bias_random_walk():
@@ -254,11 +257,12 @@ def test_accelerometer_on_the_rig_sees_a_y_and_gravity():
 def test_sensor_presets_and_errors():
     rig = VehicleRollRig()
     suite = rig.sensors("imu", dt_s=0.01)
-    assert isinstance(suite, Suite) and suite.names == ("roll_rate", "lateral_accel")
+    assert isinstance(suite, Suite) and suite.names == ("roll_rate", "lateral_accel", "speed",
+                                                        "yaw_rate")
     assert isinstance(rig.sensors("paper", dt_s=0.01), PaperRollChannel)
     assert rig.sensors(None, dt_s=0.01).names == suite.names  # default preset: imu
-    assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 3
-    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+    assert rig.sensors("imu", dt_s=0.01, roll_sensor=True).dim == 5
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper', 'hardware'\)"):
         rig.sensors("encoders", dt_s=0.01)
     with pytest.raises(ValueError, match="density must be finite and non-negative"):
         rig.sensors("imu", dt_s=0.01, gyro_noise_density=-1.0)
@@ -313,9 +317,9 @@ def test_same_seed_is_bitwise_identical_and_other_seed_differs():
 
 
 def test_info_contents_and_reset_defaults():
-    env = VehicleRollEnv()
+    env = VehicleRollEnv(reset_noise_scale=0.0)
     obs, info = env.reset(seed=0)
-    assert obs.shape == (2,) and env.observation_space.contains(obs)
+    assert obs.shape == (4,) and env.observation_space.contains(obs)
     np.testing.assert_array_equal(info["state"], [0.0, 0.0])
     assert info["t"] == 0.0 and info["action_applied"][0] == 0.0
     # the roll angle is the tracked state (zero reference); no disturbance signal
@@ -393,7 +397,7 @@ def test_bad_action_raises_and_leaves_state_unchanged(action):
 def test_bad_names_and_unphysical_parameters():
     with pytest.raises(ValueError, match=r"expected one of \['double-lane-change'"):
         VehicleRollEnv(manoeuvre="slalom")
-    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper'\)"):
+    with pytest.raises(ValueError, match=r"expected one of \('imu', 'paper', 'hardware'\)"):
         VehicleRollEnv(sensors="lidar")
     with pytest.raises(ValueError, match="unknown disturbance 'basin-helicopter'"):
         VehicleRollEnv(disturbance="basin-helicopter")

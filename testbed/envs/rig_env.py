@@ -22,12 +22,17 @@ profile's part of the applied input), ``process_accel`` (disturbance acceleratio
 ``-|x_tracked - reference|^2`` after each step (estimator studies can ignore it).
 
 ## Arguments
-``rig`` (registered name or :class:`~testbed.rigs.base.Rig` subclass), ``physics_dt_s``,
+``rig`` (registered name or :class:`~testbed.rigs.base.Rig` subclass), ``profile``
+(``"paper"``: the papers' idealizations, or ``"hardware"``: the real rig's actuator and
+sensor effects, see the rig's docs), ``physics_dt_s``,
 ``frame_skip``, ``sensors`` (a preset name of the rig or a :class:`~testbed.sensors.Sensor`)
 with ``sensor_kwargs``, ``disturbance`` (name of the rig's disturbances, a
 :class:`~testbed.disturbances.Disturbance` or None), ``process_noise`` (scale of the rig's
-white process noise), ``setpoints``, ``manoeuvre`` with ``manoeuvre_params``, ``params``
-(default parameter scale factors). ``reset(seed=, options={"x0", "params", "setpoints",
+white process noise), ``ambient_noise`` (scale of the rig's small documented ambient
+disturbance: air turbulence, gusts; default 1, 0 for none), ``reset_noise_scale`` (scale of
+the rig's documented initial-state distribution; default 1, 0 for the fixed default state),
+``setpoints``, ``manoeuvre`` with ``manoeuvre_params``, ``params`` (default parameter scale
+factors). ``reset(seed=, options={"x0", "params", "setpoints",
 "manoeuvre", "manoeuvre_params"})``.
 """
 
@@ -52,9 +57,15 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                     process_noise: float = 0.0, setpoints: Any = None, manoeuvre: Any = None,
                     manoeuvre_params: dict[str, Any] | None = None,
                     params: dict[str, float] | None = None,
-                    num_threads: int | None = None) -> Simulator:
-    """A :class:`Simulator` of ``num`` members from the environments' arguments."""
-    rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s)
+                    num_threads: int | None = None, profile: str = "paper",
+                    reset_noise_scale: float = 1.0, ambient_noise: float = 1.0) -> Simulator:
+    """A :class:`Simulator` of ``num`` members from the environments' arguments.
+
+    By default the initial state is drawn from the rig's documented distribution
+    (``reset_noise_scale = 1``) and the rig's small ambient disturbance is on
+    (``ambient_noise = 1``); 0 turns either off.
+    """
+    rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
     if int(frame_skip) != frame_skip or frame_skip < 1:
         raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
     dt_s = physics_dt_s * int(frame_skip)
@@ -62,10 +73,11 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
         sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))
     elif sensor_kwargs:
         raise ValueError("sensor_kwargs is only used with a sensor preset name")
-    dist = rig_obj.disturbance(disturbance, process_noise)
+    dist = rig_obj.disturbance(disturbance, process_noise, ambient_noise)
     return Simulator(rig_obj, sensors, num, frame_skip, disturbance=dist, params=params,
                      setpoints=setpoints, manoeuvre=manoeuvre,
-                     manoeuvre_params=manoeuvre_params, num_threads=num_threads)
+                     manoeuvre_params=manoeuvre_params, num_threads=num_threads,
+                     reset_noise_scale=reset_noise_scale)
 
 
 def _squeeze(info: dict[str, np.ndarray], i: int = 0) -> dict[str, Any]:
@@ -77,15 +89,21 @@ def _squeeze(info: dict[str, np.ndarray], i: int = 0) -> dict[str, Any]:
 class RigEnv(gym.Env):
     """Any registered rig as a Gymnasium environment (the simulator with N = 1).
 
-    See the module docstring for spaces, info, reward and arguments.
+    See the module docstring for spaces, info, reward and arguments. ``render_mode=
+    "rgb_array"``: :meth:`render` returns the rig's current pose seen from its documented
+    camera (:mod:`testbed.render`; headless: ``MUJOCO_GL=egl`` or ``osmesa``), so
+    Gymnasium's ``RecordVideo`` works.
     """
 
-    metadata = {"render_modes": [], "render_fps": 100}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
 
     def __init__(self, rig: Any = "helicopter", render_mode: str | None = None, **kwargs: Any):
-        if render_mode is not None:
-            raise ValueError(f"render_mode must be None (headless rig), got {render_mode!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self._renderer = None
         self.sim = build_simulator(rig, 1, num_threads=1, **kwargs)
+        self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.sim.dt_s}
         self.rig = self.sim.rig
         self.sensors = self.sim.sensors
         self.dt_s = self.sim.dt_s
@@ -151,8 +169,23 @@ class RigEnv(gym.Env):
             physics.forward_poses(np.array([0]))
         return physics.poses[0][0].copy(), physics.poses[1][0].copy()
 
+    def render(self) -> np.ndarray | None:
+        """With ``render_mode="rgb_array"``: the current pose, (height, width, 3) uint8."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode (use render_mode="
+                            "'rgb_array')")
+            return None
+        if self._renderer is None:
+            from testbed.render import RigRenderer
+
+            self._renderer = RigRenderer(self.rig)
+        return self._renderer.render(self.sim.info["state"][0])
+
     def close(self) -> None:
-        """Stop the physics threads."""
+        """Stop the physics threads and free the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         self.sim.close()
 
 

@@ -113,7 +113,8 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
         return est
 
     scenario = Scenario(rig="vehicle-roll", estimator=factory, sensors="paper",
-                        manoeuvre="paper-decay", controller="open-loop", seed=seed)
+                        manoeuvre="paper-decay", controller="open-loop", seed=seed,
+                        ambient_noise=0.0)
     experiment = runner.build(scenario, runs)
     loop = experiment.loop
     try:

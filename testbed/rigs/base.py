@@ -63,6 +63,8 @@ class Rig:
         Physical parameters (default: the nominal ``params_type()``).
     physics_dt_s : float
         MuJoCo time step, s.
+    profile : str
+        One of :attr:`profiles` (default ``"paper"``, the MJCF as written).
 
     Attributes
     ----------
@@ -91,6 +93,8 @@ class Rig:
     #: Standard normals per member and control step that perturb the model
     #: (:meth:`apply_step_noise`); 0 for none.
     step_noise_dim: ClassVar[int] = 0
+    #: Standard normals per member that :meth:`random_x0` turns into an initial state.
+    x0_draws: ClassVar[int] = 0
     #: Open-loop input profiles by name (``reset(options={"manoeuvre": name})``).
     manoeuvres: ClassVar[dict[str, Callable[..., Any]]] = {}
     #: Default reference schedule ``((t_s, *tracked values), ...)``; empty: zero reference.
@@ -101,12 +105,28 @@ class Rig:
     scenario_defaults: ClassVar[dict[str, Any]] = {"controller": "lqr"}
     #: Rig-specific scenario options with their defaults (see :meth:`design_model`).
     scenario_options: ClassVar[dict[str, Any]] = {}
+    #: Simulation profiles: ``"paper"`` (the papers' idealizations) first, then e.g.
+    #: ``"hardware"`` (actuator and sensor effects of the real rig, :meth:`edit_spec`).
+    profiles: ClassVar[tuple[str, ...]] = ("paper",)
+    #: Camera of ``render_mode="rgb_array"`` (a camera named in the MJCF; "" = free camera).
+    render_camera: ClassVar[str] = ""
 
-    def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001):
+    def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001,
+                 profile: str = "paper"):
         if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
             raise ValueError(f"physics_dt_s must be a positive finite time in s, "
                              f"got {physics_dt_s}")
-        self.model = mujoco.MjModel.from_xml_path(str(self.resolved_xml_path()))
+        if profile not in self.profiles:
+            raise ValueError(f"unknown profile {profile!r} for rig {self.name!r}; expected one "
+                             f"of {self.profiles}")
+        #: The simulation profile (one of :attr:`profiles`).
+        self.profile = profile
+        if profile == self.profiles[0]:
+            self.model = mujoco.MjModel.from_xml_path(str(self.resolved_xml_path()))
+        else:
+            spec = mujoco.MjSpec.from_file(str(self.resolved_xml_path()))
+            self.edit_spec(spec)
+            self.model = spec.compile()
         self.model.opt.timestep = physics_dt_s
         self.data = mujoco.MjData(self.model)
         ids = [self.joint_id(n) for n in self.joints]
@@ -218,6 +238,12 @@ class Rig:
     def apply_params(self, model: mujoco.MjModel, params: Params) -> None:
         """Write ``params`` into ``model`` (masses, inertias, damping, gears...)."""
 
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Change the MJCF spec for a profile other than the first, before compiling.
+
+        E.g. give the actuators dynamics (``dyntype``) or limits; :attr:`profile` says which.
+        """
+
     def member_constants(self, params: Params) -> np.ndarray:
         """Per-member numbers :meth:`actuation` and :meth:`apply_step_noise` need, shape (d,)."""
         return np.zeros(0)
@@ -240,6 +266,18 @@ class Rig:
     def default_x0(self) -> np.ndarray:
         """Initial state when a reset gives none, shape (n,) (default: rest at zero)."""
         return np.zeros(self.n_states)
+
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """Initial states from the rig's documented distribution, shape (k, n).
+
+        Parameters
+        ----------
+        xi : ndarray, shape (k, x0_draws)
+            Standard normals (times the scenario's ``reset_noise_scale``), one row per member.
+
+        Default: :meth:`default_x0` for every member (no randomness).
+        """
+        return np.tile(self.default_x0(), (len(xi), 1))
 
     def validate_x0(self, x0: Any) -> np.ndarray:
         """``options['x0']`` as a finite array of shape (n,), else ``ValueError``."""
@@ -289,6 +327,26 @@ class Rig:
         """
         return {"ctrl": u}
 
+    #: Whether :meth:`substep_ctrl` runs before every physics step (e.g. a current limit
+    #: that depends on the motor state); False keeps MuJoCo's multi-step call.
+    needs_substep: bool = False
+
+    def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
+                     constants: np.ndarray) -> np.ndarray:
+        """MuJoCo ``ctrl`` for the next physics step from the held command (with
+        :attr:`needs_substep`).
+
+        Parameters
+        ----------
+        command : ndarray, shape (nu,)
+            The control step's ``ctrl`` from :meth:`actuation` (held).
+        act : ndarray, shape (na,)
+            MuJoCo's actuator states now.
+        constants : ndarray, shape (d,)
+            :meth:`member_constants` of the member.
+        """
+        return command
+
     def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
                          xi: np.ndarray) -> None:
         """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)."""
@@ -305,8 +363,15 @@ class Rig:
         """White process-noise input ``b`` (n, p) scaled by ``process_noise`` (None: none)."""
         return None
 
-    def disturbance(self, name: Any = None, process_noise: float = 0.0):
-        """The scenario's disturbance: a named signal ``G w(t)`` and/or ``process_noise b dW``.
+    def ambient_noise_matrix(self) -> np.ndarray | None:
+        """White-noise input ``b`` (n, p) of the rig's small ambient disturbance (air
+        turbulence, gusts), scaled by ``ambient_noise`` (None: the rig has none)."""
+        return None
+
+    def disturbance(self, name: Any = None, process_noise: float = 0.0,
+                    ambient_noise: float = 0.0):
+        """The scenario's disturbance: a named signal ``G w(t)``, ``process_noise b dW`` and
+        ``ambient_noise b_a dW_a``.
 
         Parameters
         ----------
@@ -314,16 +379,28 @@ class Rig:
             A key of :attr:`disturbance_signals` (``None``/``"none"``: no signal).
         process_noise : float
             Scale of :meth:`process_noise_matrix` (0: none).
+        ambient_noise : float
+            Scale of :meth:`ambient_noise_matrix` (0: none; ignored by rigs without one).
 
         Returns
         -------
         testbed.disturbances.Disturbance or None
         """
+        try:
+            ambient = float(ambient_noise)
+        except (TypeError, ValueError):
+            raise ValueError(f"ambient_noise must be a number, got {ambient_noise!r}") from None
+        if not (np.isfinite(ambient) and ambient >= 0):
+            raise ValueError(f"ambient_noise must be finite and >= 0, got {ambient_noise}")
+        b_ambient = self.ambient_noise_matrix() if ambient > 0 else None
         if isinstance(name, Disturbance):
             if process_noise:
                 raise ValueError("process_noise applies to a named disturbance, not to a "
                                  "Disturbance object")
-            return name
+            if b_ambient is None:
+                return name
+            b = b_ambient * ambient if name.b is None else np.hstack([name.b, b_ambient * ambient])
+            return dataclasses.replace(name, b=b)
         try:
             scale = float(process_noise)
         except (TypeError, ValueError):
@@ -342,17 +419,22 @@ class Rig:
                 raise ValueError(f"rig {self.name!r} has no process-noise model; "
                                  "process_noise must be 0")
             b = b0 * scale
+        if b_ambient is not None:
+            b = b_ambient * ambient if b is None else np.hstack([b, b_ambient * ambient])
         if w is None and b is None:
             return None
         return Disturbance(G=G, w=w, b=b, n_positions=len(self.joints))
 
     # ------------------------------------------------------------------ linearization
     def linearize(self, x_op: np.ndarray | None = None, u_op: np.ndarray | None = None,
-                  eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+                  eps: float = 1e-6, motor_states: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time ``(A, B)`` of ``x' = f(x, u)`` by central differences of MuJoCo.
 
         Accelerations come from ``mj_forward`` (no integrator involved) at the current
-        parameters, without step noise.
+        parameters, without step noise. Actuators with dynamics (the ``hardware`` profile's
+        motor lag: MuJoCo ``act`` states of ``filter``/``filterexact`` actuators) are at their
+        steady state ``act = ctrl`` unless ``motor_states``.
 
         Parameters
         ----------
@@ -362,11 +444,14 @@ class Rig:
             Operating input; default :meth:`operating_input` at ``x_op``.
         eps : float
             Finite-difference step (state and input units).
+        motor_states : bool
+            Append MuJoCo's actuator states (``na`` of them, at their steady state) to the
+            state: ``x = [positions, velocities, act]``.
 
         Returns
         -------
-        A : ndarray, shape (n, n)
-        B : ndarray, shape (n, nu)
+        A : ndarray, shape (n, n) or (n + na, n + na) with ``motor_states``
+        B : ndarray, shape (n, nu) or (n + na, nu)
         """
         n, k, j = self.n_states, self.n_actions, len(self.joints)
         x_op = self.linearization_point() if x_op is None else np.asarray(x_op, float)
@@ -378,28 +463,54 @@ class Rig:
             raise ValueError(f"u_op must be a finite array of shape ({k},), got {u_op!r}")
         scratch = mujoco.MjData(self.model)
         constants = self.member_constants(self.params)[None]
+        na = self.model.na if motor_states else 0
 
         def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
             scratch.qpos[self.qpos_adr] = x[:j]
-            scratch.qvel[self.dof_adr] = x[j:]
+            scratch.qvel[self.dof_adr] = x[j:n]
             inputs = self.actuation(u[None], constants)
             if "ctrl" in inputs:
                 scratch.ctrl[:] = inputs["ctrl"][0]
             if "xfrc" in inputs:
                 scratch.xfrc_applied[:] = inputs["xfrc"][0]
+            if self.model.na:
+                scratch.act[:] = x[n:] if na else self.steady_act(scratch.ctrl)
             mujoco.mj_forward(self.model, scratch)
-            return np.concatenate([x[j:], scratch.qacc[self.dof_adr]])
+            out = [x[j:n], scratch.qacc[self.dof_adr]]
+            return np.concatenate(out + [scratch.act_dot.copy()] if na else out)
 
-        A, B = np.zeros((n, n)), np.zeros((n, k))
-        for i in range(n):
-            dx = np.zeros(n)
+        x_full = x_op
+        if na:
+            ctrl = self.actuation(u_op[None], constants).get("ctrl", np.zeros((1, 0)))[0]
+            x_full = np.concatenate([x_op, self.steady_act(ctrl)])
+        A, B = np.zeros((n + na, n + na)), np.zeros((n + na, k))
+        for i in range(n + na):
+            dx = np.zeros(n + na)
             dx[i] = eps
-            A[:, i] = (f(x_op + dx, u_op) - f(x_op - dx, u_op)) / (2 * eps)
+            A[:, i] = (f(x_full + dx, u_op) - f(x_full - dx, u_op)) / (2 * eps)
         for i in range(k):
             du = np.zeros(k)
             du[i] = eps
-            B[:, i] = (f(x_op, u_op + du) - f(x_op, u_op - du)) / (2 * eps)
+            B[:, i] = (f(x_full, u_op + du) - f(x_full, u_op - du)) / (2 * eps)
         return A, B
+
+    def steady_act(self, ctrl: np.ndarray) -> np.ndarray:
+        """MuJoCo actuator states at rest under a constant ``ctrl`` (nu,): shape (na,).
+
+        ``act = ctrl`` for first-order ``filter``/``filterexact`` actuators (the motor lag of
+        the ``hardware`` profile); other actuator dynamics raise ``NotImplementedError``.
+        """
+        act = np.zeros(self.model.na)
+        lag = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
+        for i in range(self.model.nu):
+            adr, num = self.model.actuator_actadr[i], self.model.actuator_actnum[i]
+            if num == 0:
+                continue
+            if self.model.actuator_dyntype[i] not in lag or num != 1:
+                raise NotImplementedError(f"rig {self.name!r}: no steady state for actuator "
+                                          f"{i} (dyntype {self.model.actuator_dyntype[i]})")
+            act[adr] = ctrl[i]
+        return act
 
     def linearization_point(self) -> np.ndarray:
         """Default operating state of :meth:`linearize`, shape (n,) (zero)."""

@@ -21,9 +21,11 @@ from testbed.sensors.decorators import (
     Delay,
     Quantize,
     SampleAndHold,
+    ScaleFactor,
+    Tap,
     WhiteNoise,
 )
 
 __all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "LinearChannel", "Noise",
-           "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "Sensor", "SensorModel",
-           "StateChannel", "Suite", "WhiteNoise"]
+           "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "ScaleFactor", "Sensor",
+           "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise"]

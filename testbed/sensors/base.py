@@ -148,6 +148,10 @@ class SensorModel:
     stochastic : ndarray of bool, shape (m,)
         Channels a stochastic (Kalman-type) design uses; a noise-free channel driven by
         ``w`` (an H-infinity filter's ``y2 = C2 x + H w``) is not.
+    inputs : ndarray of bool, shape (m,), optional
+        Channels an estimator's *input* is computed from (e.g. the vehicle's speed and yaw
+        rate giving ``a_y``), not measurements of the state: designs leave them out.
+        Default: none.
     """
 
     C: np.ndarray
@@ -155,6 +159,11 @@ class SensorModel:
     R: np.ndarray
     Hw: np.ndarray
     stochastic: np.ndarray
+    inputs: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.inputs is None:
+            self.inputs = np.zeros(len(self.C), bool)
 
     @staticmethod
     def stack(models: list[SensorModel]) -> SensorModel:
@@ -166,7 +175,8 @@ class SensorModel:
         return SensorModel(C=np.vstack([mod.C for mod in models]),
                            D=np.vstack([mod.D for mod in models]),
                            R=block_diag(*[mod.R for mod in models]), Hw=Hw,
-                           stochastic=np.concatenate([mod.stochastic for mod in models]))
+                           stochastic=np.concatenate([mod.stochastic for mod in models]),
+                           inputs=np.concatenate([mod.inputs for mod in models]))
 
 
 class Sensor:

@@ -11,8 +11,10 @@ decorator                output                                          linear 
 :class:`WhiteNoise`      ``y + v``, std, covariance, intensity, density  ``R += cov(v)``
 :class:`Bias`            ``y + b`` (constant)                            unmodelled
 :class:`BiasRandomWalk`  ``y + b_k``, ``b_{k+1} = b_k + q sqrt(dt) xi``  unmodelled
+:class:`ScaleFactor`     ``(1 + s) y``, ``s`` fixed plus drawn at reset     unmodelled
 :class:`Delay`           ``y`` of ``d`` samples ago                      unmodelled
 :class:`SampleAndHold`   ``y`` updated every ``every`` samples           unmodelled
+:class:`Tap`             ``y``, kept per member in ``last``                unchanged
 =======================  ==============================================  ==================
 """
 
@@ -235,6 +237,50 @@ class BiasRandomWalk(Decorator):
         return out
 
 
+class ScaleFactor(Decorator):
+    """A gain error: ``(1 + s) y`` per channel, ``s = error + initial_std xi`` per episode.
+
+    Parameters
+    ----------
+    inner : Sensor
+    error : float or sequence
+        Known part of the scale-factor error per channel (e.g. ``0.01`` = +1 %).
+    initial_std : float or sequence
+        Standard deviation of the random part, drawn at every reset (a datasheet's
+        sensitivity tolerance); 0: none, no draw.
+
+    Notes
+    -----
+    Draws ``m`` normals at reset when ``initial_std > 0``, none per sample.
+    """
+
+    def __init__(self, inner: Sensor, error: float | np.ndarray = 0.0,
+                 initial_std: float | np.ndarray = 0.0):
+        super().__init__(inner)
+        self.error = as_array(error, inner.dim, "error", non_negative=False)
+        self.initial_std = as_array(initial_std, inner.dim, "initial_std")
+        if np.any(self.error <= -1):
+            raise ValueError(f"error must be > -1 (a gain of 1 + error > 0), got {error!r}")
+        self.scale = np.zeros((0, inner.dim))
+
+    def allocate(self, num: int) -> None:
+        """One scale factor per member and channel."""
+        super().allocate(num)
+        self.scale = np.zeros((num, self.dim))
+
+    def reset(self, sample: Sample, noise: Noise) -> None:
+        """Inner reset, then ``s = error + initial_std xi``."""
+        super().reset(sample, noise)
+        if np.any(self.initial_std > 0):
+            self.scale[sample.members] = self.error + self.initial_std * noise.normal(self.dim)
+        else:
+            self.scale[sample.members] = self.error
+
+    def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
+        """``(1 + s) y``."""
+        return y * (1.0 + self.scale[sample.members])
+
+
 class Delay(Decorator):
     """The inner measurement ``samples`` sample periods late (the first one repeats).
 
@@ -318,3 +364,26 @@ class SampleAndHold(Decorator):
         self._held[m] = held
         self._count[m] = count + 1
         return held.copy()
+
+
+class Tap(Decorator):
+    """Pass the inner measurement through and keep it per member in :attr:`last` (num, m).
+
+    For inputs computed from measurements: a design's ``input_transform`` reads the latest
+    sample of the channels it taps (e.g. the vehicle's ``a_y`` = speed times yaw rate), so
+    every estimator in the loop gets the measured input.
+    """
+
+    def __init__(self, inner: Sensor):
+        super().__init__(inner)
+        self.last = np.zeros((0, inner.dim))
+
+    def allocate(self, num: int) -> None:
+        """A row of the latest values per member."""
+        super().allocate(num)
+        self.last = np.zeros((num, self.dim))
+
+    def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
+        """``y``, also stored in ``last``."""
+        self.last[sample.members] = y
+        return y

@@ -32,6 +32,7 @@ import numpy as np
 
 from testbed.disturbances import Disturbance
 from testbed.rigs.base import GRAVITY_M_S2, Params, Rig
+from testbed.rigs.helicopter.hardware import HelicopterHardware, current_limited, deadband
 
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
 STATE_NAMES = ("pitch", "yaw", "pitch_rate", "yaw_rate")
@@ -234,9 +235,18 @@ DEFAULT_SETPOINTS: tuple[tuple[float, float, float], ...] = (
     (10.0, float(np.deg2rad(-5.0)), float(np.deg2rad(-20.0))),
     (15.0, float(np.deg2rad(5.0)), 0.0),
 )
+#: Initial-state spread of the default scenario: yaw and yaw rate standard deviations
+#: (rad, rad/s), the design prior's (``P0 = 1e-4 I``); pitch rests on its stop, still.
+X0_YAW_STD_RAD = 0.01
+X0_YAW_RATE_STD_RAD_S = 0.01
+#: Ambient disturbance of the default scenario ("air turbulence on the rotors"): white-noise
+#: angular accelerations on pitch and yaw, rad/s^(3/2). From a thrust-torque fluctuation of
+#: 1 % of the hover torque m g l (0.293 rad/s^2 rms) with a 0.05 s correlation time:
+#: intensity 2 sigma^2 tau_c = 0.0086 rad^2/s^3, b = 0.093 (assumption, docs/helicopter.md).
+AMBIENT_NOISE_RAD_S15 = 0.093
 #: Encoder resolutions (pitch, yaw), counts per revolution (Quanser's).
 ENCODER_COUNTS = (4096, 8192)
-SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper")
+SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper", "hardware")
 
 
 def basin_helicopter_w(t_s: float) -> np.ndarray:
@@ -281,6 +291,19 @@ class HelicopterRig(Rig):
     linearization about level pitch with gravity compensated by the input), the sensors'
     linear model, and as input the voltage minus the gravity-compensating voltage at the
     estimated pitch (nominal parameters).
+
+    Profiles: ``"paper"`` (torque proportional to voltage at every instant, ideal encoders
+    by default) and ``"hardware"`` (:mod:`testbed.rigs.helicopter.hardware`: rotor lag,
+    amplifier voltage and current limits, deadband; default sensors ``"hardware"`` with an
+    IMU). The design model is the paper's in both.
+
+    Parameters
+    ----------
+    params : HelicopterParams, optional
+    physics_dt_s : float
+    profile : {"paper", "hardware"}
+    hardware : HelicopterHardware, optional
+        Parameters of the ``hardware`` profile (default: the documented ones).
     """
 
     name = "helicopter"
@@ -297,9 +320,21 @@ class HelicopterRig(Rig):
     default_setpoints = DEFAULT_SETPOINTS
     disturbance_signals = {"basin-helicopter": lambda: _basin_signal()}
     scenario_options = {"process_noise_floor": 0.05}
+    profiles = ("paper", "hardware")
+    render_camera = "overview"
 
-    def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001):
-        super().__init__(params, physics_dt_s)
+    def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001,
+                 profile: str = "paper", hardware: HelicopterHardware | None = None):
+        if hardware is not None and not isinstance(hardware, HelicopterHardware):
+            raise ValueError(f"hardware must be a HelicopterHardware, got {hardware!r}")
+        if hardware is not None and profile != "hardware":
+            raise ValueError(f"hardware parameters apply to profile 'hardware', not {profile!r}")
+        #: Parameters of the ``hardware`` profile (None in the ``paper`` profile).
+        self.hardware = (hardware or HelicopterHardware()) if profile == "hardware" else None
+        if self.hardware is not None:
+            limits = tuple(float(v) for v in self.hardware.voltage_limit_v)
+            self.action_low, self.action_high = tuple(-v for v in limits), limits
+        super().__init__(params, physics_dt_s, profile)
         ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n)
                for n in ("pitch_motor", "yaw_motor")]
         self._act_pitch, self._act_yaw = ids
@@ -329,6 +364,37 @@ class HelicopterRig(Rig):
         model.actuator_gear[act_p] = gear[0]
         model.actuator_gear[act_y] = gear[1]
 
+    # ------------------------------------------------------------------ hardware profile
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """``hardware``: first-order rotor lag (``filterexact``) and the amplifier limits."""
+        hw = self.hardware
+        for i, name in enumerate(("pitch_motor", "yaw_motor")):
+            act = spec.actuator(name)
+            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+            act.dynprm[0] = hw.motor_time_constant_s[i]
+            act.ctrlrange = [-hw.voltage_limit_v[i], hw.voltage_limit_v[i]]
+
+    def member_constants(self, params: HelicopterParams) -> np.ndarray:
+        """``hardware``: :meth:`HelicopterHardware.constants` (deadband, back-EMF share,
+        ``R I_max``); none in the ``paper`` profile."""
+        return np.zeros(0) if self.hardware is None else self.hardware.constants()
+
+    def actuation(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
+        """``ctrl = u`` (paper) or the voltages past the motors' deadband (hardware)."""
+        if self.hardware is None:
+            return {"ctrl": u}
+        return {"ctrl": deadband(u, constants[:, :2])}
+
+    @property
+    def needs_substep(self) -> bool:
+        """The current limit depends on the rotor speed: evaluated every physics step."""
+        return self.hardware is not None
+
+    def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
+                     constants: np.ndarray) -> np.ndarray:
+        """The voltage within the amplifier's current limit (:func:`current_limited`)."""
+        return current_limited(command, act, constants[2:4], constants[4:6])
+
     def process_noise_matrix(self) -> np.ndarray:
         """Basin et al.'s white-noise matrix ``b`` (4, 2) (velocity rows)."""
         return paper_model().b
@@ -341,6 +407,22 @@ class HelicopterRig(Rig):
     def default_x0(self) -> np.ndarray:
         """Resting on the lower pitch stop: ``[-40.5 deg, 0, 0, 0]``."""
         return np.array([-PITCH_LIMIT_RAD, 0.0, 0.0, 0.0])
+
+    x0_draws = 2
+
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """On the lower stop, still in pitch; yaw ``~ N(0, 0.01^2)`` rad, yaw rate
+        ``~ N(0, 0.01^2)`` rad/s (the design prior): shape (k, 4) from ``xi`` (k, 2)."""
+        x = np.tile(self.default_x0(), (len(xi), 1))
+        x[:, 1] = X0_YAW_STD_RAD * xi[:, 0]
+        x[:, 3] = X0_YAW_RATE_STD_RAD_S * xi[:, 1]
+        return x
+
+    def ambient_noise_matrix(self) -> np.ndarray:
+        """Air turbulence on the rotors: ``b = diag(0.093, 0.093)`` on the acceleration rows."""
+        b = np.zeros((4, 2))
+        b[2, 0] = b[3, 1] = AMBIENT_NOISE_RAD_S15
+        return b
 
     def validate_x0(self, x0) -> np.ndarray:
         """Shape (4,), finite, pitch within the stops."""
@@ -373,7 +455,7 @@ class HelicopterRig(Rig):
         return self._mass_matrix @ a
 
     # ------------------------------------------------------------------ sensors, design
-    def sensors(self, preset: str | None = "encoders", *, dt_s: float = 0.01,
+    def sensors(self, preset: str | None = None, *, dt_s: float = 0.01,
                 noise_std_rad: float = 0.0, gyro_noise_std_rad_s: float = 0.005,
                 counts_per_rev: tuple[int, int] = ENCODER_COUNTS,
                 intensity: np.ndarray | None = None, disturbance_channel: bool = False):
@@ -381,11 +463,13 @@ class HelicopterRig(Rig):
 
         Parameters
         ----------
-        preset : {"encoders", "encoders+gyros", "paper"}
+        preset : {"encoders", "encoders+gyros", "paper", "hardware"}, optional
             ``encoders``: quantized pitch and yaw encoders (``2 pi / counts``) with optional
             white noise ``noise_std_rad``; ``encoders+gyros`` adds rate gyros (white noise
             ``gyro_noise_std_rad_s``); ``paper``: Basin et al.'s ``y1 = C1 x + e`` with
-            ``cov(e) = intensity / dt_s`` (default intensity ``h h^T = I``).
+            ``cov(e) = intensity / dt_s`` (default intensity ``h h^T = I``); ``hardware``:
+            the encoders plus an IMU (:func:`hardware_imu`). Default: ``encoders`` in the
+            ``paper`` profile, ``hardware`` in the ``hardware`` profile.
         dt_s : float
             Sampling period, s.
         disturbance_channel : bool
@@ -394,7 +478,7 @@ class HelicopterRig(Rig):
         """
         from testbed.sensors import LinearChannel, Quantize, StateChannel, Suite, WhiteNoise
 
-        preset = preset or "encoders"
+        preset = preset or ("encoders" if self.hardware is None else "hardware")
         if preset not in SENSOR_PRESETS:
             raise ValueError(f"unknown helicopter sensor preset {preset!r}; expected one of "
                              f"{SENSOR_PRESETS}")
@@ -420,6 +504,8 @@ class HelicopterRig(Rig):
             parts = [angles]
             if preset == "encoders+gyros":
                 parts.append(WhiteNoise(Suite(state(2), state(3)), std=gyro_noise_std_rad_s))
+            elif preset == "hardware":
+                parts.append(hardware_imu(self.hardware or HelicopterHardware(), dt_s))
         if disturbance_channel:
             parts.append(LinearChannel(paper.C2, ("y2_pitch", "y2_yaw"), ("rad", "rad"),
                                        Hw=paper.H, n_inputs=2))
@@ -461,3 +547,28 @@ class HelicopterRig(Rig):
                             input_transform=unbalanced_input,
                             extras={"paper_model": model, "gamma": PAPER_GAMMA,
                                     "initial_weight": PAPER_INITIAL_WEIGHT})
+
+
+def hardware_imu(hardware: HelicopterHardware, dt_s: float):
+    """The IMU of the ``hardware`` preset: :class:`HelicopterIMU` with its imperfections.
+
+    ``Delay(SampleAndHold(WhiteNoise(BiasRandomWalk(ScaleFactor(imu)))))``: a sensitivity
+    error per episode, a bias (calibration residual at reset, then a random walk on the
+    gyros), white noise of the datasheet's density, held at the IMU's output rate when the
+    loop samples faster, and the low-pass filter's group delay in whole samples (>= 1).
+    """
+    from testbed.rigs.helicopter.imu import HelicopterIMU
+    from testbed.sensors import BiasRandomWalk, Delay, SampleAndHold, ScaleFactor, WhiteNoise
+
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be a positive sampling period in s, got {dt_s}")
+    hw = hardware
+    imu = ScaleFactor(HelicopterIMU(), initial_std=hw.scale_factor_std)
+    imu = BiasRandomWalk(imu, walk=[hw.gyro_bias_walk, hw.gyro_bias_walk, 0.0], dt_s=dt_s,
+                         initial_std=[hw.gyro_bias0_std, hw.gyro_bias0_std, hw.accel_bias0_std])
+    imu = WhiteNoise(imu, density=[hw.gyro_noise_density, hw.gyro_noise_density,
+                                   hw.accel_noise_density], dt_s=dt_s)
+    hold = int(round(1.0 / (hw.imu_rate_hz * dt_s)))
+    if hold > 1:
+        imu = SampleAndHold(imu, hold)
+    return Delay(imu, max(1, int(round(hw.imu_delay_s / dt_s))))

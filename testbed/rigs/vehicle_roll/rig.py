@@ -22,7 +22,17 @@ from testbed.rigs.vehicle_roll.model import (
 
 #: Roll angle beyond which the vehicle has rolled over (episode terminates), rad.
 ROLLOVER_RAD = float(np.pi / 2)
-SENSOR_PRESETS = ("imu", "paper")
+SENSOR_PRESETS = ("imu", "paper", "hardware")
+#: Where the estimator's input ``a_y`` comes from (see :meth:`VehicleRollRig.design_model`).
+A_Y_SOURCES = ("auto", "measured", "oracle")
+#: Initial-state spread of the default scenario: roll (rad) and roll-rate (rad/s) standard
+#: deviations, the design prior's (0.5 deg, 1 deg/s).
+X0_STD = (float(np.deg2rad(0.5)), float(np.deg2rad(1.0)))
+#: Ambient disturbance of the default scenario (crosswind gusts): white-noise roll
+#: acceleration, rad/s^(3/2). From a lateral gust force of 250 N rms acting 0.6 m above the
+#: roll axis (0.088 rad/s^2 rms) with a 0.1 s correlation time: intensity
+#: 2 sigma^2 tau_c = 1.6e-3 rad^2/s^3, b = 0.04 (assumption, docs/vehicle_roll.md).
+AMBIENT_NOISE_RAD_S15 = 0.04
 
 
 def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
@@ -71,11 +81,17 @@ class VehicleRollRig(Rig):
     tracked_states = ("roll",)
     step_noise_dim = 1
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
-    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2}
+    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2, "a_y_source": "auto"}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
+    #: ``hardware`` changes the default sensors only (the input is a physical acceleration,
+    #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
+    #: CAN latency.
+    profiles = ("paper", "hardware")
+    render_camera = "rear"
 
-    def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001):
-        super().__init__(params, physics_dt_s)
+    def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001,
+                 profile: str = "paper"):
+        super().__init__(params, physics_dt_s, profile)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
         self._body_id = self.body_id("sprung_mass")
         from testbed.manoeuvres import MANOEUVRES
@@ -110,6 +126,17 @@ class VehicleRollRig(Rig):
         """Damping ``C_R + D_n w_k`` for the next step."""
         model.dof_damping[self.dof_adr[0]] = constants[1] + constants[2] * xi[0]
 
+    x0_draws = 2
+
+    def random_x0(self, xi: np.ndarray) -> np.ndarray:
+        """``roll ~ N(0, (0.5 deg)^2)``, ``roll_rate ~ N(0, (1 deg/s)^2)`` (the design
+        prior): shape (k, 2) from ``xi`` (k, 2)."""
+        return np.asarray(xi, float) * np.array(X0_STD)
+
+    def ambient_noise_matrix(self) -> np.ndarray:
+        """Crosswind gusts: ``b = [[0], [0.04]]`` (roll acceleration)."""
+        return np.array([[0.0], [AMBIENT_NOISE_RAD_S15]])
+
     def validate_x0(self, x0) -> np.ndarray:
         """Shape (2,), finite, roll short of rollover."""
         x = super().validate_x0(x0)
@@ -122,38 +149,71 @@ class VehicleRollRig(Rig):
         """Rolled over: ``|roll| > 90 deg``."""
         return np.abs(x[:, 0]) > ROLLOVER_RAD
 
-    def sensors(self, preset: str | None = "imu", *, dt_s: float = 0.01, **options):
-        """``imu`` (gyro, lateral accelerometer, optional roll sensor) or ``paper`` channels.
+    def sensors(self, preset: str | None = None, *, dt_s: float = 0.01, **options):
+        """``imu`` (gyro, lateral accelerometer, optional roll sensor), ``hardware`` (the
+        same with offsets, sensitivity errors and latency) or ``paper`` channels.
 
-        See :func:`testbed.rigs.vehicle_roll.sensors.imu` and
+        Default: ``imu`` in the ``paper`` profile, ``hardware`` in the ``hardware`` profile.
+        See :func:`testbed.rigs.vehicle_roll.sensors.imu`,
+        :func:`testbed.rigs.vehicle_roll.sensors.hardware` and
         :class:`testbed.rigs.vehicle_roll.sensors.PaperRollChannel` for the options.
         """
         from testbed.rigs.vehicle_roll import sensors
 
-        preset = preset or "imu"
+        preset = preset or ("imu" if self.profile == "paper" else "hardware")
         if preset not in SENSOR_PRESETS:
             raise ValueError(f"unknown vehicle-roll sensor preset {preset!r}; expected one of "
                              f"{SENSOR_PRESETS}")
         try:
             if preset == "imu":
                 return sensors.imu(dt_s=dt_s, **options)
+            if preset == "hardware":
+                return sensors.hardware(dt_s=dt_s, **options)
             return sensors.PaperRollChannel(**options)
         except TypeError as err:
             raise ValueError(f"bad option for sensor preset {preset!r}: {err}") from None
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *, a_y_std: float = 0.1,
-                     design_roll_rate: float = 0.2):
+                     design_roll_rate: float = 0.2, a_y_source: str = "auto"):
         """The physical linearization (with ``g``), nominal parameters, exact ZOH.
 
         ``Q`` from :func:`process_noise_intensity`; prior ``0``,
         ``diag((0.5 deg)^2, (1 deg/s)^2)``. ``extras["lmi_system"]`` holds the system of
         the LMI design (Zhang et al.'s Theorem 4 with the multiplicative damping noise).
+
+        Parameters
+        ----------
+        a_y_source : {"auto", "measured", "oracle"}
+            The estimator's input ``a_y``: ``measured`` = speed times yaw rate of the
+            sensors' tapped input channels (:func:`~testbed.rigs.vehicle_roll.sensors.
+            measured_lateral_acceleration`, the ``imu`` and ``hardware`` presets have them);
+            ``oracle`` = the applied ``a_y`` exactly; ``auto`` = measured when the sensors
+            have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
         """
         from testbed.design import build_design
+        from testbed.rigs.vehicle_roll.sensors import find_tap, measured_lateral_acceleration
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{key} must be finite and >= 0, got {value}")
+        if a_y_source not in A_Y_SOURCES:
+            raise ValueError(f"a_y_source must be one of {A_Y_SOURCES}, got {a_y_source!r}")
+        tap = find_tap(sensors)
+        if a_y_source == "measured" and tap is None:
+            raise ValueError("a_y_source 'measured' needs the speed and yaw_rate channels "
+                             "(sensor presets 'imu' or 'hardware' with speed_yaw_rate=True); "
+                             "use a_y_source 'oracle' for the exact a_y")
+        source = "measured" if (a_y_source != "oracle" and tap is not None) else "oracle"
+        from testbed.rigs.vehicle_roll.sensors import measured_a_y_variance
+        transform = None
+        if source == "measured":
+            def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+                a_y = measured_lateral_acceleration(tap)
+                if len(a_y) != len(u):
+                    raise ValueError(f"the measured a_y has {len(a_y)} members, the input "
+                                     f"{len(u)}: build the design from the simulator's own "
+                                     "sensors (env.unwrapped.sensors)")
+                return a_y
         nominal = VehicleRollParams()
         A, B = physical_model(nominal)
         Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
@@ -161,10 +221,12 @@ class VehicleRollRig(Rig):
             Q = Q + disturbance.intensity
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
-                              output_matrix=paper_model().M)
+                              output_matrix=paper_model().M, input_transform=transform,
+                              input_noise_cov=(measured_a_y_variance(tap) if transform
+                                               else None))
         from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_estimator
 
-        design.extras.update(paper_model=paper_model(), a_y_std=a_y_std,
+        design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_estimator,
                              lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
         return design
