@@ -2,93 +2,207 @@
 
 Usage::
 
-    python scripts/benchmark.py --json runs/benchmark.json
+    python scripts/benchmark.py --json runs/benchmark.json          # everything (~15 min)
+    python scripts/benchmark.py --quick --json runs/benchmark.json  # without the two long ones
+    python scripts/benchmark.py --markdown runs/b1.json runs/b2.json [--readme README.md]
 
-Measured (median of ``--repeats`` timed blocks, after a warm-up):
+Measured (the median of ``--repeats`` timed blocks of ``--calls`` calls after a warm-up; the
+blocks of the quantities compared in a ratio are interleaved, because the machine may be
+shared):
 
 - ``raw_steps_per_s``: bare ``mujoco.mj_step(model, data, nstep=frame_skip)`` calls per
-  second on the helicopter model (one control period of physics each);
-- ``env_steps_per_s``: ``Helicopter2DOFEnv.step`` per second (same physics, plus action
-  checks, sensors, reward, info); ``env_overhead_ratio`` = env step time / bare step time
-  (target <= 2.0);
-- ``env_kf_steps_per_s``: ``FilterInLoop.step`` with the discrete Kalman filter;
+  second on the helicopter's MJCF (one control period of physics each, hovering on the
+  gravity voltage); ``env_steps_per_s``: :class:`testbed.envs.RigEnv` ``step`` per second
+  (same physics, plus action checks, sensors, reward, info); ``env_overhead_ratio`` = env
+  step time / bare step time (target <= 2.0); ``env_vehicle_overhead_ratio``: the same for
+  the vehicle roll rig (at rest, zero action);
+- ``env_kf_steps_per_s``: :class:`testbed.wrappers.FilterInLoop` ``step`` with the Kalman
+  filter built by :func:`testbed.estimators.build` from the rig's design model;
 - ``kf_step_us`` / ``filterpy_step_us``: one predict + update of our ``KalmanFilter`` and of
-  ``filterpy.kalman.KalmanFilter`` on the same 4-state, 2-measurement model;
-  ``kf_vs_filterpy`` = their ratio (target <= 1.0);
+  ``filterpy.kalman.KalmanFilter`` on the same 4-state, 2-measurement model (Basin et al.'s
+  helicopter); ``kf_vs_filterpy`` = their ratio (target <= 1.0);
 - ``mshinf_step_us``: one step of the mean-square H-infinity filter (Basin et al.'s example,
   4 states, one RK4 substep) and ``mshinf_vs_kf`` its ratio to ``kf_step_us`` (target <= 2);
+- ``poly_step_us``: one public ``step`` of the polynomial H-infinity filter on Basin, Shi &
+  Calderon-Alvarez's cubic example (the printed filter (26): 2 states, time-varying cubic
+  term, dt 0.1 ms, restarted every 0.5 s of filter time because (26) escapes at 1.02 s;
+  target <= 50 us) and ``poly_batch64_member_step_us``: one ``step`` of a batch of 64
+  filters (leading batch axis) divided by 64;
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
-- Monte Carlo (``scripts/bench_mc.py``): ``raw_rollout_traj_steps_per_s``,
-  ``mc_traj_steps_per_s``, ``mc_mshinf_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.4),
+- Monte Carlo (``scripts/bench_mc.py``, both rigs): ``raw_rollout_traj_steps_per_s``,
+  ``mc_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.7), their ``vehicle`` counterparts
+  with ``mc_vehicle_vs_raw`` (target >= 0.7), ``mc_mshinf_traj_steps_per_s``,
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
-  scale: 1000 runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a 16-point
-  sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long ones;
+  scale: 1000 helicopter runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a
+  16-point sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long
+  ones;
 - LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of Zhang et al.'s LMI (48) for
   Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
-Never used as a timed test: numbers depend on the machine; ratios much less so.
+The JSON lists every metric with its unit, meaning, target and whether it is met. Never used
+as a timed test: numbers depend on the machine; ratios much less so.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import operator
 import platform
 import statistics
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
-from testbed.envs.helicopter import Helicopter2DOFEnv  # noqa: E402
-from testbed.experiment import build_helicopter  # noqa: E402
+from filters import (  # noqa: E402
+    KalmanFilter,
+    LinearSystem,
+    MeanSquareHInfFilter,
+    PolynomialHInfFilter,
+)
+from testbed import estimators  # noqa: E402
+from testbed.envs import RigEnv  # noqa: E402
+from testbed.io import atomic_path, write_json  # noqa: E402
+from testbed.wrappers import FilterInLoop  # noqa: E402
 
-from filters import KalmanFilter, LinearSystem, MeanSquareHInfFilter  # noqa: E402
-from testbed.io import write_json  # noqa: E402
-from testbed.rigs.helicopter import gravity_voltage, paper_model  # noqa: E402
+#: metric -> (unit, meaning). Every key the benchmark can report.
+METRICS: dict[str, tuple[str, str]] = {
+    "raw_steps_per_s": ("1/s", "bare mj_step(nstep=10), helicopter MJCF"),
+    "env_steps_per_s": ("1/s", "RigEnv('helicopter').step"),
+    "env_overhead_ratio": ("", "RigEnv step time / bare mj_step time, helicopter"),
+    "env_vehicle_overhead_ratio": ("", "the same for the vehicle roll rig"),
+    "env_kf_steps_per_s": ("1/s", "FilterInLoop(RigEnv, Kalman filter).step"),
+    "kf_step_us": ("us", "our KalmanFilter predict + update (4 states, 2 outputs)"),
+    "filterpy_step_us": ("us", "filterpy KalmanFilter predict + update, same model"),
+    "kf_vs_filterpy": ("", "kf_step_us / filterpy_step_us"),
+    "mshinf_step_us": ("us", "mean-square H-infinity step (4 states, 1 RK4 substep)"),
+    "mshinf_vs_kf": ("", "mshinf_step_us / kf_step_us"),
+    "poly_step_us": ("us", "polynomial H-infinity step, one filter (2 states)"),
+    "poly_batch64_member_step_us": ("us", "polynomial H-infinity step of a batch of 64, / 64"),
+    "inverted_pendulum_v5_steps_per_s": ("1/s", "Gymnasium InvertedPendulum-v5 (reference)"),
+    "raw_rollout_traj_steps_per_s": ("1/s", "bare mujoco.rollout, helicopter (N x steps)"),
+    "mc_traj_steps_per_s": ("1/s", "monte_carlo helicopter, Kalman + LQR, same size"),
+    "mc_vs_raw": ("", "mc_traj_steps_per_s / raw_rollout_traj_steps_per_s"),
+    "raw_rollout_vehicle_traj_steps_per_s": ("1/s", "bare mujoco.rollout, vehicle roll"),
+    "mc_vehicle_traj_steps_per_s": ("1/s", "monte_carlo vehicle roll, Kalman, manoeuvre"),
+    "mc_vehicle_vs_raw": ("", "mc_vehicle_traj_steps_per_s / raw_rollout_vehicle_..."),
+    "mc_mshinf_traj_steps_per_s": ("1/s", "monte_carlo helicopter, mean-square H-infinity"),
+    "mc_peak_rss_mb": ("MB", "peak RSS, streaming monte_carlo (N = 1000 x 2000 steps)"),
+    "import_rss_mb": ("MB", "peak RSS of a process that only imports the runner"),
+    "scaling": ("us", "wall time per trajectory-step by batch size N"),
+    "mc_1000x80s_wall_s": ("s", "the papers' scale: 1000 helicopter runs of 80 s, Kalman"),
+    "sweep_ray_wall_s": ("s", "16-point sweep on local Ray, by number of workers"),
+    "sweep_ray_speedup": ("", "sweep wall time 1 worker / 2 workers"),
+    "lmi_solve_s": ("s", "LMI (48) solve, Zhang, Deng & Zhang (2018) Example 5.2 (median)"),
+    "gamma_bisection_s": ("s", "gamma bisection on the same LMI (median)"),
+}
+#: metric -> (comparison, bound): the targets the issues set.
+TARGETS: dict[str, tuple[str, float]] = {
+    "env_overhead_ratio": ("<=", 2.0),
+    "kf_vs_filterpy": ("<=", 1.0),
+    "mshinf_vs_kf": ("<=", 2.0),
+    "poly_step_us": ("<=", 50.0),
+    "mc_vs_raw": (">=", 0.7),
+    "mc_vehicle_vs_raw": (">=", 0.7),
+    "mc_peak_rss_mb": ("<=", 500.0),
+    "sweep_ray_speedup": (">=", 1.6),
+    "lmi_solve_s": ("<", 0.1),
+    "gamma_bisection_s": ("<", 2.0),
+}
+_COMPARE = {"<=": operator.le, ">=": operator.ge, "<": operator.lt, ">": operator.gt}
+#: Settings of ``--smoke``: seconds of work, numbers without meaning (tests the script).
+SMOKE_CALLS, SMOKE_REPEATS = 5, 1
 
 
-def time_per_call(fn: Callable[[], object], calls: int, repeats: int) -> float:
-    """Median over ``repeats`` blocks of the time per call of ``fn``, in seconds."""
-    for _ in range(max(calls // 10, 1)):
-        fn()
-    blocks = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(calls):
+# ------------------------------------------------------------------------------- timing
+def time_interleaved(fns: dict[str, Callable[[], object]], calls: int,
+                     repeats: int) -> dict[str, float]:
+    """Median time per call of each function, in seconds, over ``repeats`` rounds.
+
+    Each round times one block of ``calls`` calls of every function in turn, so a slow
+    phase of a shared machine hits all of them (after a warm-up of ``calls // 10`` calls).
+    """
+    for fn in fns.values():
+        for _ in range(max(calls // 10, 1)):
             fn()
-        blocks.append((time.perf_counter() - start) / calls)
-    return statistics.median(blocks)
+    blocks: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeats):
+        for key, fn in fns.items():
+            start = time.perf_counter()
+            for _ in range(calls):
+                fn()
+            blocks[key].append((time.perf_counter() - start) / calls)
+    return {k: statistics.median(v) for k, v in blocks.items()}
+
+
+# ------------------------------------------------------------------------------- physics
+def _raw_step(env: RigEnv, x0: np.ndarray, u: np.ndarray) -> Callable[[], None]:
+    """``mj_step(nstep=frame_skip)`` on a fresh ``MjData`` of the env's member model, at
+    ``x0`` with the MuJoCo inputs of action ``u`` held."""
+    physics = env.sim.physics
+    model = physics.models[0]
+    data = mujoco.MjData(model)
+    env.rig.set_state(x0, data, model)
+    inputs = env.rig.actuation(u[None], physics.constants[:1])
+    if "ctrl" in inputs:
+        data.ctrl[:] = inputs["ctrl"][0]
+    if "xfrc" in inputs:
+        data.xfrc_applied[:] = inputs["xfrc"][0]
+    nstep = env.frame_skip
+    return lambda: mujoco.mj_step(model, data, nstep=nstep)
 
 
 def bench_physics(calls: int, repeats: int) -> dict[str, float]:
-    env = Helicopter2DOFEnv()
-    env.reset(seed=0, options={"x0": np.zeros(4)})
-    u = gravity_voltage(env.nominal_params, 0.0)
-    model, data = env.rig.model, env.rig.data
-    data.ctrl[:] = u
-    raw = time_per_call(lambda: mujoco.mj_step(model, data, nstep=env.frame_skip), calls,
-                        repeats)
-    env.reset(seed=0, options={"x0": np.zeros(4)})
-    env_step = time_per_call(lambda: env.step(u), calls, repeats)
+    """Bare physics, ``RigEnv.step`` and ``FilterInLoop.step`` (see the module docstring)."""
+    env = RigEnv("helicopter")
+    x0 = np.zeros(4)
+    u = env.rig.operating_input(env.nominal_params, x0[None])[0]  # hover at level pitch
+    env.reset(seed=0, options={"x0": x0})
 
-    exp = build_helicopter("kalman", "open-loop")
-    exp.env.reset(seed=0, options={"x0": np.zeros(4)})
-    kf_loop = time_per_call(lambda: exp.env.step(u), calls, repeats)
+    kf_env = RigEnv("helicopter")
+    design = kf_env.rig.design_model(kf_env.sensors, kf_env.dt_s, kf_env.disturbance)
+
+    def transform(u_applied: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+        return design.input_transform(u_applied[None], np.asarray(x_hat)[None])[0]
+
+    looped = FilterInLoop(kf_env, estimators.build("kalman", design), input_transform=transform)
+    looped.reset(seed=0, options={"x0": x0})
+
+    vehicle = RigEnv("vehicle-roll")
+    v_x0, v_u = np.zeros(2), np.zeros(1)
+    vehicle.reset(seed=0, options={"x0": v_x0})
+    t = time_interleaved({"raw": _raw_step(env, x0, u), "env": lambda: env.step(u),
+                          "kf": lambda: looped.step(u),
+                          "vraw": _raw_step(vehicle, v_x0, v_u),
+                          "venv": lambda: vehicle.step(v_u)}, calls, repeats)
+    for e in (env, looped, vehicle):
+        e.close()
     return {
-        "raw_steps_per_s": 1.0 / raw,
-        "env_steps_per_s": 1.0 / env_step,
-        "env_overhead_ratio": env_step / raw,
-        "env_kf_steps_per_s": 1.0 / kf_loop,
+        "raw_steps_per_s": 1.0 / t["raw"],
+        "env_steps_per_s": 1.0 / t["env"],
+        "env_overhead_ratio": t["env"] / t["raw"],
+        "env_vehicle_overhead_ratio": t["venv"] / t["vraw"],
+        "env_kf_steps_per_s": 1.0 / t["kf"],
     }
 
 
-def bench_kalman(calls: int, repeats: int) -> dict[str, float]:
+# ------------------------------------------------------------------------------- filters
+def bench_filters(calls: int, repeats: int) -> dict[str, float]:
+    """Kalman (ours and filterpy's), mean-square and polynomial H-infinity steps."""
     from filterpy.kalman import KalmanFilter as FilterpyKF
+
+    from testbed.rigs.helicopter import paper_model
+    from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario
+    from testbed.scenarios.basin_polynomial_hinf import paper_model as paper_poly_model
 
     pm = paper_model()
     dt = 0.01
@@ -97,42 +211,60 @@ def bench_kalman(calls: int, repeats: int) -> dict[str, float]:
     x0, P0 = np.zeros(4), np.eye(4)
     rng = np.random.default_rng(0)
     ys = rng.normal(size=(1024, 2)) * 0.01
+    ys4 = rng.normal(size=(1024, 4)) * 0.01
     u = np.array([0.1, -0.2])
-
-    ours = KalmanFilter(sysd, x0, P0)
     counter = {"i": 0}
 
-    def ours_step() -> None:
+    def row(table: np.ndarray) -> np.ndarray:
         counter["i"] = (counter["i"] + 1) & 1023
+        return table[counter["i"]]
+
+    ours = KalmanFilter(sysd, x0, P0)
+
+    def ours_step() -> None:
         ours.predict(u)
-        ours.update(ys[counter["i"]])
+        ours.update(row(ys))
 
     ref = FilterpyKF(dim_x=4, dim_z=2, dim_u=2)
     ref.F, ref.B, ref.H = sysd.F.copy(), sysd.B.copy(), sysd.H.copy()
     ref.Q, ref.R, ref.x, ref.P = sysd.Q.copy(), sysd.R.copy(), x0.copy(), P0.copy()
 
     def filterpy_step() -> None:
-        counter["i"] = (counter["i"] + 1) & 1023
         ref.predict(u=u)
-        ref.update(ys[counter["i"]])
+        ref.update(row(ys))
 
     hinf = MeanSquareHInfFilter(pm.A, pm.B, pm.C1, pm.h, pm.C2, pm.H, pm.G, pm.b, pm.L, 1.1,
                                 np.eye(4), x0, P0, dt)
-    ys4 = rng.normal(size=(1024, 4)) * 0.01
 
-    def hinf_step() -> None:
-        counter["i"] = (counter["i"] + 1) & 1023
-        hinf.step(ys4[counter["i"]], u)
+    s = PolynomialHinfScenario()
+    model = paper_poly_model(L=s.printed_gain_L)  # the printed filter (26)
+    poly_dt = 1e-4  # the reproduction's default sample interval
+    batch = 64
+    poly = PolynomialHInfFilter(model, s.gamma, s.R, poly_dt, s.xf0)
+    poly_batch = PolynomialHInfFilter(model, s.gamma, s.R, poly_dt, np.zeros((batch, model.n)))
+    y_poly = rng.normal(size=(1024, batch, model.m)) * 0.01
 
-    ours_s = time_per_call(ours_step, calls, repeats)
-    ref_s = time_per_call(filterpy_step, calls, repeats)
-    hinf_s = time_per_call(hinf_step, calls, repeats)
-    return {"kf_step_us": ours_s * 1e6, "filterpy_step_us": ref_s * 1e6,
-            "kf_vs_filterpy": ours_s / ref_s, "mshinf_step_us": hinf_s * 1e6,
-            "mshinf_vs_kf": hinf_s / ours_s}
+    def poly_step(filt: PolynomialHInfFilter, y: np.ndarray) -> None:
+        # (26) escapes at t = 1.02 s: restart every 0.5 s of filter time (amortized: once
+        # per 5000 steps)
+        if filt.t_s >= 0.5:
+            filt.reset(np.zeros_like(filt.x), filt.P0)
+        filt.step(y)
+
+    t = time_interleaved({
+        "kf": ours_step, "filterpy": filterpy_step,
+        "mshinf": lambda: hinf.step(row(ys4), u),
+        "poly": lambda: poly_step(poly, row(y_poly)[0]),
+        "poly_batch": lambda: poly_step(poly_batch, row(y_poly)),
+    }, calls, repeats)
+    return {"kf_step_us": t["kf"] * 1e6, "filterpy_step_us": t["filterpy"] * 1e6,
+            "kf_vs_filterpy": t["kf"] / t["filterpy"], "mshinf_step_us": t["mshinf"] * 1e6,
+            "mshinf_vs_kf": t["mshinf"] / t["kf"], "poly_step_us": t["poly"] * 1e6,
+            "poly_batch64_member_step_us": t["poly_batch"] / batch * 1e6}
 
 
-def bench_reference_env(calls: int, repeats: int) -> dict[str, float]:
+def bench_reference_env(calls: int, repeats: int) -> dict[str, Any]:
+    """Gymnasium's ``InvertedPendulum-v5`` (an error string when it cannot be made)."""
     import gymnasium as gym
 
     try:
@@ -141,48 +273,190 @@ def bench_reference_env(calls: int, repeats: int) -> dict[str, float]:
         return {"inverted_pendulum_v5_error": repr(exc)}
     env.reset(seed=0)
     action = np.zeros(env.action_space.shape)
-    step = time_per_call(lambda: env.step(action), calls, repeats)
-    return {"inverted_pendulum_v5_steps_per_s": 1.0 / step}
+    t = time_interleaved({"step": lambda: env.step(action)}, calls, repeats)
+    env.close()
+    return {"inverted_pendulum_v5_steps_per_s": 1.0 / t["step"]}
 
 
-def bench_scale(quick: bool) -> dict[str, object]:
-    """Monte-Carlo throughput, memory, scaling, the papers' scale and the Ray sweep speedup."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_mc import bench_monte_carlo
-    from testbed.batch import monte_carlo
+# ------------------------------------------------------------------------------- scale
+def bench_scale(mode: str) -> dict[str, Any]:
+    """Monte-Carlo throughput of both rigs, memory, scaling; with ``mode == "full"`` also the
+    papers' scale and the Ray sweep speedup."""
+    import bench_mc
 
-    out: dict[str, object] = dict(bench_monte_carlo())
-    mshinf = monte_carlo("ms-hinf", runs=256, duration_s=20.0, seed=0, progress=False,
-                         disturbance="basin-helicopter")
-    out["mc_mshinf_traj_steps_per_s"] = mshinf["traj_steps_per_s"]
-    if quick:
+    from testbed.runner import monte_carlo
+    from testbed.scenario import Scenario
+
+    sizes = {"full": {}, "quick": bench_mc.QUICK, "smoke": bench_mc.SMOKE}[mode]
+    out: dict[str, Any] = dict(bench_mc.bench_monte_carlo(**sizes))
+    if mode != "full":
         return out
-    big = monte_carlo("kalman", runs=1000, duration_s=80.0, seed=0, progress=False)
+    big = monte_carlo(Scenario(rig="helicopter", estimator="kalman", duration_s=80.0), 1000,
+                      progress=False)
     out["mc_1000x80s_wall_s"] = big["wall_s"]
     out.update(bench_ray_sweep())
     return out
 
 
-def bench_ray_sweep() -> dict[str, object]:
-    """16-point sweep on a local Ray instance with 1 and 2 workers (started and warmed up
-    outside the timed region: the sweep's own cost, not Ray's start-up)."""
+def bench_ray_sweep(runs: int = 32, duration_s: float = 10.0) -> dict[str, Any]:
+    """16-point helicopter sweep on a local Ray instance with 1 and 2 workers (started and
+    warmed up outside the timed region: the sweep's own cost, not Ray's start-up)."""
     import ray
-    from testbed.sweep import sweep
 
-    grid = {"process_noise_scale": [0.0, 0.1, 0.2, 0.3], "params.mass_kg": [0.9, 1.0, 1.1, 1.2]}
-    walls = {}
+    from testbed.runner import sweep
+    from testbed.scenario import Scenario
+
+    scenario = Scenario(rig="helicopter", estimator="kalman", seed=0)
+    grid = {"process_noise": [0.0, 0.1, 0.2, 0.3], "params.mass_kg": [0.9, 1.0, 1.1, 1.2]}
+    walls: dict[int, float] = {}
     for workers in (1, 2):
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         try:
-            sweep({"process_noise_scale": [0.0] * workers}, runs=2, duration_s=0.1,
-                  backend="ray", workers=workers, progress=False)  # warm the workers
+            sweep(scenario.replace(duration_s=0.1), {"process_noise": [0.0] * workers},
+                  runs=2, backend="ray", workers=workers, progress=False)  # warm the workers
             start = time.perf_counter()
-            sweep(grid, runs=32, duration_s=10.0, seed=0, backend="ray", workers=workers,
-                  progress=False)
+            sweep(scenario.replace(duration_s=duration_s), grid, runs=runs, backend="ray",
+                  workers=workers, progress=False)
             walls[workers] = time.perf_counter() - start
         finally:
             ray.shutdown()
     return {"sweep_ray_wall_s": walls, "sweep_ray_speedup": walls[1] / walls[2]}
+
+
+# ------------------------------------------------------------------------------- report
+def assess(values: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each measured metric with its unit, meaning, target (or None) and whether it is met."""
+    out = {}
+    for key, value in values.items():
+        unit, what = METRICS.get(key, ("", ""))
+        entry: dict[str, Any] = {"value": value, "unit": unit, "what": what,
+                                 "target": None, "met": None}
+        if key in TARGETS:
+            op, bound = TARGETS[key]
+            entry["target"] = f"{op} {bound:g}"
+            entry["met"] = bool(_COMPARE[op](value, bound))
+        out[key] = entry
+    return out
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, float | int | np.floating):
+        v = float(value)
+        if abs(v) >= 100:
+            return f"{v:,.0f}"
+        if abs(v) >= 10:
+            return f"{v:.1f}"
+        if abs(v) >= 1:
+            return f"{v:.2f}"
+        return f"{v:.3g}"
+    if isinstance(value, dict) and value and all(isinstance(v, dict) for v in value.values()):
+        horizon = max(int(k.split("steps=")[1]) for k in value)  # scaling at its longest
+        return " / ".join(f"{k.split(',')[0]}: {_fmt(v['us_per_traj_step'])}"
+                          for k, v in value.items() if k.endswith(f"steps={horizon}"))
+    if isinstance(value, dict):
+        return " / ".join(f"{k}: {_fmt(v)}" for k, v in value.items())
+    if isinstance(value, list):
+        return ", ".join(_fmt(v) for v in value)
+    return str(value)
+
+
+def print_table(metrics: dict[str, dict[str, Any]]) -> None:
+    """The metrics as a plain-text table (key, value, unit, target, met)."""
+    width = max(len(k) for k in metrics)
+    for key, m in metrics.items():
+        target = ""
+        if m["target"] is not None:
+            target = f"{m['target']:>8}  {'met' if m['met'] else 'MISSED'}"
+        print(f"{key:<{width}}  {_fmt(m['value']):>24} {m['unit']:<4} {target}")
+
+
+def _median_tree(values: list[Any]) -> Any:
+    """Element-wise median of equally shaped dicts of numbers (or of such dicts)."""
+    if isinstance(values[0], dict):
+        return {k: _median_tree([v[k] for v in values]) for k in values[0]}
+    return statistics.median(values)
+
+
+def markdown(results: list[dict[str, Any]]) -> str:
+    """A Markdown table of one or more benchmark JSONs: the median (element-wise for the
+    tables), and with several runs the range ``(min-max)`` and how many runs met each
+    target."""
+    keys = [k for k in METRICS if any(k in r["metrics"] for r in results)]
+    lines = ["| metric | value | target | met |", "|---|---|---|---|"]
+    for key in keys:
+        entries = [r["metrics"][key] for r in results if key in r["metrics"]]
+        values = [e["value"] for e in entries]
+        if all(isinstance(v, int | float) for v in values):
+            text = _fmt(statistics.median(values))
+            if len(values) > 1:
+                text += f" ({_fmt(min(values))}-{_fmt(max(values))})"
+        else:
+            text = _fmt(_median_tree(values))
+        unit = entries[0]["unit"]
+        if unit and unit != "1/s":
+            text += f" {unit}"
+        target = entries[0]["target"] or ""
+        met = "" if entries[0]["met"] is None else \
+            f"{sum(bool(e['met']) for e in entries)}/{len(entries)}"
+        lines.append(f"| `{key}`: {METRICS[key][1]} | {text} | {target} | {met} |")
+    return "\n".join(lines)
+
+
+def provenance(results: list[dict[str, Any]]) -> str:
+    """One sentence saying which runs a generated table summarizes."""
+    modes = sorted({r["settings"]["mode"] for r in results})
+    machine = results[0]["machine"]
+    threads = sorted({r["settings"].get("mc_threads") for r in results} - {None})
+    return (f"Generated by `python scripts/benchmark.py --markdown` from {len(results)} "
+            f"{'/'.join(modes)} run(s) (Python {machine['python']}, MuJoCo {machine['mujoco']}, "
+            f"numpy {machine['numpy']}"
+            + (f", {'/'.join(map(str, threads))} physics threads" if threads else "") + "): "
+            + ("median (min-max) over the runs, element-wise for the tables; `met`: runs that "
+               "met the target." if len(results) > 1 else "one run."))
+
+
+README_START, README_END = "<!-- benchmark-table:start -->", "<!-- benchmark-table:end -->"
+
+
+def update_readme(path: Path, table: str, note: str) -> None:
+    """Replace the text between the benchmark-table markers of ``path`` (atomically)."""
+    text = path.read_text()
+    start, end = text.find(README_START), text.find(README_END)
+    if start < 0 or end < start:
+        raise ValueError(f"{path} has no {README_START} ... {README_END} markers")
+    new = f"{text[:start]}{README_START}\n{note}\n\n{table}\n{text[end:]}"
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(new)
+
+
+# ------------------------------------------------------------------------------- main
+def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
+    """Every benchmark; ``mode`` is ``"full"``, ``"quick"`` or ``"smoke"``."""
+    from bench_lmi import bench_lmi
+
+    values: dict[str, Any] = {}
+    values.update(bench_physics(calls, repeats))
+    values.update(bench_filters(calls, repeats))
+    values.update(bench_reference_env(calls, repeats))
+    values.update(bench_lmi(**({"repeats": 1, "bisections": 1} if mode == "smoke" else {})))
+    settings: dict[str, Any] = {"calls": calls, "repeats": repeats, "mode": mode}
+    if mc:
+        scale = bench_scale(mode)
+        for key in ("threads", "runs", "steps"):
+            settings[f"mc_{key}"] = scale.pop(key)
+        for key in [k for k in scale if k.endswith("_pairs")]:
+            settings[key] = scale.pop(key)
+        values.update(scale)
+    metrics = assess(values)
+    return {
+        "machine": {"python": platform.python_version(), "processor": platform.machine(),
+                    "mujoco": mujoco.__version__, "numpy": np.__version__},
+        "settings": settings,
+        "metrics": metrics,
+        "targets_missed": [k for k, m in metrics.items() if m["met"] is False],
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -191,41 +465,33 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--calls", type=int, default=2000, help="calls per timed block")
     parser.add_argument("--repeats", type=int, default=7, help="timed blocks (median taken)")
     parser.add_argument("--quick", action="store_true",
-                        help="skip the 1000 x 80 s Monte Carlo and the Ray sweep")
+                        help="small Monte Carlo; skip the 1000 x 80 s Monte Carlo and the Ray "
+                             "sweep")
+    parser.add_argument("--smoke", action="store_true",
+                        help="tiny sizes everywhere (checks that the script runs)")
     parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")
+    parser.add_argument("--markdown", nargs="+", metavar="JSON",
+                        help="print the Markdown table of these results and exit")
+    parser.add_argument("--readme", help="with --markdown: write the table into this file "
+                                         "between its benchmark-table markers")
     args = parser.parse_args(argv)
-
-    results: dict[str, object] = {
-        "machine": {"python": platform.python_version(), "processor": platform.machine(),
-                    "mujoco": mujoco.__version__, "numpy": np.__version__},
-        "calls": args.calls,
-        "repeats": args.repeats,
-    }
-    results.update(bench_physics(args.calls, args.repeats))
-    results.update(bench_kalman(args.calls, args.repeats))
-    results.update(bench_reference_env(args.calls, args.repeats))
-    targets = {"env_overhead_ratio <= 2.0": results["env_overhead_ratio"] <= 2.0,
-               "kf_vs_filterpy <= 1.0": results["kf_vs_filterpy"] <= 1.0,
-               "mshinf_vs_kf <= 2.0": results["mshinf_vs_kf"] <= 2.0}
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_lmi import bench_lmi
-
-    results.update(bench_lmi())
-    targets["lmi_solve_s < 0.1"] = results["lmi_solve_s"] < 0.1
-    targets["gamma_bisection_s < 2"] = results["gamma_bisection_s"] < 2.0
-    if not args.no_mc:
-        results.update(bench_scale(args.quick))
-        targets["mc_vs_raw >= 0.4"] = results["mc_vs_raw"] >= 0.4
-        targets["mc_peak_rss_mb <= 500"] = results["mc_peak_rss_mb"] <= 500
-        if "sweep_ray_speedup" in results:
-            targets["sweep_ray_speedup >= 1.6"] = results["sweep_ray_speedup"] >= 1.6
-    results["targets"] = targets
-    width = max(len(k) for k in results)
-    for key, value in results.items():
-        if isinstance(value, float):
-            print(f"{key:<{width}}  {value:,.3f}")
-        else:
-            print(f"{key:<{width}}  {value}")
+    if args.markdown:
+        results = [json.loads(Path(p).read_text()) for p in args.markdown]
+        table = markdown(results)
+        print(table)
+        if args.readme:
+            update_readme(Path(args.readme), table, provenance(results))
+        return 0
+    if args.readme:
+        parser.error("--readme needs --markdown")
+    if args.smoke:
+        calls, repeats, mode = SMOKE_CALLS, SMOKE_REPEATS, "smoke"
+    else:
+        calls, repeats, mode = args.calls, args.repeats, "quick" if args.quick else "full"
+    if calls < 1 or repeats < 1:
+        parser.error(f"--calls and --repeats must be >= 1, got {calls} and {repeats}")
+    results = run(calls, repeats, mode, not args.no_mc)
+    print_table(results["metrics"])
     if args.json:
         write_json(args.json, results)
     return 0

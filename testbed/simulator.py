@@ -166,34 +166,49 @@ class Physics:
             self.state[members, self._qfrc] = qfrc
 
     def step(self, members: np.ndarray, need_mass: bool = False,
-             need_poses: bool = False) -> None:
-        """``mj_step`` ``frame_skip`` times for the members (sorted int array)."""
+             need_poses: bool = False, step_noise: np.ndarray | None = None) -> None:
+        """``mj_step`` ``frame_skip`` times for the members (sorted int array).
+
+        ``step_noise`` (k, d), one row per member, is applied to each member's model
+        (``rig.apply_step_noise``) right before its step, by the thread that steps it (so
+        this Python work overlaps the other threads' physics).
+        """
         if need_poses and (self.poses is None or len(self.poses[0]) != self.num):
             self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
-        chunks = [c.tolist() for c in np.array_split(members, self.num_threads) if len(c)]
-        futures = [self._pool.submit(self._work, self._datas[w], chunk, need_mass, need_poses)
-                   for w, chunk in enumerate(chunks[1:], 1)] if self._pool else []
+        if self._pool is None or len(members) < 2:
+            chunks = [(members.tolist(), step_noise)] if len(members) else []
+        else:
+            noise = (np.array_split(step_noise, self.num_threads) if step_noise is not None
+                     else [None] * self.num_threads)
+            chunks = [(c.tolist(), xi) for c, xi in
+                      zip(np.array_split(members, self.num_threads), noise, strict=True) if len(c)]
+        futures = [self._pool.submit(self._work, self._datas[w], rows, need_mass, need_poses, xi)
+                   for w, (rows, xi) in enumerate(chunks[1:], 1)] if self._pool else []
         try:
             if chunks:
-                self._work(self._datas[0], chunks[0], need_mass, need_poses)
+                rows, xi = chunks[0]
+                self._work(self._datas[0], rows, need_mass, need_poses, xi)
         finally:
             for future in futures:
                 future.result()
 
     def _work(self, data: mujoco.MjData, rows: Sequence[int], need_mass: bool,
-              need_poses: bool) -> None:
+              need_poses: bool, step_noise: np.ndarray | None = None) -> None:
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
-        for i in rows:
+        perturb, constants = self.rig.apply_step_noise, self.constants
+        for j, i in enumerate(rows):
             model, row = models[i], state[i]
+            if step_noise is not None:
+                perturb(model, constants[i], step_noise[j])
             set_state(model, data, row, _INTEGRATION)
             if substep is None:
                 step(model, data, nstep)
             else:  # ctrl from the held command and the actuator state, every physics step
                 command = data.ctrl.copy()
                 for _ in range(nstep):
-                    data.ctrl[:] = substep(command, data.act, self.constants[i])
+                    data.ctrl[:] = substep(command, data.act, constants[i])
                     step(model, data)
                 data.ctrl[:] = command
             get_state(model, data, row, _INTEGRATION)
@@ -434,6 +449,10 @@ class Simulator:
 
     # ------------------------------------------------------------------ signals
     def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
+        if len(self._tables) == 1:  # one schedule for every member
+            table = self._tables[0]
+            rows = np.searchsorted(table[:, 0], t, side="right") - 1
+            return table[np.maximum(rows, 0), 1:]
         groups = self._table_of[sel]
         out = np.empty((len(t), len(self._tracked)))
         for g in np.unique(groups):
@@ -449,9 +468,11 @@ class Simulator:
         return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
 
     def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
+        if len(self._schedules) == 1 and self._schedules[0] is None:  # no profile anywhere
+            return np.zeros((len(t), self._nu))
         groups = self._schedule_of[sel]
         out = np.zeros((len(t), self._nu))
-        for g in np.unique(groups):
+        for g in (0,) if len(self._schedules) == 1 else np.unique(groups):
             fn = self._schedules[g]
             if fn is None:
                 continue
@@ -558,25 +579,28 @@ class Simulator:
     def step(self, actions: Any, members: np.ndarray | None = None) -> None:
         """Apply actions (k, nu) for one control period to members (default all)."""
         index = np.arange(self.num) if members is None else np.asarray(members, int)
+        # the simulator's own arrays: a basic slice for the whole batch (no gather/scatter
+        # copies); sensors, noise streams and physics keep the member indices
+        sel: Any = slice(None) if members is None else index
         k = len(index)
-        if not self._ready[index].all():
+        if not self._ready[sel].all():
             raise RuntimeError("reset() every member before stepping it")
         u = self.check_actions(actions, k)
-        t = self.steps[index] * self.dt_s
+        t = self.steps[sel] * self.dt_s
         clipped_u = u.clip(self._low, self._high)
-        profile = self._manoeuvre(t, index)
+        profile = self._manoeuvre(t, sel)
         total = clipped_u + profile
         applied = total.clip(self._low, self._high)
         clipped = (clipped_u != u) | (applied != total)
         noise = self.noise.view(index)
         rig, physics, dist = self.rig, self.physics, self.disturbance
-        if rig.step_noise_dim:
-            xi = noise.normal(rig.step_noise_dim)
-            for j, i in enumerate(index):
-                rig.apply_step_noise(physics.models[i], physics.constants[i], xi[j])
-            self.info["step_noise"][index] = xi
+        info = self.info
+        step_noise = None
+        if rig.step_noise_dim:  # applied by the physics threads, before each member's step
+            step_noise = noise.normal(rig.step_noise_dim)
+            info["step_noise"][sel] = step_noise
         qfrc = None
-        w = self._signal(t) if dist.has_signal else self.info["disturbance"][index]
+        w = self._signal(t) if dist.has_signal else info["disturbance"][sel].copy()
         accel: Any = np.zeros((k, self._j))
         if dist.active:
             if dist.G is not None:
@@ -586,33 +610,32 @@ class Simulator:
                 accel = accel + np.matvec(dist.b[self._j:], xi) / np.sqrt(self.dt_s)
             a = np.zeros((k, physics.nv))
             a[:, rig.dof_adr] = accel
-            qfrc = np.matvec(physics.mass[index], a)
-        physics.set_inputs(index, rig.actuation(applied, physics.constants[index]), qfrc)
-        physics.step(index, need_mass=dist.active,
-                     need_poses=self.record_poses)
-        self.steps[index] += 1
-        t = self.steps[index] * self.dt_s
-        x = physics.states(index)
+            qfrc = np.matvec(physics.mass[sel], a)
+        physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
+        physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
+                     step_noise=step_noise)
+        self.steps[sel] += 1
+        t = self.steps[sel] * self.dt_s
+        x = physics.states(sel)
         if not np.all(np.isfinite(x)):
             bad = index[~np.all(np.isfinite(x), axis=1)]
             raise PhysicsDivergenceError(f"the simulation diverged (non-finite state) at "
                                          f"t = {t[0]:.6g} s for members {bad.tolist()}")
-        ref = self._reference(t, index)
+        ref = self._reference(t, sel)
         e = x[:, self._tracked] - ref
-        self.reward[index] = -np.sum(e * e, axis=1)
-        self.terminated[index] = rig.terminated(x)
+        self.reward[sel] = -np.sum(e * e, axis=1)
+        self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t) if dist.has_signal else np.zeros((k, 0))
         sample = Sample(x, t, applied, np.asarray(w_now), index)
-        self.obs[index] = self.sensors.measure(sample, noise)
-        info = self.info
-        info["state"][index] = x
-        info["t"][index] = t
-        info["disturbance"][index] = w
-        info["setpoint"][index] = ref
-        info["action_applied"][index] = applied
-        info["action_clipped"][index] = clipped
-        info["manoeuvre"][index] = profile
-        info["process_accel"][index] = accel
+        self.obs[sel] = self.sensors.measure(sample, noise)
+        info["state"][sel] = x
+        info["t"][sel] = t
+        info["disturbance"][sel] = w
+        info["setpoint"][sel] = ref
+        info["action_applied"][sel] = applied
+        info["action_clipped"][sel] = clipped
+        info["manoeuvre"][sel] = profile
+        info["process_accel"][sel] = accel
 
     def close(self) -> None:
         """Stop the physics threads."""

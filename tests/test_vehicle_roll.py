@@ -170,6 +170,32 @@ def test_damping_noise_is_drawn_per_step_and_applied():
     assert _member_model(env).dof_damping[0] == 53071.0
 
 
+def test_damping_noise_of_each_member_in_a_threaded_batch_equals_single_envs():
+    # the physics threads apply member i's damping noise to member i's model: with the
+    # noise amplified and a manoeuvre rolling the body, a mix-up would change the states
+    from testbed.envs import RigVectorEnv
+
+    kwargs = {"manoeuvre": "double-lane-change", "params": {"damping_noise": 500.0}}
+    seeds = [5, 1, 9, 2, 7]
+    vec = RigVectorEnv(len(seeds), rig="vehicle-roll", num_threads=2, **kwargs)
+    singles = [VehicleRollEnv(**kwargs) for _ in seeds]
+    vec.reset(seed=seeds)
+    for env, seed in zip(singles, seeds, strict=True):
+        env.reset(seed=seed)
+    rng = np.random.default_rng(2)
+    for _ in range(150):
+        actions = rng.uniform(-1.0, 1.0, (len(seeds), 1))
+        _, _, _, _, info_v = vec.step(actions)
+        for i, env in enumerate(singles):
+            _, _, _, _, info = env.step(actions[i])
+            np.testing.assert_array_equal(info_v["state"][i], info["state"])
+            np.testing.assert_array_equal(info_v["step_noise"][i], info["step_noise"])
+            assert vec.sim.physics.models[i].dof_damping[0] == \
+                _member_model(env).dof_damping[0]
+    assert len({float(m.dof_damping[0]) for m in vec.sim.physics.models}) == len(seeds)
+    vec.close()
+
+
 # ---------------------------------------------------------------- sensors
 def test_imu_formula_and_noise_levels():
     suite = imu(dt_s=0.01, roll_sensor=True, gyro_bias_walk=0.0, speed_yaw_rate=False)
