@@ -11,6 +11,15 @@ typed form)::
                                       model's coordinates (the loop applies
                                       design.input_transform)
     prime(y) -> None                  optional: use the first sample (at reset)
+    innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
+                                      and its covariance (m, m) or (N, m, m) (``testbed
+                                      score`` reports ANIS when both are there)
+    design_meta : dict                optional: design facts for outputs; ``gamma`` is the
+                                      attenuation level an H-infinity design claims, and
+                                      ``gamma_channel = "scenario"`` says that it bounds the
+                                      gain from the scenario's disturbance w (the design's
+                                      ``disturbance_matrix`` and the sensors' ``Hw``) to
+                                      ``z = output_matrix x``
     batched : bool                    optional class attribute: True when x, y, u, P carry a
                                       leading batch axis (N, ...) and one instance runs a
                                       whole Monte-Carlo batch
@@ -122,6 +131,9 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
                                design.output_matrix, gamma, R0, design.x0, design.P0,
                                design.dt_s, substeps="auto", noise_intensities=True)
     est.batched = True
+    # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
+    est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
+                       "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
     return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
         else ChannelSelect(est, index)

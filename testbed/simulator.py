@@ -444,7 +444,10 @@ class Simulator:
             raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
         return out
 
-    def _signal(self, t: np.ndarray) -> np.ndarray:
+    def _signal(self, t: np.ndarray, index: np.ndarray) -> np.ndarray:
+        member_signal = getattr(self.disturbance, "member_signal", None)
+        if member_signal is not None:  # one sequence per member (SampledDisturbance)
+            return member_signal(t, index)
         return _per_time(self.disturbance.signal, t, self._w_dim)
 
     # ------------------------------------------------------------------ API
@@ -501,7 +504,7 @@ class Simulator:
         self.x0[index] = x0
         t = np.zeros(k)
         info = self.info
-        w = self._signal(t)
+        w = self._signal(t, index)
         x = self.physics.states(index)
         info["state"][index] = x
         info["t"][index] = 0.0
@@ -555,7 +558,7 @@ class Simulator:
                 rig.apply_step_noise(physics.models[i], physics.constants[i], xi[j])
             self.info["step_noise"][index] = xi
         qfrc = None
-        w = self._signal(t) if dist.has_signal else self.info["disturbance"][index]
+        w = self._signal(t, index) if dist.has_signal else self.info["disturbance"][index]
         accel: Any = np.zeros((k, self._j))
         if dist.active:
             if dist.G is not None:
@@ -580,7 +583,7 @@ class Simulator:
         e = x[:, self._tracked] - ref
         self.reward[index] = -np.sum(e * e, axis=1)
         self.terminated[index] = rig.terminated(x)
-        w_now = self._signal(t) if dist.has_signal else np.zeros((k, 0))
+        w_now = self._signal(t, index) if dist.has_signal else np.zeros((k, 0))
         sample = Sample(x, t, applied, np.asarray(w_now), index)
         self.obs[index] = self.sensors.measure(sample, noise)
         info = self.info
