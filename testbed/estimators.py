@@ -141,12 +141,12 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 1.1,
              objective: str = "h2") -> Any:
-    """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4), for rigs that give the
-    LMI design system (``design.extras["lmi_system"]``: the vehicle roll rig)."""
+    """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
+    (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
+    from the discrete design model (:mod:`testbed.lmi_design`; needs a stable plant)."""
     build = design.extras.get("lmi_system")
     if build is None:
-        raise ValueError("filter 'lmi-hinf' needs a rig whose design model provides the LMI "
-                         "design system (vehicle-roll)")
+        from testbed.lmi_design import lmi_estimator as build
     est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective)
     est.design_meta = meta
     est.batched = True

@@ -120,3 +120,17 @@ def test_score_rejects_bad_arguments_before_running():
         score(["kalman"], "quick", runs=1)
     with pytest.raises(ValueError, match="unknown scenario"):
         score(["kalman"], "quick", scenarios=["mars"])
+
+
+def test_lmi_filter_designed_from_the_calibration_model_keeps_its_gamma():
+    """The generic LMI design (testbed.lmi_design) on the stable calibration plant: its gamma
+    covers the scenario's channel, and the measured worst case must stay below it; on the
+    helicopter (free integrators) Theorem 4 does not apply and the pair is skipped."""
+    spec = WorstCaseSpec(energy=1.0, horizon_s=3.0, channel=((0.0,), (1.0,)), random_draws=2,
+                         generations=0)
+    pair = score_pair(calibration_entry(2, 0.5, spec), "lmi-hinf", 0)
+    assert pair.skipped is None and pair.certified_gamma is not None
+    assert pair.worst.random_gain <= pair.worst.worst_case_gain <= pair.certified_gamma
+    heli = next(e for e in get_suite("quick") if e.name == "helicopter")
+    skipped = score_pair(heli.replace(runs=2), "lmi-hinf", 0, worst_case=False).skipped
+    assert "needs a stable design model" in skipped and "spectral radius" in skipped
