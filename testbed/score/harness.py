@@ -37,7 +37,7 @@ from testbed.estimators import PerMember
 from testbed.rigs import resolve_rig
 from testbed.score import stats
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import LoopEvaluator, estimator_markov, search
+from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
 from testbed.simulator import PhysicsDivergenceError
 
 #: The timing reference.
@@ -256,9 +256,8 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     dt_s = experiment.loop.sim.dt_s
     K = int(round((spec.horizon_s or scenario.duration_s) / dt_s))
     m = experiment.loop.sim.sensors.dim
-    d = spec.basis - 1
-    population = d * max(2, int(np.ceil(5 / d))) if d > 0 else 0
-    num = max(3 + spec.random_draws, population + 1, m + 1)
+    members = population(spec.basis - 1) if spec.generations else 0
+    num = max(3 + spec.random_draws, members + 1, m + 1)
     dist = _sampled(entry, scenario, num, K, nominal=False)
     if dist is None:
         raise ValueError("the entry has no disturbance channel")

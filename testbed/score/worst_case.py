@@ -294,7 +294,6 @@ class LoopEvaluator:
         self.num = self.loop.sim.num
         self.dt_s = self.loop.sim.dt_s
         self.evaluations = 0
-        self.baseline: dict[str, np.ndarray] | None = None
 
     def run(self, W: np.ndarray) -> np.ndarray:
         """Gains of the candidates ``W`` (B, K, s), in batches of ``num - 1``."""
@@ -309,9 +308,6 @@ class LoopEvaluator:
                                    record=True)
             rec = result.trajectory
             z = np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
-            if self.baseline is None:
-                self.baseline = {k: rec[k][0].copy() for k in ("measurement", "action",
-                                                                "state", "estimate")}
             dz = z[1:1 + len(chunk)] - z[0]
             steps = dz.shape[1]  # shorter if a member terminated the episode
             w_energy = np.sum(chunk[:, :steps] ** 2, axis=(1, 2))
@@ -321,6 +317,12 @@ class LoopEvaluator:
         if not np.all(np.isfinite(gains)):
             raise FloatingPointError("a worst-case candidate gave a non-finite gain")
         return gains
+
+
+def population(dimensions: int) -> int:
+    """Members of the refinement's population for ``dimensions`` coefficients (DE's
+    ``popsize`` times the dimensions, at least 5)."""
+    return dimensions * max(2, int(np.ceil(5 / dimensions))) if dimensions > 0 else 0
 
 
 def scaled(w: np.ndarray, energy: float, dt_s: float) -> np.ndarray:
@@ -389,7 +391,7 @@ def search(evaluator: LoopEvaluator, A: np.ndarray, G: np.ndarray, C: np.ndarray
             return -g
 
         differential_evolution(objective, [(-1.0, 1.0)] * d, maxiter=generations,
-                               popsize=max(2, int(np.ceil(5 / d))), x0=np.zeros(d),
+                               popsize=population(d) // d, x0=np.zeros(d),
                                vectorized=True, updating="deferred", polish=False, tol=0.0,
                                rng=rng)
         worst, worst_w = record["gain"], record["w"]

@@ -134,3 +134,15 @@ def test_lmi_filter_designed_from_the_calibration_model_keeps_its_gamma():
     heli = next(e for e in get_suite("quick") if e.name == "helicopter")
     skipped = score_pair(heli.replace(runs=2), "lmi-hinf", 0, worst_case=False).skipped
     assert "needs a stable design model" in skipped and "spectral radius" in skipped
+
+
+def test_same_seed_same_scores():
+    def scores(seed: int) -> list[dict]:
+        run = score(["kalman"], "quick", seed=seed, runs=3, scenarios=["calibration"],
+                    worst_case=False)
+        return [{k: v for k, v in r.items() if k not in ("step_us", "step_vs_kalman")}
+                for r in report.results(run)["results"]]
+
+    first = scores(5)
+    assert scores(5) == first
+    assert scores(6) != first
