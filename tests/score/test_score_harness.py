@@ -89,7 +89,7 @@ def test_ms_hinf_found_gain_against_its_gamma_is_reported():
 
 
 def test_score_skips_with_reasons_and_gives_every_key(user_module):
-    run = score(["kalman", "fixed_gain:make", "lmi-hinf"], "quick", runs=4,
+    run = score(["kalman", "fixed_gain:make", "ms-hinf"], "quick", runs=4,
                 scenarios=["calibration", "helicopter-hardware"], worst_case=False)
     summary = report.results(run)
     assert set(summary) == {"suite", "seed", "estimators", "scenarios", "units", "wall_s",
@@ -99,8 +99,8 @@ def test_score_skips_with_reasons_and_gives_every_key(user_module):
     for res in summary["results"]:
         assert tuple(res) == report.RESULT_KEYS
     cal = {r["estimator"]: r for r in summary["results"] if r["scenario"] == "calibration"}
-    assert cal["lmi-hinf"]["skipped"].startswith("the factory raised ValueError: filter "
-                                                 "'lmi-hinf' needs")
+    assert cal["ms-hinf"]["skipped"].startswith("the factory raised ValueError: filter "
+                                                "'ms-hinf' needs a deterministic channel")
     assert cal["kalman"]["step_vs_kalman"] == 1.0
     assert cal["fixed_gain:make"]["skipped"] is None and cal["fixed_gain:make"]["anis"] is None
     hardware = [r for r in summary["results"] if r["scenario"] == "helicopter-hardware"]
