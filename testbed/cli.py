@@ -160,7 +160,28 @@ def build_parser() -> argparse.ArgumentParser:
                      help="with 'all': where the JSON/PNG/RRD files go")
     rep.add_argument("--doc", default="docs/reproductions.md",
                      help="with 'all': the Markdown table to regenerate")
+    _add_score_parser(sub)
     return parser
+
+
+def _add_score_parser(sub: Any) -> None:
+    sc = sub.add_parser("score", help="score estimators on a scenario suite (RMSE, "
+                        "consistency, worst-case gain, cost, mismatch)")
+    sc.add_argument("--estimator", action="append", default=[], metavar="NAME_OR_MODULE:FACTORY",
+                    help=f"{', '.join(ESTIMATORS)} or package.module:factory; repeatable")
+    sc.add_argument("--suite", default="quick", help="quick or standard")
+    sc.add_argument("--list", action="store_true", help="list the suite's scenarios and exit")
+    sc.add_argument("--scenario", action="append", default=None, metavar="NAME",
+                    help="only this scenario of the suite; repeatable")
+    sc.add_argument("--runs", type=int, default=None, help="override the runs of every entry")
+    sc.add_argument("--seed", type=_non_negative_int, default=0)
+    sc.add_argument("--no-worst-case", action="store_true", help="skip the worst-case search")
+    sc.add_argument("--backend", default="local", choices=("local", "ray"))
+    sc.add_argument("--workers", type=int, default=None, help="processes (entries in parallel)")
+    sc.add_argument("--json", help="write the results here")
+    sc.add_argument("--markdown", help="write the leaderboard as Markdown here")
+    sc.add_argument("--plot", help="write a PNG here")
+    sc.add_argument("--rrd", help="write the comparison Rerun recording here")
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
@@ -441,10 +462,53 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_score(args: argparse.Namespace) -> int:
+    """``testbed score``: estimators on a scenario suite, leaderboard and output files."""
+    from testbed.score import harness, report
+    from testbed.score.suite import describe_suite
+
+    if args.list:
+        for entry in describe_suite(args.suite):
+            status = f"skipped: {entry['skipped']}" if entry["skipped"] else \
+                f"{entry['runs']} runs"
+            search = "worst case" if entry["worst_case"] else ""
+            print(f"{entry['name']:<28}{status:<44}{search:<12}{entry['description']}")
+        return 0
+    if not args.estimator:
+        raise ValueError("give --estimator NAME (repeatable), or --list")
+    for flag in ("json", "markdown", "plot", "rrd"):
+        path = getattr(args, flag)
+        if path is not None and not str(path).strip():
+            raise ValueError(f"--{flag} needs a file path")
+    run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
+                        scenarios=args.scenario, backend=args.backend, workers=args.workers,
+                        worst_case=not args.no_worst_case,
+                        progress=lambda name: print(f"  scored {name}", file=sys.stderr))
+    summary = report.results(run)
+    remarks = report.notes(run)
+    print(report.leaderboard(summary))
+    for remark in remarks:
+        print(f"note: {remark}")
+    if args.json:
+        print(f"wrote {report.write_results(args.json, summary)}")
+        npz = report.write_worst_cases(str(args.json).removesuffix(".json")
+                                       + ".worst_case.npz", run)
+        if npz is not None:
+            print(f"wrote {npz}")
+    if args.markdown:
+        print(f"wrote {report.write_markdown(args.markdown, summary, remarks)}")
+    if args.plot:
+        print(f"wrote {report.write_png(args.plot, summary)}")
+    if args.rrd:
+        print(f"wrote {report.write_rrd(args.rrd, run)}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``testbed`` command."""
     args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce}
+    commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
+                "score": cmd_score}
     try:
         return commands[args.command](args)
     except ValueError as exc:

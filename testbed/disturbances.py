@@ -119,3 +119,58 @@ class Disturbance:
         if n_vel is None:
             return np.zeros(0)
         return np.asarray(accel, dtype=float)
+
+
+class SampledDisturbance(Disturbance):
+    """``G w_k`` from sampled values, one sequence per simulated member (plus optional ``b dW``).
+
+    ``w`` is held over each control period (zero-order hold): ``w(t) = values[i, k]`` for
+    member ``i`` at ``t = k dt_s``, zero after the last sample. The simulator asks
+    :meth:`member_signal` for the members it steps, so a batch can evaluate different
+    disturbances on otherwise identical members (common random numbers). :attr:`values` may
+    be overwritten in place between episodes.
+
+    Parameters
+    ----------
+    G : ndarray, shape (n, s), optional
+        Input matrix (velocity rows only); None when ``w`` enters only the measurements.
+    values : ndarray, shape (N, K, s)
+        ``w_k`` of each of the N members for steps ``k = 0 .. K-1``.
+    dt_s : float
+        Control period, s.
+    b : ndarray, shape (n, p), optional
+        White-noise input matrix (as in :class:`Disturbance`).
+    n_positions : int
+    """
+
+    def __init__(self, G: np.ndarray | None, values: np.ndarray, dt_s: float,
+                 b: np.ndarray | None = None, n_positions: int = 2):
+        values = np.asarray(values, dtype=float)
+        if values.ndim != 3 or not np.all(np.isfinite(values)):
+            raise ValueError(f"values must be a finite array of shape (N, K, s), got shape "
+                             f"{values.shape}")
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive finite period in s, got {dt_s}")
+        self.values = values
+        self.dt_s = float(dt_s)
+        super().__init__(G=G, w=lambda t_s: self.member_signal(np.array([t_s]),
+                                                               np.array([0]))[0],
+                         b=b, n_positions=n_positions)
+
+    def member_signal(self, t_s: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """``w`` of each member at its time, shape (k, s) (zero past the last sample).
+
+        Parameters
+        ----------
+        t_s : ndarray, shape (k,)
+        members : ndarray of int, shape (k,)
+        """
+        N, K, s = self.values.shape
+        members = np.asarray(members, dtype=int)
+        if members.size and (members.min() < 0 or members.max() >= N):
+            raise ValueError(f"members {members.tolist()} outside the {N} sampled sequences")
+        steps = np.rint(np.asarray(t_s, dtype=float) / self.dt_s).astype(int)
+        out = np.zeros((len(steps), s))
+        inside = steps < K
+        out[inside] = self.values[members[inside], steps[inside]]
+        return out

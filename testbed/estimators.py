@@ -11,6 +11,15 @@ typed form)::
                                       model's coordinates (the loop applies
                                       design.input_transform)
     prime(y) -> None                  optional: use the first sample (at reset)
+    innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
+                                      and its covariance (m, m) or (N, m, m) (``testbed
+                                      score`` reports ANIS when both are there)
+    design_meta : dict                optional: design facts for outputs; ``gamma`` is the
+                                      attenuation level an H-infinity design claims, and
+                                      ``gamma_channel = "scenario"`` says that it bounds the
+                                      gain from the scenario's disturbance w (the design's
+                                      ``disturbance_matrix`` and the sensors' ``Hw``) to
+                                      ``z = output_matrix x``
     batched : bool                    optional class attribute: True when x, y, u, P carry a
                                       leading batch axis (N, ...) and one instance runs a
                                       whole Monte-Carlo batch
@@ -125,6 +134,9 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
                                design.output_matrix, gamma, R0, design.x0, design.P0,
                                design.dt_s, substeps="auto", noise_intensities=True)
     est.batched = True
+    # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
+    est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
+                       "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
     return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
         else ChannelSelect(est, index)
@@ -132,12 +144,12 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 1.1,
              objective: str = "h2") -> Any:
-    """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4), for rigs that give the
-    LMI design system (``design.extras["lmi_system"]``: the vehicle roll rig)."""
+    """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
+    (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
+    from the discrete design model (:mod:`testbed.lmi_design`; needs a stable plant)."""
     build = design.extras.get("lmi_system")
     if build is None:
-        raise ValueError("filter 'lmi-hinf' needs a rig whose design model provides the LMI "
-                         "design system (vehicle-roll)")
+        from testbed.lmi_design import lmi_estimator as build
     est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective)
     est.design_meta = meta
     est.batched = True

@@ -120,10 +120,18 @@ class ClosedLoop:
     sim : Simulator
     stage : EstimatorStage
     controller : object with ``reset(num)`` and ``__call__(x_hat, t_s) -> u``
+
+    Attributes
+    ----------
+    truth_feedback : bool
+        Give the controller the true state instead of the estimate (default False), so that
+        the trajectories do not depend on the estimator (``testbed score`` compares
+        estimators on identical trajectories this way).
     """
 
     def __init__(self, sim: Simulator, stage: EstimatorStage, controller: Any):
         self.sim, self.stage, self.controller = sim, stage, controller
+        self.truth_feedback = False
 
     def run(self, seeds: np.ndarray, duration_s: float, options: Any = None, *,
             record: bool | dict[str, np.ndarray] = False, poses: bool = False,
@@ -179,7 +187,8 @@ class ClosedLoop:
         clipped = np.zeros(n, dtype=np.int64)
         with threadpool_limits(1):
             for k in range(n_steps):
-                sim.step(ctrl(x_hat, k * sim.dt_s))
+                sim.step(ctrl(info["state"] if self.truth_feedback else x_hat,
+                              k * sim.dt_s))
                 x_hat = stage.step(sim.obs, info["action_applied"], info["state"],
                                    info["disturbance"])
                 clipped += info["action_clipped"].any(axis=1)

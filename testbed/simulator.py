@@ -482,7 +482,10 @@ class Simulator:
             raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
         return out
 
-    def _signal(self, t: np.ndarray) -> np.ndarray:
+    def _signal(self, t: np.ndarray, index: np.ndarray) -> np.ndarray:
+        member_signal = getattr(self.disturbance, "member_signal", None)
+        if member_signal is not None:  # one sequence per member (SampledDisturbance)
+            return member_signal(t, index)
         return _per_time(self.disturbance.signal, t, self._w_dim)
 
     # ------------------------------------------------------------------ API
@@ -543,7 +546,7 @@ class Simulator:
         self.x0[index] = x0
         t = np.zeros(k)
         info = self.info
-        w = self._signal(t)
+        w = self._signal(t, index)
         x = self.physics.states(index)
         info["state"][index] = x
         info["t"][index] = 0.0
@@ -600,7 +603,7 @@ class Simulator:
             step_noise = noise.normal(rig.step_noise_dim)
             info["step_noise"][sel] = step_noise
         qfrc = None
-        w = self._signal(t) if dist.has_signal else info["disturbance"][sel].copy()
+        w = self._signal(t, index) if dist.has_signal else info["disturbance"][sel].copy()
         accel: Any = np.zeros((k, self._j))
         if dist.active:
             if dist.G is not None:
@@ -625,7 +628,7 @@ class Simulator:
         e = x[:, self._tracked] - ref
         self.reward[sel] = -np.sum(e * e, axis=1)
         self.terminated[sel] = rig.terminated(x)
-        w_now = self._signal(t) if dist.has_signal else np.zeros((k, 0))
+        w_now = self._signal(t, index) if dist.has_signal else np.zeros((k, 0))
         sample = Sample(x, t, applied, np.asarray(w_now), index)
         self.obs[sel] = self.sensors.measure(sample, noise)
         info["state"][sel] = x

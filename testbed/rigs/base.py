@@ -400,7 +400,9 @@ class Rig:
             if b_ambient is None:
                 return name
             b = b_ambient * ambient if name.b is None else np.hstack([name.b, b_ambient * ambient])
-            return dataclasses.replace(name, b=b)
+            with_ambient = copy.copy(name)  # keeps subclasses (e.g. SampledDisturbance)
+            with_ambient.b = b
+            return with_ambient
         try:
             scale = float(process_noise)
         except (TypeError, ValueError):

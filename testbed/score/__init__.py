@@ -1,0 +1,1 @@
+"""Scoring of estimators on a standard scenario suite (``testbed score``)."""

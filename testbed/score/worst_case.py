@@ -1,0 +1,403 @@
+"""Adversarial search for the worst energy-bounded disturbance of an estimator in the loop.
+
+The gain of a disturbance ``w`` (held over each control period ``dt``) on the scenario's
+disturbance channel is::
+
+    gain(w) = ||dz||_2 / ||w||_2,    ||f||_2^2 = sum_k |f_k|^2 dt,
+    dz = L (x_hat - x) with w  -  L (x_hat - x) without w
+
+the output estimation error the disturbance causes: the error of the closed-loop run with
+``w`` minus the error of the run with the same seed without it (common random numbers:
+measurement noise, process noise and the initial estimation error cancel; for a linear loop
+``dz`` is exactly the deterministic error system's response). Every reported gain is such a
+measured ratio of two runs of the nonlinear rig; a larger one found later only raises it, so
+the result is a lower bound of the worst case, never a certificate.
+
+The search (Tierno, Murray, Doyle & Gregory 1997 style):
+
+1. **Linearized error system.** The rig's linearization at the simulated parameters
+   (``Rig.linearize``) with the channel ``G`` is discretized with a zero-order hold; the
+   sensors' ``C`` and ``Hw`` give ``y``; the estimator's response to ``y`` is measured as
+   its Markov parameters ``h_a`` (impulses on each channel of the recorded measurement, one
+   batched run of the estimator itself, input transform included). The error system is the
+   causal convolution ``dz_k = sum_i t_(k-i) w_i`` with
+   ``t_l = L (g^x_l - sum_(a+b=l) h_a g^y_b)``.
+2. **Power iteration with the adjoint.** Subspace iteration on ``T^T T`` (forward: the
+   convolution; adjoint: the correlation with ``t^T``, both by FFT) gives the top right
+   singular vectors ``v_1..v_p`` over the horizon.
+3. **Refinement on the nonlinear rig.** ``+-v_1`` scaled to the energy, then
+   ``scipy.optimize.differential_evolution`` (derivative-free, vectorized: one batched
+   closed-loop run per generation) over ``w(c) = v_1 + sum_i c_i v_(i+1)``, ``c in
+   [-1, 1]^(p-1)``, each candidate scaled to the energy.
+
+Random gain: the largest gain of white Gaussian disturbances of the same energy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.optimize import differential_evolution
+
+from testbed.disturbances import SampledDisturbance
+
+
+# ---------------------------------------------------------------------------- linear model
+def zoh(A: np.ndarray, G: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretization of ``x' = A x + G w``: ``(A_d, G_d)``."""
+    n, s = G.shape
+    M = np.zeros((n + s, n + s))
+    M[:n, :n], M[:n, n:] = A, G
+    E = expm(M * dt_s)
+    return E[:n, :n], E[:n, n:]
+
+
+def plant_markov(A_d: np.ndarray, G_d: np.ndarray, C: np.ndarray, Hw: np.ndarray,
+                 lags: int) -> tuple[np.ndarray, np.ndarray]:
+    """Responses of state and measurement to a unit ``w`` at lag 0.
+
+    ``x_(i+l) = A_d^(l-1) G_d w_i`` (``l >= 1``) and ``y_(i+l) = C x_(i+l) + Hw w_i [l = 0]``
+    (the simulator's timing: ``w_i`` is held over step ``i`` and is the disturbance sample of
+    ``y_i``).
+
+    Returns
+    -------
+    gx : ndarray, shape (lags, n, s)
+    gy : ndarray, shape (lags, m, s)
+    """
+    n, s = G_d.shape
+    gx = np.zeros((lags, n, s))
+    if lags > 1:
+        gx[1] = G_d
+        for lag in range(2, lags):
+            gx[lag] = A_d @ gx[lag - 1]
+    gy = np.einsum("mn,lns->lms", C, gx)
+    gy[0] += Hw
+    return gx, gy
+
+
+def causal_conv(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
+    """``c_l = sum_(i+j=l) a_i b_j`` for ``l < lags`` (matrix-valued, by FFT).
+
+    ``a``: (La, p, r), ``b``: (Lb, r, s) -> (lags, p, s).
+    """
+    nfft = _fft_size(len(a) + len(b))
+    A = np.fft.rfft(a, nfft, axis=0)
+    B = np.fft.rfft(b, nfft, axis=0)
+    c = np.fft.irfft(np.einsum("fpr,frs->fps", A, B), nfft, axis=0)[:lags]
+    if len(c) < lags:
+        c = np.concatenate([c, np.zeros((lags - len(c), *c.shape[1:]))])
+    return c
+
+
+def _fft_size(n: int) -> int:
+    from scipy.fft import next_fast_len
+
+    return next_fast_len(int(n), real=True)
+
+
+class ErrorOperator:
+    """The error system over ``K`` steps as a causal convolution ``w (K, s) -> dz (K, q)``.
+
+    ``dz_k = sum_(i=0)^(K-1) t_(k-i) w_i`` for ``k = 1..K`` (row ``k-1`` of the output).
+
+    Parameters
+    ----------
+    t : ndarray, shape (lags, q, s)
+        Impulse response (``t_l`` for lags ``l = 0..lags-1``; zero beyond).
+    steps : int
+        Horizon ``K``.
+    """
+
+    def __init__(self, t: np.ndarray, steps: int):
+        self.K = int(steps)
+        self.q, self.s = t.shape[1:]
+        t = t[: self.K + 1]
+        self.nfft = _fft_size(2 * self.K + 2)
+        self._T = np.fft.rfft(t, self.nfft, axis=0)  # (f, q, s)
+        self._TH = np.conj(self._T).transpose(0, 2, 1)
+
+    def forward(self, w: np.ndarray) -> np.ndarray:
+        """``dz`` for a batch ``w`` (B, K, s) -> (B, K, q)."""
+        W = np.fft.rfft(w, self.nfft, axis=1)
+        z = np.fft.irfft(np.einsum("fqs,bfs->bfq", self._T, W), self.nfft, axis=1)
+        return z[:, 1:self.K + 1]
+
+    def adjoint(self, z: np.ndarray) -> np.ndarray:
+        """``T^T dz`` for a batch ``dz`` (B, K, q) -> (B, K, s)."""
+        padded = np.zeros((z.shape[0], self.nfft, self.q))
+        padded[:, 1:self.K + 1] = z
+        Z = np.fft.rfft(padded, axis=1)
+        return np.fft.irfft(np.einsum("fsq,bfq->bfs", self._TH, Z), self.nfft,
+                            axis=1)[:, : self.K]
+
+
+def top_singular(op: ErrorOperator, p: int, rng: np.random.Generator, *, max_iter: int = 150,
+                 rtol: float = 1e-6) -> tuple[np.ndarray, np.ndarray, int]:
+    """Top ``p`` singular values and right singular vectors by subspace (power) iteration.
+
+    Each iteration applies ``T^T T`` (:meth:`ErrorOperator.forward` then
+    :meth:`ErrorOperator.adjoint`) to ``p`` vectors, orthonormalizes them (QR) and takes the
+    Rayleigh-Ritz values; it stops when the largest changes by less than ``rtol``.
+
+    Returns
+    -------
+    gains : ndarray, shape (p,)
+        Decreasing.
+    V : ndarray, shape (p, K, s)
+        Orthonormal (in the plain sum over steps and channels).
+    iterations : int
+    """
+    K, s = op.K, op.s
+    p = min(p, K * s)
+    V = rng.standard_normal((p, K * s))
+    V = np.linalg.qr(V.T)[0].T
+    previous, iteration = 0.0, 0
+    while iteration < max_iter:
+        iteration += 1
+        Z = op.forward(V.reshape(p, K, s))
+        V = op.adjoint(Z).reshape(p, K * s)
+        Q = np.linalg.qr(V.T)[0].T
+        Z = op.forward(Q.reshape(p, K, s)).reshape(p, -1)
+        _, sv, vt = np.linalg.svd(Z @ Z.T)  # Rayleigh-Ritz in the span of Q
+        V = vt @ Q
+        gains = np.sqrt(np.maximum(sv, 0.0))
+        if abs(gains[0] - previous) <= rtol * gains[0]:
+            break
+        previous = gains[0]
+    return gains, V.reshape(p, K, s), iteration
+
+
+def estimator_markov(estimator: Any, input_transform: Any, prior: tuple[np.ndarray, Any],
+                     y: np.ndarray, u: np.ndarray, k0: int, deltas: np.ndarray,
+                     batch: int) -> np.ndarray:
+    """Markov parameters ``h_a`` of an estimator's response to its measurements.
+
+    One batched run of the estimator on the recorded measurements ``y`` and applied inputs
+    ``u`` (through the loop's input transform, at each member's own estimate): member 0 as
+    recorded, member ``1 + j`` with ``deltas[j]`` added to channel ``j`` of the measurement
+    of step ``k0``; ``h_a[:, j] = (x_hat_(1+j) - x_hat_0)[k0 + a] / deltas[j]``.
+
+    Parameters
+    ----------
+    estimator : batched estimator (the loop's)
+        Reset here; the loop resets it again before its next episode.
+    input_transform : callable or None
+    prior : (x0 (n,), P0 or None)
+    y : ndarray, shape (K + 1, m)
+        Measurements (row 0 at reset).
+    u : ndarray, shape (K, nu)
+        Inputs applied over steps 0..K-1 (rig units).
+    k0 : int
+        Step of the impulses (1 <= k0 <= K).
+    deltas : ndarray, shape (m,)
+    batch : int
+        Members of the estimator (>= m + 1).
+
+    Returns
+    -------
+    ndarray, shape (K + 1 - k0, n, m)
+    """
+    K, m = len(u), y.shape[1]
+    if batch < m + 1:
+        raise ValueError(f"the estimator batch ({batch}) must exceed the channels ({m})")
+    x0, P0 = prior
+    estimator.reset(np.tile(x0, (batch, 1)), P0)
+    prime = getattr(estimator, "prime", None)
+    if prime is not None:
+        prime(np.tile(y[0], (batch, 1)))
+    rows = np.arange(1, m + 1)
+    out = np.zeros((K + 1 - k0, x0.shape[0], m))
+    for k in range(K):
+        x_hat = np.asarray(estimator.x, dtype=float)
+        uk = np.tile(u[k], (batch, 1))
+        if input_transform is not None:
+            uk = input_transform(uk, x_hat)
+        yk = np.tile(y[k + 1], (batch, 1))
+        if k + 1 == k0:
+            yk[rows, np.arange(m)] += deltas
+        x_hat = np.asarray(estimator.step(yk, uk), dtype=float)
+        if k + 1 >= k0:
+            out[k + 1 - k0] = ((x_hat[1:m + 1] - x_hat[0]) / deltas[:, None]).T
+    return out
+
+
+def error_response(gx: np.ndarray, gy: np.ndarray, h: np.ndarray, L: np.ndarray
+                   ) -> np.ndarray:
+    """``t_l = L (g^x_l - sum_(a+b=l) h_a g^y_b)``, shape (lags, q, s)."""
+    lags = len(gx)
+    xhat = causal_conv(h, gy, lags)
+    return np.einsum("qn,lns->lqs", L, gx - xhat)
+
+
+# ---------------------------------------------------------------------------- loop side
+@dataclass
+class SearchResult:
+    """Outcome of :func:`search` (gains in the channel's units: output unit per w unit).
+
+    Attributes
+    ----------
+    worst_case_gain : float
+        Largest measured gain of the search's candidates.
+    worst_case_w : ndarray, shape (K, s)
+        The disturbance attaining it (energy ``energy``).
+    random_gain : float
+        Largest measured gain of the random disturbances.
+    linear_gain : float
+        ``sigma_max`` of the linearized error system over the horizon (a prediction).
+    evaluations : int
+        Closed-loop candidate runs (random ones included).
+    iterations : int
+        Power iterations.
+    energy : float
+    horizon_s : float
+    notes : list of str
+    """
+
+    worst_case_gain: float
+    worst_case_w: np.ndarray
+    random_gain: float
+    linear_gain: float
+    evaluations: int
+    iterations: int
+    energy: float
+    horizon_s: float
+    notes: list[str] = field(default_factory=list)
+
+
+class LoopEvaluator:
+    """Measured gains of candidate disturbances on a built closed loop (batched).
+
+    Member 0 of every batch runs without ``w`` (the baseline); all members share one seed.
+
+    Parameters
+    ----------
+    experiment : testbed.runner.Experiment
+        Its simulator's disturbance must be ``disturbance``.
+    disturbance : SampledDisturbance
+        Values (num, >= K, s), rewritten per batch.
+    seed : int
+    steps : int
+        Horizon K.
+    output_matrix : ndarray, shape (q, n)
+    """
+
+    def __init__(self, experiment: Any, disturbance: SampledDisturbance, seed: int,
+                 steps: int, output_matrix: np.ndarray):
+        self.loop = experiment.loop
+        self.dist = disturbance
+        self.seed, self.K = int(seed), int(steps)
+        self.L = np.asarray(output_matrix, float)
+        self.num = self.loop.sim.num
+        self.dt_s = self.loop.sim.dt_s
+        self.evaluations = 0
+
+    def run(self, W: np.ndarray) -> np.ndarray:
+        """Gains of the candidates ``W`` (B, K, s), in batches of ``num - 1``."""
+        W = np.asarray(W, dtype=float)
+        gains = np.empty(len(W))
+        per = self.num - 1
+        for start in range(0, len(W), per):
+            chunk = W[start:start + per]
+            self.dist.values[:] = 0.0
+            self.dist.values[1:1 + len(chunk), : self.K] = chunk
+            result = self.loop.run(np.full(self.num, self.seed), self.K * self.dt_s,
+                                   record=True)
+            rec = result.trajectory
+            z = np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
+            dz = z[1:1 + len(chunk)] - z[0]
+            steps = dz.shape[1]  # shorter if a member terminated the episode
+            w_energy = np.sum(chunk[:, :steps] ** 2, axis=(1, 2))
+            gains[start:start + len(chunk)] = np.sqrt(np.sum(dz**2, axis=(1, 2))
+                                                      / np.maximum(w_energy, 1e-300))
+            self.evaluations += len(chunk)
+        if not np.all(np.isfinite(gains)):
+            raise FloatingPointError("a worst-case candidate gave a non-finite gain")
+        return gains
+
+
+def population(dimensions: int) -> int:
+    """Members of the refinement's population for ``dimensions`` coefficients (DE's
+    ``popsize`` times the dimensions, at least 5)."""
+    return dimensions * max(2, int(np.ceil(5 / dimensions))) if dimensions > 0 else 0
+
+
+def scaled(w: np.ndarray, energy: float, dt_s: float) -> np.ndarray:
+    """``w`` (..., K, s) scaled to ``sum_k |w_k|^2 dt = energy`` (each leading index)."""
+    norm = np.sqrt(np.sum(w**2, axis=(-2, -1), keepdims=True) * dt_s)
+    return w * np.sqrt(energy) / norm
+
+
+def search(evaluator: LoopEvaluator, A: np.ndarray, G: np.ndarray, C: np.ndarray,
+           Hw: np.ndarray, output_matrix: np.ndarray, estimator_h: np.ndarray, *,
+           energy: float, random_draws: int, basis: int, generations: int,
+           rng: np.random.Generator) -> SearchResult:
+    """The worst-case search on one closed loop (see the module docstring).
+
+    Parameters
+    ----------
+    evaluator : LoopEvaluator
+    A : ndarray, shape (n, n)
+        Continuous linearization of the simulated rig.
+    G : ndarray, shape (n, s)
+        Disturbance channel.
+    C, Hw : ndarray, shapes (m, n), (m, s)
+        The sensors' linear model.
+    output_matrix : ndarray, shape (q, n)
+    estimator_h : ndarray, shape (lags, n, m)
+        :func:`estimator_markov`.
+    energy : float
+    random_draws, basis, generations : int
+    rng : numpy.random.Generator
+        Start of the power iteration, the random disturbances, the refinement.
+    """
+    K, dt = evaluator.K, evaluator.dt_s
+    s = G.shape[1]
+    A_d, G_d = zoh(A, G, dt)
+    gx, gy = plant_markov(A_d, G_d, C, Hw, K + 1)
+    h = np.zeros((K + 1, *estimator_h.shape[1:]))
+    h[: min(len(estimator_h), K + 1)] = estimator_h[: K + 1]
+    t = error_response(gx, gy, h, output_matrix)
+    op = ErrorOperator(t, K)
+    gains, V, iterations = top_singular(op, basis, rng)
+    notes: list[str] = []
+
+    random_w = scaled(rng.standard_normal((random_draws, K, s)), energy, dt)
+    v1 = scaled(V[0], energy, dt)
+    first = evaluator.run(np.concatenate([v1[None], -v1[None], random_w]))
+    random_gain = float(first[2:].max())
+    best = int(np.argmax(first[:2]))
+    sign = 1.0 if best == 0 else -1.0
+    worst, worst_w = float(first[best]), sign * v1
+
+    d = len(V) - 1
+    if generations > 0 and d > 0:
+        record: dict[str, Any] = {"gain": worst, "w": worst_w}
+
+        def candidates(c: np.ndarray) -> np.ndarray:
+            c = np.atleast_2d(c.T).reshape(-1, d)  # (S, d)
+            w = sign * (V[0][None] + np.einsum("bd,dks->bks", c, V[1:]))
+            return scaled(w, energy, dt)
+
+        def objective(c: np.ndarray) -> np.ndarray:
+            w = candidates(c)
+            g = evaluator.run(w)
+            j = int(np.argmax(g))
+            if g[j] > record["gain"]:
+                record["gain"], record["w"] = float(g[j]), w[j]
+            return -g
+
+        differential_evolution(objective, [(-1.0, 1.0)] * d, maxiter=generations,
+                               popsize=population(d) // d, x0=np.zeros(d),
+                               vectorized=True, updating="deferred", polish=False, tol=0.0,
+                               rng=rng)
+        worst, worst_w = record["gain"], record["w"]
+    if worst < random_gain:
+        notes.append(f"the search ({worst:.4g}) stayed below a random disturbance "
+                     f"({random_gain:.4g})")
+    return SearchResult(worst_case_gain=worst, worst_case_w=worst_w, random_gain=random_gain,
+                        linear_gain=float(gains[0]), evaluations=evaluator.evaluations,
+                        iterations=iterations, energy=energy, horizon_s=K * dt, notes=notes)

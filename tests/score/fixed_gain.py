@@ -1,0 +1,81 @@
+"""A user estimator for the scoring tests: the steady-state Kalman filter (a fixed gain)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class FixedGainKalman:
+    """The steady-state Kalman filter: ``x+ = F x + B u``, ``x = x+ + K (y - H x+)`` with the
+    steady-state gain times ``gain_scale`` (1: the Kalman filter at steady state).
+
+    Its error system is linear time-invariant: ``e+ = (I - K H) (F e + E w)``.
+    """
+
+    batched = True
+
+    def __init__(self, design, gain_scale: float = 1.0):
+        from filters import KalmanFilter
+
+        system = design.discrete
+        P_prior, K = KalmanFilter(system, design.x0, design.P0).steady_state()
+        self.F, self.B, self.H = system.F, system.B, system.H
+        self.index = np.asarray(design.measurement_index)  # the channels the model covers
+        self.gain = float(gain_scale) * K
+        self.P_post = P_prior - K @ system.H @ P_prior
+        self.P_post = 0.5 * (self.P_post + self.P_post.T)
+        self._x = np.array(design.x0, dtype=float)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._x
+
+    @property
+    def P(self) -> np.ndarray:
+        return np.broadcast_to(self.P_post, (*self._x.shape[:-1], *self.P_post.shape))
+
+    def reset(self, x0, P0) -> None:
+        self._x = np.array(x0, dtype=float)
+
+    def step(self, y, u=None):
+        x = self._x @ self.F.T
+        if u is not None:
+            x = x + np.asarray(u) @ self.B.T
+        y = np.asarray(y)[..., self.index]
+        self._x = x + (y - x @ self.H.T) @ self.gain.T
+        return self._x
+
+
+def make(design, **options):
+    """``tests.score.fixed_gain:make`` (a ``module:factory`` path)."""
+    return FixedGainKalman(design, **options)
+
+
+def overconfident(design):
+    """The Kalman filter whose covariance is divided by 10."""
+    return Overconfident(design)
+
+
+class Overconfident:
+    """The built-in Kalman filter reporting ``P / 10``."""
+
+    batched = True
+
+    def __init__(self, design):
+        from testbed.estimators import kalman
+
+        self.inner = kalman(design)
+
+    @property
+    def x(self):
+        return self.inner.x
+
+    @property
+    def P(self):
+        return self.inner.P / 10.0
+
+    def reset(self, x0, P0):
+        self.inner.reset(x0, P0)
+
+    def step(self, y, u=None):
+        return self.inner.step(y, u)

@@ -1,0 +1,115 @@
+"""The worst-case search's linear machinery and the per-member disturbance hook."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from filters import DiscreteLinearSystem, KalmanFilter
+from testbed.disturbances import SampledDisturbance
+from testbed.runner import build, monte_carlo
+from testbed.score.worst_case import (
+    ErrorOperator,
+    causal_conv,
+    error_response,
+    estimator_markov,
+    plant_markov,
+    top_singular,
+    zoh,
+)
+
+
+def _dense(t: np.ndarray, K: int) -> np.ndarray:
+    q, s = t.shape[1:]
+    T = np.zeros((K * q, K * s))
+    for k in range(1, K + 1):
+        for i in range(K):
+            if 0 <= k - i < len(t):
+                T[(k - 1) * q:k * q, i * s:(i + 1) * s] = t[k - i]
+    return T
+
+
+def test_error_operator_is_the_block_toeplitz_matrix_and_its_adjoint(rng):
+    K, q, s = 30, 2, 3
+    t = rng.standard_normal((K + 1, q, s)) * 0.7 ** np.arange(K + 1)[:, None, None]
+    op, T = ErrorOperator(t, K), _dense(t, K)
+    w, z = rng.standard_normal((2, K, s)), rng.standard_normal((2, K, q))
+    assert np.allclose(op.forward(w).reshape(2, -1), w.reshape(2, -1) @ T.T, atol=1e-12)
+    assert np.allclose(op.adjoint(z).reshape(2, -1), z.reshape(2, -1) @ T, atol=1e-12)
+    gains, V, _ = top_singular(op, 3, rng, max_iter=2000, rtol=1e-12)
+    sv = np.linalg.svd(T, compute_uv=False)
+    assert gains[0] == pytest.approx(sv[0], rel=1e-8)
+    assert np.linalg.norm(op.forward(V[:1])) == pytest.approx(sv[0], rel=1e-8)
+    assert gains[0] >= gains[1] >= gains[2]
+
+
+def test_plant_markov_and_conv_against_direct_simulation(rng):
+    A = np.array([[0.0, 1.0], [-4.0, -0.4]])
+    G = np.array([[0.0], [1.0]])
+    dt, K = 0.05, 40
+    A_d, G_d = zoh(A, G, dt)
+    M = expm(np.block([[A, G], [np.zeros((1, 3))]]) * dt)
+    assert np.allclose(A_d, M[:2, :2]) and np.allclose(G_d, M[:2, 2:])
+    C, Hw = np.array([[1.0, 0.0]]), np.array([[0.3]])
+    gx, gy = plant_markov(A_d, G_d, C, Hw, K)
+    w = rng.standard_normal(K)
+    x, ys = np.zeros(2), []
+    for k in range(K):  # y_k = C x_k + Hw w_k, then x_(k+1) = A_d x_k + G_d w_k
+        ys.append(C @ x + Hw[:, 0] * w[k])
+        x = A_d @ x + G_d[:, 0] * w[k]
+    conv = causal_conv(gy, w[:, None, None], K)[:, :, 0]
+    assert np.allclose(conv, np.array(ys), atol=1e-12)
+
+
+def test_estimator_markov_of_a_steady_state_kalman_filter():
+    F = np.array([[1.0, 0.01], [-0.1, 0.99]])
+    system = DiscreteLinearSystem(F=F, B=np.array([[0.0], [0.01]]), H=np.array([[1.0, 0.0]]),
+                                  Q=np.diag([1e-6, 1e-4]), R=np.array([[1e-4]]), dt_s=0.01)
+    P, K = KalmanFilter(system, np.zeros(2), np.eye(2)).steady_state()
+    P_post = P - K @ system.H @ P
+    kf = KalmanFilter(system, np.zeros(2), P_post)
+    y = np.zeros((51, 1))
+    u = np.zeros((50, 1))
+    h = estimator_markov(kf, None, (np.zeros(2), P_post), y, u, 10, np.array([1e-3]), 3)
+    Phi = (np.eye(2) - K @ system.H) @ F  # x_k = Phi x_(k-1) + K y_k
+    for a in range(5):
+        assert np.allclose(h[a], np.linalg.matrix_power(Phi, a) @ K, rtol=1e-6, atol=1e-12)
+    t = error_response(np.zeros((4, 2, 1)), np.ones((4, 1, 1)), h[:4], np.eye(2))
+    assert np.allclose(t[0], -h[0]) and np.allclose(t[1], -(h[0] + h[1]))
+
+
+def test_sampled_disturbance_validates_and_is_per_member():
+    values = np.arange(12.0).reshape(2, 3, 2)
+    d = SampledDisturbance(np.array([[0.0, 0.0], [1.0, 0.0]]), values, 0.01, n_positions=1)
+    out = d.member_signal(np.array([0.0, 0.01, 0.02, 0.03]), np.array([0, 1, 1, 0]))
+    assert np.array_equal(out, [values[0, 0], values[1, 1], values[1, 2], [0.0, 0.0]])
+    assert np.array_equal(d.signal(0.01), values[0, 1])
+    with pytest.raises(ValueError, match="shape"):
+        SampledDisturbance(None, np.zeros((2, 3)), 0.01)
+    with pytest.raises(ValueError, match="dt_s"):
+        SampledDisturbance(None, np.zeros((1, 2, 1)), 0.0)
+    with pytest.raises(ValueError, match="outside"):
+        d.member_signal(np.array([0.0]), np.array([2]))
+
+
+def test_sampled_named_signal_equals_the_runner_bitwise():
+    from testbed.rigs.helicopter import HelicopterRig
+    from testbed.score.suite import get_suite
+
+    entry = next(e for e in get_suite("quick") if e.name == "helicopter")
+    scenario = entry.scenario.replace(duration_s=0.3, estimator="ms-hinf")
+    ref = monte_carlo(scenario, 3, progress=False, num_threads=1)
+    rig = HelicopterRig()
+    base = rig.disturbance(scenario.disturbance, scenario.process_noise)
+    t = np.arange(31) * 0.01
+    values = np.broadcast_to(np.array([base.signal(ti) for ti in t]), (3, 31, 4)).copy()
+    dist = SampledDisturbance(base.G, values, 0.01, b=base.b)
+    experiment = build(scenario.replace(disturbance=dist, process_noise=0.0), 3, num_threads=1)
+    try:
+        result = experiment.loop.run(np.array(ref["seeds"]), 0.3)
+    finally:
+        experiment.close()
+    for state, per_run in ref["rmse_per_run"].items():
+        assert np.array_equal(result.metrics.rmse()[state], per_run)
+    assert float(np.mean(result.metrics.nees_mean())) == ref["nees_mean"]
