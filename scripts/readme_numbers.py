@@ -1,0 +1,146 @@
+"""Regenerate the measured numbers of the README from the commands it shows.
+
+Each block between ``<!-- numbers:NAME:start -->`` and ``<!-- numbers:NAME:end -->`` in
+README.md is produced here by parsing the command line printed in the block with the CLI's own
+parser (so the numbers are those of that command) and running it through the runner.
+
+    python scripts/readme_numbers.py            # rewrite README.md in place
+    python scripts/readme_numbers.py --check    # exit 1 if README.md is out of date
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shlex
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from testbed import runner
+from testbed.cli import build_parser, scenario_from_args
+from testbed.io import atomic_path
+from testbed.units import display
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _scenario(command: str):
+    argv = shlex.split(command)
+    assert argv[0] == "testbed", command
+    args = build_parser().parse_args(argv[1:])
+    return args, scenario_from_args(args)
+
+
+def _value(summary: dict, key: str, name: str) -> str:
+    value = summary[key].get(name)
+    if value is None:
+        return "(not measured)"
+    factor, unit = display(summary["units"].get(name, ""))
+    return f"{factor * value:.4g} {unit}".strip()
+
+
+def _run_table(commands: list[str], label: Callable[[str], str]) -> str:
+    """One row per command: estimate RMSE per state, NEES."""
+    rows = []
+    header = None
+    for command in commands:
+        _, scenario = _scenario(command)
+        _, s = runner.run(scenario, record=False, progress=False)
+        names = list(s["rmse"])
+        if header is None:
+            header = ["run", *[f"{n} RMSE" for n in names], "mean NEES", "T"]
+        nees = "-" if s["nees_mean"] is None else f"{s['nees_mean']:.3g}"
+        T = "-" if s.get("T_final") is None else f"{s['T_final']:.3g}"
+        rows.append([label(command), *[_value(s, "rmse", n) for n in names], nees, T])
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def demo() -> str:
+    """The `make demo` run: estimate vs raw encoder RMSE."""
+    command = ("testbed run helicopter --filter kalman --controller lqr --duration 20 --seed 0")
+    _, scenario = _scenario(command)
+    _, s = runner.run(scenario, record=False, progress=False)
+    lines = [f"`{command}`:", "", "| state | estimate RMSE | raw sensor RMSE |", "|---|---|---|"]
+    for name in s["rmse"]:
+        lines.append(f"| {name} | {_value(s, 'rmse', name)} | "
+                     f"{_value(s, 'measurement_rmse', name)} |")
+    nees = s["nees_mean"]
+    lines += ["", f"Mean NEES {nees:.3g} ({len(s['rmse'])} for a consistent filter)."]
+    return "\n".join(lines)
+
+
+def ms_hinf() -> str:
+    """Kalman vs mean-square H-infinity on the rig with the paper's disturbance."""
+    commands = [f"testbed run helicopter --filter {f} --disturbance basin-helicopter "
+                "--duration 20 --seed 0" for f in ("kalman", "ms-hinf")]
+    return "\n".join([*(f"`{c}`" for c in commands), "",
+                      _run_table(commands, lambda c: c.split("--filter ")[1].split()[0])])
+
+
+def vehicle() -> str:
+    """The vehicle roll with the Kalman and the LMI filter."""
+    commands = [f"testbed run vehicle-roll --filter {f} --manoeuvre double-lane-change "
+                "--duration 10 --seed 0" for f in ("kalman", "lmi-hinf")]
+    commands.append("testbed run vehicle-roll --filter kalman --manoeuvre double-lane-change "
+                    "--duration 10 --seed 0 --a-y-source oracle")
+    return "\n".join([*(f"`{c}`" for c in commands), "",
+                      _run_table(commands, lambda c: " ".join(
+                          [c.split("--filter ")[1].split()[0]]
+                          + (["(oracle a_y)"] if "oracle" in c else [])))])
+
+
+def profiles() -> str:
+    """Kalman filter, paper vs hardware profile: mean and 5/95 % over 100 runs."""
+    lines = ["| command | state | RMSE mean (5 % / 95 %) | mean NEES |", "|---|---|---|---|"]
+    for rig in ("helicopter", "vehicle-roll"):
+        for profile in ("paper", "hardware"):
+            command = (f"testbed mc {rig} --filter kalman --profile {profile} --runs 100 "
+                       "--duration 10 --seed 0")
+            _, scenario = _scenario(command)
+            r = runner.monte_carlo(scenario, runs=100, progress=False)
+            for name in ("pitch", "yaw", "roll"):
+                if name not in r["rmse"]:
+                    continue
+                st = r["rmse"][name]
+                factor, unit = display(r["units"].get(name, ""))
+                lines.append(f"| `{command}` | {name} | {factor * st['mean']:.4g} "
+                             f"({factor * st['q05']:.4g} / {factor * st['q95']:.4g}) {unit} | "
+                             f"{r['nees_mean']:.3g} |")
+    return "\n".join(lines)
+
+
+BLOCKS: dict[str, Callable[[], str]] = {"demo": demo, "ms-hinf": ms_hinf,
+                                         "vehicle": vehicle, "profiles": profiles}
+
+
+def render(text: str) -> str:
+    """README text with every numbers block regenerated."""
+    for name, make in BLOCKS.items():
+        pattern = re.compile(rf"(<!-- numbers:{name}:start -->\n).*?(<!-- numbers:{name}:end -->)",
+                             re.S)
+        if not pattern.search(text):
+            raise SystemExit(f"README.md has no numbers:{name} block")
+        body = make()
+        text = pattern.sub(lambda m, body=body: m.group(1) + body + "\n" + m.group(2), text)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="fail if README.md is stale")
+    args = parser.parse_args(argv)
+    old = README.read_text()
+    new = render(old)
+    if args.check:
+        return int(new != old)
+    with atomic_path(README) as tmp:
+        tmp.write_text(new)
+    print(f"wrote {README}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
