@@ -70,3 +70,15 @@ def test_deadband_decorator_on_both_rigs(rig):
     y = traj.measurement
     assert np.all((y == 0) | (np.abs(y) > 1e-3))
     assert np.any(y == 0) and np.any(y != 0)
+
+
+def test_the_gymnasium_loop_snippet_runs(capsys):
+    """The last snippet of docs/extending.md, executed as written."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "extending.md").read_text()
+    section = text.split("## In your own Gymnasium loop", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    exec(compile(code, "extending.md", "exec"), {})
+    assert "roll" in capsys.readouterr().out
