@@ -13,7 +13,9 @@ Step semantics (per member, one control period ``dt_s = physics_dt_s * frame_ski
    disturbance ``G w(t) + b dW`` becomes joint accelerations and, through the mass matrix
    ``M(q)``, generalized forces (Euler-Maruyama: ``b xi / sqrt(dt)`` held over the step);
 3. MuJoCo steps ``frame_skip`` times (a pool of threads; ``mj_step`` releases the GIL);
-4. the sensors sample the new state.
+4. divergence check: a MuJoCo instability warning, a non-finite state or a state past the
+   rig's ``state_envelope`` raises :class:`SimulationDiverged` (time, members, state);
+5. the sensors sample the new state.
 
 Randomness: member ``i`` owns one stream (:class:`testbed.sensors.NoiseStreams`, seeded like
 a Gymnasium env's ``np_random``); per step it gives, in order, the rig's step noise, the
@@ -49,8 +51,52 @@ _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
 
 
-class PhysicsDivergenceError(RuntimeError):
-    """MuJoCo's state became non-finite or huge (the simulation diverged)."""
+#: MuJoCo's instability warnings: NaN, inf or huge qpos, qvel or qacc (MuJoCo then resets
+#: the state, which stays finite; the counters in ``MjData.warning`` tell).
+_BAD_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
+                                       mujoco.mjtWarning.mjWARN_BADQVEL,
+                                       mujoco.mjtWarning.mjWARN_BADQACC))
+
+
+class SimulationDiverged(RuntimeError):
+    """The simulation left what the rig can physically do; its results would be meaningless.
+
+    Raised by :meth:`Simulator.step` when, after a control step, a member's MuJoCo data
+    reported an instability warning (NaN, inf or huge ``qpos``/``qvel``/``qacc``, after which
+    MuJoCo silently resets the state), its state is not finite, or a state component is past
+    the rig's :attr:`~testbed.rigs.base.Rig.state_envelope`. The diverged members must be
+    reset before they step again.
+
+    Parameters
+    ----------
+    message : str
+        Human-readable description (time, member, reason, state).
+    time_s : float
+        Simulation time at the end of the failing step, s.
+    state : ndarray, shape (k, n)
+        States of the diverged members after the step.
+    members : list of int
+        Indices of the diverged members.
+    reason : str
+        ``"mujoco warning"``, ``"non-finite state"`` or ``"outside envelope"`` (of the first).
+    """
+
+    def __init__(self, message: str, *, time_s: float, state: np.ndarray, members: list[int],
+                 reason: str):
+        super().__init__(message)
+        self.message, self.time_s, self.reason = message, float(time_s), reason
+        self.state, self.members = np.asarray(state), list(members)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # keyword-only constructor: picklable for process pools and Ray
+        return (_rebuild_diverged, (self.message, self.time_s, self.state, self.members,
+                                    self.reason))
+
+
+def _rebuild_diverged(message: str, time_s: float, state: np.ndarray, members: list[int],
+                      reason: str) -> SimulationDiverged:
+    return SimulationDiverged(message, time_s=time_s, state=state, members=members,
+                              reason=reason)
 
 
 def default_num_threads() -> int:
@@ -106,6 +152,8 @@ class Physics:
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
+        #: Members whose MuJoCo data reported an instability warning in their last step.
+        self.unstable = np.zeros(self.num, dtype=bool)
         self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
                       if self.num_threads > 1 else None)
 
@@ -148,6 +196,7 @@ class Physics:
             self.rig.set_state(x0[j], data, model)
             mujoco.mj_getState(model, data, self.state[i], _INTEGRATION)
             mujoco.mj_fullM(model, data, self.mass[i])
+        self.unstable[list(members)] = False
         in_use = {id(m) for m in self.models}
         self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
 
@@ -184,11 +233,17 @@ class Physics:
               need_poses: bool) -> None:
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
+        warnings = data.warning.number  # a view of the counters (zero unless MuJoCo warned)
+        w1, w2, w3 = _BAD_WARNINGS
+        unstable = self.unstable
         for i in rows:
             model, row = models[i], state[i]
             set_state(model, data, row, _INTEGRATION)
             step(model, data, nstep)
             get_state(model, data, row, _INTEGRATION)
+            unstable[i] = bool(warnings[w1] or warnings[w2] or warnings[w3])
+            if unstable[i]:
+                warnings[:] = 0
             if need_mass:
                 mujoco.mj_fullM(model, data, mass[i])
             if need_poses:
@@ -282,6 +337,7 @@ class Simulator:
         self._nu, self._nx = rig.n_actions, rig.n_states
         self._j = len(rig.joints)
         self._tracked = rig.tracked_index
+        self._envelope = rig.envelope
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
@@ -559,10 +615,10 @@ class Simulator:
         self.steps[index] += 1
         t = self.steps[index] * self.dt_s
         x = physics.states(index)
-        if not np.all(np.isfinite(x)):
-            bad = index[~np.all(np.isfinite(x), axis=1)]
-            raise PhysicsDivergenceError(f"the simulation diverged (non-finite state) at "
-                                         f"t = {t[0]:.6g} s for members {bad.tolist()}")
+        outside = ~np.all(np.abs(x) <= self._envelope, axis=1)  # NaN compares False
+        unstable = physics.unstable[index]
+        if outside.any() or unstable.any():
+            self._diverged(index, unstable, outside, x, t)
         ref = self._reference(t, index)
         e = x[:, self._tracked] - ref
         self.reward[index] = -np.sum(e * e, axis=1)
@@ -579,6 +635,30 @@ class Simulator:
         info["action_clipped"][index] = clipped
         info["manoeuvre"][index] = profile
         info["process_accel"][index] = accel
+
+    def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,
+                  x: np.ndarray, t: np.ndarray) -> None:
+        """Mark the diverged members unready and raise :class:`SimulationDiverged`."""
+        bad = unstable | outside
+        self._ready[index[bad]] = False
+        j = int(np.flatnonzero(bad)[0])
+        names, units = self.rig.state_names, self.rig.state_units
+        if unstable[j]:
+            reason, why = "mujoco warning", ("MuJoCo reported NaN, inf or a huge value in qpos, "
+                                             "qvel or qacc (and reset the state)")
+        elif not np.all(np.isfinite(x[j])):
+            reason, why = "non-finite state", "the state is not finite"
+        else:
+            c = int(np.flatnonzero(np.abs(x[j]) > self._envelope)[0])
+            reason = "outside envelope"
+            why = (f"{names[c]} = {x[j, c]:.6g} {units[c]} is outside the rig's envelope "
+                   f"|{names[c]}| <= {self._envelope[c]:g} {units[c]}")
+        state = ", ".join(f"{n} {v:.6g}" for n, v in zip(names, x[j], strict=True))
+        raise SimulationDiverged(
+            f"simulation diverged at t = {t[j]:.6g} s (member {int(index[j])}"
+            f"{f' and {int(bad.sum()) - 1} more' if bad.sum() > 1 else ''}): {why}; state "
+            f"[{state}]", time_s=float(t[j]), state=x[bad].copy(),
+            members=index[bad].tolist(), reason=reason)
 
     def close(self) -> None:
         """Stop the physics threads."""

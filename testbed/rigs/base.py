@@ -101,6 +101,10 @@ class Rig:
     scenario_defaults: ClassVar[dict[str, Any]] = {"controller": "lqr"}
     #: Rig-specific scenario options with their defaults (see :meth:`design_model`).
     scenario_options: ClassVar[dict[str, Any]] = {}
+    #: Divergence detector: the largest ``|x_i|`` per state (rig units; ``inf``: unbounded)
+    #: that the physical rig can reach, with a wide margin. The simulator raises
+    #: :class:`~testbed.simulator.SimulationDiverged` for a state past it. Empty: no bound.
+    state_envelope: ClassVar[tuple[float, ...]] = ()
 
     def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001):
         if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
@@ -140,6 +144,10 @@ class Rig:
             if len(seq) != size:
                 raise TypeError(f"{type(self).__name__}.{label} has {len(seq)} entries, "
                                 f"expected {size}")
+        if self.state_envelope and (len(self.state_envelope) != n or not all(
+                b > 0 for b in self.state_envelope)):
+            raise TypeError(f"{type(self).__name__}.state_envelope must have {n} positive "
+                            f"entries (inf: unbounded), got {self.state_envelope}")
         unknown = set(self.tracked_states) - set(self.state_names)
         if unknown:
             raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
@@ -155,6 +163,13 @@ class Rig:
     def n_actions(self) -> int:
         """Action dimension."""
         return len(self.action_names)
+
+    @property
+    def envelope(self) -> np.ndarray:
+        """:attr:`state_envelope` as an array, shape (n,) (``inf`` where unbounded)."""
+        if not self.state_envelope:
+            return np.full(self.n_states, np.inf)
+        return np.array(self.state_envelope, dtype=float)
 
     @property
     def tracked_index(self) -> np.ndarray:

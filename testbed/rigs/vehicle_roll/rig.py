@@ -73,6 +73,10 @@ class VehicleRollRig(Rig):
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
     scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
+    #: Upside down (the episode already ended at 90 deg); the saturated lateral acceleration
+    #: rolls the body at about 0.06 rad/s and falling over from 86 deg at 1.4 rad/s, so
+    #: 50 rad/s is far outside anything the rig does.
+    state_envelope = (np.pi, 50.0)
 
     def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001):
         super().__init__(params, physics_dt_s)
