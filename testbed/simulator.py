@@ -38,6 +38,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from filters import real_array
 from testbed.disturbances import Disturbance
 from testbed.rigs.base import Params, Rig
 from testbed.sensors import NoiseStreams, Sample, Sensor
@@ -434,9 +435,13 @@ class Simulator:
                 if value is None:
                     continue
                 if key == "params" and not isinstance(value, dict):
+                    if not isinstance(value, list | tuple) or not all(
+                            v is None or isinstance(v, dict) for v in value):
+                        raise ValueError("options['params'] must be a dict {field: scale} or a "
+                                         f"list of {k} such dicts, got {value!r}")
                     values = list(value)
                 elif key == "x0" and np.ndim(value) == 2:
-                    values = list(np.asarray(value, dtype=float))
+                    values = list(real_array(value, "options['x0']", finite=False))
                 else:
                     values = [value] * k
                 if len(values) != k:
@@ -564,11 +569,7 @@ class Simulator:
 
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
-        try:
-            u = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"actions must be numeric with shape ({k}, {self._nu}) "
-                             f"({', '.join(self.rig.action_names)}), got {actions!r}") from None
+        u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
             raise ValueError(f"actions must have shape ({k}, {self._nu}) "
                              f"({', '.join(self.rig.action_names)} per member), got shape "

@@ -42,6 +42,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from filters import real_array
+from testbed.envs.common import check_seed
 from testbed.rigs import resolve_rig
 from testbed.simulator import Simulator
 
@@ -119,26 +121,19 @@ class RigEnv(gym.Env):
         return self.sim.setpoints_at(t_s, np.array([0]))[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the rig (see the module docstring for ``options``)."""
-        if seed is not None and (not isinstance(seed, int | np.integer) or seed < 0):
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        """Reset the rig (see the module docstring for ``options``); everything is checked
+        before anything changes."""
+        check_seed(seed)
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
-        super().reset(seed=seed)
         self.sim.reset(None, [seed], options)
+        super().reset(seed=seed)
         return self.sim.obs[0].copy(), _squeeze(self.sim.info)
 
     def step(self, action):
         """Apply one action for one control period."""
-        try:
-            u = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"action must be numeric with shape ({self.rig.n_actions},), got "
-                             f"{action!r}") from None
-        if u.shape != (self.rig.n_actions,):
-            raise ValueError(f"action must have shape ({self.rig.n_actions},) "
-                             f"({', '.join(self.rig.action_names)} in "
-                             f"{', '.join(self.rig.action_units)}), got shape {u.shape}")
+        u = real_array(action, f"action ({', '.join(self.rig.action_names)} in "
+                       f"{', '.join(self.rig.action_units)})", shape=(self.rig.n_actions,))
         self.sim.step(u[None])
         sim = self.sim
         return (sim.obs[0].copy(), float(sim.reward[0]), bool(sim.terminated[0]), False,
@@ -236,13 +231,20 @@ class RigVectorEnv(VectorEnv):
         n = self.num_envs
         if seed is None:
             seeds: list[int | None] = [None] * n
-        elif isinstance(seed, int | np.integer):
+        elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(n)]
-        else:
+        elif isinstance(seed, list | tuple | np.ndarray):
             seeds = list(seed)
+        else:
+            raise ValueError(f"seed must be None, a non-negative integer or a list of "
+                             f"{n} of them, got {seed!r}")
         if len(seeds) != n:
             raise ValueError(f"If seeds are passed as a list the length must match "
                              f"num_envs={n} but got length={len(seeds)}.")
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
+        for s in seeds:
+            check_seed(s)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         members = None

@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
+from filters import real_array
 from testbed.disturbances import Disturbance
 from testbed.rigs.params import scaled_copy
 
@@ -257,24 +258,22 @@ class Rig:
         return np.zeros(self.n_states)
 
     def validate_x0(self, x0: Any) -> np.ndarray:
-        """``options['x0']`` as a finite array of shape (n,), else ``ValueError``."""
-        try:
-            x = np.asarray(x0, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"options['x0'] must be numeric, got {x0!r}") from None
-        if x.shape != (self.n_states,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"options['x0'] must be a finite array of shape ({self.n_states},) "
-                             f"{list(self.state_names)}, got {x0!r}")
+        """``options['x0']`` as a finite real array of shape (n,) within :attr:`envelope`,
+        else ``ValueError``."""
+        x = real_array(x0, f"options['x0'] {list(self.state_names)}", shape=(self.n_states,))
+        outside = np.abs(x) > self.envelope
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            raise ValueError(f"options['x0'] {self.state_names[i]} = {x[i]:g} "
+                             f"{self.state_units[i]} is outside the rig's envelope "
+                             f"|{self.state_names[i]}| <= {self.envelope[i]:g}")
         return x
 
     def validate_setpoints(self, setpoints: Sequence[Sequence[float]]) -> np.ndarray:
         """A reference table ``(t_s, *tracked values)`` rows, checked; shape (rows, 1 + r)."""
         r = len(self.tracked_states)
-        try:
-            table = np.asarray(setpoints, dtype=float)
-        except (TypeError, ValueError):
-            names = ", ".join(self.tracked_states)
-            raise ValueError(f"setpoints must be numeric rows (t_s, {names})") from None
+        table = real_array(setpoints, f"setpoints (rows t_s, {', '.join(self.tracked_states)})",
+                           finite=False)
         if table.ndim != 2 or table.shape[1] != 1 + r or len(table) == 0:
             raise ValueError(f"setpoints must be a sequence of (t_s, "
                              f"{', '.join(self.tracked_states)}) rows, got shape {table.shape}")
