@@ -251,10 +251,15 @@ class _NpzStream:
 
     def __init__(self, path: str | Path, shapes: dict[str, tuple[int, ...]]):
         self.path = Path(path)
+        self.arrays: dict[str, np.memmap] = {}
         self._dir = temporary_directory(self.path)
-        self.arrays = {k: np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
-                                                    dtype=np.float64, shape=s)
-                       for k, s in shapes.items()}
+        try:
+            for k, s in shapes.items():
+                self.arrays[k] = np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
+                                                           dtype=np.float64, shape=s)
+        except BaseException:
+            self.abort()
+            raise
 
     def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Views of runs ``start:stop`` of every array."""
@@ -337,16 +342,17 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         raise ValueError(f"duration_s must cover at least one control period ({dt_s} s), "
                          f"got {scenario.duration_s}")
     stream = None
-    if save_npz is not None:
-        shapes = {k: (runs, *s[1:]) for k, s in first.loop.trajectory_shapes(n_steps).items()}
-        stream = _NpzStream(save_npz, shapes)
     state_names = list(first.loop.sim.rig.state_names)
     rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
     meas: dict[str, list[np.ndarray]] = {}
     per_run: dict[str, list] = {"nees": [], "T": [], "clipped": []}
-    bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
-               unit="step", disable=not progress)
     try:
+        if save_npz is not None:
+            shapes = {k: (runs, *s[1:])
+                      for k, s in first.loop.trajectory_shapes(n_steps).items()}
+            stream = _NpzStream(save_npz, shapes)
+        bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
+                   unit="step", disable=not progress)
         with bar:
             for start in starts:
                 size = min(batch_size, runs - start)
@@ -368,11 +374,16 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     finally:
         for experiment in experiments.values():
             experiment.close()
-    rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
-    meas_all = {k: np.concatenate(v) for k, v in meas.items()}
-    nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
-    T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
-    clipped = np.concatenate(per_run["clipped"])
+    try:
+        rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
+        meas_all = {k: np.concatenate(v) for k, v in meas.items()}
+        nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
+        T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
+        clipped = np.concatenate(per_run["clipped"])
+    except BaseException:
+        if stream is not None:
+            stream.abort()
+        raise
     if stream is not None:
         extra: dict[str, np.ndarray] = {
             "t_s": np.arange(n_steps + 1) * dt_s, "seeds": seeds,
@@ -384,7 +395,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
             extra["nees_mean"] = nees
         if T is not None:
             extra["T_final"] = T
-        stream.finish(extra)
+        stream.finish(extra)  # removes the temporaries whatever happens
     wall_s = time.perf_counter() - start_time
     return {
         "filter": scenario.describe()["estimator"],
