@@ -293,6 +293,17 @@ def test_plain_plants_stop_at_escape_with_finite_observations_and_rewards():
         lin.reset(seed=0, options={"x0": [1e300, 0.0]})
 
 
+def test_plant_simulation_raises_at_escape_instead_of_returning_nan():
+    from testbed.plants import nonlinear_discrete as plant
+
+    v, w = np.full(5, 10.0), np.zeros((2, 5))
+    with pytest.raises(FiniteEscapeError) as info:
+        plant.simulate(np.array([[1.0, 1.0], [9e5, 9e5]]), v, w)
+    assert info.value.quantity == "x" and info.value.time == 1.0
+    with pytest.raises(ValueError, match="x0"):
+        plant.simulate([1e300, 0.0], v, w)
+
+
 @pytest.mark.parametrize("env_id", testbed.ENV_IDS)
 def test_every_env_names_the_argument_of_a_bad_input(env_id):
     env = gym.make(env_id).unwrapped

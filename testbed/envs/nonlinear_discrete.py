@@ -17,7 +17,7 @@ RESET_OPTION_KEYS = ("x0",)
 #: Disturbance perturbation limit of the action (dimensionless).
 ACTION_LIMIT = 10.0
 #: State magnitude beyond which the episode terminates (escape; never reached from |x0| <~ 3).
-ESCAPE_BOUND = 1e6
+ESCAPE_BOUND = plant.ESCAPE_BOUND
 
 
 @dataclass
