@@ -353,7 +353,8 @@ class KalmanFilter(_SampledFilter):
         ValueError
             If ``y`` (or ``u``) has the wrong shape or is non-finite; state unchanged.
         LossOfDefinitenessError, FiniteEscapeError
-            If the updated covariance fails :func:`filters.errors.check_covariance`.
+            If the updated covariance fails :func:`filters.errors.check_covariance`, or the
+            state becomes non-finite (``quantity="x"``); state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u) if self._DT is not None else None
@@ -375,6 +376,14 @@ class KalmanFilter(_SampledFilter):
         -------
         numpy.ndarray, shape (..., n)
             The a-posteriori state (same object as :attr:`x`).
+
+        Raises
+        ------
+        ValueError
+            If ``y`` or ``u`` has the wrong shape, is complex or non-finite; state unchanged.
+        LossOfDefinitenessError, FiniteEscapeError
+            As :meth:`update` (``quantity`` ``"P"``, ``"innovation_cov"`` or ``"x"``, with
+            the time of the step); state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)

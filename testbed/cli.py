@@ -11,7 +11,8 @@ line ``testbed: error: --NAME ...``. Exit codes:
 ====  =====================================================================================
 0     success
 2     bad command line or input (nothing was simulated, nothing written)
-3     numerical failure of the filter (``filters.FilterError``: time and quantity named)
+3     numerical failure of the filter (``filters.FilterError``: time and quantity named;
+      or a user's estimator returned a non-finite estimate)
 4     the simulation diverged (``testbed.simulator.SimulationDiverged``: time and state)
 5     an output could not be written, or the Ray cluster could not be reached
 130   interrupted by SIGINT (Ctrl-C); 143: terminated by SIGTERM (temporaries removed)
@@ -155,7 +156,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used by the docs and tests)."""
-    parser = _Parser(prog="testbed", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="testbed", description=__doc__.splitlines()[0],
+                     epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
+                     "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
+                     "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     _add_scenario_options(run, 20.0)
@@ -458,7 +462,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
         except ValueError as exc:
             return _fail(EXIT_USAGE, f"testbed: error: {exc}")
-        except FilterError as exc:
+        except (FilterError, FloatingPointError) as exc:  # typed, or a user's filter's NaN
             return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
         except SimulationDiverged as exc:
             return _fail(EXIT_DIVERGED, f"testbed: {exc}")

@@ -100,6 +100,13 @@ def _rebuild_diverged(message: str, time_s: float, state: np.ndarray, members: l
                               reason=reason)
 
 
+def positive_int(value: Any, name: str) -> int:
+    """``value`` as an ``int >= 1`` (a bool, float or other type is a ``ValueError``)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
 def default_num_threads() -> int:
     """CPUs this process may run on (the default size of the physics thread pool)."""
     try:
@@ -147,9 +154,8 @@ class Physics:
         qpos, qvel = (_state_offset(model, _INTEGRATION, b) for b in (_QPOS, _QVEL))
         self._gather = np.concatenate([qpos + rig.qpos_adr, qvel + rig.dof_adr])
         self._check_layout()
-        threads = default_num_threads() if num_threads is None else int(num_threads)
-        if threads < 1:
-            raise ValueError(f"num_threads must be >= 1, got {num_threads}")
+        threads = (default_num_threads() if num_threads is None
+                   else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
@@ -319,10 +325,8 @@ class Simulator:
                  setpoints: Sequence[Sequence[float]] | None = None,
                  manoeuvre: Any = None, manoeuvre_params: dict | None = None,
                  num_threads: int | None = None):
-        if int(num) != num or num < 1:
-            raise ValueError(f"num must be a positive integer, got {num}")
-        if int(frame_skip) != frame_skip or frame_skip < 1:
-            raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
+        positive_int(num, "num")
+        positive_int(frame_skip, "frame_skip")
         if not isinstance(sensors, Sensor):
             raise ValueError(f"sensors must be a testbed.sensors.Sensor, got {sensors!r}")
         self.rig = rig

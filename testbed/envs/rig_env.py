@@ -45,7 +45,7 @@ from gymnasium.vector.utils import batch_space
 from filters import real_array
 from testbed.envs.common import check_seed
 from testbed.rigs import resolve_rig
-from testbed.simulator import Simulator
+from testbed.simulator import Simulator, positive_int
 
 
 def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: float = 0.001,
@@ -56,10 +56,9 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                     params: dict[str, float] | None = None,
                     num_threads: int | None = None) -> Simulator:
     """A :class:`Simulator` of ``num`` members from the environments' arguments."""
+    positive_int(frame_skip, "frame_skip")
     rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s)
-    if int(frame_skip) != frame_skip or frame_skip < 1:
-        raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
-    dt_s = physics_dt_s * int(frame_skip)
+    dt_s = rig_obj.model.opt.timestep * int(frame_skip)
     if sensors is None or isinstance(sensors, str):
         sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))
     elif sensor_kwargs:
@@ -187,12 +186,9 @@ class RigVectorEnv(VectorEnv):
                  num_threads: int | None = None, render_mode: str | None = None, **kwargs):
         if render_mode is not None:
             raise ValueError(f"render_mode must be None (headless rig), got {render_mode!r}")
-        if max_episode_steps is not None and (int(max_episode_steps) != max_episode_steps
-                                              or max_episode_steps < 1):
-            raise ValueError(f"max_episode_steps must be a positive integer or None, "
-                             f"got {max_episode_steps}")
-        if int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
+        if max_episode_steps is not None:
+            positive_int(max_episode_steps, "max_episode_steps")
+        positive_int(num_envs, "num_envs")
         self.sim = build_simulator(rig, int(num_envs), num_threads=num_threads, **kwargs)
         self.num_envs = self.sim.num
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)

@@ -108,9 +108,11 @@ class Rig:
     state_envelope: ClassVar[tuple[float, ...]] = ()
 
     def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001):
-        if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
+        number = isinstance(physics_dt_s, int | float | np.floating) and \
+            not isinstance(physics_dt_s, bool)
+        if not (number and np.isfinite(physics_dt_s) and physics_dt_s > 0):
             raise ValueError(f"physics_dt_s must be a positive finite time in s, "
-                             f"got {physics_dt_s}")
+                             f"got {physics_dt_s!r}")
         self.model = mujoco.MjModel.from_xml_path(str(self.resolved_xml_path()))
         self.model.opt.timestep = physics_dt_s
         self.data = mujoco.MjData(self.model)
