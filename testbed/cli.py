@@ -172,8 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--runs", type=_positive_int, default=100)
     mc.add_argument("--batch-size", type=_positive_int, default=None)
     mc.add_argument("--json", help="write the results here")
-    mc.add_argument("--save-npz",
-                    help="also write every trajectory to this .npz")
+    mc.add_argument("--save-npz", help="also write every trajectory to this .npz")
 
     sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
     _add_scenario_options(sw, 10.0)
