@@ -27,15 +27,20 @@ Analysis
     norm-bounded uncertainty (:class:`UncertainPlant`).
 Errors
     :class:`FilterError`, :class:`LossOfDefinitenessError`,
-    :class:`FiniteEscapeError` and :func:`check_covariance`.
+    :class:`FiniteEscapeError`, :class:`SubstepLimitError` and :func:`check_covariance`.
+Input conversion
+    :func:`real_array`: user input as a real ``float64`` array or a ``ValueError`` naming the
+    argument (complex values, non-numeric containers, integers beyond the float range).
 """
 
+from filters._linalg import real_array
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.errors import (
     FilterError,
     FiniteEscapeError,
     LossOfDefinitenessError,
+    SubstepLimitError,
     check_covariance,
 )
 from filters.hinf_mean_square import MeanSquareHInfFilter
@@ -44,7 +49,7 @@ from filters.hinf_polynomial import (
     NonOrthonormalPolynomialHInfFilter,
     PolynomialHInfFilter,
 )
-from filters.kalman import KalmanBucyFilter, KalmanFilter
+from filters.kalman import MAX_AUTO_SUBSTEPS, KalmanBucyFilter, KalmanFilter
 from filters.lmi_hinf import (
     DesignCheck,
     GammaSearch,
@@ -71,6 +76,7 @@ from filters.variance_discrete import (
 )
 
 __all__ = [
+    "MAX_AUTO_SUBSTEPS",
     "DesignCheck",
     "DesignSearchRecord",
     "DiscreteDesignParameters",
@@ -94,6 +100,7 @@ __all__ = [
     "PolynomialHInfFilter",
     "PolynomialModel",
     "StochasticLinearSystem",
+    "SubstepLimitError",
     "UncertainPlant",
     "VarianceDesign",
     "certify_gain",
@@ -104,6 +111,7 @@ __all__ = [
     "design_parabolic",
     "hinf_norm",
     "minimal_gamma",
+    "real_array",
     "robust_filter_analysis",
     "search_discrete_design",
     "search_parabolic_design",

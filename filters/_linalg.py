@@ -26,14 +26,74 @@ def fmt_shape(shape: Sequence[int | str]) -> str:
     return f"({inner},)" if len(shape) == 1 else f"({inner})"
 
 
-def to_float_array(name: str, value: object) -> FloatArray:
-    """Convert ``value`` to a new ``float64`` array, raising ``ValueError`` naming ``name``."""
+def real_array(
+    value: object,
+    name: str,
+    shape: Sequence[int | None] | None = None,
+    *,
+    finite: bool = True,
+) -> FloatArray:
+    """``value`` as a new real ``float64`` array, else ``ValueError`` naming ``name``.
+
+    The one conversion of user input to arrays in :mod:`filters` and ``testbed``: complex
+    values (even with a zero imaginary part), strings, containers that are not numeric
+    (dicts, sets, ``None``, ragged lists) and Python integers beyond the ``float64`` range
+    are refused instead of being cast with a warning, an ``OverflowError`` or a
+    ``TypeError``.
+
+    Parameters
+    ----------
+    value : array_like
+        Candidate array (real numbers, booleans or a nested sequence of them).
+    name : str
+        Argument name used in error messages (e.g. ``"x0"``, ``"options['x0']"``).
+    shape : sequence of (int or None), optional
+        Required shape (``None`` entries are free); default: any shape.
+    finite : bool
+        Also require every entry to be finite (no NaN or inf).
+
+    Returns
+    -------
+    numpy.ndarray
+        A fresh ``float64`` array.
+
+    Raises
+    ------
+    ValueError
+        ``value`` is not a real numeric array, has the wrong shape or (with ``finite``)
+        non-finite entries; the message names ``name``.
+    """
     try:
-        return np.array(value, dtype=np.float64)
+        raw = np.asarray(value)
+        kind = raw.dtype.kind
+        if kind == "c":
+            raise ValueError(f"{name} must be real, got complex values")
+        if kind not in "biufO":
+            raise ValueError(f"{name} must be a real numeric array, got {type(value).__name__} "
+                             f"of dtype {raw.dtype}")
+        arr = np.array(raw, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(f"{name} has a number beyond the float64 range (|x| > 1.8e308)") \
+            from None
     except (TypeError, ValueError) as exc:
+        if str(exc).startswith(name):
+            raise
         raise ValueError(
             f"{name} must be a real numeric array, got {type(value).__name__}"
-        ) from exc
+        ) from None
+    if shape is not None and (arr.ndim != len(shape) or any(
+            s is not None and s != a for s, a in zip(shape, arr.shape, strict=True))):
+        raise ValueError(f"{name} must have shape "
+                         f"{fmt_shape(['*' if s is None else s for s in shape])}, got shape "
+                         f"{arr.shape}")
+    if finite and not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite, got non-finite entries (NaN or inf)")
+    return arr
+
+
+def to_float_array(name: str, value: object) -> FloatArray:
+    """:func:`real_array` without shape or finiteness checks (argument order of old callers)."""
+    return real_array(value, name, finite=False)
 
 
 def readonly(arr: FloatArray) -> FloatArray:

@@ -36,7 +36,7 @@ import numpy.typing as npt
 from scipy.integrate import cumulative_trapezoid
 from scipy.linalg import eigvals, solve_continuous_lyapunov, solve_discrete_lyapunov
 
-from filters._linalg import FloatArray, matrix, to_float_array
+from filters._linalg import FloatArray, matrix, real_array, to_float_array
 from filters.errors import FilterError
 
 __all__ = [
@@ -105,13 +105,13 @@ def noise_output_ratio(
     (:func:`scipy.integrate.cumulative_trapezoid`), so ``T(t[0]) = 0`` unless
     ``x0^T R x0 = 0``.
     """
-    ts = np.asarray(t, dtype=np.float64)
+    ts = real_array(t, "t", finite=False)
     if ts.ndim != 1 or ts.size < 1:
         raise ValueError(f"t must have shape (N,), N >= 1, got shape {ts.shape}")
     N = ts.size
 
     def samples(name: str, value: npt.ArrayLike) -> FloatArray:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = real_array(value, name, finite=False)
         if arr.ndim == 1:
             arr = arr[:, None]
         if arr.ndim != 2 or arr.shape[0] != N:
@@ -125,8 +125,8 @@ def noise_output_ratio(
     ws = samples("w", w)
     if not np.isfinite(ts).all() or np.any(np.diff(ts) <= 0.0):
         raise ValueError("t must be finite and strictly increasing")
-    x = np.asarray(x0, dtype=np.float64)
-    Rm = np.asarray(R, dtype=np.float64)
+    x = real_array(x0, "x0", finite=False)
+    Rm = real_array(R, "R", finite=False)
     if x.ndim != 1 or Rm.shape != (x.size, x.size):
         raise ValueError(f"x0 must have shape (n,) and R shape (n, n), got {x.shape} and "
                          f"{Rm.shape}")
@@ -927,7 +927,7 @@ def robust_filter_analysis(plant: UncertainPlant, G: npt.ArrayLike, K: npt.Array
         region = unit_disk() if plant.discrete else LeftHalfPlane()
     s2 = None
     if sigma2 is not None:
-        s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+        s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
         if s2.shape != (plant.n,) or not np.isfinite(s2).all():
             raise ValueError(f"sigma2 must be a finite array of shape ({plant.n},), got "
                              f"{np.shape(sigma2)}")

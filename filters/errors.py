@@ -16,6 +16,7 @@ __all__ = [
     "FilterError",
     "FiniteEscapeError",
     "LossOfDefinitenessError",
+    "SubstepLimitError",
     "check_covariance",
     "check_symmetric_covariance",
 ]
@@ -75,6 +76,18 @@ class LossOfDefinitenessError(_LocatedFilterError):
 
 class FiniteEscapeError(_LocatedFilterError):
     """A quantity became non-finite or exceeded the escape bound in magnitude.
+
+    See :class:`_LocatedFilterError` for the constructor ``(message, *, time, quantity, value)``.
+    """
+
+
+class SubstepLimitError(_LocatedFilterError):
+    """``substeps="auto"`` would need more RK4 substeps per interval than its cap.
+
+    Raised by the continuous-time filters before they change state (``quantity``
+    ``"substeps"``, ``value`` the number the stiffness estimate asked for). The equations are
+    too stiff for the sample interval at the current covariance (a large ``P0`` with accurate
+    sensors); a smaller ``P0``, a shorter interval or an explicit integer ``substeps`` avoid it.
 
     See :class:`_LocatedFilterError` for the constructor ``(message, *, time, quantity, value)``.
     """

@@ -200,7 +200,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
     substeps : int or "auto"
         Classical Runge-Kutta (RK4, global order 4) steps per interval on the joint
         ``(m, P, S)`` system. ``"auto"`` picks :meth:`suggested_substeps` at the start of
-        every interval from the stiffness of both Riccati equations and of the mean.
+        every interval from the stiffness of both Riccati equations and of the mean, at most
+        :data:`filters.kalman.MAX_AUTO_SUBSTEPS` (beyond it :meth:`step` raises
+        :class:`~filters.errors.SubstepLimitError`).
     t0 : float
         Initial time in seconds (time-varying matrices are evaluated at ``t0 + ...``).
     noise_intensities : bool
@@ -546,13 +548,15 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         LossOfDefinitenessError, FiniteEscapeError
             If ``P`` or ``S`` fails the check after a substep (``quantity`` ``"P"`` or
             ``"S"``), or ``m`` becomes non-finite (``"x"``); state unchanged.
+        SubstepLimitError
+            ``substeps="auto"`` would exceed the cap; state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
         if not self._constant:
             self._coef_cache.clear()
         if self._auto_substeps:
-            self._substeps = self.suggested_substeps()
+            self._substeps = self._auto_substeps_now()
         if self._Z is not None:
             try:
                 X = self._step_fast(y, u)

@@ -36,14 +36,19 @@ from filters._linalg import (
 from filters.errors import (
     FiniteEscapeError,
     LossOfDefinitenessError,
+    SubstepLimitError,
     check_covariance,
     check_symmetric_covariance,
 )
 from filters.models import DiscreteLinearSystem, LinearSystem
 
-__all__ = ["KalmanBucyFilter", "KalmanFilter"]
+__all__ = ["MAX_AUTO_SUBSTEPS", "KalmanBucyFilter", "KalmanFilter"]
 
 _ESCAPE_BOUND = 1e12  # default of check_covariance
+#: Cap of ``substeps="auto"`` (RK4 substeps per sample interval) of the continuous-time
+#: filters: past it :class:`~filters.errors.SubstepLimitError` is raised instead of spending
+#: minutes on one interval (10,000 RK4 substeps of one 4-state filter take about 0.3 s).
+MAX_AUTO_SUBSTEPS = 10_000
 _ESCAPE_BOUND_SQ = _ESCAPE_BOUND * _ESCAPE_BOUND
 
 
@@ -116,6 +121,16 @@ class _SampledFilter:
     def _time(self, steps: int) -> float:
         return steps * self._dt if self._dt is not None else float(steps)
 
+    def _check_state(self, x: FloatArray, steps: int) -> None:
+        """Raise :class:`FiniteEscapeError` (quantity ``"x"``) if ``x`` is not finite."""
+        if x.ndim == 1:  # fast: Python float sum (overflow of finite entries falls through)
+            if math.isfinite(sum(x.tolist())) or np.isfinite(x).all():
+                return
+        elif np.isfinite(x).all():
+            return
+        raise FiniteEscapeError("state estimate became non-finite", time=self._time(steps),
+                                quantity="x", value=np.array(x))
+
     def _commit(self, x: FloatArray, P: FloatArray, steps: int) -> None:
         x.flags.writeable = False
         P.flags.writeable = False
@@ -184,6 +199,27 @@ class _IntegratedFilter(_SampledFilter):
     def substeps(self) -> int:
         """RK4 substeps of the last (``"auto"``) or every sample interval."""
         return self._substeps
+
+    def suggested_substeps(self) -> int:
+        """Stiffness-based RK4 substeps for the next interval (see the subclasses)."""
+        raise NotImplementedError
+
+    def _auto_substeps_now(self) -> int:
+        """``suggested_substeps()`` for the next interval, at most :data:`MAX_AUTO_SUBSTEPS`.
+
+        Raises
+        ------
+        SubstepLimitError
+            Past the cap (the filter is unchanged).
+        """
+        n = self.suggested_substeps()
+        if n > MAX_AUTO_SUBSTEPS:
+            raise SubstepLimitError(
+                f"substeps='auto' needs {n} RK4 substeps for the interval of {self._dt:g} s, "
+                f"more than the cap MAX_AUTO_SUBSTEPS = {MAX_AUTO_SUBSTEPS} (the equations are "
+                "too stiff at this covariance: use a smaller P0 or an explicit integer substeps)",
+                time=self.t_s, quantity="substeps", value=float(n))
+        return n
 
 
 class KalmanFilter(_SampledFilter):
@@ -290,6 +326,7 @@ class KalmanFilter(_SampledFilter):
         u = self._input(u)
         x, P = self._predict(u)
         steps = self._steps + 1
+        self._check_state(x, steps)
         v = P.ravel()
         if not v.dot(v) <= _ESCAPE_BOUND_SQ:  # cheap escape test; NaN compares False
             check_covariance(P, time=self._time(steps), quantity="P", escape_bound=_ESCAPE_BOUND)
@@ -316,7 +353,8 @@ class KalmanFilter(_SampledFilter):
         ValueError
             If ``y`` (or ``u``) has the wrong shape or is non-finite; state unchanged.
         LossOfDefinitenessError, FiniteEscapeError
-            If the updated covariance fails :func:`filters.errors.check_covariance`.
+            If the updated covariance fails :func:`filters.errors.check_covariance`, or the
+            state becomes non-finite (``quantity="x"``); state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u) if self._DT is not None else None
@@ -338,6 +376,14 @@ class KalmanFilter(_SampledFilter):
         -------
         numpy.ndarray, shape (..., n)
             The a-posteriori state (same object as :attr:`x`).
+
+        Raises
+        ------
+        ValueError
+            If ``y`` or ``u`` has the wrong shape, is complex or non-finite; state unchanged.
+        LossOfDefinitenessError, FiniteEscapeError
+            As :meth:`update` (``quantity`` ``"P"``, ``"innovation_cov"`` or ``"x"``, with
+            the time of the step); state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
@@ -408,6 +454,7 @@ class KalmanFilter(_SampledFilter):
                 np.dot(self._UR, K.T, out=VT[n:])
                 P = VT.T.dot(VT)
                 check_symmetric_covariance(P, time=self._time(steps), quantity="P")
+                self._check_state(x, steps)
                 self.innovation, self.innovation_cov, self.gain = innov, S, K
                 return x, P
             # singular prior: explicit Joseph form, symmetrized by check_covariance below
@@ -426,6 +473,7 @@ class KalmanFilter(_SampledFilter):
             IKH = self._I - K @ H
             P = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
         P = check_covariance(P, time=self._time(steps), quantity="P")
+        self._check_state(x, steps)
         self.innovation, self.innovation_cov, self.gain = innov, S, K
         return x, P
 
@@ -473,7 +521,9 @@ class KalmanBucyFilter(_IntegratedFilter):
         system. The method has global order 4: the error per interval scales as
         ``(dt / substeps)^4``. ``"auto"`` picks, at the start of every interval,
         :meth:`suggested_substeps` at the current ``P`` (accurate sensors make the Riccati
-        equation stiff: explicit RK4 needs ``h |rate| < 2.8``).
+        equation stiff: explicit RK4 needs ``h |rate| < 2.8``), at most
+        :data:`MAX_AUTO_SUBSTEPS` (beyond it :meth:`step` raises
+        :class:`~filters.errors.SubstepLimitError`).
 
     Attributes
     ----------
@@ -558,6 +608,8 @@ class KalmanBucyFilter(_IntegratedFilter):
         LossOfDefinitenessError, FiniteEscapeError
             If ``P`` fails the check after a substep, or ``x`` becomes non-finite;
             state unchanged.
+        SubstepLimitError
+            ``substeps="auto"`` would exceed :data:`MAX_AUTO_SUBSTEPS`; state unchanged.
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
@@ -568,7 +620,7 @@ class KalmanBucyFilter(_IntegratedFilter):
                 ybar = y - np.vecmat(u, self._DT)
         m, P = self._x, self._P
         if self._auto_substeps:
-            self._substeps = self.suggested_substeps()
+            self._substeps = self._auto_substeps_now()
         h = self._dt / self._substeps  # type: ignore[operator]
         t0 = self.t_s
         innovation = ybar - np.vecmat(m, self._CT)
@@ -581,10 +633,7 @@ class KalmanBucyFilter(_IntegratedFilter):
             P = P + (h / 6.0) * (k1P + 2.0 * (k2P + k3P) + k4P)
             P = check_covariance(P, time=t0 + (i + 1) * h, quantity="P")
         steps = self._steps + 1
-        if not np.isfinite(m).all():
-            raise FiniteEscapeError(
-                "state estimate became non-finite", time=self._time(steps), quantity="x", value=m
-            )
+        self._check_state(m, steps)
         self._commit(m, P, steps)
         self.innovation = innovation
         return m

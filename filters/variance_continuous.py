@@ -102,7 +102,7 @@ import numpy.typing as npt
 from scipy.linalg import solve_continuous_lyapunov
 from scipy.optimize import minimize
 
-from filters._linalg import FloatArray, matrix
+from filters._linalg import FloatArray, matrix, real_array
 from filters.analysis import Parabola, UncertainPlant
 from filters.matrix_equations import (
     continuation,
@@ -302,7 +302,7 @@ def gains18(Q2: FloatArray, plant: UncertainPlant, prm: ParabolicDesignParameter
     G : numpy.ndarray, shape (n, n)
     """
     R, Theta, _ = equation17_terms(Q2, plant, prm, t)
-    U_ = prm.U if U is None else np.asarray(U, dtype=np.float64)
+    U_ = prm.U if U is None else real_array(U, "U", finite=False)
     K = np.linalg.solve(R, Theta.T).T + prm.H @ U_ @ inverse_sqrt(R)
     return K, t.A_hat - K @ t.C_hat
 
@@ -840,7 +840,7 @@ def search_parabolic(plant: UncertainPlant, prm: ParabolicDesignParameters,
         ``best_residual_2`` is the smallest residual of (17) reached at the target ``gamma``.
     """
     _check(plant, prm)
-    s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
     e1s = [float(v) for v in np.atleast_1d(eps1_values)]
     e2s = [float(v) for v in np.atleast_1d(eps2_values)]
     cs = [float(v) for v in np.atleast_1d(h_scales)]
@@ -960,7 +960,7 @@ def search_parabolic_design(plant: UncertainPlant, prm: ParabolicDesignParameter
     """
     _check(plant, prm)
     n, p = plant.n, plant.p
-    s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
     if s2.shape != (n,) or not np.all(np.isfinite(s2)) or np.any(s2 <= 0):
         raise ValueError(f"sigma2 must be a positive finite array of shape ({n},), got "
                          f"{np.shape(sigma2)}")

@@ -75,7 +75,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from filters._linalg import FloatArray, matrix
+from filters._linalg import FloatArray, matrix, real_array
 from filters.analysis import PoleRegion, UncertainPlant, unit_disk
 from filters.matrix_equations import newton_solve, solve_filter_dare
 from filters.variance_constrained import (
@@ -352,7 +352,7 @@ def gains_discrete(P2: FloatArray, plant: UncertainPlant, prm: DiscreteDesignPar
     G : numpy.ndarray, shape (n, n)
     """
     R, Theta, _ = equation12r_terms(P2, plant, prm, t)
-    U_ = prm.U if U is None else np.asarray(U, dtype=np.float64)
+    U_ = prm.U if U is None else real_array(U, "U", finite=False)
     K = np.linalg.solve(R, Theta.T).T + prm.H @ U_ @ inverse_sqrt(R)
     return K, t.A_hat - K @ t.C_hat
 
@@ -722,7 +722,7 @@ def search_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
     _check(plant, prm)
     H0 = prm.H if h_direction is None else matrix("h_direction", h_direction,
                                                   (plant.n, plant.p))
-    s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
     es = [float(v) for v in np.atleast_1d(eps_values)]
     cs = [float(v) for v in np.atleast_1d(h_scales)]
     ds = (None if delta_values is None else [float(v) for v in np.atleast_1d(delta_values)])
@@ -804,7 +804,7 @@ def search_discrete_design(plant: UncertainPlant, prm: DiscreteDesignParameters,
     """
     _check(plant, prm)
     n, p = plant.n, plant.p
-    s2 = np.asarray(sigma2, dtype=np.float64).reshape(-1)
+    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
     if s2.shape != (n,) or not np.all(np.isfinite(s2)) or np.any(s2 <= 0):
         raise ValueError(f"sigma2 must be a positive finite array of shape ({n},), got "
                          f"{np.shape(sigma2)}")

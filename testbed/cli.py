@@ -4,58 +4,123 @@
 ``testbed mc vehicle-roll --filter kalman --runs 64 --duration 10 --json runs/mc.json``
 ``testbed sweep helicopter --grid process_noise=0,1 --runs 50``
 ``testbed run helicopter --filter mymodule:make`` (a user's estimator factory)
+
+Every argument is checked before anything is simulated; a bad one ends the command with one
+line ``testbed: error: --NAME ...``. Exit codes:
+
+====  =====================================================================================
+0     success
+2     bad command line or input (nothing was simulated, nothing written)
+3     numerical failure of the filter (``filters.FilterError``: time and quantity named;
+      or a user's estimator returned a non-finite estimate)
+4     the simulation diverged (``testbed.simulator.SimulationDiverged``: time and state)
+5     an output could not be written, or the Ray cluster could not be reached
+130   interrupted by SIGINT (Ctrl-C); 143: terminated by SIGTERM (temporaries removed)
+====  =====================================================================================
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NoReturn
 
 import numpy as np
 
 from filters import FilterError
 from testbed.control import CONTROLLERS
 from testbed.estimators import ESTIMATORS
-from testbed.io import write_json
+from testbed.io import check_output_path, write_json
 from testbed.rigs import RIGS, resolve_rig
-from testbed.rigs.base import Rig
-from testbed.scenario import Scenario
+from testbed.scenario import MAX_SEED, Scenario, ScenarioError
+from testbed.simulator import SimulationDiverged
 from testbed.units import display
+
+#: Longest ``--duration`` (simulated seconds) accepted without ``--allow-long``.
+MAX_DURATION_S = 3600.0
+EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4, 5
+EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+#: Command-line flag of each scenario field (error messages name the flag).
+FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-option",
+         "controller": "--controller", "duration_s": "--duration", "seed": "--seed",
+         "sensors": "--sensors", "sensor_options": "--encoder-noise",
+         "manoeuvre": "--manoeuvre", "manoeuvre_params": "--manoeuvre-param",
+         "disturbance": "--disturbance", "process_noise": "--process-noise",
+         "design_options": "--design-option", "params": "--param", "profile": "--profile",
+         "ambient_noise": "--ambient-noise", "reset_noise_scale": "--reset-noise-scale"}
+
+
+class _Parser(argparse.ArgumentParser):
+    """``parser.error`` as one line ``testbed: error: --NAME ...`` and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        if message.startswith("argument "):
+            message = message[len("argument "):]
+        self.exit(EXIT_USAGE, f"testbed: error: {message}\n")
 
 
 def _name_value(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
-    if not sep:
+    if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
     try:
-        return name.strip(), float(value)
+        number = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{name}: value must be a number, got "
-                                         f"{value!r}") from None
+        number = float("nan")
+    if not np.isfinite(number):
+        raise argparse.ArgumentTypeError(f"{name}: value must be a finite number, got "
+                                         f"{value!r}")
+    return name.strip(), number
 
 
-def _positive(text: str) -> float:
+def _number(text: str, ok: Callable[[float], bool], what: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        value = float("nan")
+    if not (np.isfinite(value) and ok(value)):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
 
 
-def _non_negative_int(text: str) -> int:
+def _positive(text: str) -> float:
+    return _number(text, lambda v: v > 0, "a finite number > 0")
+
+
+def _non_negative(text: str) -> float:
+    return _number(text, lambda v: v >= 0, "a finite number >= 0")
+
+
+def _integer(text: str, low: int, high: int | None, what: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}"
-                                         ) from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
+
+
+def _seed(text: str) -> int:
+    return _integer(text, 0, MAX_SEED, "an integer in [0, 2**63)")
+
+
+def _positive_int(text: str) -> int:
+    return _integer(text, 1, None, "a positive integer")
+
+
+def _grid_axis(text: str) -> tuple[str, list[float]]:
+    name, sep, values = text.partition("=")
+    if not sep or not name.strip() or not values:
+        raise argparse.ArgumentTypeError(f"expected NAME=V1,V2,..., got {text!r}")
+    numbers = [_number(v, lambda _: True, f"finite numbers for {name.strip()}")
+               for v in values.split(",")]
+    return name.strip(), numbers
 
 
 def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
@@ -69,10 +134,13 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
                    metavar="NAME=VALUE", help="keyword option of the filter factory")
     p.add_argument("--controller", default=None, choices=CONTROLLERS,
                    help="default: the rig's (helicopter lqr, vehicle-roll open-loop)")
-    p.add_argument("--duration", type=_positive, default=duration_s, help="simulated seconds")
-    p.add_argument("--seed", type=_non_negative_int, default=0)
+    p.add_argument("--duration", type=_positive, default=duration_s,
+                   help=f"simulated seconds (at most {MAX_DURATION_S:g} without --allow-long)")
+    p.add_argument("--allow-long", action="store_true",
+                   help=f"accept a --duration above {MAX_DURATION_S:g} s")
+    p.add_argument("--seed", type=_seed, default=0, help="integer in [0, 2**63)")
     p.add_argument("--sensors", default=None, help="a sensor preset of the rig")
-    p.add_argument("--encoder-noise", type=float, default=None,
+    p.add_argument("--encoder-noise", type=_non_negative, default=None,
                    help="helicopter: extra Gaussian noise std on the encoder angles, rad")
     p.add_argument("--manoeuvre", default=None,
                    help="vehicle-roll: lateral-acceleration profile (or 'none')")
@@ -80,7 +148,7 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
                    metavar="NAME=VALUE", help="manoeuvre parameter, repeatable")
     p.add_argument("--disturbance", default=None,
                    help="a named disturbance of the rig (helicopter: basin-helicopter)")
-    p.add_argument("--process-noise", type=float, default=None,
+    p.add_argument("--process-noise", type=_non_negative, default=None,
                    help="scale of the rig's white process noise (helicopter)")
     p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
                    help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
@@ -102,7 +170,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used by the docs and tests)."""
-    parser = argparse.ArgumentParser(prog="testbed", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="testbed", description=__doc__.splitlines()[0],
+                     epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
+                     "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
+                     "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     _add_scenario_options(run, 20.0)
@@ -128,21 +199,24 @@ def build_parser() -> argparse.ArgumentParser:
 
     mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
     _add_scenario_options(mc, 10.0)
-    mc.add_argument("--runs", type=int, default=100)
-    mc.add_argument("--batch-size", type=int, default=None)
+    mc.add_argument("--runs", type=_positive_int, default=100)
+    mc.add_argument("--batch-size", type=_positive_int, default=None)
     mc.add_argument("--json", help="write the results here")
     mc.add_argument("--save-npz", help="also write every trajectory to this .npz")
     mc.add_argument("--plot", help="write the RMSE distribution and error envelope (PNG) here")
 
     sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
     _add_scenario_options(sw, 10.0)
-    sw.add_argument("--runs", type=int, default=100)
-    sw.add_argument("--grid", action="append", default=[], metavar="NAME=V1,V2,...",
-                    required=True, help="a swept scenario field (process_noise, ...), "
-                    "params.<field>, estimator.<option> or design.<option>; repeatable")
+    sw.add_argument("--runs", type=_positive_int, default=100)
+    sw.add_argument("--grid", type=_grid_axis, action="append", default=[],
+                    metavar="NAME=V1,V2,...", required=True,
+                    help="a swept scenario field (process_noise, ...), params.<field>, "
+                    "estimator.<option> or design.<option>; repeatable")
     sw.add_argument("--backend", default="local", choices=("local", "ray"))
-    sw.add_argument("--workers", type=int, default=None)
-    sw.add_argument("--address", default=None, help="Ray cluster address (backend ray)")
+    sw.add_argument("--workers", type=_positive_int, default=None)
+    sw.add_argument("--address", default=None,
+                    help="Ray cluster address host:port (backend ray); unreachable within "
+                    "10 s: exit code 5")
     sw.add_argument("--json", help="write the results here")
     sw.add_argument("--plot", help="write RMSE versus the first --grid parameter (PNG) here")
 
@@ -151,8 +225,11 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("reproduce", help="run a paper example and compare with its numbers")
     rep.add_argument("name", choices=[*sorted(REPRODUCTIONS), "all"])
     rep.add_argument("--horizon", type=_positive, default=None,
-                     help="simulated seconds (default: the paper's horizon)")
-    rep.add_argument("--seed", type=_non_negative_int, default=0)
+                     help="simulated seconds (default: the paper's horizon; at most "
+                     f"{MAX_DURATION_S:g} without --allow-long)")
+    rep.add_argument("--allow-long", action="store_true",
+                     help=f"accept a --horizon above {MAX_DURATION_S:g} s")
+    rep.add_argument("--seed", type=_seed, default=0)
     rep.add_argument("--json")
     rep.add_argument("--plot")
     rep.add_argument("--rrd")
@@ -173,11 +250,13 @@ def _add_score_parser(sub: Any) -> None:
     sc.add_argument("--list", action="store_true", help="list the suite's scenarios and exit")
     sc.add_argument("--scenario", action="append", default=None, metavar="NAME",
                     help="only this scenario of the suite; repeatable")
-    sc.add_argument("--runs", type=int, default=None, help="override the runs of every entry")
-    sc.add_argument("--seed", type=_non_negative_int, default=0)
+    sc.add_argument("--runs", type=_positive_int, default=None,
+                    help="override the runs of every entry")
+    sc.add_argument("--seed", type=_seed, default=0)
     sc.add_argument("--no-worst-case", action="store_true", help="skip the worst-case search")
     sc.add_argument("--backend", default="local", choices=("local", "ray"))
-    sc.add_argument("--workers", type=int, default=None, help="processes (entries in parallel)")
+    sc.add_argument("--workers", type=_positive_int, default=None,
+                    help="processes (entries in parallel)")
     sc.add_argument("--json", help="write the results here")
     sc.add_argument("--markdown", help="write the leaderboard as Markdown here")
     sc.add_argument("--plot", help="write a PNG here")
@@ -185,51 +264,61 @@ def _add_score_parser(sub: Any) -> None:
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The :class:`Scenario` of ``run``/``mc``/``sweep`` arguments.
+    """The checked :class:`Scenario` of ``run``/``mc``/``sweep`` arguments.
 
-    An option the rig does not have is an error naming the option.
+    Raises
+    ------
+    ValueError
+        A bad value or an option the rig does not have, the message starting with the flag.
     """
-    rig = resolve_rig(args.rig)
-
-    def refuse(flag: str, why: str) -> None:
-        raise ValueError(f"{flag} does not apply to rig {rig.name!r} ({why})")
-
+    try:
+        rig = resolve_rig(args.rig)
+    except ValueError as exc:
+        raise ValueError(f"rig: {exc}") from None
+    if args.duration > MAX_DURATION_S and not args.allow_long:
+        raise ValueError(f"--duration {args.duration:g} s is above the limit of "
+                         f"{MAX_DURATION_S:g} s; add --allow-long to run it anyway")
     sensor_options: dict[str, Any] = {}
     if args.encoder_noise is not None:
         if rig.name != "helicopter":
-            refuse("--encoder-noise", "it has no encoders")
-        if not (np.isfinite(args.encoder_noise) and args.encoder_noise >= 0):
-            raise ValueError(f"--encoder-noise must be finite and >= 0, got {args.encoder_noise}")
+            raise ValueError(f"--encoder-noise does not apply to rig {rig.name!r} (it has no "
+                             "encoders)")
         sensor_options["noise_std_rad"] = args.encoder_noise
-    if args.disturbance not in (None, "none") and args.disturbance not in \
-            rig.disturbance_signals:
-        refuse("--disturbance", f"its disturbances: {sorted(rig.disturbance_signals) or 'none'}")
-    if args.process_noise is not None:
-        if not (np.isfinite(args.process_noise) and args.process_noise >= 0):
-            raise ValueError(f"--process-noise must be finite and >= 0, got "
-                             f"{args.process_noise}")
-        if rig.process_noise_matrix is Rig.process_noise_matrix:
-            refuse("--process-noise", "it has no process-noise model")
-    if (args.manoeuvre is not None or args.manoeuvre_param) and not \
-            rig.scenario_defaults.get("manoeuvre") and not rig.manoeuvres:
-        refuse("--manoeuvre", "it has no manoeuvres")
-    unknown = {k for k, _ in args.design_option} - set(rig.scenario_options)
-    if unknown:
-        refuse(f"--design-option {sorted(unknown)[0]}",
-               f"its design options: {sorted(rig.scenario_options) or 'none'}")
     design_options: dict[str, Any] = dict(args.design_option)
     if args.a_y_source is not None:
         if "a_y_source" not in rig.scenario_options:
-            refuse("--a-y-source", "its input is not a lateral acceleration")
+            raise ValueError(f"--a-y-source does not apply to rig {rig.name!r} (its input is "
+                             "not a lateral acceleration)")
         design_options["a_y_source"] = args.a_y_source
-    return Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
-                    estimator_options=dict(args.filter_option), controller=args.controller,
-                    sensors=args.sensors, sensor_options=sensor_options,
-                    disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
-                    ambient_noise=args.ambient_noise, reset_noise_scale=args.reset_noise_scale,
-                    manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
-                    params=dict(args.param), design_options=design_options,
-                    duration_s=args.duration, seed=args.seed)
+    scenario = Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
+                        estimator_options=dict(args.filter_option), controller=args.controller,
+                        sensors=args.sensors, sensor_options=sensor_options,
+                        disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
+                        ambient_noise=args.ambient_noise,
+                        reset_noise_scale=args.reset_noise_scale,
+                        manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
+                        params=dict(args.param), design_options=design_options,
+                        duration_s=args.duration, seed=args.seed)
+    try:
+        scenario.check()
+    except ScenarioError as exc:
+        raise ValueError(f"{FLAGS.get(exc.field, exc.field)}: {exc}") from None
+    return scenario
+
+
+#: Output flags and the suffix of the file each writes.
+OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz"}
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Check every output path of the command before anything runs (``ValueError``)."""
+    for attr, suffix in OUTPUTS.items():
+        path = getattr(args, attr, None)
+        if path is not None:
+            check_output_path(path, "--" + attr.replace("_", "-"), suffix)
+    if args.command == "reproduce" and args.name == "all":
+        check_output_path(args.out_dir, "--out-dir", None)
+        check_output_path(args.doc, "--doc", ".md")
 
 
 def _format_table(summary: dict, units: dict[str, str]) -> str:
@@ -397,22 +486,43 @@ def cmd_mc(args: argparse.Namespace) -> int:
     return 0
 
 
-def _grid_axis(text: str) -> tuple[str, list[float]]:
-    name, sep, values = text.partition("=")
-    if not sep or not values:
-        raise ValueError(f"--grid expects NAME=V1,V2,..., got {text!r}")
-    try:
-        return name.strip(), [float(v) for v in values.split(",")]
-    except ValueError:
-        raise ValueError(f"--grid {name}: values must be numbers, got {values!r}") from None
+def check_grid(scenario: Scenario, axes: list[tuple[str, list[float]]]) -> dict[str, list]:
+    """The grid of ``--grid`` axes, every point's scenario checked (``ValueError`` naming
+    ``--grid``)."""
+    from testbed.runner import check_grid_name, grid_points, point_scenario
+
+    grid: dict[str, list] = {}
+    for name, values in axes:
+        if name in grid:
+            raise ValueError(f"--grid {name} is given twice")
+        try:
+            check_grid_name(scenario, name)
+        except ValueError as exc:
+            raise ValueError(f"--grid: {exc}") from None
+        grid[name] = values
+    for point in grid_points(grid):
+        try:
+            point_scenario(scenario, point).check()
+        except ScenarioError as exc:
+            where = ", ".join(f"{k}={v:g}" for k, v in point.items())
+            raise ValueError(f"--grid {where}: {exc}") from None
+    return grid
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """``testbed sweep``: one Monte-Carlo study per grid point."""
-    from testbed.runner import sweep
+    from testbed.runner import check_ray_address, sweep
 
-    grid = dict(_grid_axis(text) for text in args.grid)
-    result = sweep(scenario_from_args(args), grid, runs=args.runs, backend=args.backend,
+    scenario = scenario_from_args(args)
+    grid = check_grid(scenario, args.grid)
+    if args.address is not None:
+        if args.backend != "ray":
+            raise ValueError("--address is only used with --backend ray")
+        try:
+            check_ray_address(args.address)
+        except ValueError as exc:
+            raise ValueError(f"--address: {exc}") from None
+    result = sweep(scenario, grid, runs=args.runs, backend=args.backend,
                    workers=args.workers, address=args.address, progress=not args.no_progress)
     names = list(grid)
     print(f"{len(result['points'])} points on {result['backend']} ({result['workers']} workers) "
@@ -440,6 +550,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     """``testbed reproduce``: one paper example (or all, regenerating the docs table)."""
     from testbed import reproductions
 
+    if args.horizon is not None and args.horizon > MAX_DURATION_S and not args.allow_long:
+        raise ValueError(f"--horizon {args.horizon:g} s is above the limit of "
+                         f"{MAX_DURATION_S:g} s; add --allow-long to run it anyway")
     if args.name == "all":
         results = reproductions.reproduce_all(args.out_dir, args.doc)
         for name, result in results.items():
@@ -504,19 +617,55 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that ``finally`` blocks remove temporaries."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`_Terminated` (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise _Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _fail(code: int, message: str) -> int:
+    print(message.replace("\n", " "), file=sys.stderr)
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``testbed`` command."""
+    """Entry point of the ``testbed`` command (exit codes in the module docstring)."""
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
                 "score": cmd_score}
-    try:
-        return commands[args.command](args)
-    except ValueError as exc:
-        print(f"testbed: error: {exc}", file=sys.stderr)
-        return 2
-    except FilterError as exc:
-        print(f"testbed: numerical failure of the filter: {exc}", file=sys.stderr)
-        return 3
+    with _sigterm_raises():
+        try:
+            check_outputs(args)
+            return commands[args.command](args)
+        except ScenarioError as exc:
+            return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
+        except ValueError as exc:
+            return _fail(EXIT_USAGE, f"testbed: error: {exc}")
+        except (FilterError, FloatingPointError) as exc:  # typed, or a user's filter's NaN
+            return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
+        except SimulationDiverged as exc:
+            return _fail(EXIT_DIVERGED, f"testbed: {exc}")
+        except OSError as exc:
+            return _fail(EXIT_OUTPUT, f"testbed: {exc}")
+        except KeyboardInterrupt:
+            return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT); partial outputs removed")
+        except _Terminated:
+            return _fail(EXIT_SIGTERM, "testbed: terminated (SIGTERM); partial outputs removed")
 
 
 if __name__ == "__main__":

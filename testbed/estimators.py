@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -196,6 +197,28 @@ def resolve(name: str | Factory) -> Factory:
     if not callable(factory):
         raise ValueError(f"filter {name!r}: {attr!r} is not callable")
     return factory
+
+
+def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
+    """Refuse option names a factory does not accept (when its signature declares them).
+
+    Raises
+    ------
+    ValueError
+        An unknown option, with the factory's options listed.
+    """
+    try:
+        params = list(inspect.signature(factory).parameters.values())[1:]  # after design
+    except (TypeError, ValueError):  # no introspectable signature: the call decides
+        return
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return
+    names = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    unknown = set(options) - names
+    if unknown:
+        label = name if isinstance(name, str) else getattr(name, "__name__", repr(name))
+        raise ValueError(f"filter {label!r} has no option(s) {sorted(unknown)}; its options: "
+                         f"{sorted(names) or 'none'}")
 
 
 def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:

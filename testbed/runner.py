@@ -10,10 +10,11 @@ batch size, prefix-stable, no overlap between nearby base seeds) and equals, bit
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import shutil
-import tempfile
+import socket
 import time
 import zipfile
 from collections.abc import Callable
@@ -31,16 +32,18 @@ from testbed.control import make_controller
 from testbed.design import DesignModel
 from testbed.envelope import ErrorEnvelope
 from testbed.envs.rig_env import build_simulator
-from testbed.io import atomic_path
+from testbed.io import atomic_path, temporary_directory
 from testbed.loop import ClosedLoop, EstimatorStage
 from testbed.metrics import EpisodeMetrics
 from testbed.rigs import resolve_rig
-from testbed.scenario import Scenario
+from testbed.scenario import Scenario, blame
 from testbed.trajectory import Trajectory
 
 #: Default number of trajectories stepped together by :func:`monte_carlo`.
 DEFAULT_BATCH_SIZE = 1000
 BACKENDS = ("local", "ray")
+#: Seconds :func:`sweep` waits for a Ray cluster at ``address`` to accept a connection.
+RAY_CONNECT_TIMEOUT_S = 10.0
 #: Keys of a result that measure time, not the estimator.
 TIMING_KEYS = ("wall_s", "traj_steps_per_s", "threads")
 
@@ -89,8 +92,9 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
 
     Raises
     ------
-    ValueError
-        A bad or inapplicable option, naming it, before any simulation runs.
+    ScenarioError
+        A bad or inapplicable option (a ``ValueError`` naming the field), before any
+        simulation runs.
     """
     scenario.check()
     scenario = _with_defaults(scenario)
@@ -106,13 +110,15 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                           reset_noise_scale=scenario.reset_noise_scale)
     rig = sim.rig
     design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
-    design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
-                                     **scenario.design_options)
-    est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
-    if not getattr(est, "batched", False):
-        est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
-                                                            **scenario.estimator_options)
-                                           for _ in range(num - 1))])
+    with blame("design_options"):
+        design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
+                                         **scenario.design_options)
+    with blame("estimator"):
+        est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
+        if not getattr(est, "batched", False):
+            est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
+                                                                **scenario.estimator_options)
+                                               for _ in range(num - 1))])
     P = getattr(est, "P", None)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
     metrics = EpisodeMetrics(list(rig.state_names), sim.dt_s, list(sim.sensors.measured_state),
@@ -130,6 +136,56 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
 
 def _summary(result, index: int = 0) -> dict[str, Any]:
     return result.summary(index)
+
+
+#: Most rows :func:`run` records; longer runs keep every k-th step (and the last one), so
+#: the memory of ``--plot``/``--rrd`` does not grow with the duration (20,000 rows of the
+#: helicopter with body poses: about 10 MB).
+RECORD_MAX_ROWS = 20_000
+
+
+class _DecimatedRows:
+    """A recording array ``(N, T, ...)`` for :meth:`ClosedLoop.run` keeping only some rows.
+
+    Keeps rows ``0, every, 2 every, ...`` and the last row written; the loop writes row ``k``
+    with ``rows[:, k] = value`` (or into ``rows[:, k]``) and truncates with ``rows[:, :T]``.
+    """
+
+    def __init__(self, shape: tuple[int, ...], every: int):
+        self.shape, self.every = shape, every
+        kept = (shape[1] - 1) // every + 1
+        self.data = np.zeros((shape[0], kept + 1, *shape[2:]))  # + the last row written
+        self.last = -1
+
+    def _slot(self, key: Any) -> int:
+        rows, k = key
+        if rows != slice(None) or not isinstance(k, int | np.integer):
+            raise IndexError(f"decimated recording supports [:, k] only, got {key!r}")
+        self.last = int(k)
+        return int(k) // self.every if k % self.every == 0 else -1
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        slot = self._slot(key)
+        self.data[:, slot] = value
+        if slot != -1:
+            self.data[:, -1] = value
+
+    def __getitem__(self, key: Any) -> Any:
+        if isinstance(key, tuple) and isinstance(key[1], slice):
+            return self  # truncation at an early end: rows are kept by index
+        return self.data[:, self._slot(key)]
+
+    def rows(self) -> np.ndarray:
+        """Step indices of :meth:`values`, shape (R,)."""
+        kept = np.arange(0, self.last + 1, self.every)
+        return kept if kept[-1] == self.last else np.append(kept, self.last)
+
+    def values(self) -> np.ndarray:
+        """The kept rows, shape (N, R, ...)."""
+        n = self.last // self.every + 1
+        if self.last % self.every == 0:
+            return self.data[:, :n]
+        return np.concatenate([self.data[:, :n], self.data[:, -1:]], axis=1)
 
 
 def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None,
@@ -153,20 +209,28 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     Returns
     -------
     trajectory : Trajectory or None
-        With ``record`` (body poses included, for the 3D view).
+        With ``record`` (body poses included, for the 3D view). At most
+        :data:`RECORD_MAX_ROWS` rows: a longer run keeps every k-th step and the last one
+        (``t_s`` gives the time of each row). Without ``record`` nothing per step is kept,
+        so memory does not grow with the duration.
     summary : dict
         ``steps``, ``rmse``, ``measurement_rmse``, ``nees_mean``, ``T_final``,
-        ``clipped_fraction``, ``units``, ``meta``.
+        ``clipped_fraction``, ``units``, ``meta`` (metrics over every step).
     """
     experiment = build(scenario, 1, num_threads=1)
     loop = experiment.loop
     n_steps = int(round(scenario.duration_s / loop.sim.dt_s))
+    every = -(-(n_steps + 1) // RECORD_MAX_ROWS)  # ceil
+    recorder: Any = record
+    if record and every > 1:
+        shapes = loop.trajectory_shapes(n_steps, poses=True)
+        recorder = {k: _DecimatedRows(shape, every) for k, shape in shapes.items()}
     bar = tqdm(total=n_steps, desc=experiment.meta["rig"], unit="step",
                disable=progress is False, delay=0 if progress else 2.0, leave=False)
     try:
         on_step = observe(experiment) if observe is not None else None
         with bar:
-            result = loop.run(np.array([scenario.seed]), scenario.duration_s, record=record,
+            result = loop.run(np.array([scenario.seed]), scenario.duration_s, record=recorder,
                               poses=record or on_step is not None, bar=bar, on_step=on_step)
     finally:
         experiment.close()
@@ -176,6 +240,10 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     traj = None
     if record:
         rec = result.trajectory
+        if isinstance(recorder, dict):
+            rows = recorder["state"].rows()
+            rec = {k: v.values() for k, v in recorder.items()}
+            rec["t_s"] = rows * result.dt_s
         sim = loop.sim
         traj = Trajectory(
             t_s=rec["t_s"], state=rec["state"][0], state_names=list(sim.rig.state_names),
@@ -189,7 +257,7 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
             setpoint=rec["setpoint"][0], body_pos=rec["body_pos"][0],
             body_quat_wxyz=rec["body_quat_wxyz"][0],
             meta=dict(experiment.meta, seed=scenario.seed, duration_s=result.steps * result.dt_s,
-                      setpoint_names=list(sim.rig.tracked_states)))
+                      setpoint_names=list(sim.rig.tracked_states), recorded_every_steps=every))
     return traj, summary
 
 
@@ -201,11 +269,15 @@ class _NpzStream:
 
     def __init__(self, path: str | Path, shapes: dict[str, tuple[int, ...]]):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._dir = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
-        self.arrays = {k: np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
-                                                    dtype=np.float64, shape=s)
-                       for k, s in shapes.items()}
+        self.arrays: dict[str, np.memmap] = {}
+        self._dir = temporary_directory(self.path)
+        try:
+            for k, s in shapes.items():
+                self.arrays[k] = np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
+                                                           dtype=np.float64, shape=s)
+        except BaseException:
+            self.abort()
+            raise
 
     def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Views of runs ``start:stop`` of every array."""
@@ -297,9 +369,6 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         raise ValueError(f"duration_s must cover at least one control period ({dt_s} s), "
                          f"got {scenario.duration_s}")
     stream = None
-    if save_npz is not None:
-        shapes = {k: (runs, *s[1:]) for k, s in first.loop.trajectory_shapes(n_steps).items()}
-        stream = _NpzStream(save_npz, shapes)
     state_names = list(first.loop.sim.rig.state_names)
     envelope = None
     if envelope_points is not None:
@@ -307,9 +376,13 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
     meas: dict[str, list[np.ndarray]] = {}
     per_run: dict[str, list] = {"nees": [], "T": [], "clipped": []}
-    bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
-               unit="step", disable=not progress)
     try:
+        if save_npz is not None:
+            shapes = {k: (runs, *s[1:])
+                      for k, s in first.loop.trajectory_shapes(n_steps).items()}
+            stream = _NpzStream(save_npz, shapes)
+        bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
+                   unit="step", disable=not progress)
         with bar:
             for start in starts:
                 size = min(batch_size, runs - start)
@@ -332,11 +405,16 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     finally:
         for experiment in experiments.values():
             experiment.close()
-    rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
-    meas_all = {k: np.concatenate(v) for k, v in meas.items()}
-    nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
-    T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
-    clipped = np.concatenate(per_run["clipped"])
+    try:
+        rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
+        meas_all = {k: np.concatenate(v) for k, v in meas.items()}
+        nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
+        T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
+        clipped = np.concatenate(per_run["clipped"])
+    except BaseException:
+        if stream is not None:
+            stream.abort()
+        raise
     if stream is not None:
         extra: dict[str, np.ndarray] = {
             "t_s": np.arange(n_steps + 1) * dt_s, "seeds": seeds,
@@ -348,7 +426,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
             extra["nees_mean"] = nees
         if T is not None:
             extra["T_final"] = T
-        stream.finish(extra)
+        stream.finish(extra)  # removes the temporaries whatever happens
     wall_s = time.perf_counter() - start_time
     extra_keys = {} if envelope is None else {"error_envelope": envelope.result()}
     return {
@@ -390,20 +468,48 @@ def grid_points(grid: dict[str, list]) -> list[dict[str, Any]]:
             for combo in itertools.product(*(grid[n] for n in names))]
 
 
+#: Scenario fields a grid may sweep directly (numbers).
+GRID_FIELDS = ("process_noise", "duration_s", "seed", "physics_dt_s", "frame_skip")
+_GRID_GROUPS = {"params": "params", "estimator": "estimator_options",
+                "design": "design_options", "sensors": "sensor_options"}
+
+
+def check_grid_name(scenario: Scenario, name: str) -> None:
+    """Raise ``ValueError`` listing the valid names unless ``name`` can be swept.
+
+    Valid: :data:`GRID_FIELDS`, ``params.<field>`` (a parameter of the rig, scaled),
+    ``design.<option>`` (the rig's design options), ``estimator.<option>`` and
+    ``sensors.<option>`` (options of the estimator factory and of the sensor preset, checked
+    when the point is built).
+    """
+    rig = resolve_rig(scenario.rig)
+    params = sorted(f.name for f in dataclasses.fields(rig.params_type))
+    prefix, dot, key = name.partition(".")
+    if (not dot and name in GRID_FIELDS) or (dot and key and (
+            (prefix == "params" and key in params)
+            or (prefix == "design" and key in rig.scenario_options)
+            or prefix in ("estimator", "sensors"))):
+        return
+    hint = f" (did you mean 'params.{name}'?)" if not dot and name in params else ""
+    design = "|".join(sorted(rig.scenario_options)) or "none"
+    raise ValueError(f"unknown grid name {name!r}{hint}; valid names: "
+                     f"{', '.join(GRID_FIELDS)}, params.<{'|'.join(params)}>, "
+                     f"design.<{design}>, estimator.<option>, sensors.<option>")
+
+
 def point_scenario(scenario: Scenario, point: dict[str, Any]) -> Scenario:
     """The scenario of one grid point.
 
-    Names: a scenario field (``process_noise``...), ``params.<field>`` (a parameter scale),
-    ``estimator.<option>``, ``design.<option>`` or ``sensors.<option>``.
+    Names: see :func:`check_grid_name`.
     """
     changes: dict[str, Any] = {}
-    groups = {"params": "params", "estimator": "estimator_options",
-              "design": "design_options", "sensors": "sensor_options"}
+    groups = _GRID_GROUPS
     for name, value in point.items():
+        check_grid_name(scenario, name)
+        if name in ("seed", "frame_skip") and float(value).is_integer():
+            value = int(value)
         prefix, dot, key = name.partition(".")
         if dot:
-            if prefix not in groups:
-                raise ValueError(f"unknown grid name {name!r}; prefixes: {sorted(groups)}")
             field_name = groups[prefix]
             merged = dict(changes.get(field_name, getattr(scenario, field_name)))
             merged[key] = value
@@ -431,6 +537,9 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
     runs : int
     backend : {"local", "ray"}
         Local processes or Ray tasks (a cluster at ``address`` or a local instance).
+    address : str, optional
+        Ray cluster (``host:port``, ``ray://host:port`` or ``"auto"``); unreachable within
+        :data:`RAY_CONNECT_TIMEOUT_S` seconds: ``ConnectionError`` before any work.
     workers : int, optional
         Processes or local Ray CPUs (default ``os.cpu_count()``).
 
@@ -443,8 +552,11 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
     if address is not None and backend != "ray":
         raise ValueError("address is only used with backend='ray'")
-    if workers is not None and (int(workers) != workers or workers < 1):
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
+                                or workers < 1):
         raise ValueError(f"workers must be a positive integer, got {workers}")
+    if address is not None:
+        check_ray_address(address)
     points = grid_points(grid)
     workers = int(workers or os.cpu_count() or 1)
     scenarios = [point_scenario(scenario, p) for p in points]
@@ -475,6 +587,41 @@ def _run_local(scenarios: list[Scenario], runs: int, workers: int, bar: tqdm) ->
             out.append(future.result())
             bar.update()
         return out
+
+
+def check_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """Check that a Ray cluster address accepts connections, within ``timeout_s`` seconds.
+
+    ``ray.init(address=...)`` retries an unreachable cluster for minutes; this TCP probe
+    fails fast instead. ``"auto"`` (the local cluster Ray finds itself) is not probed.
+
+    Parameters
+    ----------
+    address : str
+        ``host:port`` (the GCS port, 6379 by default), ``ray://host:port`` or ``"auto"``.
+    timeout_s : float
+
+    Raises
+    ------
+    ValueError
+        ``address`` is not of one of these forms.
+    ConnectionError
+        Nothing accepts a connection at ``host:port`` within ``timeout_s`` seconds.
+    """
+    if address == "auto":
+        return
+    target = address.split("://", 1)[1] if address.startswith("ray://") else address
+    host, sep, port = target.rpartition(":")
+    if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+        raise ValueError(f"address must be 'host:port', 'ray://host:port' or 'auto', got "
+                         f"{address!r}")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster reachable at {address!r} within {timeout_s:g} s "
+                              f"({exc.strerror or exc}); start one with 'ray start --head' or "
+                              "leave the address unset for a local instance") from None
 
 
 def _run_ray(scenarios: list[Scenario], runs: int, workers: int, address: str | None,

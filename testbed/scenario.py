@@ -4,13 +4,63 @@ seed and parameter mismatch. :mod:`testbed.runner` executes it once, batched or 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from testbed.rigs import resolve_rig
+from testbed.rigs.base import Rig
+
+#: Largest seed (numpy's and the runner's int64 seed arrays).
+MAX_SEED = 2**63 - 1
+
+
+class ScenarioError(ValueError):
+    """A scenario field has a bad or inapplicable value.
+
+    Parameters
+    ----------
+    field : str
+        The :class:`Scenario` field (``"duration_s"``, ``"estimator_options"``...).
+    message : str
+    """
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (self.field, str(self)))
+
+
+@contextlib.contextmanager
+def blame(field: str) -> Iterator[None]:
+    """Re-raise a ``ValueError`` of the block as :class:`ScenarioError` of ``field``."""
+    try:
+        yield
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        raise ScenarioError(field, str(exc)) from None
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _number(field: str, value: Any, *, positive: bool = False) -> float:
+    """A finite non-negative (or positive) real number, else :class:`ScenarioError`."""
+    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    if ok:
+        value = float(value)
+    if not (ok and np.isfinite(value) and (value > 0 if positive else value >= 0)):
+        raise ScenarioError(field, f"{field} must be a finite number "
+                            f"{'> 0' if positive else '>= 0'}, got {value!r}")
+    return value
 
 
 @dataclass
@@ -92,29 +142,106 @@ class Scenario:
         return dataclasses.replace(self, **changes)
 
     def check(self) -> None:
-        """Validate what can be checked without building anything (fields and rig options).
+        """Validate every field before anything is built or simulated.
+
+        Checks types and ranges, the options against the rig (parameters, sensor presets,
+        disturbances, manoeuvres, design options, setpoints) and the estimator (its name
+        and, when its factory declares them, its option names). The values of estimator and
+        design options are checked when :func:`testbed.runner.build` builds them.
 
         Raises
         ------
-        ValueError
-            A bad value or an option the rig does not have, naming it.
+        ScenarioError
+            A bad value or an option the rig does not have; ``field`` names the field.
         """
-        rig = resolve_rig(self.rig)
-        if not (isinstance(self.duration_s, int | float) and np.isfinite(self.duration_s)
-                and self.duration_s > 0):
-            raise ValueError(f"duration_s must be a positive finite time in s, got "
-                             f"{self.duration_s!r}")
-        if self.profile not in rig.profiles:
-            raise ValueError(f"profile must be one of {rig.profiles} for rig {rig.name!r}, got "
-                             f"{self.profile!r}")
-        if not isinstance(self.seed, int | np.integer) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
-        unknown = set(self.design_options) - set(rig.scenario_options)
+        from testbed import estimators
+        from testbed.control import CONTROLLERS
+        from testbed.disturbances import Disturbance
+
+        with blame("rig"):
+            rig_cls = resolve_rig(self.rig)
+        if self.profile not in rig_cls.profiles:
+            raise ScenarioError("profile", f"profile must be one of {rig_cls.profiles} for rig "
+                                f"{rig_cls.name!r}, got {self.profile!r}")
+        _number("ambient_noise", self.ambient_noise)
+        _number("reset_noise_scale", self.reset_noise_scale)
+        dt_s = _number("physics_dt_s", self.physics_dt_s, positive=True)
+        if not _is_int(self.frame_skip) or self.frame_skip < 1:
+            raise ScenarioError("frame_skip", f"frame_skip must be a positive integer, got "
+                                f"{self.frame_skip!r}")
+        control_dt_s = dt_s * int(self.frame_skip)
+        duration = _number("duration_s", self.duration_s, positive=True)
+        if round(duration / control_dt_s) < 1:
+            raise ScenarioError("duration_s", f"duration_s must cover at least one control "
+                                f"period ({control_dt_s:g} s), got {duration:g} s")
+        if not _is_int(self.seed) or not 0 <= self.seed <= MAX_SEED:
+            raise ScenarioError("seed", f"seed must be an integer in [0, 2**63), got "
+                                f"{self.seed!r}")
+        for name in ("estimator_options", "sensor_options", "manoeuvre_params", "params",
+                     "design_options"):
+            if not isinstance(getattr(self, name), dict):
+                raise ScenarioError(name, f"{name} must be a dict, got "
+                                    f"{type(getattr(self, name)).__name__}")
+        if self.controller is not None and self.controller not in CONTROLLERS:
+            raise ScenarioError("controller", f"unknown controller {self.controller!r}; "
+                                f"expected one of {CONTROLLERS}")
+        with blame("estimator"):
+            factory = estimators.resolve(self.estimator)
+        with blame("estimator_options"):
+            estimators.check_options(factory, self.estimator, self.estimator_options)
+        with blame("params"):
+            rig_cls.params_type().scaled(self.params)
+        unknown = set(self.design_options) - set(rig_cls.scenario_options)
         if unknown:
-            raise ValueError(f"design option(s) {sorted(unknown)} do not apply to rig "
-                             f"{rig.name!r}; its options: {sorted(rig.scenario_options) or 'none'}")
-        if self.setpoints is not None and not rig.tracked_states:
-            raise ValueError(f"setpoints do not apply to rig {rig.name!r} (no tracked states)")
+            raise ScenarioError("design_options", f"design option(s) {sorted(unknown)} do not "
+                                f"apply to rig {rig_cls.name!r}; its options: "
+                                f"{sorted(rig_cls.scenario_options) or 'none'}")
+        noise = _number("process_noise", self.process_noise)
+        if noise > 0 and rig_cls.process_noise_matrix is Rig.process_noise_matrix:
+            raise ScenarioError("process_noise", f"rig {rig_cls.name!r} has no process-noise "
+                                "model; process_noise must be 0")
+        if not (self.disturbance in (None, "none") or isinstance(self.disturbance, Disturbance)
+                or self.disturbance in rig_cls.disturbance_signals):
+            raise ScenarioError("disturbance", f"unknown disturbance {self.disturbance!r} for "
+                                f"rig {rig_cls.name!r}; expected one of "
+                                f"{sorted(rig_cls.disturbance_signals) or ['none']}")
+        rig = rig_cls(physics_dt_s=dt_s, profile=self.profile)
+        if self.sensors is None or isinstance(self.sensors, str):
+            with blame("sensors"):
+                rig.sensors(self.sensors, dt_s=control_dt_s, **self.sensor_options)
+        elif self.sensor_options:
+            raise ScenarioError("sensor_options", "sensor_options apply to a sensor preset "
+                                "name, not to a sensor object")
+        self._check_manoeuvre(rig)
+        if self.setpoints is not None:
+            if not rig.tracked_states:
+                raise ScenarioError("setpoints", f"setpoints do not apply to rig {rig.name!r} "
+                                    "(no tracked states)")
+            with blame("setpoints"):
+                rig.validate_setpoints(self.setpoints)
+
+    def _check_manoeuvre(self, rig: Rig) -> None:
+        """The manoeuvre (or the rig's default) and its parameters."""
+        name = self.manoeuvre if self.manoeuvre is not None else \
+            rig.scenario_defaults.get("manoeuvre")
+        if name is None or name == "none":
+            if self.manoeuvre_params:
+                raise ScenarioError("manoeuvre_params", "manoeuvre_params given without a "
+                                    "manoeuvre")
+            return
+        if not isinstance(name, str):
+            if not callable(name):
+                raise ScenarioError("manoeuvre", f"manoeuvre must be a name, 'none' or a "
+                                    f"callable t_s -> input, got {name!r}")
+            return
+        if name not in rig.manoeuvres:
+            raise ScenarioError("manoeuvre", f"unknown manoeuvre {name!r} for rig "
+                                f"{rig.name!r}; expected one of {sorted(rig.manoeuvres) or 'none'}")
+        try:
+            rig.manoeuvres[name](**self.manoeuvre_params)
+        except (TypeError, ValueError) as err:
+            raise ScenarioError("manoeuvre_params", f"bad manoeuvre_params for {name!r}: "
+                                f"{err}") from None
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready description (callables and objects by name)."""

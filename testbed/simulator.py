@@ -13,7 +13,9 @@ Step semantics (per member, one control period ``dt_s = physics_dt_s * frame_ski
    disturbance ``G w(t) + b dW`` becomes joint accelerations and, through the mass matrix
    ``M(q)``, generalized forces (Euler-Maruyama: ``b xi / sqrt(dt)`` held over the step);
 3. MuJoCo steps ``frame_skip`` times (a pool of threads; ``mj_step`` releases the GIL);
-4. the sensors sample the new state.
+4. divergence check: a MuJoCo instability warning, a non-finite state or a state past the
+   rig's ``state_envelope`` raises :class:`SimulationDiverged` (time, members, state);
+5. the sensors sample the new state.
 
 Randomness: member ``i`` owns one stream (:class:`testbed.sensors.NoiseStreams`, seeded like
 a Gymnasium env's ``np_random``); per step it gives, in order, the rig's step noise, the
@@ -36,6 +38,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from filters import real_array
 from testbed.disturbances import Disturbance
 from testbed.rigs.base import Params, Rig
 from testbed.sensors import NoiseStreams, Sample, Sensor
@@ -49,8 +52,59 @@ _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
 
 
-class PhysicsDivergenceError(RuntimeError):
-    """MuJoCo's state became non-finite or huge (the simulation diverged)."""
+#: MuJoCo's instability warnings: NaN, inf or huge qpos, qvel or qacc (MuJoCo then resets
+#: the state, which stays finite; the counters in ``MjData.warning`` tell).
+_BAD_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
+                                       mujoco.mjtWarning.mjWARN_BADQVEL,
+                                       mujoco.mjtWarning.mjWARN_BADQACC))
+
+
+class SimulationDiverged(RuntimeError):
+    """The simulation left what the rig can physically do; its results would be meaningless.
+
+    Raised by :meth:`Simulator.step` when, after a control step, a member's MuJoCo data
+    reported an instability warning (NaN, inf or huge ``qpos``/``qvel``/``qacc``, after which
+    MuJoCo silently resets the state), its state is not finite, or a state component is past
+    the rig's :attr:`~testbed.rigs.base.Rig.state_envelope`. The diverged members must be
+    reset before they step again.
+
+    Parameters
+    ----------
+    message : str
+        Human-readable description (time, member, reason, state).
+    time_s : float
+        Simulation time at the end of the failing step, s.
+    state : ndarray, shape (k, n)
+        States of the diverged members after the step.
+    members : list of int
+        Indices of the diverged members.
+    reason : str
+        ``"mujoco warning"``, ``"non-finite state"`` or ``"outside envelope"`` (of the first).
+    """
+
+    def __init__(self, message: str, *, time_s: float, state: np.ndarray, members: list[int],
+                 reason: str):
+        super().__init__(message)
+        self.message, self.time_s, self.reason = message, float(time_s), reason
+        self.state, self.members = np.asarray(state), list(members)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # keyword-only constructor: picklable for process pools and Ray
+        return (_rebuild_diverged, (self.message, self.time_s, self.state, self.members,
+                                    self.reason))
+
+
+def _rebuild_diverged(message: str, time_s: float, state: np.ndarray, members: list[int],
+                      reason: str) -> SimulationDiverged:
+    return SimulationDiverged(message, time_s=time_s, state=state, members=members,
+                              reason=reason)
+
+
+def positive_int(value: Any, name: str) -> int:
+    """``value`` as an ``int >= 1`` (a bool, float or other type is a ``ValueError``)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
 
 
 def default_num_threads() -> int:
@@ -100,12 +154,13 @@ class Physics:
         qpos, qvel = (_state_offset(model, _INTEGRATION, b) for b in (_QPOS, _QVEL))
         self._gather = np.concatenate([qpos + rig.qpos_adr, qvel + rig.dof_adr])
         self._check_layout()
-        threads = default_num_threads() if num_threads is None else int(num_threads)
-        if threads < 1:
-            raise ValueError(f"num_threads must be >= 1, got {num_threads}")
+        threads = (default_num_threads() if num_threads is None
+                   else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
+        #: Members whose MuJoCo data reported an instability warning in their last step.
+        self.unstable = np.zeros(self.num, dtype=bool)
         self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
                       if self.num_threads > 1 else None)
 
@@ -148,6 +203,7 @@ class Physics:
             self.rig.set_state(x0[j], data, model)
             mujoco.mj_getState(model, data, self.state[i], _INTEGRATION)
             mujoco.mj_fullM(model, data, self.mass[i])
+        self.unstable[list(members)] = False
         in_use = {id(m) for m in self.models}
         self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
 
@@ -198,6 +254,9 @@ class Physics:
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         perturb, constants = self.rig.apply_step_noise, self.constants
+        warnings = data.warning.number  # a view of the counters (zero unless MuJoCo warned)
+        w1, w2, w3 = _BAD_WARNINGS
+        unstable = self.unstable
         for j, i in enumerate(rows):
             model, row = models[i], state[i]
             if step_noise is not None:
@@ -212,6 +271,9 @@ class Physics:
                     step(model, data)
                 data.ctrl[:] = command
             get_state(model, data, row, _INTEGRATION)
+            unstable[i] = bool(warnings[w1] or warnings[w2] or warnings[w3])
+            if unstable[i]:
+                warnings[:] = 0
             if need_mass:
                 mujoco.mj_fullM(model, data, mass[i])
             if need_poses:
@@ -295,10 +357,8 @@ class Simulator:
             raise ValueError(f"reset_noise_scale must be finite and >= 0, got "
                              f"{reset_noise_scale!r}")
         self.reset_noise_scale = float(reset_noise_scale)
-        if int(num) != num or num < 1:
-            raise ValueError(f"num must be a positive integer, got {num}")
-        if int(frame_skip) != frame_skip or frame_skip < 1:
-            raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
+        positive_int(num, "num")
+        positive_int(frame_skip, "frame_skip")
         if not isinstance(sensors, Sensor):
             raise ValueError(f"sensors must be a testbed.sensors.Sensor, got {sensors!r}")
         self.rig = rig
@@ -320,6 +380,7 @@ class Simulator:
         self._nu, self._nx = rig.n_actions, rig.n_states
         self._j = len(rig.joints)
         self._tracked = rig.tracked_index
+        self._envelope = rig.envelope
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
@@ -423,9 +484,13 @@ class Simulator:
                 if value is None:
                     continue
                 if key == "params" and not isinstance(value, dict):
+                    if not isinstance(value, list | tuple) or not all(
+                            v is None or isinstance(v, dict) for v in value):
+                        raise ValueError("options['params'] must be a dict {field: scale} or a "
+                                         f"list of {k} such dicts, got {value!r}")
                     values = list(value)
                 elif key == "x0" and np.ndim(value) == 2:
-                    values = list(np.asarray(value, dtype=float))
+                    values = list(real_array(value, "options['x0']", finite=False))
                 else:
                     values = [value] * k
                 if len(values) != k:
@@ -566,11 +631,7 @@ class Simulator:
 
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
-        try:
-            u = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"actions must be numeric with shape ({k}, {self._nu}) "
-                             f"({', '.join(self.rig.action_names)}), got {actions!r}") from None
+        u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
             raise ValueError(f"actions must have shape ({k}, {self._nu}) "
                              f"({', '.join(self.rig.action_names)} per member), got shape "
@@ -620,10 +681,10 @@ class Simulator:
         self.steps[sel] += 1
         t = self.steps[sel] * self.dt_s
         x = physics.states(sel)
-        if not np.all(np.isfinite(x)):
-            bad = index[~np.all(np.isfinite(x), axis=1)]
-            raise PhysicsDivergenceError(f"the simulation diverged (non-finite state) at "
-                                         f"t = {t[0]:.6g} s for members {bad.tolist()}")
+        outside = ~np.all(np.abs(x) <= self._envelope, axis=1)  # NaN compares False
+        unstable = physics.unstable[index]
+        if outside.any() or unstable.any():
+            self._diverged(index, unstable, outside, x, t)
         ref = self._reference(t, sel)
         e = x[:, self._tracked] - ref
         self.reward[sel] = -np.sum(e * e, axis=1)
@@ -639,6 +700,30 @@ class Simulator:
         info["action_clipped"][sel] = clipped
         info["manoeuvre"][sel] = profile
         info["process_accel"][sel] = accel
+
+    def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,
+                  x: np.ndarray, t: np.ndarray) -> None:
+        """Mark the diverged members unready and raise :class:`SimulationDiverged`."""
+        bad = unstable | outside
+        self._ready[index[bad]] = False
+        j = int(np.flatnonzero(bad)[0])
+        names, units = self.rig.state_names, self.rig.state_units
+        if unstable[j]:
+            reason, why = "mujoco warning", ("MuJoCo reported NaN, inf or a huge value in qpos, "
+                                             "qvel or qacc (and reset the state)")
+        elif not np.all(np.isfinite(x[j])):
+            reason, why = "non-finite state", "the state is not finite"
+        else:
+            c = int(np.flatnonzero(np.abs(x[j]) > self._envelope)[0])
+            reason = "outside envelope"
+            why = (f"{names[c]} = {x[j, c]:.6g} {units[c]} is outside the rig's envelope "
+                   f"|{names[c]}| <= {self._envelope[c]:g} {units[c]}")
+        state = ", ".join(f"{n} {v:.6g}" for n, v in zip(names, x[j], strict=True))
+        raise SimulationDiverged(
+            f"simulation diverged at t = {t[j]:.6g} s (member {int(index[j])}"
+            f"{f' and {int(bad.sum()) - 1} more' if bad.sum() > 1 else ''}): {why}; state "
+            f"[{state}]", time_s=float(t[j]), state=x[bad].copy(),
+            members=index[bad].tolist(), reason=reason)
 
     def close(self) -> None:
         """Stop the physics threads."""

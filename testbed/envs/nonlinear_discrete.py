@@ -10,14 +10,14 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from testbed.envs.common import reset_options
+from testbed.envs.common import action_array, check_seed, initial_state, reset_options
 from testbed.plants import nonlinear_discrete as plant
 
 RESET_OPTION_KEYS = ("x0",)
 #: Disturbance perturbation limit of the action (dimensionless).
 ACTION_LIMIT = 10.0
 #: State magnitude beyond which the episode terminates (escape; never reached from |x0| <~ 3).
-ESCAPE_BOUND = 1e6
+ESCAPE_BOUND = plant.ESCAPE_BOUND
 
 
 @dataclass
@@ -112,21 +112,25 @@ class NonlinearDiscreteEnv(gym.Env):
     | `setpoint`       | no reference: shape (0,)                                  |      |
     | `action_applied` | ``[v_k]``, the disturbance applied over the step, (1,)     | -    |
     | `action_clipped` | bool, shape (1,)                                          |      |
+    | `escape`         | None, or ``{"quantity": "state", "time": k}`` once escaped |     |
 
     ## Reward
 
-    ``-z^2`` after each step; estimator studies can ignore it.
+    ``-z^2`` after each step; estimator studies can ignore it. Always finite.
 
     ## Episode end
 
-    Terminates if the state becomes non-finite or exceeds ``1e6`` in magnitude. Truncated after
-    ``max_episode_steps`` (registration default 200).
+    Terminates when a step would take the state beyond ``1e6`` in magnitude (or make it
+    non-finite): the state then stays the last one within the bound (observations and rewards
+    are never NaN or inf), ``info["escape"]`` records the step, and further steps return it
+    unchanged with ``terminated=True``. Truncated after ``max_episode_steps`` (registration
+    default 200).
 
     ## Arguments
 
     ``disturbance``: ``"paper"`` (default) or None. ``reset(seed=..., options={"x0": (2,)})``:
-    ``x0`` defaults to ``[1, 1]`` (the paper gives none; with ``x0 = 0`` the state stays 0).
-    Unknown keys raise ``ValueError``.
+    ``x0`` defaults to ``[1, 1]`` (the paper gives none; with ``x0 = 0`` the state stays 0) and
+    must lie within the escape bound. Unknown keys raise ``ValueError``.
     """
 
     metadata = {"render_modes": [], "render_fps": 10}
@@ -147,6 +151,7 @@ class NonlinearDiscreteEnv(gym.Env):
         self._x = np.array(self.DEFAULT_X0)
         self._x0 = self._x.copy()
         self._steps = 0
+        self._escape: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -173,20 +178,20 @@ class NonlinearDiscreteEnv(gym.Env):
             "setpoint": np.zeros(0),
             "action_applied": np.array([v]),
             "action_clipped": np.array([clipped]),
+            "escape": None if self._escape is None else dict(self._escape),
         }
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset to ``x0`` (``options={"x0": ...}``, default ``[1, 1]``)."""
+        check_seed(seed)
         options = reset_options(options, RESET_OPTION_KEYS)
         x0 = np.array(self.DEFAULT_X0)
         if options.get("x0") is not None:
-            x0 = np.asarray(options["x0"], dtype=float)
-            if x0.shape != (2,) or not np.all(np.isfinite(x0)):
-                raise ValueError(f"options['x0'] must be a finite array of shape (2,), got "
-                                 f"{options['x0']!r}")
+            x0 = initial_state(options["x0"], 2, ESCAPE_BOUND, self.state_names)
         super().reset(seed=seed)
         self._steps = 0
+        self._escape = None
         self._x = x0.copy()
         self._x0 = x0.copy()
         v0 = self.schedule(0)
@@ -194,23 +199,21 @@ class NonlinearDiscreteEnv(gym.Env):
 
     def step(self, action):
         """Apply ``v_k`` for one step; see the class docstring."""
-        try:
-            u = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be numeric with shape (1,), got {action!r}") from None
-        if u.shape != (1,):
-            raise ValueError(f"action must have shape (1,) (perturbation of v), got shape "
-                             f"{u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError(f"action must be finite (no NaN/inf), got {u}")
+        u = action_array(action, 1)
         perturbation = float(np.clip(u[0], -ACTION_LIMIT, ACTION_LIMIT))
         v = self.schedule(self._steps) + perturbation
-        w = float(self.np_random.standard_normal())
-        x = plant.step(self._x, v, w)
-        self._x = x
-        self._steps += 1
-        terminated = bool(not np.all(np.isfinite(x)) or np.abs(x).max() > ESCAPE_BOUND)
+        w = 0.0
+        if self._escape is None:
+            w = float(self.np_random.standard_normal())
+            with np.errstate(over="ignore", invalid="ignore"):
+                x = plant.step(self._x, v, w)
+            if np.all(np.abs(x) <= ESCAPE_BOUND):  # NaN compares False
+                self._x = x
+                self._steps += 1
+            else:
+                self._escape = {"quantity": "state", "time": float(self._steps + 1)}
+        x = self._x
         y = self.sensors.measure(x, self.schedule(self._steps))
         z = float(plant.output(x))
-        reward = -z * z if np.isfinite(z) else -np.inf
-        return y, reward, terminated, False, self._info(x, v, w, perturbation != u[0])
+        return (y, -z * z, self._escape is not None, False,
+                self._info(x, v, w, perturbation != u[0]))

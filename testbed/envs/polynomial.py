@@ -14,9 +14,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from filters import real_array
 from filters.errors import FiniteEscapeError
 from filters.polynomial_model import EscapeTest
-from testbed.envs.common import reset_options
+from testbed.envs.common import action_array, check_seed, initial_state, reset_options
 from testbed.plants.polynomial import PolynomialPlant
 from testbed.scenarios.basin_polynomial_hinf import paper_model, paper_w
 
@@ -171,9 +172,10 @@ class PolynomialCubicEnv(gym.Env):
             raise ValueError(f"dt_s must be a positive float (s), got {dt_s!r}") from None
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt_s must be a positive float (s), got {dt_s!r}")
-        if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) \
+                or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
-        q = np.asarray(noise_intensity, dtype=float)
+        q = real_array(noise_intensity, "noise_intensity", finite=False)
         if q.shape != (2,) or not np.all(np.isfinite(q)) or np.any(q < 0):
             raise ValueError(f"noise_intensity must be two finite non-negative intensities "
                              f"(q1, q2), got {noise_intensity!r}")
@@ -233,18 +235,6 @@ class PolynomialCubicEnv(gym.Env):
                              f"(2,) [w1, w2], got {w!r} at t = {t_s} s")
         return w
 
-    def _validate_action(self, action: Any) -> np.ndarray:
-        try:
-            u = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be numeric with shape (1,) (input u), got "
-                             f"{action!r}") from None
-        if u.shape != (1,):
-            raise ValueError(f"action must have shape (1,) (input u), got shape {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError(f"action must be finite (no NaN/inf), got {u}")
-        return u
-
     def _info(self, u: np.ndarray, clipped: np.ndarray) -> dict[str, Any]:
         return {
             "state": self._x.copy(),
@@ -258,13 +248,11 @@ class PolynomialCubicEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the plant; see the class docstring for ``options``."""
+        check_seed(seed)
         options = reset_options(options, RESET_OPTION_KEYS)
         x0 = np.array([1.0, 1.0])
         if options.get("x0") is not None:
-            x0 = np.asarray(options["x0"], dtype=float)
-            if x0.shape != (2,) or not np.all(np.isfinite(x0)):
-                raise ValueError("options['x0'] must be a finite array of shape (2,) [x1, x2], "
-                                 f"got {options['x0']!r}")
+            x0 = initial_state(options["x0"], 2, self.plant.escape.bound, STATE_NAMES)
         super().reset(seed=seed)
         self._x = x0.copy()
         self._x0 = x0.copy()
@@ -276,7 +264,7 @@ class PolynomialCubicEnv(gym.Env):
 
     def step(self, action):
         """Apply the input for one control period; see the class docstring."""
-        u = self._validate_action(action)
+        u = action_array(action, 1)
         applied = u.clip(-ACTION_LIMIT, ACTION_LIMIT)
         clipped = applied != u
         if self._escape is None:

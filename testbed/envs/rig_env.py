@@ -47,8 +47,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from filters import real_array
+from testbed.envs.common import check_seed
 from testbed.rigs import resolve_rig
-from testbed.simulator import Simulator
+from testbed.simulator import Simulator, positive_int
 
 
 def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: float = 0.001,
@@ -65,10 +67,9 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
     (``reset_noise_scale = 1``) and the rig's small ambient disturbance is on
     (``ambient_noise = 1``); 0 turns either off.
     """
+    positive_int(frame_skip, "frame_skip")
     rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
-    if int(frame_skip) != frame_skip or frame_skip < 1:
-        raise ValueError(f"frame_skip must be a positive integer, got {frame_skip}")
-    dt_s = physics_dt_s * int(frame_skip)
+    dt_s = rig_obj.model.opt.timestep * int(frame_skip)
     if sensors is None or isinstance(sensors, str):
         sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))
     elif sensor_kwargs:
@@ -137,26 +138,19 @@ class RigEnv(gym.Env):
         return self.sim.setpoints_at(t_s, np.array([0]))[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset the rig (see the module docstring for ``options``)."""
-        if seed is not None and (not isinstance(seed, int | np.integer) or seed < 0):
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        """Reset the rig (see the module docstring for ``options``); everything is checked
+        before anything changes."""
+        check_seed(seed)
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
-        super().reset(seed=seed)
         self.sim.reset(None, [seed], options)
+        super().reset(seed=seed)
         return self.sim.obs[0].copy(), _squeeze(self.sim.info)
 
     def step(self, action):
         """Apply one action for one control period."""
-        try:
-            u = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"action must be numeric with shape ({self.rig.n_actions},), got "
-                             f"{action!r}") from None
-        if u.shape != (self.rig.n_actions,):
-            raise ValueError(f"action must have shape ({self.rig.n_actions},) "
-                             f"({', '.join(self.rig.action_names)} in "
-                             f"{', '.join(self.rig.action_units)}), got shape {u.shape}")
+        u = real_array(action, f"action ({', '.join(self.rig.action_names)} in "
+                       f"{', '.join(self.rig.action_units)})", shape=(self.rig.n_actions,))
         self.sim.step(u[None])
         sim = self.sim
         return (sim.obs[0].copy(), float(sim.reward[0]), bool(sim.terminated[0]), False,
@@ -225,12 +219,9 @@ class RigVectorEnv(VectorEnv):
                  num_threads: int | None = None, render_mode: str | None = None, **kwargs):
         if render_mode is not None:
             raise ValueError(f"render_mode must be None (headless rig), got {render_mode!r}")
-        if max_episode_steps is not None and (int(max_episode_steps) != max_episode_steps
-                                              or max_episode_steps < 1):
-            raise ValueError(f"max_episode_steps must be a positive integer or None, "
-                             f"got {max_episode_steps}")
-        if int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs}")
+        if max_episode_steps is not None:
+            positive_int(max_episode_steps, "max_episode_steps")
+        positive_int(num_envs, "num_envs")
         self.sim = build_simulator(rig, int(num_envs), num_threads=num_threads, **kwargs)
         self.num_envs = self.sim.num
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
@@ -269,13 +260,20 @@ class RigVectorEnv(VectorEnv):
         n = self.num_envs
         if seed is None:
             seeds: list[int | None] = [None] * n
-        elif isinstance(seed, int | np.integer):
+        elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(n)]
-        else:
+        elif isinstance(seed, list | tuple | np.ndarray):
             seeds = list(seed)
+        else:
+            raise ValueError(f"seed must be None, a non-negative integer or a list of "
+                             f"{n} of them, got {seed!r}")
         if len(seeds) != n:
             raise ValueError(f"If seeds are passed as a list the length must match "
                              f"num_envs={n} but got length={len(seeds)}.")
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
+        for s in seeds:
+            check_seed(s)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         members = None

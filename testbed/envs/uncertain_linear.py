@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from filters.analysis import UncertainPlant
-from testbed.envs.common import reset_options
+from testbed.envs.common import action_array, check_seed, initial_state, reset_options
 from testbed.plants.uncertain_linear import UncertainLinearPlant, UncertainLinearSensors
 
 RESET_OPTION_KEYS = ("x0", "F")
@@ -19,6 +19,9 @@ RESET_OPTION_KEYS = ("x0", "F")
 INPUT_LIMIT = 1.0
 #: Default sample period of a continuous-time scenario, s.
 CONTINUOUS_DT_S = 0.01
+#: State magnitude (plant units) beyond which the episode terminates: an unstable plant
+#: (or an absurd ``x0``) would otherwise overflow to inf and NaN.
+ESCAPE_BOUND = 1e10
 
 
 #: The named scenarios (``scenario=``): the paper examples, continuous and discrete.
@@ -108,7 +111,10 @@ class UncertainLinearEnv(gym.Env):
 
     ## Episode end
 
-    Never terminates; truncated after ``max_episode_steps`` (registration default 1000).
+    Truncated after ``max_episode_steps`` (registration default 1000). Terminates only if a
+    step would take the state beyond :data:`ESCAPE_BOUND` in magnitude (an unstable plant):
+    the state and measurement then stay those of the last step within the bound (never NaN
+    or inf) and further steps return them unchanged with ``terminated=True``.
 
     ## Arguments
 
@@ -117,7 +123,8 @@ class UncertainLinearEnv(gym.Env):
     ``dt_s`` (continuous: sample period, default 0.01 s; discrete: time label, default 1);
     ``F`` (fixed uncertainty, default None: drawn per episode); ``B`` (n, k) input matrix.
 
-    ``reset(seed=..., options={"x0": (n,), "F": scalar or (i, j)})``: ``x0`` defaults to 0;
+    ``reset(seed=..., options={"x0": (n,), "F": scalar or (i, j)})``: ``x0`` defaults to 0
+    (and must lie within the escape bound);
     ``F`` overrides the uncertainty for this episode. Unknown keys raise ``ValueError``.
     """
 
@@ -150,6 +157,8 @@ class UncertainLinearEnv(gym.Env):
         self._x0 = np.zeros(n)
         self._F = np.zeros(model.f_shape)
         self._steps = 0
+        self._y = np.zeros(p)
+        self._escaped = False
 
     @property
     def t_s(self) -> float:
@@ -172,14 +181,12 @@ class UncertainLinearEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset the plant; see the class docstring for ``options``."""
+        check_seed(seed)
         options = reset_options(options, RESET_OPTION_KEYS)
         n = self.model.n
         x0 = np.zeros(n)
         if options.get("x0") is not None:
-            x0 = np.asarray(options["x0"], dtype=float)
-            if x0.shape != (n,) or not np.isfinite(x0).all():
-                raise ValueError(f"options['x0'] must be a finite array of shape ({n},), got "
-                                 f"{options['x0']!r}")
+            x0 = initial_state(options["x0"], n, ESCAPE_BOUND, self.state_names)
         F_opt = None
         if options.get("F") is not None:
             try:
@@ -196,23 +203,23 @@ class UncertainLinearEnv(gym.Env):
         self._x = x0.copy()
         self._x0 = x0.copy()
         self._steps = 0
+        self._y = np.zeros(self.model.p)
+        self._escaped = False
         k = self.plant.B.shape[1]
         r = self.plant.transition(self._F).S.shape[1]
-        return np.zeros(self.model.p), self._info(np.zeros(r), np.zeros(k), np.zeros(k, bool))
+        return self._y.copy(), self._info(np.zeros(r), np.zeros(k), np.zeros(k, bool))
 
     def step(self, action):
         """Advance one sample; see the class docstring."""
-        k = self.plant.B.shape[1]
-        try:
-            u = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be numeric with shape ({k},), got {action!r}") from None
-        if u.shape != (k,):
-            raise ValueError(f"action must have shape ({k},), got shape {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError(f"action must be finite (no NaN/inf), got {u}")
+        u = action_array(action, self.plant.B.shape[1])
         uc = u.clip(-INPUT_LIMIT, INPUT_LIMIT)
-        x, y, xi = self.plant.step(self._x, self._F, self.np_random, uc)
-        self._x = x
-        self._steps += 1
-        return y, 0.0, False, False, self._info(xi, uc, uc != u)
+        xi = np.zeros(self.plant.transition(self._F).S.shape[1])
+        if not self._escaped:
+            with np.errstate(over="ignore", invalid="ignore"):
+                x, y, xi = self.plant.step(self._x, self._F, self.np_random, uc)
+            if np.all(np.abs(x) <= ESCAPE_BOUND) and np.all(np.isfinite(y)):
+                self._x, self._y = x, y
+                self._steps += 1
+            else:
+                self._escaped = True
+        return self._y.copy(), 0.0, self._escaped, False, self._info(xi, uc, uc != u)

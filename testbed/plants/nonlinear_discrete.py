@@ -50,6 +50,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from filters import FiniteEscapeError
+
 #: Filter (50): ``xhat+ = F xhat + G y``, ``zhat = C_Z xhat``.
 FILTER_F = 0.5 * np.eye(2)
 FILTER_G = 0.5 * np.eye(2)
@@ -57,6 +59,8 @@ FILTER_G = 0.5 * np.eye(2)
 C_Z = np.array([[0.1, 0.1]])
 STATE_NAMES = ("x1", "x2")
 MEASUREMENT_NAMES = ("y1", "y2")
+#: State magnitude beyond which the state has escaped (never reached from |x0| <~ 3).
+ESCAPE_BOUND = 1e6
 
 
 def paper_disturbance(k: npt.ArrayLike) -> np.ndarray | float:
@@ -140,6 +144,14 @@ def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
         Estimates ``xhat_0 .. xhat_N``.
     y : ndarray, shape (R, N, 2)
         Measurements ``y_0 .. y_{N-1}``.
+
+    Raises
+    ------
+    ValueError
+        ``x0`` beyond :data:`ESCAPE_BOUND` (or not finite), or inconsistent shapes.
+    filters.FiniteEscapeError
+        A run's state leaves :data:`ESCAPE_BOUND` (``quantity="x"``, ``time`` the step):
+        nothing non-finite is returned.
     """
     v = np.asarray(v, dtype=float)
     w = np.atleast_2d(np.asarray(w, dtype=float))
@@ -150,10 +162,18 @@ def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
     xh = np.empty((runs, n + 1, 2))
     y = np.empty((runs, n, 2))
     x[:, 0] = np.broadcast_to(np.asarray(x0, dtype=float), (runs, 2))
+    if not np.all(np.abs(x[:, 0]) <= ESCAPE_BOUND):
+        raise ValueError(f"x0 must be finite with |x0_i| <= {ESCAPE_BOUND:g}, got {x0!r}")
     xh[:, 0] = 0.0 if xhat0 is None else np.asarray(xhat0, dtype=float)
     for k in range(n):
         y[:, k] = measure(x[:, k], np.full(runs, v[k]))
-        x[:, k + 1] = step(x[:, k], v[k], w[:, k])
+        with np.errstate(over="ignore", invalid="ignore"):
+            x[:, k + 1] = step(x[:, k], v[k], w[:, k])
+        escaped = ~np.all(np.abs(x[:, k + 1]) <= ESCAPE_BOUND, axis=1)  # NaN counts
+        if escaped.any():
+            r = int(np.flatnonzero(escaped)[0])
+            raise FiniteEscapeError(f"the state of run {r} escaped |x| <= {ESCAPE_BOUND:g}",
+                                    time=float(k + 1), quantity="x", value=x[r, k + 1].copy())
         xh[:, k + 1] = filter_step(xh[:, k], y[:, k])
     return x, xh, y
 

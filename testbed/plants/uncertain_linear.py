@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
+from filters import real_array
 from filters.analysis import UncertainPlant
 
 
@@ -130,7 +131,7 @@ class UncertainLinearPlant:
         self.model = model
         self.dt_s = float(dt_s)
         n = model.n
-        B_ = np.zeros((n, 1)) if B is None else np.asarray(B, dtype=float)
+        B_ = np.zeros((n, 1)) if B is None else real_array(B, "B", finite=False)
         if B_.ndim != 2 or B_.shape[0] != n or not np.isfinite(B_).all():
             raise ValueError(f"B must be a finite matrix with shape ({n}, k), got {B_.shape}")
         self.B = B_

@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
+from filters import real_array
 from testbed.disturbances import Disturbance
 from testbed.rigs.params import scaled_copy
 
@@ -110,12 +111,18 @@ class Rig:
     profiles: ClassVar[tuple[str, ...]] = ("paper",)
     #: Camera of ``render_mode="rgb_array"`` (a camera named in the MJCF; "" = free camera).
     render_camera: ClassVar[str] = ""
+    #: Divergence detector: the largest ``|x_i|`` per state (rig units; ``inf``: unbounded)
+    #: that the physical rig can reach, with a wide margin. The simulator raises
+    #: :class:`~testbed.simulator.SimulationDiverged` for a state past it. Empty: no bound.
+    state_envelope: ClassVar[tuple[float, ...]] = ()
 
     def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001,
                  profile: str = "paper"):
-        if not (np.isfinite(physics_dt_s) and physics_dt_s > 0):
+        number = isinstance(physics_dt_s, int | float | np.floating) and \
+            not isinstance(physics_dt_s, bool)
+        if not (number and np.isfinite(physics_dt_s) and physics_dt_s > 0):
             raise ValueError(f"physics_dt_s must be a positive finite time in s, "
-                             f"got {physics_dt_s}")
+                             f"got {physics_dt_s!r}")
         if profile not in self.profiles:
             raise ValueError(f"unknown profile {profile!r} for rig {self.name!r}; expected one "
                              f"of {self.profiles}")
@@ -160,6 +167,10 @@ class Rig:
             if len(seq) != size:
                 raise TypeError(f"{type(self).__name__}.{label} has {len(seq)} entries, "
                                 f"expected {size}")
+        if self.state_envelope and (len(self.state_envelope) != n or not all(
+                b > 0 for b in self.state_envelope)):
+            raise TypeError(f"{type(self).__name__}.state_envelope must have {n} positive "
+                            f"entries (inf: unbounded), got {self.state_envelope}")
         unknown = set(self.tracked_states) - set(self.state_names)
         if unknown:
             raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
@@ -175,6 +186,13 @@ class Rig:
     def n_actions(self) -> int:
         """Action dimension."""
         return len(self.action_names)
+
+    @property
+    def envelope(self) -> np.ndarray:
+        """:attr:`state_envelope` as an array, shape (n,) (``inf`` where unbounded)."""
+        if not self.state_envelope:
+            return np.full(self.n_states, np.inf)
+        return np.array(self.state_envelope, dtype=float)
 
     @property
     def tracked_index(self) -> np.ndarray:
@@ -280,24 +298,22 @@ class Rig:
         return np.tile(self.default_x0(), (len(xi), 1))
 
     def validate_x0(self, x0: Any) -> np.ndarray:
-        """``options['x0']`` as a finite array of shape (n,), else ``ValueError``."""
-        try:
-            x = np.asarray(x0, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"options['x0'] must be numeric, got {x0!r}") from None
-        if x.shape != (self.n_states,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"options['x0'] must be a finite array of shape ({self.n_states},) "
-                             f"{list(self.state_names)}, got {x0!r}")
+        """``options['x0']`` as a finite real array of shape (n,) within :attr:`envelope`,
+        else ``ValueError``."""
+        x = real_array(x0, f"options['x0'] {list(self.state_names)}", shape=(self.n_states,))
+        outside = np.abs(x) > self.envelope
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            raise ValueError(f"options['x0'] {self.state_names[i]} = {x[i]:g} "
+                             f"{self.state_units[i]} is outside the rig's envelope "
+                             f"|{self.state_names[i]}| <= {self.envelope[i]:g}")
         return x
 
     def validate_setpoints(self, setpoints: Sequence[Sequence[float]]) -> np.ndarray:
         """A reference table ``(t_s, *tracked values)`` rows, checked; shape (rows, 1 + r)."""
         r = len(self.tracked_states)
-        try:
-            table = np.asarray(setpoints, dtype=float)
-        except (TypeError, ValueError):
-            names = ", ".join(self.tracked_states)
-            raise ValueError(f"setpoints must be numeric rows (t_s, {names})") from None
+        table = real_array(setpoints, f"setpoints (rows t_s, {', '.join(self.tracked_states)})",
+                           finite=False)
         if table.ndim != 2 or table.shape[1] != 1 + r or len(table) == 0:
             raise ValueError(f"setpoints must be a sequence of (t_s, "
                              f"{', '.join(self.tracked_states)}) rows, got shape {table.shape}")

@@ -7,6 +7,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from filters import real_array
+
 P = TypeVar("P")
 
 
@@ -26,16 +28,16 @@ def scaled_copy(params: P, scales: dict[str, Any]) -> P:
         Unknown field name (the valid ones are listed), a factor that is not a finite
         non-negative number, or an unphysical result (named by ``validate()``).
     """
+    if not isinstance(scales, dict):
+        raise ValueError(f"params must be a dict {{field: scale factor}}, got "
+                         f"{type(scales).__name__}")
     names = {f.name for f in dataclasses.fields(params)}
     changes = {}
     for key, factor in scales.items():
         if key not in names:
             raise ValueError(f"unknown params key {key!r}; expected one of {sorted(names)}")
-        try:
-            factor = float(factor)
-        except (TypeError, ValueError):
-            raise ValueError(f"params[{key!r}] must be a number (scale factor), "
-                             f"got {factor!r}") from None
+        factor = float(real_array(factor, f"params[{key!r}] (scale factor)", shape=(),
+                                  finite=False))
         if not np.isfinite(factor) or factor < 0.0:
             raise ValueError(f"params[{key!r}] must be a finite non-negative scale factor, "
                              f"got {factor}")

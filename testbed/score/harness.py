@@ -38,7 +38,7 @@ from testbed.rigs import resolve_rig
 from testbed.score import stats
 from testbed.score.suite import SuiteEntry
 from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
-from testbed.simulator import PhysicsDivergenceError
+from testbed.simulator import SimulationDiverged
 
 #: The timing reference.
 REFERENCE = "kalman"
@@ -209,7 +209,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         options = _trajectory_x0(entry, experiment.design, seeds)
         try:
             result = experiment.loop.run(seeds, steps * dt_s, options, record=True)
-        except (FilterError, FloatingPointError, PhysicsDivergenceError) as err:
+        except (FilterError, FloatingPointError, SimulationDiverged) as err:
             out.skipped = f"failed: {type(err).__name__}: {err}"
             return out
         sim = experiment.loop.sim
@@ -243,7 +243,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
                                         rec, seeds[0])
             except (ValueError, FilterError, FloatingPointError,
-                    PhysicsDivergenceError) as err:
+                    SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
     finally:
         experiment.close()

@@ -28,6 +28,7 @@ class PendulumRig(Rig):
     action_units = ("N m",)
     action_low, action_high = (-5.0,), (5.0,)
     tracked_states = ("angle",)
+    state_envelope = (float("inf"), 200.0)  # it may swing over; 200 rad/s means divergence
 
     def apply_params(self, model, params):
         body = self.body_id("arm")

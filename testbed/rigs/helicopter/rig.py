@@ -322,6 +322,10 @@ class HelicopterRig(Rig):
     scenario_options = {"process_noise_floor": 0.05}
     profiles = ("paper", "hardware")
     render_camera = "overview"
+    #: Pitch past 90 deg would put the body through the base (the stops are at 40.5 deg);
+    #: yaw turns freely; saturated motors reach about 3.3 rad/s of pitch rate and 7.3 rad/s
+    #: of yaw rate, so 100 rad/s is far outside anything the rig does.
+    state_envelope = (np.pi / 2, np.inf, 100.0, 100.0)
 
     def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001,
                  profile: str = "paper", hardware: HelicopterHardware | None = None):

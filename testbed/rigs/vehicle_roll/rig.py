@@ -88,6 +88,10 @@ class VehicleRollRig(Rig):
     #: CAN latency.
     profiles = ("paper", "hardware")
     render_camera = "rear"
+    #: Upside down (the episode already ended at 90 deg); the saturated lateral acceleration
+    #: rolls the body at about 0.06 rad/s and falling over from 86 deg at 1.4 rad/s, so
+    #: 50 rad/s is far outside anything the rig does.
+    state_envelope = (np.pi, 50.0)
 
     def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001,
                  profile: str = "paper"):
