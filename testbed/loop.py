@@ -15,6 +15,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from filters import real_array
+from filters.errors import FiniteEscapeError
 from testbed.metrics import EpisodeMetrics
 from testbed.simulator import Simulator
 
@@ -50,8 +52,11 @@ class EstimatorStage:
             if unknown:
                 raise ValueError(f"unknown options['estimator'] keys {sorted(unknown)}; "
                                  "expected 'x0' and/or 'P0'")
-            xs.append(np.asarray(prior.get("x0", x0), dtype=float))
-            Ps.append(prior.get("P0"))
+            n = len(x0)
+            xs.append(real_array(prior["x0"], "options['estimator']['x0']", (n,))
+                      if "x0" in prior else np.asarray(x0, dtype=float))
+            Ps.append(None if prior.get("P0") is None else
+                      real_array(prior["P0"], "options['estimator']['P0']", (n, n)))
         x = np.array(xs).reshape(num, -1)
         if all(P is None for P in Ps):
             return x, P0
@@ -75,7 +80,9 @@ class EstimatorStage:
             u = self.input_transform(u, np.asarray(est.x))
         x_hat = np.asarray(est.step(y, u))
         if not np.all(np.isfinite(x_hat)):
-            raise FloatingPointError("the estimator returned a non-finite estimate")
+            raise FiniteEscapeError("the estimator returned a non-finite estimate",
+                                    time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",
+                                    value=x_hat.copy())
         self.metrics.update(x_true, x_hat, est.P, y, w if w is not None and w.size else None)
         return x_hat
 

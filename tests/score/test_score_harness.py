@@ -99,8 +99,8 @@ def test_score_skips_with_reasons_and_gives_every_key(user_module):
     for res in summary["results"]:
         assert tuple(res) == report.RESULT_KEYS
     cal = {r["estimator"]: r for r in summary["results"] if r["scenario"] == "calibration"}
-    assert cal["ms-hinf"]["skipped"].startswith("the factory raised ValueError: filter "
-                                                "'ms-hinf' needs a deterministic channel")
+    assert cal["ms-hinf"]["skipped"].startswith("the factory raised ")
+    assert "filter 'ms-hinf' needs a deterministic channel" in cal["ms-hinf"]["skipped"]
     assert cal["kalman"]["step_vs_kalman"] == 1.0
     assert cal["fixed_gain:make"]["skipped"] is None and cal["fixed_gain:make"]["anis"] is None
     hardware = {r["estimator"]: r for r in summary["results"]
