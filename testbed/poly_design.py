@@ -328,9 +328,10 @@ def poly_hinf_estimator(design: Any, expansion: CubicExpansion, *, gamma: float 
         "gamma": gamma, "gamma_min_linear": gamma_min,
         "substeps": "auto" if auto else int(substeps),
         "expansion": expansion.description, "degree": model.degree,
-        "certificate": "Basin et al. Theorem 1 on the rig's cubic expansion (w = [G w, "
-                       "Q^1/2-normalized process noise, R^1/2-normalized measurement "
-                       "noise]); the neglected terms are not covered"}
+        "certificate": "Basin et al. Theorem 1 on the rig's cubic expansion with "
+                       "continuous observation (w = [G w, Q^1/2-normalized process noise, "
+                       "R^1/2-normalized measurement noise]); the neglected terms, the "
+                       "sampling (y held over a period) and quantization are not covered"}
     if scenario_channel:
         meta["gamma_channel"] = "scenario"
     return PolynomialHInfEstimator(filt, design.measurement_index, whiten, plant.D,
