@@ -334,6 +334,18 @@ class _CentralHInfFilter(_IntegratedFilter):
 
 
     @property
+    def substeps(self) -> int:
+        """RK4 substeps per sample interval (may be changed between steps, e.g. as the
+        Riccati equation's stiffness falls with ``P``)."""
+        return self._substeps
+
+    @substeps.setter
+    def substeps(self, value: int) -> None:
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"substeps must be an integer >= 1, got {value!r}")
+        self._substeps = int(value)
+
+    @property
     def escape(self) -> EscapeTest:
         """The finite-escape test applied after every substep."""
         return self._escape

@@ -52,7 +52,8 @@ class DesignModel:
         Applied by the loop before ``u`` reaches the estimator (e.g. minus the voltage that
         compensates gravity at the estimate): ``u`` of ``step`` is in the model's coordinates.
     extras : dict
-        Rig-specific design data (paper models, LMI design systems).
+        Rig-specific design data (paper models, LMI design systems); ``cubic_model`` is the
+        rig's :meth:`~testbed.rigs.base.Rig.cubic_model` (set by :func:`build_design`).
     """
 
     dt_s: float
@@ -126,7 +127,7 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
         measurement_index=index, sensors=model, output_matrix=np.asarray(output_matrix, float),
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
-        extras=dict(extras or {}))
+        extras={"cubic_model": getattr(type(rig), "cubic_model", None), **(extras or {})})
 
 
 def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=None, *,

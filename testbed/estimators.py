@@ -157,12 +157,29 @@ def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: floa
     return _select(est, design)
 
 
+def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 1.5,
+              substeps: int | None = None) -> Any:
+    """Basin et al.'s central polynomial H-infinity filter (Theorem 1) on the rig's cubic
+    expansion (``design.extras["cubic_model"]``, :meth:`testbed.rigs.base.Rig.cubic_model`;
+    :mod:`testbed.poly_design`). ``gamma`` defaults to ``gamma_factor`` times the linear
+    part's smallest level."""
+    cubic = design.extras.get("cubic_model")
+    if cubic is None:
+        raise ValueError("filter 'poly-hinf' needs the rig's cubic expansion "
+                         "(design.extras['cubic_model']); this design has none")
+    from testbed.poly_design import poly_hinf_estimator
+
+    return poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
+                               substeps=substeps)
+
+
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
     "kalman": kalman,
     "kalman-bucy": kalman_bucy,
     "ms-hinf": ms_hinf,
     "lmi-hinf": lmi_hinf,
+    "poly-hinf": poly_hinf,
 }
 #: Scenario defaults a built-in estimator needs (applied where the user set nothing).
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {

@@ -539,6 +539,26 @@ class Rig:
         """A sensor suite by preset name (see the subclass), built from its channels."""
         raise NotImplementedError(f"rig {self.name!r} declares no sensor presets")
 
+    @classmethod
+    def cubic_model(cls, design: Any):
+        """Third-order expansion of the nominal dynamics for the polynomial H-infinity filter.
+
+        Parameters
+        ----------
+        design : testbed.design.DesignModel
+            The design model the expansion is written in (state, input, ``A``, ``B``).
+
+        Returns
+        -------
+        testbed.poly_design.CubicExpansion
+
+        Raises
+        ------
+        ValueError
+            Default: the rig provides no expansion (``testbed score`` lists the reason).
+        """
+        raise ValueError(f"rig {cls.name!r} provides no cubic expansion")
+
     def design_model(self, sensors, dt_s: float, disturbance=None, **options: Any):
         """What a filter designer knows for these sensors and control period.
 

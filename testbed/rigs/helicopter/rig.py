@@ -515,6 +515,58 @@ class HelicopterRig(Rig):
                                        Hw=paper.H, n_inputs=2))
         return Suite(*parts)
 
+    @classmethod
+    def cubic_model(cls, design, pitch0_rad: float = 0.0):
+        """Third-order expansion of the gravity torque in pitch (nominal parameters).
+
+        The design model's ``A, B`` leave gravity out: its input is the voltage minus the
+        gravity-compensating voltage at the estimate. The expansion restores the absolute
+        voltage (``input_offset`` = :func:`gravity_voltage` at the estimate, so
+        ``E u_p = B u + [0, 0, c cos(pitch_hat), 0]``) and models the gravity torque itself::
+
+            pitch'' += -c cos(pitch),   c = m g l / J_p  (29.3 rad/s^2 nominal)
+            cos(pitch) ~ cos p0 - sin p0 d - cos p0 d^2 / 2 + sin p0 d^3 / 6,  d = pitch - p0
+
+        about ``p0 = pitch0_rad`` (default 0, the design model's linearization point, where
+        the cubic term vanishes: the model is quadratic). The pitch-dependent yaw inertia,
+        the ``cos(pitch)`` on the yaw torque and the centrifugal and Coriolis terms stay
+        out (as in the design model).
+
+        Parameters
+        ----------
+        design : testbed.design.DesignModel
+        pitch0_rad : float
+            Expansion point, rad.
+
+        Returns
+        -------
+        testbed.poly_design.CubicExpansion
+        """
+        from testbed.poly_design import CubicExpansion
+
+        if not (np.isfinite(pitch0_rad) and abs(pitch0_rad) <= PITCH_LIMIT_RAD):
+            raise ValueError(f"pitch0_rad must lie within the stops +-{PITCH_LIMIT_RAD:.4f} "
+                             f"rad, got {pitch0_rad!r}")
+        nominal = HelicopterParams()
+        c = nominal.mass_kg * GRAVITY_M_S2 * nominal.com_m / nominal.pitch_inertia
+        s0, c0 = np.sin(pitch0_rad), np.cos(pitch0_rad)
+        # -c cos(pitch) as a polynomial in d, then in pitch = d + p0
+        in_d = np.polynomial.Polynomial([-c * c0, c * s0, c * c0 / 2.0, -c * s0 / 6.0])
+        coef = in_d(np.polynomial.Polynomial([-pitch0_rad, 1.0])).coef
+        coef = np.concatenate([coef, np.zeros(4 - len(coef))])
+        a0, a1 = np.zeros(4), np.array(design.continuous.A, float)
+        a2, a3 = np.zeros((4, 4, 4)), np.zeros((4, 4, 4, 4))
+        a0[2] = coef[0]
+        a1[2, 0] += coef[1]
+        a2[2, 0, 0] = coef[2]
+        a3[2, 0, 0, 0] = coef[3]
+        return CubicExpansion(
+            a0=a0, a1=a1, a2=a2 if np.any(a2) else None, a3=a3 if np.any(a3) else None,
+            E=np.array(design.continuous.B, float),
+            input_offset=lambda x_hat: gravity_voltage(nominal, x_hat[:, 0]),
+            description=f"gravity torque -m g l cos(pitch) / J_p to third order about pitch "
+                        f"= {pitch0_rad:g} rad; absolute voltage as input")
+
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
                      process_noise_floor: float = 0.05):
         """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor.

@@ -177,6 +177,33 @@ class VehicleRollRig(Rig):
         except TypeError as err:
             raise ValueError(f"bad option for sensor preset {preset!r}: {err}") from None
 
+    @classmethod
+    def cubic_model(cls, design):
+        """Third-order expansion of the gravity torque ``m_s g h_cr sin(roll)`` (nominal).
+
+        ``sin(roll) ~ roll - roll^3 / 6`` about ``roll = 0`` (the design model's point): the
+        design's linear ``A`` (which holds ``m_s g h_cr roll / I_xx``) plus
+        ``roll_rate' += -(m_s g h_cr / (6 I_xx)) roll^3`` (-1.60 rad^-2 s^-2 nominal). The
+        input term ``m_s h_cr a_y cos(roll) / I_xx`` is bilinear in ``a_y`` and ``roll``
+        (not a polynomial of the state with a constant input matrix): it stays linear,
+        ``cos(roll) ~ 1`` (0.2 % of the input torque at 4 deg). The sensors stay linear
+        (the design's ``C``: the accelerometer's ``g sin(roll)`` is ``g roll``).
+
+        Returns
+        -------
+        testbed.poly_design.CubicExpansion
+        """
+        from testbed.poly_design import CubicExpansion
+
+        nominal = VehicleRollParams()
+        a3 = np.zeros((2, 2, 2, 2))
+        a3[1, 0, 0, 0] = -nominal.gravity_stiffness / (6.0 * nominal.roll_inertia)
+        return CubicExpansion(
+            a0=np.zeros(2), a1=np.array(design.continuous.A, float), a2=None, a3=a3,
+            E=np.array(design.continuous.B, float),
+            description="gravity torque m_s g h_cr sin(roll) / I_xx to third order about "
+                        "roll = 0; a_y cos(roll) kept linear")
+
     def design_model(self, sensors, dt_s: float, disturbance=None, *, a_y_std: float = 0.1,
                      design_roll_rate: float = 0.2, a_y_source: str = "auto"):
         """The physical linearization (with ``g``), nominal parameters, exact ZOH.
