@@ -54,6 +54,10 @@ def _check_common(data: dict, n_published: int, eqs: tuple[str, str]) -> None:
     assert search["candidates"][0]["start"] == 0
     for f in data["findings"]:
         assert {"label", "claim", "agree", "ours"} <= set(f) and isinstance(f["agree"], bool)
+    # one claim per finding, its verdict the finding's computed agreement
+    assert [(c["claim"], c["verdict"]) for c in data["claims"]] == [
+        (f["label"], "agrees" if f["agree"] else "differs") for f in data["findings"]]
+    assert all(c["paper"] and c["ours"] for c in data["claims"])
     # Monte Carlo: every filter (printed, then the searched one) at F = 1, 0, -1
     names = [pub["name"] for pub in data["published"]] + (
         [vc.SEARCHED] if data["searched"] else [])
@@ -118,7 +122,34 @@ def _check_searched(data: dict, plant, *, discrete: bool, a: float = 0.0, b: flo
                                          "variance": True}
 
 
-def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch):
+def _capture_figures(monkeypatch) -> list:
+    import testbed.plots
+
+    figures = []
+    save = testbed.plots.save_figure
+    monkeypatch.setattr(testbed.plots, "save_figure",
+                        lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
+    return figures
+
+
+def _check_outputs(rrd_path, figures, checks, claims) -> None:
+    """The figure shows the claims, readable, legends outside the data; the .rrd holds the
+    episode under its own path with a text saying what it is."""
+    from testbed.rrd_inspect import inspect_rrd
+
+    (fig,) = figures
+    shown = " ".join(" ".join(t.get_text() for t in checks.texts(fig)).split())
+    for c in claims:
+        assert f"[{c['verdict']}]" in shown and c["claim"] in shown
+    checks.readable(fig)
+    checks.legend_outside_axes(fig)
+    rrd = inspect_rrd(rrd_path)
+    assert list(rrd.texts) == ["episode/about"] and "F = 1" in rrd.texts["episode/about"]
+    assert {e.split("/")[0] for e in rrd.rows} == {"episode"}
+
+
+def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_checks):
+    figures = _capture_figures(monkeypatch)
     monkeypatch.setattr(vd, "SEARCH_STARTS", SHORT_SEARCH["search_starts"])
     monkeypatch.setattr(vd, "SEARCH_EVALUATIONS", SHORT_SEARCH["search_evaluations"])
     out = tmp_path / "d"
@@ -149,12 +180,22 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "d.rrd").stat().st_size > 10_000
     row = load("liu-variance-constrained-discrete").row(data)
     assert set(row) == {"paper", "claim", "ours", "agree", "why"}
-    assert row["agree"].startswith("partly: yes - printed filter meets the requirements")
+    assert row["agree"] == ("2 of 4 claims agree; differs: printed covariances for F = 1, 0; "
+                            "design solvable at the printed eps, delta1")
+    # verdicts follow the numbers: a printed covariance within the tolerance flips one
+    changed = json.loads(json.dumps(data))
+    for comp in changed["covariance_comparison"].values():
+        comp["relative_difference"] = [[0.0, 0.0], [0.0, 0.0]]
+    changed["findings"] = vd._findings(changed)
+    assert vd.claims(changed)[1].verdict == "agrees"
+    _check_outputs(tmp_path / "d.rrd", figures, figure_checks, data["claims"])
     assert "0.3022" in row["why"] and "ours:" in capsys.readouterr().out
 
 
-def test_continuous_short_run_keys_and_findings(tmp_path):
-    r = vc.reproduce(horizon_s=1.0, n_runs=20, json_path=tmp_path / "c.json", **SHORT_SEARCH)
+def test_continuous_short_run_keys_and_findings(tmp_path, monkeypatch, figure_checks):
+    figures = _capture_figures(monkeypatch)
+    r = vc.reproduce(horizon_s=1.0, n_runs=20, json_path=tmp_path / "c.json",
+                     plot_path=tmp_path / "c.png", rrd_path=tmp_path / "c.rrd", **SHORT_SEARCH)
     data = json.loads((tmp_path / "c.json").read_text())
     _check_common(data, 2, ("16", "17"))
     assert set(data["paper"]) == {"Q1", "Q2", "K1", "G1", "K2", "G2"}
@@ -182,7 +223,9 @@ def test_continuous_short_run_keys_and_findings(tmp_path):
     s = VarianceConstrainedContinuousScenario()
     _check_searched(data, s.plant, discrete=False, a=s.a, b=s.b)
     row = vc.row(r)
-    assert row["agree"].startswith("partly: yes - printed filters meet the three requirements")
+    assert row["agree"] == ("2 of 4 claims agree; differs: (17) solvable with the printed eps, "
+                            "delta, H; printed Q1, Q2, gains follow from (16)-(18)")
+    _check_outputs(tmp_path / "c.rrd", figures, figure_checks, data["claims"])
     assert f"{branch['gamma_reached']:.3g}" in row["ours"] and "196" not in row["ours"]
 
 

@@ -84,3 +84,100 @@ def test_names_follow_the_papers_and_are_documented():
         assert name.split("-")[0] in {"basin", "zhang", "wang", "liu"}  # first author
         assert module == "testbed.reproductions." + name.replace("-", "_")
         assert f"`{name}`" in references
+
+
+# ------------------------------------------------------------------ claims, figure, .rrd
+def _helicopter_expected(r: dict) -> list[bool]:
+    paper, err = r["paper_T_max"], r["final_error"]
+    return [r["T_max"] < r["gamma"], abs(r["T_final"] - paper) <= 0.05 * paper,
+            abs(r["T_max"] - paper) <= 0.05 * paper,
+            max(abs(err["pitch"]), abs(err["yaw"])) < 1e-3]
+
+
+def _polynomial_expected(r: dict) -> list[bool]:
+    paper, esc, c = r["paper"], r["escaped"], r["curve"]
+    exists = esc["poly"] is None and esc["linearized"] is None and r["horizon"] >= 1.4
+    pairs = [(p, q) for p, q in zip(c["poly"], c["linearized"], strict=True)
+             if p is not None and q is not None]
+    lin_end = r["T_at_paper_horizon"]["linearized"]
+    return [exists,
+            exists and abs(r["T_poly"] / paper["T_poly"] - 1) <= 0.05
+            and abs(r["T_linearized"] / paper["T_linearized"] - 1) <= 0.05,
+            r["T_poly"] < min(r["T_linearized"], r["gamma"]) and all(p < q for p, q in pairs),
+            lin_end is not None and lin_end > r["gamma"]]
+
+
+def _nonlinear_expected(r: dict) -> list[bool]:
+    return [r["inequality_holds"], r["corollary3"]["max_violation"] <= 0,
+            r["condition_26"]["possible"] and r["hji_27"]["max_violation"] <= 0
+            and r["hji_27_wide"]["max_violation"] <= 0]
+
+
+def _flip_helicopter(r: dict) -> int:
+    r["T_max"] = 2.0 * r["gamma"]
+    return 0
+
+
+def _flip_polynomial(r: dict) -> int:
+    r["T_at_paper_horizon"] = {**r["T_at_paper_horizon"], "linearized": 2.0 * r["gamma"]}
+    return 3
+
+
+def _flip_nonlinear(r: dict) -> int:
+    r["inequality_holds"] = not r["inequality_holds"]
+    return 0
+
+
+#: name -> (reproduce kwargs, independent verdicts, a change of one number -> claim it flips,
+#: the .rrd's runs)
+CASES = {
+    "basin-ms-hinf-helicopter": ({"horizon_s": 5.0}, _helicopter_expected, _flip_helicopter,
+                                 {"noise_free", "noisy"}),
+    "basin-polynomial-hinf": ({"horizon_s": 0.3}, _polynomial_expected, _flip_polynomial,
+                              {"polynomial_filter", "linearized_filter"}),
+    "zhang-nonlinear-discrete": ({"horizon_s": 50, "runs": 50}, _nonlinear_expected,
+                                 _flip_nonlinear, {"filter_in_loop"}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_claims_follow_the_numbers_figure_and_runs(name, tmp_path, monkeypatch, figure_checks):
+    import testbed.plots
+    from testbed.reproductions.outputs import agree_text
+    from testbed.rrd_inspect import inspect_rrd
+
+    kwargs, expected, flip, runs = CASES[name]
+    figures = []
+    save = testbed.plots.save_figure
+    monkeypatch.setattr(testbed.plots, "save_figure",
+                        lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
+    module = load(name)
+    module.reproduce(json_path=tmp_path / "r.json", plot_path=tmp_path / "r.png",
+                     rrd_path=tmp_path / "r.rrd", **kwargs)
+    r = json.loads((tmp_path / "r.json").read_text())
+    # verdicts: computed from the JSON's numbers, and as an independent reading of them says
+    claims = [c.__dict__ for c in module.claims(r)]
+    assert claims == r["claims"]
+    verdicts = [c["verdict"] for c in claims]
+    assert verdicts == ["agrees" if ok else "differs" for ok in expected(r)]
+    assert all(c["paper"] and c["ours"] for c in claims)
+    assert module.row(r)["agree"] == agree_text(claims)
+    changed = json.loads(json.dumps(r))
+    i = flip(changed)
+    assert module.claims(changed)[i].verdict != verdicts[i]
+    # the figure: the claims with their verdicts, readable, legends outside the data
+    (fig,) = figures
+    shown = " ".join(" ".join(t.get_text() for t in figure_checks.texts(fig)).split())
+    for c in claims:
+        assert f"[{c['verdict']}]" in shown and c["claim"][:30] in shown
+    assert " ".join(agree_text(claims).split()) in shown  # the title's summary
+    figure_checks.readable(fig)
+    figure_checks.legend_outside_axes(fig)
+    # the .rrd: each run under its own path with a text saying what it is
+    c = inspect_rrd(tmp_path / "r.rrd")
+    assert set(c.texts) == {f"{run}/about" for run in runs}
+    assert all(text.startswith("# ") and len(text) > 100 for text in c.texts.values())
+    assert {e.split("/")[0] for e in c.rows} == runs
+    if name == "basin-ms-hinf-helicopter":  # errors in rad, shown in degrees
+        assert c.styles["noisy/state/yaw_error/actual"]["names"][0].endswith("[deg]")
+        assert "noise-free" in c.texts["noise_free/about"].lower()

@@ -30,7 +30,6 @@ never the model's angles.
 
 from __future__ import annotations
 
-import textwrap
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,9 +40,17 @@ import numpy as np
 from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
 from filters.analysis import noise_output_ratio
 from testbed.plants.linear import simulate_linear
-from testbed.reproductions.outputs import agreement, write_outputs
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    claims_json,
+    draw_claims,
+    write_outputs,
+)
 from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
 from testbed.trajectory import Trajectory
+from testbed.viz import Run
 
 NAME = "basin-ms-hinf-helicopter"
 
@@ -217,11 +224,12 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
         "yaw_bias_contributions": _contributions(bias),
         "model_pitch_final_rad": float(mean["x"][-1, 0]),
         "model_pitch_final_u_only_rad": _free_pitch(s, dt_s, n_steps),
-        "wall_s": time.perf_counter() - start,
     }
+    result["claims"] = claims_json(claims(result))
+    result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(mean, noisy, yaw_errors, result, s, path),
-                  trajectory=lambda: _trajectory(noisy, s, result),
+                  runs=lambda: _runs(mean, noisy, s, result),
                   application_id="testbed-" + NAME)
     return result
 
@@ -232,11 +240,16 @@ MODEL_NOTE = ("The plant is the paper's gravity-free linear model (12)-(15), not
               "estimation errors and T, not the model's angles.")
 
 
+#: Units of the logged series (:func:`_trajectory`).
+UNITS = {"pitch_error": "rad", "yaw_error": "rad", "pitch_rate_error": "rad/s",
+         "yaw_rate_error": "rad/s", "V_pitch": "V", "V_yaw": "V"}
+
+
 def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
-                result: dict[str, Any]) -> Trajectory:
-    """The noisy run for the ``.rrd``: estimation errors (``estimate - truth``, rad, rad/s)
-    as the logged "state" and ``T(t)`` as the logged measurement, never the model's angles
-    (:data:`MODEL_NOTE`)."""
+                result: dict[str, Any], name: str = "noisy") -> Trajectory:
+    """One run (``name``: ``"noise_free"`` or ``"noisy"``) for the ``.rrd``: estimation errors
+    (``estimate - truth``, rad, rad/s) as the logged "state" and ``T(t)`` as the logged
+    measurement, never the model's angles (:data:`MODEL_NOTE`)."""
     err = run["est"] - run["x"]
     return Trajectory(t_s=run["t"], state=err,
                       state_names=["pitch_error", "yaw_error", "pitch_rate_error",
@@ -246,81 +259,104 @@ def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
                       action=np.tile(s.u, (len(run["t"]), 1)),
                       action_names=["V_pitch [V]", "V_yaw [V]"], estimate=None,
                       covariance=None,
-                      meta={"scenario": NAME, "run": "noisy",
+                      meta={"scenario": NAME, "run": name, "units": dict(UNITS),
                             "state": "estimation error estimate - truth of the mean-square "
                                      "H-infinity filter (rad, rad/s)",
-                            "measurement": "noise-output ratio T(t)",
+                            "measurement": "noise-output ratio T(t) (dimensionless)",
                             "note": MODEL_NOTE,
                             "model_pitch_final_rad": result["model_pitch_final_rad"]})
 
 
+def _runs(mean: dict[str, np.ndarray], noisy: dict[str, np.ndarray],
+          s: MsHinfHelicopterScenario, result: dict[str, Any]) -> list[Run]:
+    """The runs of the ``.rrd``: the noise-free (mean) run and the noisy run."""
+    common = (f"Logged: the estimation errors (estimate - truth) of the central mean-square "
+              f"H-infinity filter (gamma = {s.gamma}) and the noise-output ratio T(t); "
+              f"the disturbance w(t) is the paper's. {MODEL_NOTE}")
+    return [
+        Run(_trajectory(mean, s, result, "noise_free"), "noise_free", (
+            "# Noise-free (mean) run\n\nThe paper's linear model (12)-(15) without the white "
+            "noises b dW1 and h dW2: the trajectory of E[x] that the attenuation requirement "
+            f"(6) bounds; its T is the one compared with the paper's {s.paper_T_max} "
+            f"(here T({result['horizon_s']:g} s) = {result['T_final']:.4f}).\n\n" + common)),
+        Run(_trajectory(noisy, s, result, "noisy"), "noisy", (
+            f"# Noisy run (seed {result['seed']})\n\nThe same with the unit-intensity white "
+            "noises b dW1 (state) and h dW2 (y1), as printed; no H-infinity bound covers the "
+            f"error they add (T({result['horizon_s']:g} s) = {result['T_final_noisy']:.3f})."
+            "\n\n" + common)),
+    ]
+
+
 def _plot(mean: dict, noisy: dict, yaw_errors: dict[str, np.ndarray], result: dict[str, Any],
           s: MsHinfHelicopterScenario, path: str | Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from testbed.plots import FONT_PT, new_figure, save_figure, set_title
 
-    from testbed.io import atomic_path
+    claims_in = claims_height_in(result["claims"], wrap=130)
+    fig = new_figure(12, 11 + claims_in)
+    grid = fig.add_gridspec(4, 2, height_ratios=[3.6, 3.4, 3.4, claims_in])
 
-    fig = Figure(figsize=(11, 9.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(3, 2)
+    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
+        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.22),
+                  ncols=ncols, frameon=False)
+
     ax = fig.add_subplot(grid[0, :])
     ax.plot(mean["t"], mean["T"], label="T, mean (noise-free) run")
     ax.plot(noisy["t"], noisy["T"], label="T, noisy run", alpha=0.7)
     ax.plot(mean["t"], mean["T_kb"], "--", label="T, Kalman-Bucy on y1 (mean run)")
     ax.axhline(s.gamma, color="k", lw=0.8, label=f"gamma = {s.gamma}")
     ax.axhline(s.paper_T_max, color="r", ls=":", label=f"paper: max T = {s.paper_T_max}")
-    ax.set(title="Fig. 1: noise-output ratio T(t)", xlabel="t [s]", ylabel="T")
+    ax.set(title="Fig. 1: noise-output ratio T(t)", xlabel="t [s]",
+           ylabel="T [-] (dimensionless)")
     ax.set_yscale("log")
-    ax.legend(fontsize=8)
+    legend(ax, 5)
     for col, (i, name) in enumerate(((0, "pitch"), (1, "yaw"))):
         err = fig.add_subplot(grid[1, col])
         err.plot(noisy["t"], np.degrees(noisy["x"][:, i] - noisy["est"][:, i]), alpha=0.6,
                  label="noisy run")
         err.plot(mean["t"], np.degrees(mean["x"][:, i] - mean["est"][:, i]), "k",
-                 label="mean run")
+                 label="mean (noise-free) run")
         err.set(title=f"{name} estimation error (truth - estimate)", xlabel="t [s]",
-                ylabel="deg")
-        err.legend(fontsize=8)
+                ylabel=f"{name} error [deg]")
+        legend(err)
     bias = fig.add_subplot(grid[2, :])
     for name, e in yaw_errors.items():
         label = "paper's w" if name == "w" else name
         bias.plot(mean["t"], np.degrees(e), label=f"{label}: final "
                   f"{result['final_error_without'][name]['yaw']:.2e} rad")
     bias.set(title="yaw estimation error of the mean run with parts of w removed (w2: constant "
-                   "acceleration G w2 in the state; w4: in y2)", xlabel="t [s]", ylabel="deg")
-    bias.legend(fontsize=8)
-    fig.suptitle("Basin, Elvira-Ceja & Sanchez (n.d.), example: central mean-square "
-                 f"H-infinity filter, gamma = {s.gamma}\n" + textwrap.fill(MODEL_NOTE, 130),
-                 fontsize=9)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+                   "acceleration G w2 in the state; w4: in y2)", xlabel="t [s]",
+             ylabel="yaw error [deg]")
+    legend(bias, 4)
+    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=130)
+    set_title(fig, ["Basin, Elvira-Ceja & Sanchez (n.d.), example: central mean-square "
+                    f"H-infinity filter, gamma = {s.gamma}", MODEL_NOTE,
+                    agree_text(result["claims"])])
+    save_figure(fig, path)
 
 
-def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each claim of the example, whether we agree, and our number."""
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours, verdicts computed from ``result``."""
     T, T_max, paper = result["T_final"], result["T_max"], result["paper_T_max"]
+    h = result["horizon_s"]
     bias = result["final_error_without"]
-    yaw = abs(bias["w"]["yaw"])
+    parts = result["yaw_bias_contributions"]
     return [
-        {"label": "T stays below gamma",
-         "claim": f"T <= gamma = {result['gamma']} over the horizon",
-         "agree": bool(T_max < result["gamma"]),
-         "ours": f"max T = {T_max:.4f} (mean run)"},
-        {"label": f"T at {result['horizon_s']:g} s = {paper}",
-         "claim": f"T reaches {paper} (Fig. 1's final value)",
-         "agree": bool(abs(T - paper) <= 0.05 * paper),
-         "ours": f"T({result['horizon_s']:g} s) = {T:.4f} ({(T - paper) / paper:+.1%})"},
-        {"label": f"max T over the horizon = {paper}",
-         "claim": f"the maximum of T over 0-{result['horizon_s']:g} s is {paper}",
-         "agree": bool(abs(T_max - paper) <= 0.05 * paper),
-         "ours": (f"max T = {T_max:.4f} at t = {result['T_max_time_s']:.2f} s "
-                  f"({(T_max - paper) / paper:+.1%}), in the initial transient")},
-        {"label": "estimation errors converge to zero",
-         "claim": "the estimation errors converge to zero",
-         "agree": bool(yaw < 1e-3 and abs(bias["w"]["pitch"]) < 1e-3),
-         "ours": (f"final error pitch {bias['w']['pitch']:.2e} rad, yaw "
-                  f"{bias['w']['yaw']:.2e} rad")},
+        Claim("(6): T <= gamma over the horizon (mean run)", f"T <= gamma = {result['gamma']}",
+              f"max T = {T_max:.4f}", Claim.judge(T_max < result["gamma"])),
+        Claim(f"Fig. 1: T at the end of the horizon ({h:g} s)", f"{paper}",
+              f"T({h:g} s) = {T:.4f} ({(T - paper) / paper:+.1%})",
+              Claim.judge(abs(T - paper) <= 0.05 * paper), "tolerance 5 %"),
+        Claim(f"max of T over 0-{h:g} s", f"{paper}",
+              f"max T = {T_max:.4f} at t = {result['T_max_time_s']:.2f} s "
+              f"({(T_max - paper) / paper:+.1%})",
+              Claim.judge(abs(T_max - paper) <= 0.05 * paper),
+              "the maximum is in the initial transient; the paper's Fig. 1 may show the value "
+              "after it"),
+        Claim("the estimation errors converge to zero", "converge to zero",
+              f"final error pitch {bias['w']['pitch']:.2e} rad, yaw {bias['w']['yaw']:.2e} rad",
+              Claim.judge(abs(bias["w"]["yaw"]) < 1e-3 and abs(bias["w"]["pitch"]) < 1e-3),
+              f"w2 and w4 do not decay: yaw bias {parts['w2']:+.4f} rad from G w2, "
+              f"{parts['w4']:+.4f} rad from w4"),
     ]
 
 
@@ -345,7 +381,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                  f"(rest) rad; final yaw error with w4 = 0: {bias['w4 = 0']['yaw']:+.4f} rad, "
                  f"with w2 = 0: {bias['w2 = 0']['yaw']:+.4f} rad, with w2 = w4 = 0: "
                  f"{bias['w2 = w4 = 0']['yaw']:+.1e} rad"),
-        "agree": agreement(_findings(result)),
+        "agree": agree_text(result["claims"]),
         "why": (f"On the noise-free (mean) run, which is what (6) bounds, T at {h:g} s is "
                 f"{rel_final:+.1%} from {paper} and the maximum {rel_max:+.1%} (reached at "
                 f"{result['T_max_time_s']:.2f} s, in the initial transient; the paper's Fig. 1 "

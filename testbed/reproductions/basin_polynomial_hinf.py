@@ -46,9 +46,17 @@ import numpy as np
 from filters.analysis import noise_output_ratio
 from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
-from testbed.reproductions.outputs import agreement, write_outputs
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    claims_json,
+    draw_claims,
+    write_outputs,
+)
 from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario, paper_model
 from testbed.trajectory import Trajectory
+from testbed.viz import Run
 
 NAME = "basin-polynomial-hinf"
 #: Registered environment of the plant.
@@ -311,44 +319,64 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         "wall_s": 0.0,
     }
     result["escaped"] = {**main["escaped"], "plant": sim["plant_escape"]}
+    result["claims"] = claims_json(claims(result))
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(sim, result, s, path),
-                  trajectory=lambda: _trajectory(sim, result),
+                  runs=lambda: _runs(sim, result),
                   application_id="testbed-" + NAME, degrees=False)
     return result
 
 
-def _trajectory(sim: dict[str, Any], result: dict[str, Any], stride: int = 10) -> Trajectory:
-    """Truth, the polynomial filter (estimate, P) and the linearized estimate as extra
-    channels, on the interval where both filters exist (every ``stride``-th row)."""
-    t, r = sim["t"], sim["runs"]
-    k = min(r["poly"].last, r["linearized"].last)
-    rows = np.arange(0, k + 1, stride)
+#: The runs of the ``.rrd``: key of ``sim["runs"]`` -> (entity prefix, what it is).
+RRD_RUNS = {
+    "poly": ("polynomial_filter", "Polynomial H-infinity filter (25)-(26) as printed "
+             "(Theorem 1 with L = [1 0])"),
+    "linearized": ("linearized_filter", "Linearized H-infinity filter (27)-(28) as printed "
+                   "((27) is the Jacobian at the estimate, J(m) m)"),
+}
+
+
+def _trajectory(sim: dict[str, Any], key: str, stride: int = 10) -> Trajectory:
+    """Truth, the filter ``sim["runs"][key]`` (estimate and ``P``) and the measured ``y``
+    (interval average), while that filter exists (every ``stride``-th row). The system is
+    dimensionless (no units)."""
+    t, run = sim["t"], sim["runs"][key]
+    rows = np.arange(0, run.last + 1, stride)
     y = np.concatenate([sim["y"][:1], sim["y"]])[:, 0]  # row j: average over [t_j-1, t_j]
-    meas = np.column_stack([y[rows], r["linearized"].est[rows]])
     return Trajectory(t_s=t[rows], state=sim["x"][rows], state_names=["x1", "x2"],
-                      measurement=meas,
-                      measurement_names=["y", "linearized_x1", "linearized_x2"],
-                      measured_state_index=[0, 0, 1], action=np.zeros((len(rows), 0)),
-                      action_names=[], estimate=r["poly"].est[rows],
-                      covariance=r["poly"].P[rows],
-                      meta={"scenario": NAME, "estimate": "poly-hinf (25)-(26)",
-                            "linearized": "(27)-(28) as printed",
-                            "horizon": result["horizon"]})
+                      measurement=y[rows, None], measurement_names=["y"],
+                      measured_state_index=[0], action=np.zeros((len(rows), 0)),
+                      action_names=[], estimate=run.est[rows], covariance=run.P[rows],
+                      meta={"scenario": NAME, "filter": RRD_RUNS[key][1],
+                            "escaped": run.escaped})
+
+
+def _runs(sim: dict[str, Any], result: dict[str, Any]) -> list[Run]:
+    """One run per filter (:data:`RRD_RUNS`) on the same plant data, each until it escapes."""
+    out = []
+    for key, (prefix, what) in RRD_RUNS.items():
+        run = sim["runs"][key]
+        out.append(Run(_trajectory(sim, key), prefix, (
+            f"# {what}\n\nThe plant (22)-(24) with the printed L2 disturbances w1 = "
+            "1/(1+t)^2, w2 = 2/(2+t)^2 (no noise, deterministic), x(0) = "
+            f"{list(result['x0'])}; the filter from x_f(0) = 0, P(0) = I, gamma = "
+            f"{result['gamma']}, on the interval averages of y. State: truth x1, x2 and the "
+            f"filter's estimate with +-3 sqrt(P). Until t = {sim['t'][run.last]:.4f} s: "
+            f"{_esc(run.escaped)}. Dimensionless system (no units).")))
+    return out
 
 
 def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario,
           path: str | Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from testbed.io import atomic_path
+    from testbed.plots import FONT_PT, new_figure, save_figure, set_title
 
     t, x, r = sim["t"], sim["x"], sim["runs"]
-    fig = Figure(figsize=(10, 8), layout="constrained")
-    FigureCanvasAgg(fig)
-    top, bottom = fig.subplots(2, 1, sharex=True)
+    claims_in = claims_height_in(result["claims"], wrap=120)
+    fig = new_figure(11, 9.5 + claims_in)
+    grid = fig.add_gridspec(3, 1, height_ratios=[4.0, 4.6, claims_in])
+    top = fig.add_subplot(grid[0])
+    bottom = fig.add_subplot(grid[1], sharex=top)
     styles = (("poly", "polynomial filter (25)-(26)", dict(color="C0", lw=2.5)),
               ("linearized", "linearized (27)-(28) as printed", dict(color="C3", lw=1.0)),
               ("linearized_system", "linearized, (27) with the system's f",
@@ -370,16 +398,75 @@ def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario
     bottom.axvline(result["horizon"], color="grey", lw=0.8, ls="--",
                    label=f"both exist until t = {result['horizon']:.4f} s")
     top.set(title="Fig. 1 (above): output estimation error ||z - z_f||, z = x (dash-dot: "
-                  "escape detected)", ylabel="||z - z_f||")
+                  "escape detected)", xlabel="t [s]", ylabel="||z - z_f|| (dimensionless)")
     top.set_yscale("log")
-    top.legend(fontsize=8)
     bottom.set(title="Fig. 1 (below): noise-output ratio T(t) = ||z - z_f||_2 / (||w||_2^2 + "
-                     "x0' R x0)^1/2", xlabel="t [s]", ylabel="T")
-    bottom.legend(fontsize=8)
-    fig.suptitle("Basin, Shi & Calderon-Alvarez (n.d.), example: central H-infinity filters "
-                 "for x2' = 0.1 x2^2 + (0.1 + 0.1 sin 50t) x2^3 + w1, gamma = 1.05")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+                     "x0' R x0)^1/2", xlabel="t [s]", ylabel="T (dimensionless)")
+    bottom.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=3,
+                  frameon=False, title="both panels (dash-dot lines: escape detected)",
+                  title_fontsize=FONT_PT)
+    draw_claims(fig.add_subplot(grid[2]), result["claims"], wrap=120)
+    set_title(fig, ["Basin, Shi & Calderon-Alvarez (n.d.), example: central H-infinity filters "
+                    "for x2' = 0.1 x2^2 + (0.1 + 0.1 sin 50t) x2^3 + w1, gamma = 1.05",
+                    agree_text(result["claims"])])
+    save_figure(fig, path)
+
+
+def _checks(result: dict[str, Any]) -> dict[str, Any]:
+    """What the verdicts rest on: ``survives`` (both filters exist to the paper's horizon),
+    ``close`` (both ``T`` within 5 % of the paper's), ``better`` (the polynomial filter below
+    gamma and below the linearized one where both exist), ``both`` (the curve's points where
+    both exist: ``(t, T_poly, T_linearized)``)."""
+    paper, gamma = result["paper"], result["gamma"]
+    H, Tp, Tl = result["horizon"], result["T_poly"], result["T_linearized"]
+    esc, curve = result["escaped"], result["curve"]
+    both = [(ti, p, lv) for ti, p, lv in zip(curve["t"], curve["poly"], curve["linearized"],
+                                              strict=True) if p is not None and lv is not None]
+    return {"both": both,
+            "survives": esc["poly"] is None and esc["linearized"] is None
+            and H >= paper["horizon"],
+            "better": Tp < Tl and Tp < gamma and all(p < lv for _, p, lv in both),
+            "close": (abs(Tp - paper["T_poly"]) <= 0.05 * paper["T_poly"]
+                      and abs(Tl - paper["T_linearized"]) <= 0.05 * paper["T_linearized"])}
+
+
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours, verdicts computed from ``result``."""
+    paper, gamma = result["paper"], result["gamma"]
+    H, Tp, Tl = result["horizon"], result["T_poly"], result["T_linearized"]
+    esc = result["escaped"]
+    c = _checks(result)
+    both, survives, better = c["both"], c["survives"], c["better"]
+    at_paper = result["T_at_paper_horizon"]
+    h = paper["horizon"]
+    escape_why = ("(26) has the positive term (0.6 + 0.6 sin 50t) P22^2 (Remark 2): P22, then "
+                  "x_f, escape in finite time")
+    return [
+        Claim(f"the filters (25)-(26), (27)-(28) exist on [0, {h:g}] s", "yes",
+              f"(25)-(26): {_esc(esc['poly'])}; (27)-(28): {_esc(esc['linearized'])}",
+              Claim.judge(survives), "" if survives else escape_why),
+        Claim(f"Fig. 1: ||T_zw|| at t = {h:g} s (polynomial; linearized)",
+              f"{paper['T_poly']}; {paper['T_linearized']}",
+              "; ".join("none (escaped)" if v is None else f"{v:.3f}"
+                        for v in (at_paper["poly"], at_paper["linearized"]))
+              + f" (at the cut t = "
+              f"{H:.4f} s where both exist: {Tp:.3f}; {Tl:.3f})",
+              Claim.judge(survives and c["close"]),
+              "tolerance 5 %" + ("" if survives else "; not computable after the escape, "
+                                 "and the value at the cut depends on where the escape test "
+                                 "stops the filter")),
+        Claim("the polynomial filter stays below gamma and below the linearized one",
+              f"T_poly < gamma = {gamma} and < T_linearized",
+              f"where both exist (to t = {H:.4f} s): T_poly = {Tp:.3f}, T_linearized = "
+              f"{Tl:.3f}; " + ", ".join(f"{ti:g} s: {p:.3f}/{lv:.3f}" for ti, p, lv in both),
+              Claim.judge(better)),
+        Claim(f"the linearized filter exceeds gamma at t = {h:g} s",
+              f"T_linearized = {paper['T_linearized']} > gamma = {gamma}",
+              f"T_linearized({h:g} s) = {_num(at_paper['linearized'])} (exceeds gamma from "
+              + ("never" if result["exceeds_gamma_at"]["linearized"] is None else
+                 f"t = {result['exceeds_gamma_at']['linearized']:.3f} s") + ")",
+              Claim.judge(at_paper["linearized"] is not None and at_paper["linearized"] > gamma)),
+    ]
 
 
 def _esc(e: dict[str, Any] | None) -> str:
@@ -404,14 +491,9 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     sysv = result["linearized_variant"]["system"]
     ident = result["L_identity"]
     before = result["T_before_end"]
-    curve = result["curve"]
-    both = [(ti, p, lv) for ti, p, lv in zip(curve["t"], curve["poly"], curve["linearized"],
-                                              strict=True) if p is not None and lv is not None]
-    pts = ", ".join(f"{ti:g} s: {p:.3f}/{lv:.3f}" for ti, p, lv in both)
-    survives = esc["poly"] is None and esc["linearized"] is None and H >= paper["horizon"]
-    better = Tp < Tl and Tp < gamma and all(p < lv for _, p, lv in both)
-    close = (abs(Tp - paper["T_poly"]) <= 0.05 * paper["T_poly"]
-             and abs(Tl - paper["T_linearized"]) <= 0.05 * paper["T_linearized"])
+    c = _checks(result)
+    survives, better = c["survives"], c["better"]
+    pts = ", ".join(f"{ti:g} s: {p:.3f}/{lv:.3f}" for ti, p, lv in c["both"])
     at_paper = result["T_at_paper_horizon"]
     cross = result["exceeds_gamma_at"]["linearized"]
     ours = (f"(25)-(26) as printed: {_esc(esc['poly'])}; (27)-(28) as printed: "
@@ -452,14 +534,6 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                   f"||T_zw|| = {paper['T_poly']} < gamma = {gamma}, the linearized filter "
                   f"(27)-(28) {paper['T_linearized']} > gamma"),
         "ours": ours,
-        "agree": agreement([
-            {"label": f"(25)-(26) exist on [0, {paper['horizon']:g}]", "agree": survives},
-            {"label": f"||T_zw|| = {paper['T_poly']} and {paper['T_linearized']} at "
-                      f"t = {paper['horizon']:g}", "agree": survives and close},
-            {"label": "polynomial filter below gamma and below the linearized one where both "
-                      "exist", "agree": better},
-            {"label": "linearized filter above gamma at the horizon",
-             "agree": at_paper["linearized"] is not None and at_paper["linearized"] > gamma},
-        ]),
+        "agree": agree_text(result["claims"]),
         "why": why,
     }

@@ -135,28 +135,6 @@ def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int 
         offset += (len(lines) * 1.3 + 0.6) * fontsize
 
 
-def agreement(findings: list[dict[str, Any]]) -> str:
-    """The "agree" cell of ``docs/reproductions.md`` from a reproduction's findings.
-
-    Parameters
-    ----------
-    findings : list of dict
-        Each with ``label`` (short name of a claim) and ``agree`` (bool).
-
-    Returns
-    -------
-    str
-        ``"yes"``, ``"no"`` or ``"partly"``, followed by what agreed and what did not, e.g.
-        ``"partly: yes - a, b; no - c"``.
-    """
-    yes = [f["label"] for f in findings if f["agree"]]
-    no = [f["label"] for f in findings if not f["agree"]]
-    verdict = "yes" if not no else ("no" if not yes else "partly")
-    parts = ([f"yes - {', '.join(yes)}"] if yes else []) + ([f"no - {', '.join(no)}"]
-                                                            if no else [])
-    return f"{verdict}: " + "; ".join(parts)
-
-
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
                   plot: Callable[[str | os.PathLike], None],

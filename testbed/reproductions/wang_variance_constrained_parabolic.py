@@ -32,13 +32,15 @@ The ``.rrd`` and the last panel of the figure are one episode of ``testbed/Uncer
 (:class:`~testbed.wrappers.FilterInLoop`) at ``F = 1``.
 
 The helpers :func:`evaluate_published`, :func:`monte_carlo_block`, :func:`env_sample`,
-:func:`search_summary` and :func:`plot_published` are shared with
+:func:`search_summary`, :func:`plot_published`, :func:`plot_figure`, :func:`findings_claims`
+and :func:`episode_run` are shared with
 :mod:`testbed.reproductions.liu_variance_constrained_discrete`.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -70,9 +72,17 @@ from filters.variance_continuous import (
     search_parabolic_design,
 )
 from testbed.plants.uncertain_linear import UncertainLinearPlant
-from testbed.reproductions.outputs import agreement, write_outputs
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    claims_json,
+    draw_claims,
+    write_outputs,
+)
 from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
 from testbed.trajectory import Trajectory
+from testbed.viz import Run
 
 NAME = "wang-variance-constrained-parabolic"
 #: Registered environment of the plant (``testbed/UncertainLinear-v0``).
@@ -308,11 +318,33 @@ def trajectory(sample: dict[str, Any], scenario: str) -> Trajectory:
     return Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
                       measurement=meas, measurement_names=[f"y{i + 1}" for i in range(p)],
                       measured_state_index=[None] * p, action=np.zeros((len(t), 1)),
-                      action_names=["u [-]"], estimate=xhat,
+                      action_names=["u"], estimate=xhat,
                       covariance=np.broadcast_to(sample["P"], (len(t), n, n)).copy(),
                       meta={"scenario": scenario, "filter": sample["filter"],
                             "F": sample["F"], "seed": sample["seed"], "env": ENV_ID,
                             "covariance": "steady-state P (Lyapunov)"})
+
+
+def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
+    """The environment episode of a reproduction as one run of its ``.rrd`` (prefix
+    ``"episode"``), with its description; ``time_text`` says what ``t`` counts."""
+    return Run(trajectory(sample, scenario), "episode", (
+        f"# {ENV_ID} episode: filter {sample['filter']}, F = {sample['F']:g} (seed "
+        f"{sample['seed']})\n\nOne episode of the uncertain plant with the filter in the loop "
+        "(FilterInLoop), from x = xhat = 0: truth, estimate and the steady-state error "
+        "covariance P (Lyapunov) as the +-3 sigma band; what the figure's last panel shows. "
+        f"The Monte-Carlo statistics are separate runs, not logged. {time_text} The system "
+        "is dimensionless (no units)."))
+
+
+def findings_claims(findings: list[dict[str, Any]], paper: dict[str, str],
+                    why: dict[str, str] | None = None) -> list[Claim]:
+    """One :class:`Claim` per finding: the finding's ``label`` as the claim, ``paper[label]``
+    as the paper's value, its ``ours``, the verdict from its computed ``agree`` and
+    ``why.get(label, "")``."""
+    why = why or {}
+    return [Claim(f["label"], paper[f["label"]], f["ours"], Claim.judge(bool(f["agree"])),
+                  why.get(f["label"], "")) for f in findings]
 
 
 def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
@@ -487,9 +519,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
                    "total": time.perf_counter() - start},
     }
     result["findings"] = _findings(result)
+    result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(result, s, plant, sample, path),
-                  trajectory=lambda: trajectory(sample, NAME),
+                  runs=lambda: [episode_run(sample, NAME, f"t in s (dt = {DT_S:g} s).")],
                   application_id="testbed-" + NAME, degrees=False)
     return result
 
@@ -561,34 +594,48 @@ def _paper_checks(s: VarianceConstrainedContinuousScenario,
 
 def _plot(result: dict[str, Any], s: VarianceConstrainedContinuousScenario,
           plant: UncertainPlant, sample: dict[str, Any], path: str | Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from testbed.io import atomic_path
-
-    fig = Figure(figsize=(12, 9), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots(2, 2)
-    plot_published(ax, result, plant, s.region, s.gamma, s.sigma2, sample,
-                   discrete=False)
     branch = result["design_diagnostics"]["equation17_branch"]["gamma_reached"]
     found = result["searched"] is not None
-    fig.suptitle("Wang & Fang (2006), example: printed filters and the searched Theorem 1 "
-                 "design, checked for all |F| <= 1.\nPrinted eps: (17)'s branch ends at gamma "
-                 f"= {branch:.3g} > {s.gamma:g}; design search: "
-                 f"{'verified design found' if found else 'nothing verified'}")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+    plot_figure(result, plant, s.region, s.gamma, s.sigma2, sample, discrete=False,
+                title=["Wang & Fang (2006), example: printed filters and the searched Theorem 1 "
+                       "design, checked for all |F| <= 1",
+                       f"Printed eps: (17)'s branch ends at gamma = {branch:.3g} > "
+                       f"{s.gamma:g}; design search: "
+                       f"{'verified design found' if found else 'nothing verified'}"],
+                path=path)
+
+
+def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegion,
+                gamma: float, sigma2: np.ndarray, sample: dict[str, Any], *, discrete: bool,
+                title: list[str], path: str | Path, extra: Any = None) -> None:
+    """The figure of a variance-constrained reproduction: :func:`plot_published`'s four
+    panels, the claims (``result["claims"]``) under them, ``title`` and the claims' summary
+    on top. ``extra(ax)`` (optional) draws more into the panels before their legends."""
+    from testbed.plots import new_figure, save_figure, set_title
+
+    claims_in = claims_height_in(result["claims"], wrap=140)
+    fig = new_figure(12, 12 + claims_in)
+    grid = fig.add_gridspec(3, 2, height_ratios=[5.6, 5.6, claims_in])
+    ax = np.array([[fig.add_subplot(grid[i, j]) for j in range(2)] for i in range(2)])
+    plot_published(ax, result, plant, region, gamma, sigma2, sample, discrete=discrete,
+                   extra=extra)
+    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
+    set_title(fig, [*title, agree_text(result["claims"])])
+    save_figure(fig, path)
 
 
 def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
                    region: PoleRegion, gamma: float, sigma2: np.ndarray,
-                   sample: dict[str, Any], *, discrete: bool) -> None:
+                   sample: dict[str, Any], *, discrete: bool, extra: Any = None) -> None:
     """Four panels: poles over F with the region, H-infinity norm over F, variances
     (Lyapunov curve, Monte-Carlo points), one environment episode's error with +-2 sigma.
 
-    The filters are ``result["published"]`` and, if found, ``result["searched"]``.
+    The filters are ``result["published"]`` and, if found, ``result["searched"]``. The
+    system is dimensionless; time is in s (continuous) or samples (discrete). Legends go
+    below the panels; ``extra(ax)`` draws more before them.
     """
+    from testbed.plots import FONT_PT
+
     Fs = np.linspace(-1.0, 1.0, 41)
     markers = ["o", "s", "^"]
     filters = result["published"] + ([result["searched"]] if result.get("searched") else [])
@@ -604,10 +651,13 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
         for mc in result["monte_carlo"]:
             if mc["filter"] == pub["name"]:
                 ax[1, 0].errorbar([mc["F"]] * plant.n, mc["variance_mc"],
-                                  yerr=[2 * e for e in mc["std_error"]], fmt="k.", ms=4)
+                                  yerr=[2 * e for e in mc["std_error"]], fmt="k.", ms=4,
+                                  label="Monte Carlo +-2 s.e." if i == 0 and mc["F"] == 1.0
+                                  else None)
     if discrete:
         th = np.linspace(0, 2 * np.pi, 200)
         ax[0, 0].plot(np.cos(th), np.sin(th), "k", lw=0.8, label="unit circle")
+        ax[0, 0].set(xlabel="Re z", ylabel="Im z")
     else:
         a, b = region.a, region.b  # type: ignore[attr-defined]
         im = np.linspace(-3, 3, 200)
@@ -617,28 +667,34 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
         c = float(np.real(disk.center))
         ax[0, 0].plot(c + disk.radius * np.cos(th), disk.radius * np.sin(th), "k:", lw=0.8,
                       label="disk of proof (28)")
-    ax[0, 0].set(title="poles of A_f + M_f F N_f, F in [-1, 1]", xlabel="Re", ylabel="Im")
-    ax[0, 0].legend(fontsize=7)
+        ax[0, 0].set(xlabel="Re s [1/s]", ylabel="Im s [1/s]")
+    ax[0, 0].set_title("poles of A_f + M_f F N_f, F in [-1, 1]")
     ax[0, 1].axhline(gamma, color="k", lw=0.8, label=f"gamma = {gamma:g}")
-    ax[0, 1].set(title="||H||_inf from w to L e over F", xlabel="F", yscale="log")
-    ax[0, 1].legend(fontsize=7)
+    ax[0, 1].set(title="||H||_inf from w to L e over F", xlabel="F (dimensionless)",
+                 ylabel="||H||_inf (dimensionless)", yscale="log")
     for j, v in enumerate(sigma2):
         ax[1, 0].axhline(v, color="k", ls="--", lw=0.8,
                          label=f"sigma_i^2 = {[float(x) for x in sigma2]}" if j == 0 else None)
-    ax[1, 0].set_title("steady-state error variances (lines: Lyapunov; dots: Monte Carlo "
-                       "+-2 s.e.)", fontsize=9)
-    ax[1, 0].set(xlabel="F", yscale="log")
-    ax[1, 0].legend(fontsize=6)
+    ax[1, 0].set(title="steady-state error variances (lines: Lyapunov; dots: Monte Carlo)",
+                 xlabel="F (dimensionless)", ylabel="error variance (dimensionless)",
+                 yscale="log")
     t, e = sample["t"], sample["x"] - sample["xhat"]
     sd = np.sqrt(np.diag(sample["P"]))
     for j in range(e.shape[1]):
         ax[1, 1].plot(t, e[:, j], lw=0.6, label=f"e{j + 1}")
-        ax[1, 1].axhline(2 * sd[j], color=f"C{j}", ls=":", lw=0.8)
+        ax[1, 1].axhline(2 * sd[j], color=f"C{j}", ls=":", lw=0.8,
+                         label=f"e{j + 1}: +-2 sigma (steady state)")
         ax[1, 1].axhline(-2 * sd[j], color=f"C{j}", ls=":", lw=0.8)
-    ax[1, 1].set_title(f"estimation error, one {ENV_ID} episode: {sample['filter']}, "
-                       f"F = {sample['F']:g} (dotted: +-2 sigma)", fontsize=9)
-    ax[1, 1].set(xlabel="t [s]" if not discrete else "k")
-    ax[1, 1].legend(fontsize=7)
+    ax[1, 1].set(title=f"estimation error, one {ENV_ID} episode: {sample['filter']}, "
+                       f"F = {sample['F']:g}",
+                 xlabel="k [samples]" if discrete else "t [s]",
+                 ylabel="e = x - xhat (dimensionless)")
+    if extra is not None:
+        extra(ax)
+    for a_ in ax.ravel():
+        a_.set_title(textwrap.fill(a_.get_title(), 60), fontsize=10)
+        a_.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2,
+                  frameon=False)
 
 
 def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
@@ -694,6 +750,31 @@ def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
     ]
 
 
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours (one per finding), verdicts computed from ``result``."""
+    p = result["parameters"]
+    best = (result["design_search"]["summary"] or {}).get("parameters")
+    spec = (f"poles in P({p['a']:g}, {p['b']:g}), ||H||inf <= {p['gamma']:g}, var <= "
+            f"{p['sigma2']} for every |F| <= 1")
+    return findings_claims(result["findings"], paper={
+        "printed filters meet the three requirements": f"yes: {spec}",
+        "(17) solvable with the printed eps, delta, H":
+            f"yes (eps1 = eps2 = {p['eps1']:g}, delta1 = delta2 = {p['delta1']:g}, "
+            f"gamma = {p['gamma']:g}; Q1, Q2 printed)",
+        "printed Q1, Q2, gains follow from (16)-(18)": "yes (Q1, Q2, K1, G1, K2, G2 printed)",
+        "a Theorem 1 design meeting the specification exists": f"yes: {spec}",
+    }, why={
+        "printed filters meet the three requirements": "Theorem 1 is only sufficient",
+        "(17) solvable with the printed eps, delta, H":
+            "H enters (17) only through +H H^T, so no H reaches the printed gamma at these eps",
+        "printed Q1, Q2, gains follow from (16)-(18)":
+            "Theorem 1 is only sufficient: the printed filters still meet the requirements",
+        "a Theorem 1 design meeting the specification exists":
+            "" if best is None else f"at other parameters (best: eps1 = {best['eps1']:.3g}, "
+            f"eps2 = {best['eps2']:.3g}), not the printed ones",
+    })
+
+
 def row(result: dict[str, Any]) -> dict[str, str]:
     """The line of ``docs/reproductions.md`` for this reproduction."""
     p = result["parameters"]
@@ -701,7 +782,6 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     pubs = result["published"]
     diag = result["design_diagnostics"]
     search = result["design_search"]
-    findings = result["findings"]
     mc = result["monte_carlo"]
     worst_rel = max(abs(v) for m in mc for v in m["relative_to_lyapunov"])
     worst_z = max(abs(v) for m in mc for v in m["z_vs_sampled"])
@@ -757,6 +837,6 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                   f"P({p['a']:g}, {p['b']:g}), ||H||inf <= {p['gamma']:g} and var <= "
                   f"{p['sigma2']} for all |F| <= 1"),
         "ours": f"{design_txt}. {search_txt}. Printed filters: {pub_txt}",
-        "agree": agreement(findings),
+        "agree": agree_text(result["claims"]),
         "why": why,
     }

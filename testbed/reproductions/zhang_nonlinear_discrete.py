@@ -37,9 +37,17 @@ import numpy as np
 
 from filters.lmi_hinf import LMIHInfFilter
 from testbed.plants import nonlinear_discrete as plant
-from testbed.reproductions.outputs import agreement, write_outputs
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    claims_json,
+    draw_claims,
+    write_outputs,
+)
 from testbed.scenarios.zhang_hinf import NonlinearDiscreteScenario
 from testbed.trajectory import Trajectory
+from testbed.viz import Run
 
 NAME = "zhang-nonlinear-discrete"
 #: The HJI (27) must hold for every v: it is sampled on [-HJI_V_MAX, HJI_V_MAX] (the paper's
@@ -178,50 +186,69 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         "condition_26": plant.condition26_check(),
         "max_abs_state": float(np.abs(x).max()),
     }
+    result["claims"] = claims_json(claims(result))
     loop = run_in_loop(x0, steps, seed) if (plot_path or rrd_path) else None
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma,
                                           s, path),
-                  trajectory=lambda: _trajectory(loop),
+                  runs=lambda: _runs(loop, result),
                   application_id="testbed-" + NAME, degrees=False)
     return result
 
 
 def _trajectory(run: dict[str, np.ndarray]) -> Trajectory:
+    """The in-the-loop run; the system is dimensionless (no units), ``t_s`` counts steps."""
     return Trajectory(t_s=run["t"], state=run["x"], state_names=list(plant.STATE_NAMES),
                       measurement=run["y"], measurement_names=list(plant.MEASUREMENT_NAMES),
                       measured_state_index=[None, None], action=run["v"][:, None],
-                      action_names=["v [-]"], estimate=run["xhat"],
+                      action_names=["v"], estimate=run["xhat"],
                       meta={"scenario": NAME, "filter": "(50)"})
+
+
+def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
+    """The run of the ``.rrd``: one episode with the filter (50) in the loop."""
+    return [Run(_trajectory(run), "filter_in_loop", (
+        f"# System (49) with the filter (50) in the loop (seed {result['seed']})\n\n"
+        "One episode of testbed/NonlinearDiscrete-v0 (the FilterInLoop wrapper): "
+        f"x0 = {result['x0']}, xhat_0 = 0, disturbance v_k = 2 * 0.9999^k (logged as the "
+        "action), noise w_k ~ N(0, 1). What Figs. 1-2 show; Fig. 3 averages "
+        f"{result['runs']} such runs (simulated separately, vectorized). Time counts steps; "
+        "the system is dimensionless (no units)."))]
 
 
 def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.ndarray,
           xh: np.ndarray, gamma: float, s: NonlinearDiscreteScenario, path: str | Path) -> None:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from testbed.plots import FONT_PT, new_figure, save_figure, set_title
 
-    from testbed.io import atomic_path
+    claims_in = claims_height_in(result["claims"], wrap=140)
+    fig = new_figure(12, 9 + claims_in)
+    grid = fig.add_gridspec(3, 2, height_ratios=[4.0, 4.0, claims_in])
+    k_label = "k [steps]"
 
-    fig = Figure(figsize=(12, 8), layout="constrained")
-    FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(2, 2)
+    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
+        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.2),
+                  ncols=ncols, frameon=False)
+
     ax = fig.add_subplot(grid[0, 0])
     ax.plot(loop["t"], plant.output(loop["x"]), label="z_k")
     ax.plot(loop["t"], plant.output(loop["xhat"]), "--", label="zhat_k (filter (50))")
-    ax.set(title="Fig. 1: z_k and zhat_k (one run, filter in the loop)", xlabel="k")
-    ax.legend(fontsize=8)
+    ax.set(title="Fig. 1: z_k and zhat_k (one run, filter in the loop)", xlabel=k_label,
+           ylabel="z_k, zhat_k (dimensionless)")
+    legend(ax)
     ax = fig.add_subplot(grid[0, 1])
     ax.plot(loop["t"], loop["z_err"], label="ztilde_k, in-the-loop run")
-    ax.set(title="Fig. 2: estimation error ztilde_k = z_k - zhat_k", xlabel="k")
-    ax.legend(fontsize=8)
+    ax.set(title="Fig. 2: estimation error ztilde_k = z_k - zhat_k", xlabel=k_label,
+           ylabel="ztilde_k (dimensionless)")
+    legend(ax)
     ax = fig.add_subplot(grid[1, 0])
     k = np.arange(len(sum_z))
     ax.plot(k, sum_z, label=f"sum E ztilde^2 ({result['runs']} runs)")
     ax.plot(k, gv, "--", label=f"gamma^2 sum v^2 (gamma = {gamma:g})")
     ax.set_yscale("log")
-    ax.set(title=f"Fig. 3: cumulative sums, x0 = {result['x0']}", xlabel="k")
-    ax.legend(fontsize=8)
+    ax.set(title=f"Fig. 3: cumulative sums, x0 = {result['x0']}", xlabel=k_label,
+           ylabel="cumulative sum (dimensionless)")
+    legend(ax)
     ax = fig.add_subplot(grid[1, 1])
     axis = np.linspace(-s.grid_halfwidth, s.grid_halfwidth, 161)
     X2, XH2 = np.meshgrid(axis, axis, indexing="xy")
@@ -231,12 +258,49 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     top = float(np.abs(c36).max())
     mesh = ax.pcolormesh(X2, XH2, c36, cmap="RdBu_r", vmin=-top, vmax=top, shading="auto")
     ax.contour(X2, XH2, c36, levels=[0.0], colors="k", linewidths=1.0)
-    fig.colorbar(mesh, ax=ax, label="(36) left-hand side (> 0: violated)")
-    ax.set(title="Corollary 3 (36), Q1 = Q2 = I, slice x1 = xhat1 = 0 (violated near 0)",
-           xlabel="x2", ylabel="xhat2")
-    fig.suptitle("Zhang, Deng & Zhang (2018), Example 5.1: nonlinear system (49), filter (50)")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
+    fig.colorbar(mesh, cax=ax.inset_axes((1.03, 0.0, 0.04, 1.0)),
+                 label="(36) left-hand side (> 0: violated)")
+    ax.set(title="Corollary 3 (36), Q1 = Q2 = I, slice x1 = xhat1 = 0 (black: 0 contour)",
+           xlabel="x2 (dimensionless)", ylabel="xhat2 (dimensionless)")
+    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
+    set_title(fig, ["Zhang, Deng & Zhang (2018), Example 5.1: nonlinear system (49), filter "
+                    f"(50); x0 = {result['x0']} and gamma = {gamma:g} are ours (not stated)",
+                    agree_text(result["claims"])])
+    save_figure(fig, path)
+
+
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours, verdicts computed from ``result``."""
+    cor, pr = result["corollary3"], result["corollary3_printed"]
+    hji, wide, c26 = result["hji_27"], result["hji_27_wide"], result["condition_26"]
+    v0, v1 = hji["v_range"]
+    return [
+        Claim(f"Fig. 3: sum E ztilde^2 < gamma^2 sum v^2 at every k ({result['runs']} runs)",
+              "holds (x0, gamma not stated)",
+              f"{'holds' if result['inequality_holds'] else 'fails'}: "
+              f"{result['sum_E_z2']:.4g} vs {result['gamma2_sum_v2']:.4g} at k = "
+              f"{result['steps']} (gamma = {result['gamma']:g}, x0 = {result['x0']}); "
+              f"smallest gamma that works {result['smallest_gamma_mc']:.3g}",
+              Claim.judge(result["inequality_holds"]),
+              "x0 and gamma are ours; the sums are dominated by k = 0 (smallest gamma "
+              f"{result['smallest_gamma_mc_after_k0']:.3g} without it)"),
+        Claim("Corollary 3: (35)-(36) hold with Q1 = Q2 = I", "'easily' hold",
+              f"max violation {cor['max_violation']:.3g} on [-{cor['halfwidth']:g}, "
+              f"{cor['halfwidth']:g}]^4 ((36) violated on {cor['fraction_violated_36']:.1%} "
+              f"of the grid); as printed {pr['max_violation']:.3g}",
+              Claim.judge(cor["max_violation"] <= 0),
+              f"(36) is violated arbitrarily close to 0 (Hessian eigenvalue "
+              f"{cor['hessian_36_max_eig_at_0']:.3g} > 0)"),
+        Claim("(50) is an H-infinity filter for (49) (Corollary 2: HJI (27) and (26))", "yes",
+              f"HJI (27), v in [{v0:g}, {v1:g}]: max {hji['max_violation']:.3g} on "
+              f"[-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4, {wide['max_violation']:.3g} "
+              f"on [-{wide['halfwidth']:g}, {wide['halfwidth']:g}]^4; (26) possible: "
+              f"{'yes' if c26['possible'] else 'no'}",
+              Claim.judge(bool(c26["possible"] and hji["max_violation"] <= 0
+                               and wide["max_violation"] <= 0)),
+              f"ztilde(eta, 0) = 0 on a {c26['null_space_dim']}-dimensional subspace, so no "
+              "positive W satisfies (26); (27) is only sampled on grids"),
+    ]
 
 
 def row(result: dict[str, Any]) -> dict[str, str]:
@@ -245,7 +309,6 @@ def row(result: dict[str, Any]) -> dict[str, str]:
     wide, c26 = result["hji_27_wide"], result["condition_26"]
     v0, v1 = hji["v_range"]
     held = "holds" if result["inequality_holds"] else "fails"
-    findings = _findings(result)
     return {
         "paper": "Zhang, Deng & Zhang (2018), Example 5.1",
         "claim": "(35)-(36) 'easily' hold with Q1 = Q2 = I, so (50) is an H-infinity filter; "
@@ -263,7 +326,7 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                  f"{wide['halfwidth']:g}]^4 ({wide['fraction_violated']:.1%} of that grid "
                  f"violated); (26): |ztilde(eta, 0)|^2 = 0 on a {c26['null_space_dim']}-"
                  "dimensional subspace"),
-        "agree": agreement(findings),
+        "agree": agree_text(result["claims"]),
         "why": ("The Monte-Carlo inequality holds, but Corollary 3 does not certify (50): (36) is "
                 "violated even arbitrarily close to 0 (Hessian eigenvalue "
                 f"{cor['hessian_36_max_eig_at_0']:.3g} > 0), and the printed (35)-(36) also miss "
@@ -279,26 +342,3 @@ def row(result: dict[str, Any]) -> dict[str, str]:
                 "k = 0 (ztilde_0 = z_0 with xhat_0 = 0): smallest gamma "
                 f"{result['smallest_gamma_mc_after_k0']:.3g} without it."),
     }
-
-
-def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each claim of the example, whether we agree, and our number."""
-    cor, hji, wide = result["corollary3"], result["hji_27"], result["hji_27_wide"]
-    c26 = result["condition_26"]
-    return [
-        {"label": "Monte-Carlo inequality (Fig. 3)",
-         "claim": "sum E ztilde^2 < gamma^2 sum v^2 at every k (1000 runs)",
-         "agree": bool(result["inequality_holds"]),
-         "ours": f"{result['sum_E_z2']:.4g} vs {result['gamma2_sum_v2']:.4g}"},
-        {"label": "(35)-(36) hold with Q1 = Q2 = I",
-         "claim": "(35)-(36) hold with Q1 = Q2 = I",
-         "agree": bool(cor["max_violation"] <= 0),
-         "ours": f"max violation {cor['max_violation']:.3g} on the grid"},
-        {"label": "(50) certified as an H-infinity filter (Corollary 2)",
-         "claim": "(50) is an H-infinity filter for (49)",
-         "agree": bool(c26["possible"] and hji["max_violation"] <= 0
-                       and wide["max_violation"] <= 0),
-         "ours": (f"HJI (27) max {hji['max_violation']:.3g} on the small box, "
-                  f"{wide['max_violation']:.3g} on the wide one; (26) possible: "
-                  f"{c26['possible']}")},
-    ]
