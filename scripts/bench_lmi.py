@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import json
 import statistics
+import sys
 import time
+from pathlib import Path
 
-from filters.lmi_hinf import design_lmi_hinf, minimal_gamma
-from testbed.scenarios.zhang_hinf import paper_system
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages
+
+from filters.lmi_hinf import design_lmi_hinf, minimal_gamma  # noqa: E402
+from testbed.scenarios.zhang_hinf import paper_system  # noqa: E402
 
 
 def bench_lmi(repeats: int = 11, bisections: int = 3) -> dict[str, float]:

@@ -16,6 +16,9 @@ Usage::
   vehicle roll: the double-lane-change manoeuvre open loop, with its per-step damping noise),
   same trajectories and steps, set-up included (``traj_steps_per_s`` of the result);
   ``mc_vs_raw`` / ``mc_vehicle_vs_raw`` their ratios (target >= 0.7 each);
+- ``mc_vs_raw_1thread`` / ``mc_vehicle_vs_raw_1thread``: the same ratios with one physics
+  thread for both (a quarter of the steps), which a busy second core does not distort: the
+  testbed's own cost per step without the threading;
 - ``mc_mshinf_traj_steps_per_s``: the helicopter with Basin et al.'s mean-square
   H-infinity filter and disturbance (``ms-hinf``, ``basin-helicopter``);
 - ``mc_peak_rss_mb``: peak resident memory of a fresh process running a streaming
@@ -197,7 +200,8 @@ def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
     Returns
     -------
     dict
-        The keys of :func:`bench_rig` for both rigs, ``mc_mshinf_traj_steps_per_s``,
+        The keys of :func:`bench_rig` for both rigs, their ``mc_*vs_raw*`` keys with one
+        thread (suffix ``_1thread``, when ``threads > 1``), ``mc_mshinf_traj_steps_per_s``,
         ``mc_peak_rss_mb``, ``import_rss_mb``, ``scaling`` (``"N=..,steps=.."`` ->
         ``{"us_per_traj_step", "traj_steps_per_s"}``), ``threads``, ``runs``, ``steps``.
     """
@@ -205,6 +209,11 @@ def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
     out: dict[str, Any] = {}
     for rig_name in RIG_SCENARIOS:
         out.update(bench_rig(rig_name, runs, steps, threads, repeats))
+    if threads > 1:  # diagnostic: the same without threads (insensitive to a busy core)
+        for rig_name in RIG_SCENARIOS:
+            single = bench_rig(rig_name, runs, max(steps // 4, 1), 1, repeats)
+            out.update({f"{k}_1thread": v for k, v in single.items()
+                        if k.startswith("mc_") and k.endswith("vs_raw")})
     mshinf = Scenario(rig="helicopter", estimator="ms-hinf", disturbance="basin-helicopter")
     out["mc_mshinf_traj_steps_per_s"] = mc_traj_steps_per_s(mshinf, runs, steps, threads)
     scenario = RIG_SCENARIOS["helicopter"][1]

@@ -31,7 +31,8 @@ shared):
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
 - Monte Carlo (``scripts/bench_mc.py``, both rigs): ``raw_rollout_traj_steps_per_s``,
   ``mc_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.7), their ``vehicle`` counterparts
-  with ``mc_vehicle_vs_raw`` (target >= 0.7), ``mc_mshinf_traj_steps_per_s``,
+  with ``mc_vehicle_vs_raw`` (target >= 0.7), both ratios with one thread
+  (``*_1thread``, diagnostic), ``mc_mshinf_traj_steps_per_s``,
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
   scale: 1000 helicopter runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a
   16-point sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long
@@ -95,6 +96,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "raw_rollout_vehicle_traj_steps_per_s": ("1/s", "bare mujoco.rollout, vehicle roll"),
     "mc_vehicle_traj_steps_per_s": ("1/s", "monte_carlo vehicle roll, Kalman, manoeuvre"),
     "mc_vehicle_vs_raw": ("", "mc_vehicle_traj_steps_per_s / raw_rollout_vehicle_..."),
+    "mc_vs_raw_1thread": ("", "mc_vs_raw with one physics thread for both (diagnostic)"),
+    "mc_vehicle_vs_raw_1thread": ("", "mc_vehicle_vs_raw with one thread (diagnostic)"),
     "mc_mshinf_traj_steps_per_s": ("1/s", "monte_carlo helicopter, mean-square H-infinity"),
     "mc_peak_rss_mb": ("MB", "peak RSS, streaming monte_carlo (N = 1000 x 2000 steps)"),
     "import_rss_mb": ("MB", "peak RSS of a process that only imports the runner"),
