@@ -489,7 +489,8 @@ class Simulator:
                         raise ValueError("options['params'] must be a dict {field: scale} or a "
                                          f"list of {k} such dicts, got {value!r}")
                     values = list(value)
-                elif key == "x0" and np.ndim(value) == 2:
+                elif key == "x0" and np.ndim(real_array(value, "options['x0']",
+                                                        finite=False)) == 2:
                     values = list(real_array(value, "options['x0']", finite=False))
                 else:
                     values = [value] * k
