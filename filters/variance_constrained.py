@@ -43,6 +43,7 @@ from filters._linalg import (
     matrix,
     positive_time,
     readonly,
+    real_array,
     to_float_array,
     zoh,
 )
@@ -832,6 +833,37 @@ def _single_threaded_blas() -> contextlib.AbstractContextManager[Any]:
 
 #: Objective of a failed evaluation (an equation without solution and no finer measure).
 INFEASIBLE = 1e3
+
+
+def search_space(n: int, sigma2: npt.ArrayLike, eps_bounds: tuple[float, float],
+                 delta_bounds: tuple[float, float], h_bound: float
+                 ) -> tuple[FloatArray, tuple[float, float], tuple[float, float]]:
+    """Checked inputs of a design search: ``sigma2`` (n,) and the log10 bounds of the eps and
+    delta scalars (``ValueError`` naming the argument otherwise)."""
+    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
+    if s2.shape != (n,) or not np.all(np.isfinite(s2)) or np.any(s2 <= 0):
+        raise ValueError(f"sigma2 must be a positive finite array of shape ({n},), got "
+                         f"{np.shape(sigma2)}")
+    for name, bd in (("eps_bounds", eps_bounds), ("delta_bounds", delta_bounds)):
+        if not (0 < bd[0] < bd[1] < math.inf):
+            raise ValueError(f"{name} must be (low, high) with 0 < low < high, got {bd!r}")
+    if not (h_bound > 0 and math.isfinite(h_bound)):
+        raise ValueError(f"h_bound must be a positive finite float, got {h_bound!r}")
+    return (s2, (math.log10(eps_bounds[0]), math.log10(eps_bounds[1])),
+            (math.log10(delta_bounds[0]), math.log10(delta_bounds[1])))
+
+
+def random_search_start(rng: np.random.Generator, n_eps: int, log_eps: tuple[float, float],
+                        log_delta: tuple[float, float], n_h: int,
+                        eps_window: tuple[float, float]) -> FloatArray:
+    """A random start ``[log10 eps (n_eps), log10 delta (2), H (n_h)]`` of a design search:
+    eps and delta uniform in decades (within ``eps_window`` and ``[-4, -1]``), ``H`` a random
+    direction of size ``10^U(-3, -0.5)``."""
+    e = rng.uniform(max(log_eps[0], eps_window[0]), min(log_eps[1], eps_window[1]), n_eps)
+    dl = rng.uniform(max(log_delta[0], -4.0), min(log_delta[1], -1.0), 2)
+    h = rng.standard_normal(n_h)
+    h *= 10.0 ** rng.uniform(-3.0, -0.5) / max(float(np.linalg.norm(h)), 1e-300)
+    return np.concatenate([e, dl, h])
 
 
 def run_design_search(objective: Callable[[FloatArray], tuple[float, VarianceDesign | None]],

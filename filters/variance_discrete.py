@@ -88,7 +88,9 @@ from filters.variance_constrained import (
     inverse_sqrt,
     is_positive_definite,
     passes,
+    random_search_start,
     run_design_search,
+    search_space,
     solve_symmetric_equation,
     structured_then_multistart,
     verify_design,
@@ -804,18 +806,8 @@ def search_discrete_design(plant: UncertainPlant, prm: DiscreteDesignParameters,
     """
     _check(plant, prm)
     n, p = plant.n, plant.p
-    s2 = real_array(sigma2, "sigma2", finite=False).reshape(-1)
-    if s2.shape != (n,) or not np.all(np.isfinite(s2)) or np.any(s2 <= 0):
-        raise ValueError(f"sigma2 must be a positive finite array of shape ({n},), got "
-                         f"{np.shape(sigma2)}")
-    for name, bd in (("eps_bounds", eps_bounds), ("delta_bounds", delta_bounds)):
-        if not (0 < bd[0] < bd[1] < math.inf):
-            raise ValueError(f"{name} must be (low, high) with 0 < low < high, got {bd!r}")
-    if not (h_bound > 0 and math.isfinite(h_bound)):
-        raise ValueError(f"h_bound must be a positive finite float, got {h_bound!r}")
+    s2, le, ld = search_space(n, sigma2, eps_bounds, delta_bounds, h_bound)
     reg = unit_disk() if region is None else region
-    le = (math.log10(eps_bounds[0]), math.log10(eps_bounds[1]))
-    ld = (math.log10(delta_bounds[0]), math.log10(delta_bounds[1]))
     bounds = [le, ld, ld] + [(-h_bound, h_bound)] * (n * p)
     variables = (["log10_eps", "log10_delta1", "log10_delta2"]
                  + [f"H[{i},{j}]" for i in range(n) for j in range(p)])
@@ -836,11 +828,7 @@ def search_discrete_design(plant: UncertainPlant, prm: DiscreteDesignParameters,
         return INFEASIBLE, d
 
     def random_start(rng: np.random.Generator) -> FloatArray:
-        e = rng.uniform(max(le[0], -2.0), min(le[1], 1.0), 1)
-        dl = rng.uniform(max(ld[0], -4.0), min(ld[1], -1.0), 2)
-        h = rng.standard_normal(n * p)
-        h *= 10.0 ** rng.uniform(-3.0, -0.5) / max(float(np.linalg.norm(h)), 1e-300)
-        return np.concatenate([e, dl, h])
+        return random_search_start(rng, 1, le, ld, n * p, (-2.0, 1.0))
 
     x0 = np.concatenate([[math.log10(prm.eps), math.log10(prm.delta1),
                           math.log10(prm.delta2)], prm.H.reshape(-1)])
