@@ -106,6 +106,7 @@ __all__ = [
     "balancing",
     "certify_gain",
     "check_design",
+    "design_above",
     "design_lmi_hinf",
     "error_system",
     "gari_matrix",
@@ -990,6 +991,31 @@ def _search(problem: _Theorem4Problem, start: float, rtol: float, gamma_start: f
     return GammaSearch(gamma_min=hi, lower=float(lo), rtol=rtol, design=best,
                        iterations=len(history), history=tuple(history),
                        wall_s=time.perf_counter() - start, status=status)
+
+
+def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float = 1.1, *,
+                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10
+                 ) -> tuple[LMIHInfDesign, int]:
+    """The design at ``gamma = factor * 2^j * gamma_min`` for the smallest ``j`` that verifies.
+
+    Near ``gamma_min`` the minimum-trace (mixed H2/H-infinity) solution can be too
+    ill-conditioned for the solver to return a solution that passes the a-posteriori check;
+    doubling gamma moves away from the boundary.
+
+    Returns
+    -------
+    design : LMIHInfDesign
+        The first verified design (or the last attempt, not feasible).
+    j : int
+        Number of doublings used.
+    """
+    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin)
+    j = 0
+    while not design.feasible and j < max_doublings:
+        j += 1
+        design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
+                                 margin=margin)
+    return design, j
 
 
 def minimal_gamma(system: StochasticLinearSystem, *, rtol: float = DEFAULT_RTOL,

@@ -30,6 +30,7 @@ from scipy.linalg import expm
 from filters.lmi_hinf import (
     LMIHInfFilter,
     StochasticLinearSystem,
+    design_above,
     design_lmi_hinf,
     minimal_gamma,
 )
@@ -110,12 +111,8 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
         if search.gamma_min is None:
             raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
         gamma_min = search.gamma_min
-        lmi = design_lmi_hinf(system, gamma_factor * gamma_min, objective=objective)
-        j = 0
-        while not lmi.feasible and j < max_doublings:
-            j += 1
-            lmi = design_lmi_hinf(system, gamma_factor * 2.0**j * gamma_min,
-                                  objective=objective)
+        lmi, _ = design_above(system, gamma_min, gamma_factor, objective=objective,
+                              max_doublings=max_doublings)
     else:
         lmi = design_lmi_hinf(system, float(gamma), objective=objective)
     if not lmi.feasible:

@@ -33,6 +33,7 @@ from filters.lmi_hinf import (
     DEFAULT_MARGIN,
     LMIHInfDesign,
     StochasticLinearSystem,
+    design_above,
 )
 from testbed.rigs.vehicle_roll import (
     PAPER_PERIOD_S,
@@ -41,7 +42,6 @@ from testbed.rigs.vehicle_roll import (
     paper_model,
 )
 from testbed.rigs.vehicle_roll.lmi import (
-    design_above,
     vehicle_design_system,
     vehicle_lmi_estimator,
     zoh_with_damping_derivative,

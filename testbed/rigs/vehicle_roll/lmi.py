@@ -15,10 +15,9 @@ import numpy as np
 from scipy.linalg import expm_frechet
 
 from filters.lmi_hinf import (
-    DEFAULT_MARGIN,
-    LMIHInfDesign,
     LMIHInfFilter,
     StochasticLinearSystem,
+    design_above,
     design_lmi_hinf,
     minimal_gamma,
 )
@@ -93,31 +92,6 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
         A=A, B=np.column_stack(cols_B), C_y=C, C_z=np.array([[1.0, 0.0]]),
         A_w=p.damping_noise * dA, B_w=np.column_stack(cols_Bw), D_y=np.column_stack(cols_D))
     return system, B, D_u
-
-
-def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float = 1.1, *,
-                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10
-                 ) -> tuple[LMIHInfDesign, int]:
-    """The design at ``gamma = factor * 2^j * gamma_min`` for the smallest ``j`` that verifies.
-
-    Near ``gamma_min`` the minimum-trace (mixed H2/H-infinity) solution can be too
-    ill-conditioned for the solver to return a solution that passes the a-posteriori check;
-    doubling gamma moves away from the boundary.
-
-    Returns
-    -------
-    design : LMIHInfDesign
-        The first verified design (or the last attempt, not feasible).
-    j : int
-        Number of doublings used.
-    """
-    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin)
-    j = 0
-    while not design.feasible and j < max_doublings:
-        j += 1
-        design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
-                                 margin=margin)
-    return design, j
 
 
 def vehicle_lmi_estimator(design: Any, *, gamma: float | None = None,
