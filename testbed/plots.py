@@ -59,6 +59,17 @@ def set_title(fig: Figure, lines: list[str], fontsize: float = 10.0) -> None:
                  fontsize=fontsize)
 
 
+def figure_legend(fig: Figure, max_columns: int = 4) -> None:
+    """One legend below the axes for the whole figure: the first handle of each label."""
+    handles: dict[str, object] = {}
+    for ax in fig.axes:
+        for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(text, handle)
+    if handles:
+        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
+                   ncols=min(len(handles), max_columns), fontsize=FONT_PT)
+
+
 def mark_clipped(ax: Any, t: np.ndarray, values: np.ndarray, lim: float) -> int:
     """Mark the samples of ``values`` beyond ``+-lim`` with triangles at the axis edge.
 
@@ -210,14 +221,7 @@ def trajectory_figure(traj: Trajectory, *, title: str | None = None,
     if left0 is not None and len(t):
         left0.set_xlim(t[0], t[-1])
 
-    # One legend for every style: first occurrence of each label.
-    handles: dict[str, object] = {}
-    for ax in fig.axes:
-        for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(text, handle)
-    if handles:
-        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
-                   ncols=min(len(handles), 6), fontsize=FONT_PT)
+    figure_legend(fig, max_columns=6)
     lines = _title(traj, title, summary)
     if estimate is not None:
         lines.append("error axes: the second half of the run (steady state); "

@@ -21,18 +21,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from testbed.axes import TRANSIENT_FRACTION, steady_state_limit
-from testbed.plots import FONT_PT, new_figure, save_figure, set_title
+from testbed.plots import figure_legend, new_figure, save_figure, set_title
 from testbed.units import display, label
-
-
-def _legend(fig: Figure) -> None:
-    handles: dict[str, object] = {}
-    for ax in fig.axes:
-        for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
-            handles.setdefault(text, handle)
-    if handles:
-        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
-                   ncols=min(len(handles), 4), fontsize=FONT_PT)
 
 
 def _study_title(fig: Figure, result: dict[str, Any], what: str, *extra: str) -> None:
@@ -113,7 +103,7 @@ def monte_carlo_figure(result: dict[str, Any]) -> Figure:
     nees = result.get("nees_mean")
     _study_title(fig, result, f"{result['runs']} runs of {result['duration_s']:g} s",
                  *([] if nees is None else [f"mean NEES {nees:.2f} (n = {len(states)})"]))
-    _legend(fig)
+    figure_legend(fig)
     return fig
 
 
@@ -203,7 +193,7 @@ def sweep_figure(result: dict[str, Any], x: str | None = None) -> Figure:
     runs = first.get("runs", "?")
     _study_title(fig, first, f"sweep over {', '.join(names)}",
                  f"{runs} runs per point; lines: mean, bands: 5-95 % of runs")
-    _legend(fig)
+    figure_legend(fig)
     return fig
 
 
