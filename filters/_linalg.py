@@ -81,12 +81,12 @@ def real_array(
         raise ValueError(
             f"{name} must be a real numeric array, got {type(value).__name__}"
         ) from None
-    if shape is not None and (arr.ndim != len(shape) or any(
+    if shape is not None and arr.shape != tuple(shape) and (arr.ndim != len(shape) or any(
             s is not None and s != a for s, a in zip(shape, arr.shape, strict=True))):
         raise ValueError(f"{name} must have shape "
                          f"{fmt_shape(['*' if s is None else s for s in shape])}, got shape "
                          f"{arr.shape}")
-    if finite and not np.isfinite(arr).all():
+    if finite and np.count_nonzero(np.isfinite(arr)) != arr.size:  # (cheaper than .all())
         raise ValueError(f"{name} must be finite, got non-finite entries (NaN or inf)")
     return arr
 

@@ -29,6 +29,7 @@ a dedicated ``MjData`` without one ``MjData`` (13.6 MB arena) per member.
 
 from __future__ import annotations
 
+import bisect
 import copy
 import os
 from collections.abc import Callable, Sequence
@@ -158,6 +159,8 @@ class Physics:
                    else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
+        #: Views of each worker's warning counters, by ``id`` of its ``MjData``.
+        self._warnings = {id(d): d.warning.number for d in self._datas}
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
@@ -232,6 +235,9 @@ class Physics:
         if need_poses and (self.poses is None or len(self.poses[0]) != self.num):
             self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
         if self._pool is None or len(members) < 2:
+            if len(members) == 1:  # one member: no pool, no chunks
+                self._work(self._datas[0], members.tolist(), need_mass, need_poses, step_noise)
+                return
             chunks = [(members.tolist(), step_noise)] if len(members) else []
         else:
             noise = (np.array_split(step_noise, self.num_threads) if step_noise is not None
@@ -254,7 +260,7 @@ class Physics:
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         perturb, constants = self.rig.apply_step_noise, self.constants
-        warnings = data.warning.number  # a view of the counters (zero unless MuJoCo warned)
+        warnings = self._warnings[id(data)]  # MuJoCo's counters (zero unless it warned)
         w1, w2, w3 = _BAD_WARNINGS
         unstable = self.unstable
         for j, i in enumerate(rows):
@@ -380,14 +386,21 @@ class Simulator:
         self._nu, self._nx = rig.n_actions, rig.n_states
         self._j = len(rig.joints)
         self._tracked = rig.tracked_index
+        lo, hi = (int(self._tracked[0]), int(self._tracked[-1]) + 1) if len(self._tracked) \
+            else (0, 0)
+        #: The tracked columns as a slice when contiguous (a view instead of a gather).
+        self._tracked_cols = (slice(lo, hi) if np.array_equal(self._tracked, np.arange(lo, hi))
+                              else self._tracked)
         self._envelope = rig.envelope
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
                         else np.zeros((1, 1 + r))]
+        self._table_times = self._tables[0][:, 0].tolist()
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
+        self._no_manoeuvre = self._schedules[0] is None  # (updated by reset)
         self._w_dim = len(self.disturbance.signal(0.0))
         self._dist_draws = 0 if self.disturbance.b is None else self.disturbance.b.shape[1]
         self.physics = Physics(rig, n, self.frame_skip, num_threads)
@@ -395,6 +408,7 @@ class Simulator:
                            np.tile(rig.default_x0(), (n, 1)))
         self.noise = NoiseStreams(n, 64 * max(self._dist_draws + rig.step_noise_dim
                                               + self.sensors.dim + rig.x0_draws, 4))
+        self._noise_all = self.noise.view(slice(None))
         self.steps = np.zeros(n, dtype=np.int64)
         self._ready = np.zeros(n, dtype=bool)
         self.x0 = np.zeros((n, self._nx))
@@ -402,17 +416,26 @@ class Simulator:
         self.reward = np.zeros(n)
         self.terminated = np.zeros(n, dtype=bool)
         self.record_poses = False
+        self._all = np.arange(n)  # read-only constants of the step
+        self._zero_input, self._zero_accel = np.zeros((n, self._nu)), np.zeros((n, self._j))
+        self._zero_w = np.zeros((n, 0))
+        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w):
+            a.flags.writeable = False
+        widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
+                  "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
+                  "step_noise": rig.step_noise_dim}
+        # the float entries of info are column blocks of one array, so one member's info is
+        # one row copy (:meth:`member_info`)
+        self._info_rows = np.zeros((n, sum(widths.values())))
+        self._info_columns: dict[str, slice] = {}
+        start = 0
+        for key, width in widths.items():
+            self._info_columns[key] = slice(start, start + width)
+            start += width
         self.info: dict[str, np.ndarray] = {
-            "state": np.zeros((n, self._nx)),
-            "t": np.zeros(n),
-            "disturbance": np.zeros((n, self._w_dim)),
-            "setpoint": np.zeros((n, r)),
-            "action_applied": np.zeros((n, self._nu)),
-            "action_clipped": np.zeros((n, self._nu), dtype=bool),
-            "manoeuvre": np.zeros((n, self._nu)),
-            "process_accel": np.zeros((n, self._j)),
-            "step_noise": np.zeros((n, rig.step_noise_dim)),
-        }
+            key: self._info_rows[:, cols] for key, cols in self._info_columns.items()}
+        self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
+        self.info["action_clipped"] = np.zeros((n, self._nu), dtype=bool)
 
     # ------------------------------------------------------------------ declarations
     @property
@@ -431,6 +454,15 @@ class Simulator:
         an intensity)."""
         d = self.disturbance
         return d if (d.active or d.has_signal) else None
+
+    def member_info(self, i: int) -> dict[str, Any]:
+        """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
+        ``t`` a float): the Gymnasium ``info`` of a step."""
+        row = self._info_rows[i].copy()
+        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_columns.items()}
+        out["t"] = float(row[self._info_columns["t"].start])
+        out["action_clipped"] = self.info["action_clipped"][i].copy()
+        return out
 
     def units(self) -> dict[str, str]:
         """Units of states, actions and measurement channels."""
@@ -517,6 +549,9 @@ class Simulator:
     def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
         if len(self._tables) == 1:  # one schedule for every member
             table = self._tables[0]
+            if len(t) == 1:  # the same row as below, without numpy's per-call overhead
+                row = bisect.bisect_right(self._table_times, float(t[0])) - 1
+                return table[max(row, 0), 1:][None]
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
             return table[np.maximum(rows, 0), 1:]
         groups = self._table_of[sel]
@@ -534,7 +569,7 @@ class Simulator:
         return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
 
     def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
-        if len(self._schedules) == 1 and self._schedules[0] is None:  # no profile anywhere
+        if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
         groups = self._schedule_of[sel]
         out = np.zeros((len(t), self._nu))
@@ -597,6 +632,7 @@ class Simulator:
             else:
                 fn = self._schedules[0]
             schedules.append(self._index(self._schedules, fn))
+        self._no_manoeuvre = len(self._schedules) == 1 and self._schedules[0] is None
         # validated: now change state
         for i, seed in zip(index.tolist(), seeds, strict=True):
             self.noise.seed(i, None if seed is None else int(seed))
@@ -641,32 +677,44 @@ class Simulator:
             raise ValueError("actions must be finite (no NaN/inf)")
         return u
 
-    def step(self, actions: Any, members: np.ndarray | None = None) -> None:
-        """Apply actions (k, nu) for one control period to members (default all)."""
-        index = np.arange(self.num) if members is None else np.asarray(members, int)
+    def step(self, actions: Any, members: np.ndarray | None = None, *,
+             checked: bool = False) -> None:
+        """Apply actions (k, nu) for one control period to members (default all).
+
+        ``checked=True``: the caller has already made ``actions`` a finite ``float64`` array
+        of shape (k, nu) (the Gymnasium env's own check), so it is not checked twice.
+        """
+        index = self._all if members is None else np.asarray(members, int)
         # the simulator's own arrays: a basic slice for the whole batch (no gather/scatter
         # copies); sensors, noise streams and physics keep the member indices
         sel: Any = slice(None) if members is None else index
         k = len(index)
-        if not self._ready[sel].all():
+        if np.count_nonzero(self._ready[sel]) != k:
             raise RuntimeError("reset() every member before stepping it")
-        u = self.check_actions(actions, k)
-        t = self.steps[sel] * self.dt_s
-        clipped_u = u.clip(self._low, self._high)
-        profile = self._manoeuvre(t, sel)
-        total = clipped_u + profile
-        applied = total.clip(self._low, self._high)
-        clipped = (clipped_u != u) | (applied != total)
-        noise = self.noise.view(index)
+        u = actions if checked else self.check_actions(actions, k)
+        low, high = self._low, self._high
         rig, physics, dist = self.rig, self.physics, self.disturbance
+        no_manoeuvre = self._no_manoeuvre
+        t = self.steps[sel] * self.dt_s if dist.has_signal or not no_manoeuvre else None
+        clipped_u = u.clip(low, high)
+        if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
+            profile = self._zero_input[:k]
+            applied = clipped_u + profile
+            clipped = clipped_u != u
+        else:
+            profile = self._manoeuvre(t, sel)
+            total = clipped_u + profile
+            applied = total.clip(low, high)
+            clipped = (clipped_u != u) | (applied != total)
+        noise = self._noise_all if members is None else self.noise.view(index)
         info = self.info
         step_noise = None
         if rig.step_noise_dim:  # applied by the physics threads, before each member's step
             step_noise = noise.normal(rig.step_noise_dim)
             info["step_noise"][sel] = step_noise
         qfrc = None
-        w = self._signal(t, index) if dist.has_signal else info["disturbance"][sel].copy()
-        accel: Any = np.zeros((k, self._j))
+        w = self._signal(t, index) if dist.has_signal else info["disturbance"][sel]
+        accel: Any = self._zero_accel[:k]
         if dist.active:
             if dist.G is not None:
                 accel = accel + np.matvec(dist.G[self._j:], w)
@@ -679,28 +727,33 @@ class Simulator:
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
         physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
                      step_noise=step_noise)
-        self.steps[sel] += 1
-        t = self.steps[sel] * self.dt_s
+        steps = self.steps[sel] + 1
+        self.steps[sel] = steps
+        t = steps * self.dt_s
         x = physics.states(sel)
-        outside = ~np.all(np.abs(x) <= self._envelope, axis=1)  # NaN compares False
-        unstable = physics.unstable[index]
-        if outside.any() or unstable.any():
-            self._diverged(index, unstable, outside, x, t)
+        inside = np.less_equal(np.abs(x), self._envelope)  # NaN compares False
+        unstable = physics.unstable[sel]
+        if np.count_nonzero(inside) != inside.size or np.count_nonzero(unstable):
+            self._diverged(index, unstable, ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel)
-        e = x[:, self._tracked] - ref
-        self.reward[sel] = -np.sum(e * e, axis=1)
+        e = x[:, self._tracked_cols] - ref
+        self.reward[sel] = -np.add.reduce(e * e, axis=1)
         self.terminated[sel] = rig.terminated(x)
-        w_now = self._signal(t, index) if dist.has_signal else np.zeros((k, 0))
-        sample = Sample(x, t, applied, np.asarray(w_now), index)
+        w_now = self._signal(t, index) if dist.has_signal else self._zero_w[:k]
+        sample = Sample(x, t, applied, w_now, index)
         self.obs[sel] = self.sensors.measure(sample, noise)
         info["state"][sel] = x
         info["t"][sel] = t
-        info["disturbance"][sel] = w
         info["setpoint"][sel] = ref
         info["action_applied"][sel] = applied
         info["action_clipped"][sel] = clipped
-        info["manoeuvre"][sel] = profile
-        info["process_accel"][sel] = accel
+        # the entries below keep what reset wrote without a signal, profile or disturbance
+        if dist.has_signal:
+            info["disturbance"][sel] = w
+        if not no_manoeuvre:
+            info["manoeuvre"][sel] = profile
+        if dist.active:
+            info["process_accel"][sel] = accel
 
     def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,
                   x: np.ndarray, t: np.ndarray) -> None:

@@ -81,12 +81,6 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                      reset_noise_scale=reset_noise_scale)
 
 
-def _squeeze(info: dict[str, np.ndarray], i: int = 0) -> dict[str, Any]:
-    out = {k: v[i].copy() for k, v in info.items()}
-    out["t"] = float(out["t"])
-    return out
-
-
 class RigEnv(gym.Env):
     """Any registered rig as a Gymnasium environment (the simulator with N = 1).
 
@@ -118,6 +112,8 @@ class RigEnv(gym.Env):
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.sensors.dim,), np.float64)
         self.state_names = list(rig_obj.state_names)
         self.action_names = list(rig_obj.action_names)
+        self._action_label = (f"action ({', '.join(rig_obj.action_names)} in "
+                              f"{', '.join(rig_obj.action_units)})")
 
     @property
     def t_s(self) -> float:
@@ -145,16 +141,15 @@ class RigEnv(gym.Env):
             raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
         self.sim.reset(None, [seed], options)
         super().reset(seed=seed)
-        return self.sim.obs[0].copy(), _squeeze(self.sim.info)
+        return self.sim.obs[0].copy(), self.sim.member_info(0)
 
     def step(self, action):
         """Apply one action for one control period."""
-        u = real_array(action, f"action ({', '.join(self.rig.action_names)} in "
-                       f"{', '.join(self.rig.action_units)})", shape=(self.rig.n_actions,))
-        self.sim.step(u[None])
+        u = real_array(action, self._action_label, shape=(self.rig.n_actions,))
+        self.sim.step(u[None], checked=True)
         sim = self.sim
         return (sim.obs[0].copy(), float(sim.reward[0]), bool(sim.terminated[0]), False,
-                _squeeze(sim.info))
+                sim.member_info(0))
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """World positions (nbody, 3) and orientations (nbody, 4, wxyz) of all bodies."""

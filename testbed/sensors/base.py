@@ -29,7 +29,7 @@ from gymnasium.utils import seeding
 Members = np.ndarray | slice
 
 
-@dataclass
+@dataclass(slots=True)
 class Sample:
     """What a sensor may read at one sample instant, for ``k`` members.
 
@@ -121,7 +121,7 @@ class NoiseStreams:
         return Noise(self, members)
 
 
-@dataclass
+@dataclass(slots=True)
 class Noise:
     """Standard normals for the members of one sample (a view of :class:`NoiseStreams`)."""
 
@@ -216,6 +216,11 @@ class Sensor:
         its ``dt_s``)."""
         return set()
 
+    def direct_state(self) -> int | None:
+        """The state index this sensor returns unchanged, if it is exactly one state
+        component (lets a :class:`Suite` of such channels read them in one gather)."""
+        return None
+
     def __add__(self, other: Sensor) -> Suite:
         return Suite(self, other)
 
@@ -246,6 +251,9 @@ class Suite(Sensor):
         self.measured_state = tuple(i for s in flat for i in s.measured_state)
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"sensor channel names must be unique, got {list(self.names)}")
+        direct = [s.direct_state() for s in flat]
+        #: States read directly when every member is a bare state channel (one gather).
+        self._state_index = None if None in direct else np.array(direct)
 
     def allocate(self, num: int) -> None:
         """Allocate every member sensor."""
@@ -259,6 +267,10 @@ class Suite(Sensor):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """Every sensor in order (their draws in that order), concatenated: (k, m)."""
+        if self._state_index is not None:  # what the channels return, in one gather
+            return sample.x[:, self._state_index]
+        if len(self.sensors) == 1:
+            return self.sensors[0].measure(sample, noise)
         parts = [s.measure(sample, noise) for s in self.sensors]
         return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
 

@@ -31,6 +31,10 @@ class StateChannel(Sensor):
         """``x[:, index]``, shape (k, 1)."""
         return sample.x[:, self.index:self.index + 1]
 
+    def direct_state(self) -> int:
+        """This channel's state index."""
+        return self.index
+
     def linear_model(self) -> SensorModel:
         """A unit row of ``C``, no noise."""
         C = np.zeros((1, self.n_states))
