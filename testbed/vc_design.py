@@ -436,7 +436,8 @@ def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor:
     # gamma_min over the eps grid (central gain)
     m_norm, n_norm = np.linalg.norm(scaled.M1, 2), np.linalg.norm(scaled.N, 2)
     eps_c = n_norm / m_norm if m_norm > 0 and n_norm > 0 else 1.0
-    eps_grid = eps_c * np.logspace(-6.0, 6.0, 13)
+    # without uncertainty eps only multiplies M = 0: one value
+    eps_grid = eps_c * np.logspace(-6.0, 6.0, 13) if uncertainty.parameters else np.ones(1)
     gamma_k = hinf_norm(*_kalman_error_system(scaled, P_ref / np.outer(T, T)), discrete=True)
     levels = {float(e): _central(scaled, float(e), 1e-3 * gamma_k)[0] for e in eps_grid}
     feasible = {e: g for e, g in levels.items() if g is not None}
