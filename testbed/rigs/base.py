@@ -226,6 +226,12 @@ class Rig:
                 b > 0 for b in self.state_envelope)):
             raise TypeError(f"{type(self).__name__}.state_envelope must have {n} positive "
                             f"entries (inf: unbounded), got {self.state_envelope}")
+        fields = {f.name for f in dataclasses.fields(self.params_type)}
+        for name, r in self.mismatch_range.items():
+            if name not in fields or not (isinstance(r, int | float) and 0.0 < r < 1.0):
+                raise TypeError(f"{type(self).__name__}.mismatch_range: {name!r}: {r!r} must "
+                                f"name a field of {self.params_type.__name__} with a "
+                                "relative range in (0, 1)")
         unknown = set(self.tracked_states) - set(self.state_names)
         if unknown:
             raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
@@ -586,21 +592,9 @@ class Rig:
         return act
 
     def parameter_mismatch(self) -> ParameterMismatch | None:
-        """:attr:`mismatch_range` about this rig's parameters (None: the rig declares none).
-
-        Raises
-        ------
-        TypeError
-            A range names no field of :attr:`params_type` or is not in ``(0, 1)``.
-        """
+        """:attr:`mismatch_range` about this rig's parameters (None: the rig declares none)."""
         if not self.mismatch_range:
             return None
-        fields = {f.name for f in dataclasses.fields(self.params_type)}
-        for name, r in self.mismatch_range.items():
-            if name not in fields or not (0.0 < float(r) < 1.0):
-                raise TypeError(f"{type(self).__name__}.mismatch_range: {name!r}: {r!r} must "
-                                f"name a field of {self.params_type.__name__} with a "
-                                "relative range in (0, 1)")
         return ParameterMismatch(type(self), self.params, dict(self.mismatch_range),
                                  float(self.model.opt.timestep), self.profile)
 
