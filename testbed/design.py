@@ -53,7 +53,8 @@ class DesignModel:
         compensates gravity at the estimate): ``u`` of ``step`` is in the model's coordinates.
     extras : dict
         Rig-specific design data (paper models, LMI design systems); ``cubic_model`` is the
-        rig's :meth:`~testbed.rigs.base.Rig.cubic_model` (set by :func:`build_design`).
+        rig's :meth:`~testbed.rigs.base.Rig.cubic_model` and ``parameter_mismatch`` its
+        :meth:`~testbed.rigs.base.Rig.parameter_mismatch` (both set by :func:`build_design`).
     """
 
     dt_s: float
@@ -127,7 +128,14 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
         measurement_index=index, sensors=model, output_matrix=np.asarray(output_matrix, float),
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
-        extras={"cubic_model": getattr(type(rig), "cubic_model", None), **(extras or {})})
+        extras={"cubic_model": getattr(type(rig), "cubic_model", None),
+                "parameter_mismatch": _mismatch(rig), **(extras or {})})
+
+
+def _mismatch(rig) -> Any:
+    """The rig's :class:`~testbed.rigs.base.ParameterMismatch` (None without one)."""
+    declared = getattr(rig, "parameter_mismatch", None)
+    return None if declared is None else declared()
 
 
 def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=None, *,

@@ -173,6 +173,21 @@ def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: flo
                                substeps=substeps)
 
 
+def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,
+                sigma_factor: float | None = None, max_evaluations: int = 120) -> Any:
+    """The discrete variance-constrained H2/H-infinity predictor (Liu, Deng & Wang) on the
+    discrete design model with the rig's parameter-mismatch range as norm-bounded
+    uncertainty ``M F N`` (:mod:`testbed.vc_design`; needs a Schur-stable design model).
+    ``gamma`` defaults to ``gamma_factor`` times the smallest solvable level, the variance
+    bounds to the smallest power of two (or ``sigma_factor``) times the nominal Kalman
+    predictor's variances that the design meets."""
+    from testbed.vc_design import vc_discrete_estimator
+
+    est, _ = vc_discrete_estimator(design, gamma=gamma, gamma_factor=gamma_factor,
+                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations)
+    return _select(est, design)
+
+
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
     "kalman": kalman,
@@ -180,6 +195,7 @@ ESTIMATORS: dict[str, Factory] = {
     "ms-hinf": ms_hinf,
     "lmi-hinf": lmi_hinf,
     "poly-hinf": poly_hinf,
+    "vc-discrete": vc_discrete,
 }
 #: Scenario defaults a built-in estimator needs (applied where the user set nothing).
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {

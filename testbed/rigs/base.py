@@ -51,6 +51,56 @@ class Params:
                 raise ValueError(f"{type(self).__name__}.{f.name} must be finite, got {value}")
 
 
+@dataclasses.dataclass(frozen=True)
+class ParameterMismatch:
+    """A rig's declared parameter-mismatch range and the derivative of its linearization.
+
+    Kept in ``DesignModel.extras["parameter_mismatch"]`` (picklable: the rig class and its
+    nominal parameters, not a MuJoCo model); robust designs (``vc-discrete``,
+    :mod:`testbed.vc_design`) turn it into a norm-bounded uncertainty.
+
+    Attributes
+    ----------
+    rig_type : type
+        The :class:`Rig` subclass.
+    params : Params
+        The nominal parameters the designer knows.
+    ranges : dict
+        ``{Params field: relative half-range r}``: the truth may have the field scaled by
+        any factor in ``[1 - r, 1 + r]`` (:attr:`Rig.mismatch_range`).
+    physics_dt_s : float
+    profile : str
+    """
+
+    rig_type: type
+    params: Params
+    ranges: dict[str, float]
+    physics_dt_s: float = 0.001
+    profile: str = "paper"
+
+    def derivatives(self, step: float = 1e-3) -> dict[str, np.ndarray]:
+        """``dA/ds_i`` of :meth:`Rig.linearize` with respect to the scale factor ``s_i`` of
+        each field in :attr:`ranges`, at ``s = 1``.
+
+        Central differences: rigs built at ``params.scaled({field: 1 +- step})``, each
+        linearized at its own operating point and input (the scaled truth's equilibrium).
+
+        Returns
+        -------
+        dict
+            ``{field: ndarray (n, n)}`` in the order of :attr:`ranges`.
+        """
+        if not (np.isfinite(step) and 0 < step < 0.5):
+            raise ValueError(f"step must be in (0, 0.5), got {step}")
+        out = {}
+        for name in self.ranges:
+            A = [self.rig_type(self.params.scaled({name: 1.0 + sign * step}),
+                               physics_dt_s=self.physics_dt_s, profile=self.profile
+                               ).linearize()[0] for sign in (1.0, -1.0)]
+            out[name] = (A[0] - A[1]) / (2.0 * step)
+        return out
+
+
 class Rig:
     """A MuJoCo rig: model, parameters, named state, actuation, linearization, design model.
 
@@ -111,6 +161,11 @@ class Rig:
     profiles: ClassVar[tuple[str, ...]] = ("paper",)
     #: Camera of ``render_mode="rgb_array"`` (a camera named in the MJCF; "" = free camera).
     render_camera: ClassVar[str] = ""
+    #: Parameter-mismatch range: ``{Params field: relative half-range}`` (0.2: the truth may
+    #: have the field scaled by any factor in ``[0.8, 1.2]``). The scoring suite's mismatch
+    #: entries scale these fields; robust designs take the range as their uncertainty set
+    #: (:class:`ParameterMismatch`). Empty: the rig declares none.
+    mismatch_range: ClassVar[dict[str, float]] = {}
     #: Divergence detector: the largest ``|x_i|`` per state (rig units; ``inf``: unbounded)
     #: that the physical rig can reach, with a wide margin. The simulator raises
     #: :class:`~testbed.simulator.SimulationDiverged` for a state past it. Empty: no bound.
@@ -171,6 +226,12 @@ class Rig:
                 b > 0 for b in self.state_envelope)):
             raise TypeError(f"{type(self).__name__}.state_envelope must have {n} positive "
                             f"entries (inf: unbounded), got {self.state_envelope}")
+        fields = {f.name for f in dataclasses.fields(self.params_type)}
+        for name, r in self.mismatch_range.items():
+            if name not in fields or not (isinstance(r, int | float) and 0.0 < r < 1.0):
+                raise TypeError(f"{type(self).__name__}.mismatch_range: {name!r}: {r!r} must "
+                                f"name a field of {self.params_type.__name__} with a "
+                                "relative range in (0, 1)")
         unknown = set(self.tracked_states) - set(self.state_names)
         if unknown:
             raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
@@ -529,6 +590,13 @@ class Rig:
                                           f"{i} (dyntype {self.model.actuator_dyntype[i]})")
             act[adr] = ctrl[i]
         return act
+
+    def parameter_mismatch(self) -> ParameterMismatch | None:
+        """:attr:`mismatch_range` about this rig's parameters (None: the rig declares none)."""
+        if not self.mismatch_range:
+            return None
+        return ParameterMismatch(type(self), self.params, dict(self.mismatch_range),
+                                 float(self.model.opt.timestep), self.profile)
 
     def linearization_point(self) -> np.ndarray:
         """Default operating state of :meth:`linearize`, shape (n,) (zero)."""

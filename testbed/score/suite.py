@@ -22,15 +22,15 @@ from typing import Any
 import numpy as np
 
 from testbed.rigs import resolve_rig
+from testbed.rigs.helicopter.rig import HelicopterRig
 from testbed.rigs.vehicle_roll.model import physical_model
 from testbed.scenario import Scenario
 from testbed.score.calibration import LinearPlantRig
 
-#: Helicopter parameters scaled together for the +-20 % mismatch entries: the moving mass
-#: (so the gravity torque the designer compensates is off by 20 %) and the viscous dampings.
-#: Scaling the torque gains or the inertias with the mass would cancel in the hover voltage
-#: and in ``m g l / J``.
-HELICOPTER_MISMATCH_KEYS = ("mass_kg", "pitch_damping", "yaw_damping")
+#: Helicopter parameters scaled together for the +-20 % mismatch entries: the rig's declared
+#: mismatch range (:attr:`HelicopterRig.mismatch_range`: the moving mass, so the gravity
+#: torque the designer compensates is off by 20 %, and the viscous dampings).
+HELICOPTER_MISMATCH_KEYS = tuple(HelicopterRig.mismatch_range)
 #: Vehicle worst-case channel: a roll moment expressed as an equivalent lateral acceleration
 #: (m/s^2), i.e. the rig's input column ``m_s h_cr / I_xx`` (rad/s^2 per m/s^2).
 VEHICLE_CHANNEL = tuple(tuple(row) for row in physical_model()[1].tolist())

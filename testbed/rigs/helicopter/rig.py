@@ -320,6 +320,11 @@ class HelicopterRig(Rig):
     default_setpoints = DEFAULT_SETPOINTS
     disturbance_signals = {"basin-helicopter": lambda: _basin_signal()}
     scenario_options = {"process_noise_floor": 0.05}
+    #: +-20 %: the moving mass (the gravity torque the designer compensates is off) and the
+    #: viscous dampings. Scaling the torque gains or the inertias with the mass would cancel
+    #: in the hover voltage and in ``m g l / J``. The scoring suite's mismatch entries scale
+    #: these fields together.
+    mismatch_range = {"mass_kg": 0.2, "pitch_damping": 0.2, "yaw_damping": 0.2}
     profiles = ("paper", "hardware")
     render_camera = "overview"
     #: Pitch past 90 deg would put the body through the base (the stops are at 40.5 deg);

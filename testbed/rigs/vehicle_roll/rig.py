@@ -83,6 +83,11 @@ class VehicleRollRig(Rig):
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
     scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2, "a_y_source": "auto"}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
+    #: +-20 % on the suspension's roll stiffness and damping (worn dampers, spring
+    #: tolerances, temperature): the least known parameters of the roll model. Mass and
+    #: centre-of-mass height (load) also scale the input ``m_s h_cr / I_xx``, which a
+    #: norm-bounded ``Delta A`` does not cover, so they are not in the range.
+    mismatch_range = {"roll_stiffness": 0.2, "roll_damping": 0.2}
     #: ``hardware`` changes the default sensors only (the input is a physical acceleration,
     #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
     #: CAN latency.
