@@ -32,7 +32,7 @@ from __future__ import annotations
 import copy
 import os
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -146,8 +146,9 @@ class Physics:
         self._scratch = mujoco.MjData(model)
         self.models = [self.model_for(rig.params)] * self.num
         #: Members still on their parameters' shared model that perturb it in their next
-        #: step: they get their own copy first (:meth:`_own_copies`).
+        #: step: they get their own copy first (:meth:`_own_copies`); ``_any_shared``: any.
         self._shared = np.full(self.num, self._own_models)
+        self._any_shared = self._own_models
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
         nstate = mujoco.mj_stateSize(model, _INTEGRATION)
         self.state = np.zeros((self.num, nstate))
@@ -200,11 +201,10 @@ class Physics:
         """Give the members still on a shared model their own copy of it (their step noise
         perturbs it). Copy on the first step, not at the reset: a reset only reads the
         model, and a second reset before a step (the runner's) copies nothing."""
-        shared = self._shared[members]
-        if shared.any():
-            for i in members[shared].tolist():
-                self.models[i] = copy.copy(self.models[i])  # mj_copyModel: bitwise equal
-            self._shared[members] = False
+        for i in members[self._shared[members]].tolist():
+            self.models[i] = copy.copy(self.models[i])  # mj_copyModel: bitwise equal
+        self._shared[members] = False
+        self._any_shared = bool(self._shared.any())
 
     def reset(self, members: Sequence[int], params: Sequence[Params], x0: np.ndarray) -> None:
         """``mj_resetData``, ``x0`` into qpos/qvel, ``mj_forward`` for each member (k,)."""
@@ -218,6 +218,7 @@ class Physics:
             mujoco.mj_fullM(model, data, self.mass[i])
         self.unstable[list(members)] = False
         self._shared[list(members)] = self._own_models
+        self._any_shared = bool(self._shared.any())
         in_use = {id(m) for m in self.models}
         self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
 
@@ -253,35 +254,37 @@ class Physics:
         k = len(members)
         if not k:
             return
-        if step_noise is not None:
+        if step_noise is not None and self._any_shared:
             self._own_copies(members)
         rows = members.tolist()
         if self._pool is None or k < 2:
-            self._work(self._datas[0], iter(((0, k),)).__next__, rows, need_mass, need_poses,
-                       step_noise)
+            self._work(self._datas[0], ((0, k),), rows, need_mass, need_poses, step_noise)
             return
         size = -(-k // (_CHUNKS_PER_THREAD * self.num_threads))
-        chunks = iter([(s, min(s + size, k)) for s in range(0, k, size)])
+        queue = iter([(s, min(s + size, k)) for s in range(0, k, size)])
         lock = threading.Lock()
 
-        def next_chunk() -> tuple[int, int]:
-            with lock:
-                return next(chunks)
+        def chunks() -> Iterator[tuple[int, int]]:  # one per thread, all from the queue
+            while True:
+                with lock:
+                    chunk = next(queue, None)
+                if chunk is None:
+                    return
+                yield chunk
 
         args = (rows, need_mass, need_poses, step_noise)
-        futures = [self._pool.submit(self._work, data, next_chunk, *args)
+        futures = [self._pool.submit(self._work, data, chunks(), *args)
                    for data in self._datas[1:min(self.num_threads, k)]]
         try:
-            self._work(self._datas[0], next_chunk, *args)
+            self._work(self._datas[0], chunks(), *args)
         finally:
             for future in futures:
                 future.result()
 
-    def _work(self, data: mujoco.MjData, next_chunk: Callable[[], tuple[int, int]],
-              rows: list[int], need_mass: bool, need_poses: bool,
-              step_noise: np.ndarray | None) -> None:
-        """Step the members ``rows[start:stop]`` of each chunk ``next_chunk()`` gives (until
-        it raises ``StopIteration``) in ``data``."""
+    def _work(self, data: mujoco.MjData, chunks: Iterable[tuple[int, int]], rows: list[int],
+              need_mass: bool, need_poses: bool, step_noise: np.ndarray | None) -> None:
+        """Step the members ``rows[start:stop]`` of each chunk ``(start, stop)`` in ``data``
+        (``step_noise`` rows are indexed like ``rows``)."""
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
@@ -289,11 +292,7 @@ class Physics:
         warnings = data.warning.number  # a view of the counters (zero unless MuJoCo warned)
         w1, w2, w3 = _BAD_WARNINGS
         unstable = self.unstable
-        while True:
-            try:
-                start, stop = next_chunk()
-            except StopIteration:
-                return
+        for start, stop in chunks:
             for j in range(start, stop):
                 i = rows[j]
                 model, row = models[i], state[i]
