@@ -32,7 +32,8 @@ from __future__ import annotations
 import bisect
 import copy
 import os
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -50,6 +51,8 @@ _QFRC = int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)
 _XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
 _QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
 _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
+#: Chunks per physics thread a step is split into (the threads take them from a queue).
+_CHUNKS_PER_THREAD = 8
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
 
 
@@ -143,6 +146,10 @@ class Physics:
         self._cache: dict[Params, mujoco.MjModel] = {}
         self._scratch = mujoco.MjData(model)
         self.models = [self.model_for(rig.params)] * self.num
+        #: Members still on their parameters' shared model that perturb it in their next
+        #: step: they get their own copy first (:meth:`_own_copies`); ``_any_shared``: any.
+        self._shared = np.full(self.num, self._own_models)
+        self._any_shared = self._own_models
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
         nstate = mujoco.mj_stateSize(model, _INTEGRATION)
         self.state = np.zeros((self.num, nstate))
@@ -186,15 +193,21 @@ class Physics:
             raise RuntimeError("unexpected mjSTATE_INTEGRATION layout in this MuJoCo version")
 
     def model_for(self, params: Params) -> mujoco.MjModel:
-        """A copy of the rig's model with these parameters (cached unless members perturb
-        their models); the rig is not changed."""
+        """A copy of the rig's model with these parameters (cached: shared by the members
+        with these parameters, never perturbed); the rig is not changed."""
         model = self._cache.get(params)
         if model is None:
-            model = self.rig.model_with(params, self._scratch)
-            if self._own_models:
-                return model
-            self._cache[params] = model
+            model = self._cache[params] = self.rig.model_with(params, self._scratch)
         return model
+
+    def _own_copies(self, members: np.ndarray) -> None:
+        """Give the members still on a shared model their own copy of it (their step noise
+        perturbs it). Copy on the first step, not at the reset: a reset only reads the
+        model, and a second reset before a step (the runner's) copies nothing."""
+        for i in members[self._shared[members]].tolist():
+            self.models[i] = copy.copy(self.models[i])  # mj_copyModel: bitwise equal
+        self._shared[members] = False
+        self._any_shared = bool(self._shared.any())
 
     def reset(self, members: Sequence[int], params: Sequence[Params], x0: np.ndarray) -> None:
         """``mj_resetData``, ``x0`` into qpos/qvel, ``mj_forward`` for each member (k,)."""
@@ -207,6 +220,8 @@ class Physics:
             mujoco.mj_getState(model, data, self.state[i], _INTEGRATION)
             mujoco.mj_fullM(model, data, self.mass[i])
         self.unstable[list(members)] = False
+        self._shared[list(members)] = self._own_models
+        self._any_shared = bool(self._shared.any())
         in_use = {id(m) for m in self.models}
         self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
 
@@ -231,31 +246,48 @@ class Physics:
         ``step_noise`` (k, d), one row per member, is applied to each member's model
         (``rig.apply_step_noise``) right before its step, by the thread that steps it (so
         this Python work overlaps the other threads' physics).
+
+        The threads (the calling one included) take chunks of about ``k / (8 threads)``
+        members from a shared queue until none is left, so a thread slowed down by another
+        process (a shared machine) or a late start does fewer. Which thread steps a member
+        does not change its result (each loads its whole state into the thread's data).
         """
         if need_poses and (self.poses is None or len(self.poses[0]) != self.num):
             self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
-        if self._pool is None or len(members) < 2:
-            if len(members) == 1:  # one member: no pool, no chunks
-                self._work(self._datas[0], members.tolist(), need_mass, need_poses, step_noise)
-                return
-            chunks = [(members.tolist(), step_noise)] if len(members) else []
-        else:
-            noise = (np.array_split(step_noise, self.num_threads) if step_noise is not None
-                     else [None] * self.num_threads)
-            chunks = [(c.tolist(), xi) for c, xi in
-                      zip(np.array_split(members, self.num_threads), noise, strict=True) if len(c)]
-        futures = [self._pool.submit(self._work, self._datas[w], rows, need_mass, need_poses, xi)
-                   for w, (rows, xi) in enumerate(chunks[1:], 1)] if self._pool else []
+        k = len(members)
+        if not k:
+            return
+        if step_noise is not None and self._any_shared:
+            self._own_copies(members)
+        rows = members.tolist()
+        if self._pool is None or k < 2:
+            self._work(self._datas[0], ((0, k),), rows, need_mass, need_poses, step_noise)
+            return
+        size = -(-k // (_CHUNKS_PER_THREAD * self.num_threads))
+        queue = iter([(s, min(s + size, k)) for s in range(0, k, size)])
+        lock = threading.Lock()
+
+        def chunks() -> Iterator[tuple[int, int]]:  # one per thread, all from the queue
+            while True:
+                with lock:
+                    chunk = next(queue, None)
+                if chunk is None:
+                    return
+                yield chunk
+
+        args = (rows, need_mass, need_poses, step_noise)
+        futures = [self._pool.submit(self._work, data, chunks(), *args)
+                   for data in self._datas[1:min(self.num_threads, k)]]
         try:
-            if chunks:
-                rows, xi = chunks[0]
-                self._work(self._datas[0], rows, need_mass, need_poses, xi)
+            self._work(self._datas[0], chunks(), *args)
         finally:
             for future in futures:
                 future.result()
 
-    def _work(self, data: mujoco.MjData, rows: Sequence[int], need_mass: bool,
-              need_poses: bool, step_noise: np.ndarray | None = None) -> None:
+    def _work(self, data: mujoco.MjData, chunks: Iterable[tuple[int, int]], rows: list[int],
+              need_mass: bool, need_poses: bool, step_noise: np.ndarray | None) -> None:
+        """Step the members ``rows[start:stop]`` of each chunk ``(start, stop)`` in ``data``
+        (``step_noise`` rows are indexed like ``rows``)."""
         models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
@@ -263,28 +295,30 @@ class Physics:
         warnings = self._warnings[id(data)]  # MuJoCo's counters (zero unless it warned)
         w1, w2, w3 = _BAD_WARNINGS
         unstable = self.unstable
-        for j, i in enumerate(rows):
-            model, row = models[i], state[i]
-            if step_noise is not None:
-                perturb(model, constants[i], step_noise[j])
-            set_state(model, data, row, _INTEGRATION)
-            if substep is None:
-                step(model, data, nstep)
-            else:  # ctrl from the held command and the actuator state, every physics step
-                command = data.ctrl.copy()
-                for _ in range(nstep):
-                    data.ctrl[:] = substep(command, data.act, constants[i])
-                    step(model, data)
-                data.ctrl[:] = command
-            get_state(model, data, row, _INTEGRATION)
-            unstable[i] = bool(warnings[w1] or warnings[w2] or warnings[w3])
-            if unstable[i]:
-                warnings[:] = 0
-            if need_mass:
-                mujoco.mj_fullM(model, data, mass[i])
-            if need_poses:
-                self.poses[0][i] = data.xpos
-                self.poses[1][i] = data.xquat
+        for start, stop in chunks:
+            for j in range(start, stop):
+                i = rows[j]
+                model, row = models[i], state[i]
+                if step_noise is not None:
+                    perturb(model, constants[i], step_noise[j])
+                set_state(model, data, row, _INTEGRATION)
+                if substep is None:
+                    step(model, data, nstep)
+                else:  # ctrl from the held command and the actuator state, every physics step
+                    command = data.ctrl.copy()
+                    for _ in range(nstep):
+                        data.ctrl[:] = substep(command, data.act, constants[i])
+                        step(model, data)
+                    data.ctrl[:] = command
+                get_state(model, data, row, _INTEGRATION)
+                unstable[i] = bool(warnings[w1] or warnings[w2] or warnings[w3])
+                if unstable[i]:
+                    warnings[:] = 0
+                if need_mass:
+                    mujoco.mj_fullM(model, data, mass[i])
+                if need_poses:
+                    self.poses[0][i] = data.xpos
+                    self.poses[1][i] = data.xquat
 
     def forward_poses(self, members: np.ndarray) -> None:
         """Body poses of the members from their current states (``mj_kinematics``)."""
