@@ -140,6 +140,11 @@ class Layout:
     has_estimate: bool
     has_covariance: bool
     has_setpoint: bool
+    #: Legend names of the state and measurement series (``traj.meta["state_label"]``,
+    #: ``["measurement_label"]``; defaults "truth" and "measured"): a run that logs
+    #: something else as its state (an error, a ratio) says so in the legend.
+    state_label: str = "truth"
+    measurement_label: str = "measured"
 
     @classmethod
     def of(cls, traj: Trajectory, *, prefix: str = "", degrees: bool = True) -> Layout:
@@ -166,7 +171,9 @@ class Layout:
                         for m in traj.measurement_names],
             action_units=[traj.unit(a, "action") for a in traj.action_names],
             has_estimate=traj.estimate is not None, has_covariance=traj.covariance is not None,
-            has_setpoint=traj.setpoint is not None)
+            has_setpoint=traj.setpoint is not None,
+            state_label=str(traj.meta.get("state_label", "truth")),
+            measurement_label=str(traj.meta.get("measurement_label", "measured")))
 
     # -- styles
     def styles(self) -> list[tuple[str, rr.AsComponents]]:
@@ -179,7 +186,7 @@ class Layout:
         p, out = self.prefix, []
         for i, part in enumerate(self.state):
             unit = self.state_scale[i][1]
-            out.append((f"{p}state/{part}/actual", lines(_with_unit("truth", unit),
+            out.append((f"{p}state/{part}/actual", lines(_with_unit(self.state_label, unit),
                                                          TRUTH_COLOR, TRUTH_WIDTH)))
             if not self.has_estimate:
                 continue
@@ -195,7 +202,8 @@ class Layout:
             i = self.meas_state[j]
             color = MEASUREMENT_COLOR if i is not None else (*_PALETTE[j % len(_PALETTE)], 160)
             out.append((f"{p}measurement/{part}", rr.SeriesPoints(
-                names=[_with_unit(f"measured {part}", self.meas_scale[j][1])], colors=[color],
+                names=[_with_unit(f"{self.measurement_label} {part}".strip(),
+                                  self.meas_scale[j][1])], colors=[color],
                 markers=["circle"], marker_sizes=[MEASUREMENT_SIZE])))
         for k, part in enumerate(self.action):
             out.append((f"{p}action/{part}", lines(_with_unit(part, self.action_units[k]),

@@ -44,7 +44,9 @@ def test_ms_hinf_recording_shows_errors_not_the_gravity_free_model():
     run = ms._run(s, 0.01, 500, None, kalman=False)
     result = {"model_pitch_final_rad": float(run["x"][-1, 0])}
     traj = ms._trajectory(run, s, result)
-    np.testing.assert_array_equal(traj.state, run["est"] - run["x"])
+    # the figure's and the paper's convention e = x - m, and the legend says so
+    np.testing.assert_array_equal(traj.state, run["x"] - run["est"])
+    assert traj.meta["state_label"] == "error (truth - estimate)"
     assert traj.state_names[0] == "pitch_error" and traj.estimate is None
     np.testing.assert_array_equal(traj.measurement[:, 0], run["T"])
     assert "gravity-free" in traj.meta["note"]

@@ -242,15 +242,16 @@ MODEL_NOTE = ("The plant is the paper's gravity-free linear model (12)-(15), not
 
 #: Units of the logged series (:func:`_trajectory`).
 UNITS = {"pitch_error": "rad", "yaw_error": "rad", "pitch_rate_error": "rad/s",
-         "yaw_rate_error": "rad/s", "V_pitch": "V", "V_yaw": "V"}
+         "yaw_rate_error": "rad/s", "V_pitch": "V", "V_yaw": "V", "T": "1"}
 
 
 def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
                 result: dict[str, Any], name: str = "noisy") -> Trajectory:
     """One run (``name``: ``"noise_free"`` or ``"noisy"``) for the ``.rrd``: estimation errors
-    (``estimate - truth``, rad, rad/s) as the logged "state" and ``T(t)`` as the logged
+    (``truth - estimate``, the paper's ``x - m`` and the figure's convention; rad, rad/s) as
+    the logged "state", named so in the legend, and ``T(t)`` (dimensionless) as the logged
     measurement, never the model's angles (:data:`MODEL_NOTE`)."""
-    err = run["est"] - run["x"]
+    err = run["x"] - run["est"]
     return Trajectory(t_s=run["t"], state=err,
                       state_names=["pitch_error", "yaw_error", "pitch_rate_error",
                                    "yaw_rate_error"],
@@ -260,7 +261,9 @@ def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
                       action_names=["V_pitch [V]", "V_yaw [V]"], estimate=None,
                       covariance=None,
                       meta={"scenario": NAME, "run": name, "units": dict(UNITS),
-                            "state": "estimation error estimate - truth of the mean-square "
+                            "state_label": "error (truth - estimate)",
+                            "measurement_label": "",
+                            "state": "estimation error truth - estimate of the mean-square "
                                      "H-infinity filter (rad, rad/s)",
                             "measurement": "noise-output ratio T(t) (dimensionless)",
                             "note": MODEL_NOTE,
@@ -270,7 +273,7 @@ def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
 def _runs(mean: dict[str, np.ndarray], noisy: dict[str, np.ndarray],
           s: MsHinfHelicopterScenario, result: dict[str, Any]) -> list[Run]:
     """The runs of the ``.rrd``: the noise-free (mean) run and the noisy run."""
-    common = (f"Logged: the estimation errors (estimate - truth) of the central mean-square "
+    common = (f"Logged: the estimation errors (truth - estimate) of the central mean-square "
               f"H-infinity filter (gamma = {s.gamma}) and the noise-output ratio T(t); "
               f"the disturbance w(t) is the paper's. {MODEL_NOTE}")
     return [
