@@ -638,6 +638,24 @@ def _sigterm_raises() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextlib.contextmanager
+def _mujoco_warnings_logged() -> Iterator[None]:
+    """Within the block, MuJoCo's warnings go to the ``testbed.mujoco`` logger (debug level)
+    instead of stderr and a ``MUJOCO_LOG.TXT`` in the working directory: the simulator reads
+    MuJoCo's warning counters and reports an instability itself, in one line."""
+    import logging
+
+    import mujoco
+
+    log = logging.getLogger("testbed.mujoco")
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda message: log.debug("%s", message))
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
 def _fail(code: int, message: str) -> int:
     print(message.replace("\n", " "), file=sys.stderr)
     return code
@@ -648,7 +666,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
                 "score": cmd_score}
-    with _sigterm_raises():
+    with _sigterm_raises(), _mujoco_warnings_logged():
         try:
             check_outputs(args)
             return commands[args.command](args)

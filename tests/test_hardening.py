@@ -153,13 +153,15 @@ def test_check_output_path_accepts_new_nested_directories(tmp_path):
 
 # ------------------------------------------------------------------ divergence
 def test_diverging_simulation_exits_4_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warning to MUJOCO_LOG.TXT here
+    monkeypatch.chdir(tmp_path)  # MuJoCo's default handler would write MUJOCO_LOG.TXT here
     out = tmp_path / "out" / "x.json"
     assert main(["run", "helicopter", "--duration", "2", "--process-noise", "1e6", "--json",
                  str(out), "--no-progress"]) == 4
     err = capsys.readouterr().err
     assert err.startswith("testbed: simulation diverged at t = ") and "pitch" in err
+    assert len(err.strip().splitlines()) == 1  # MuJoCo's own warning went to the logger
     assert not out.parent.exists()
+    assert list(tmp_path.iterdir()) == []  # no MUJOCO_LOG.TXT either
 
 
 def test_stiff_actuator_diverges_with_time_and_state(tmp_path, monkeypatch):
