@@ -392,7 +392,10 @@ def _interrupt_mc(tmp_path: Path, sig: int) -> subprocess.CompletedProcess:
     proc = subprocess.Popen([sys.executable, "-m", "testbed.cli", "mc", "helicopter", "--runs",
                              "4", "--duration", "600", "--save-npz", str(out), "--no-progress"],
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            # a suite started in the background (nohup ... &) inherits an
+                            # ignored SIGINT, which Python keeps: restore the default
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 60
     while not any(p.name.endswith(".tmpdir") for p in tmp_path.iterdir()):
         assert proc.poll() is None and time.time() < deadline, proc.communicate()
