@@ -49,20 +49,18 @@ from testbed.design import DesignModel
 Factory = Callable[..., Any]
 
 
-class ChannelSelect:
-    """An estimator reading only some channels of ``y`` (batch-transparent).
+class EstimatorWrapper:
+    """An estimator around another: ``x``, ``P``, ``reset``, ``step`` and every other member
+    (``prime``, ``design_meta``, ``innovation``...) are the inner estimator's unless a
+    subclass changes them.
 
     Parameters
     ----------
     inner : estimator
-    index : ndarray of int
-        Channels of the sensor vector given to ``inner``.
     """
 
-    def __init__(self, inner: Any, index: np.ndarray):
+    def __init__(self, inner: Any):
         self.inner = inner
-        self.index = np.asarray(index, dtype=int)
-        self.batched = getattr(inner, "batched", False)
 
     @property
     def x(self) -> np.ndarray:
@@ -79,16 +77,39 @@ class ChannelSelect:
         self.inner.reset(x0, P0)
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """Step the inner estimator."""
+        return self.inner.step(y, u)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "inner":  # not set yet (copying, unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+
+class ChannelSelect(EstimatorWrapper):
+    """An estimator reading only some channels of ``y`` (batch-transparent).
+
+    Parameters
+    ----------
+    inner : estimator
+    index : ndarray of int
+        Channels of the sensor vector given to ``inner``.
+    """
+
+    def __init__(self, inner: Any, index: np.ndarray):
+        super().__init__(inner)
+        self.index = np.asarray(index, dtype=int)
+        self.batched = getattr(inner, "batched", False)
+
+    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         """Step the inner estimator on ``y[..., index]``."""
         return self.inner.step(np.asarray(y)[..., self.index], u)
 
     def __getattr__(self, name: str) -> Any:
-        if name == "inner":
-            raise AttributeError(name)
-        if name == "prime":  # only when the inner estimator primes; on the same channels
+        if name == "prime" and "inner" in self.__dict__:  # only when the inner one primes
             prime = self.inner.prime
             return lambda y: prime(np.asarray(y)[..., self.index])
-        return getattr(self.inner, name)
+        return super().__getattr__(name)
 
 
 def _select(estimator: Any, design: DesignModel) -> Any:

@@ -105,6 +105,50 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
         An unstable design model, or no verified design (the solver status named).
     """
     system, scenario_channel = design_system(design)
+    plant = design.discrete
+    estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
+                                         objective=objective, input_matrix=plant.B,
+                                         feedthrough=plant.D, max_doublings=max_doublings)
+    meta["design"] = "generic (testbed.lmi_design)"
+    if scenario_channel:
+        meta["gamma_channel"] = "scenario"
+    return estimator, meta
+
+
+def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: float | None,
+                       gamma_factor: float, objective: str, input_matrix: np.ndarray | None,
+                       feedthrough: np.ndarray | None, max_doublings: int = 10
+                       ) -> tuple[LMIHInfFilter, dict[str, Any]]:
+    """Theorem 4's filter (45) on ``system``: at ``gamma``, or at ``gamma_factor 2^j
+    gamma_min`` (:func:`filters.lmi_hinf.design_above`), verified a posteriori.
+
+    Shared by the generic design (:func:`lmi_estimator`) and the rigs' own LMI design
+    systems (the vehicle roll rig's, with its multiplicative damping noise).
+
+    Parameters
+    ----------
+    system : StochasticLinearSystem
+    design : testbed.design.DesignModel
+        For ``x0`` and ``dt_s``.
+    gamma : float or None
+    gamma_factor : float
+    objective : str
+    input_matrix, feedthrough : ndarray, optional
+        The known input's ``B_u`` (n, k) and ``D_u`` (m, k).
+    max_doublings : int
+
+    Returns
+    -------
+    estimator : LMIHInfFilter
+    meta : dict
+        ``gamma_min`` (None when ``gamma`` was given), ``gamma``, ``gain``, ``status``,
+        ``spectral_radius``, ``objective``.
+
+    Raises
+    ------
+    ValueError
+        LMI (48) infeasible for every gamma, or no verified design (the solver status named).
+    """
     gamma_min = None
     if gamma is None:
         search = minimal_gamma(system)
@@ -118,12 +162,9 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
     if not lmi.feasible:
         raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
                          f"{lmi.status} (solver: {lmi.solver_status})")
-    plant = design.discrete
-    estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=plant.B,
-                                          feedthrough=plant.D, dt_s=design.dt_s)
+    estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=input_matrix,
+                                          feedthrough=feedthrough, dt_s=design.dt_s)
     meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gain": lmi.gain.tolist(),
             "status": lmi.status, "spectral_radius": lmi.check.spectral_radius,
-            "objective": objective, "design": "generic (testbed.lmi_design)"}
-    if scenario_channel:
-        meta["gamma_channel"] = "scenario"
+            "objective": objective}
     return estimator, meta

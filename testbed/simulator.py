@@ -434,7 +434,6 @@ class Simulator:
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
-        self._no_manoeuvre = self._schedules[0] is None  # (updated by reset)
         self._w_dim = len(self.disturbance.signal(0.0))
         self._dist_draws = 0 if self.disturbance.b is None else self.disturbance.b.shape[1]
         self.physics = Physics(rig, n, self.frame_skip, num_threads)
@@ -602,6 +601,11 @@ class Simulator:
         groups = self._table_of[members]
         return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
 
+    @property
+    def _no_manoeuvre(self) -> bool:
+        """No member has an input profile."""
+        return len(self._schedules) == 1 and self._schedules[0] is None
+
     def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
         if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
@@ -666,7 +670,6 @@ class Simulator:
             else:
                 fn = self._schedules[0]
             schedules.append(self._index(self._schedules, fn))
-        self._no_manoeuvre = len(self._schedules) == 1 and self._schedules[0] is None
         # validated: now change state
         for i, seed in zip(index.tolist(), seeds, strict=True):
             self.noise.seed(i, None if seed is None else int(seed))

@@ -33,7 +33,7 @@ import numpy as np
 from filters import FilterError
 from testbed import runner
 from testbed.disturbances import SampledDisturbance
-from testbed.estimators import PerMember
+from testbed.estimators import EstimatorWrapper, PerMember
 from testbed.rigs import resolve_rig
 from testbed.score import stats
 from testbed.score.suite import SuiteEntry
@@ -45,7 +45,7 @@ REFERENCE = "kalman"
 BACKENDS = ("local", "ray")
 
 
-class Probe:
+class Probe(EstimatorWrapper):
     """A transparent wrapper that times ``step`` and collects normalized innovations.
 
     ``innovation`` (N, m) and ``innovation_cov`` (N, m, m), when the estimator exposes both
@@ -60,22 +60,12 @@ class Probe:
     batched = True
 
     def __init__(self, inner: Any):
-        self.inner = inner
+        super().__init__(inner)
         self.elapsed_ns = 0
         self.calls = 0
         self.nis: list[np.ndarray] = []
         self.nis_dim: int | None = None
         self.nis_missing = False
-
-    @property
-    def x(self) -> np.ndarray:
-        """The inner estimate."""
-        return self.inner.x
-
-    @property
-    def P(self) -> np.ndarray | None:
-        """The inner covariance."""
-        return self.inner.P
 
     def reset(self, x0: Any, P0: Any) -> None:
         """Reset the inner estimator and the records."""
@@ -98,11 +88,6 @@ class Probe:
             self.nis.append(np.sum(nu * np.linalg.solve(S, nu[..., None])[..., 0], axis=-1))
             self.nis_dim = nu.shape[1]
         return x
-
-    def __getattr__(self, name: str) -> Any:
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
 
 
 @dataclass

@@ -255,8 +255,7 @@ def write_worst_cases(path: str | os.PathLike, run: ScoreRun) -> Path | None:
 def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
     """RMSE with 95 % intervals, ANEES against its chi-square band, worst-case against random
     gain: one column per scenario that ran."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from testbed.plots import new_figure, save_figure
 
     groups = [(s, [r for r in g if not r["skipped"]]) for s, g in _rows(summary)]
     groups = [(s, g) for s, g in groups if g]
@@ -264,8 +263,7 @@ def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
         raise ValueError("nothing to plot: every estimator was skipped on every scenario")
     units = summary["units"]
     cols = len(groups)
-    fig = Figure(figsize=(3.6 * cols + 1, 9.5), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = new_figure(3.6 * cols + 1, 9.5)
     axes = fig.subplots(3, cols, squeeze=False)
     colors = {name: f"C{i}" for i, name in enumerate(summary["estimators"])}
     for c, (scenario, group) in enumerate(groups):
@@ -292,14 +290,7 @@ def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
         if with_cov:
             lo, hi = with_cov[0]["anees_bounds"]
             ax.axhspan(lo, hi, color="0.85", label="95 % chi-square band")
-            ax.set_xticks(range(len(with_cov)), [r["estimator"] for r in with_cov],
-                          fontsize=7)
-            ax.set_yscale("log")
-            ax.legend(fontsize=7)
-        else:
-            ax.text(0.5, 0.5, "no estimator reports a covariance", ha="center",
-                    transform=ax.transAxes, fontsize=8)
-        ax.set_title("ANEES", fontsize=9)
+        _estimator_axis(ax, with_cov, "ANEES", "no estimator reports a covariance")
         ax = axes[2, c]
         searched = [r for r in group if r["worst_case_gain"] is not None]
         for j, res in enumerate(searched):
@@ -310,19 +301,21 @@ def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
             if res["certified_gamma"] is not None:
                 ax.plot([j - 0.4, j + 0.4], [res["certified_gamma"]] * 2, "k--",
                         label="design gamma")
-        if searched:
-            ax.set_xticks(range(len(searched)), [r["estimator"] for r in searched],
-                          fontsize=7)
-            ax.set_yscale("log")
-            ax.legend(fontsize=7)
-        else:
-            ax.text(0.5, 0.5, "no worst-case search here", ha="center",
-                    transform=ax.transAxes, fontsize=8)
-        ax.set_title("worst-case vs random gain", fontsize=9)
+        _estimator_axis(ax, searched, "worst-case vs random gain", "no worst-case search here")
     fig.suptitle(f"testbed score, suite {summary['suite']} (seed {summary['seed']})")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    return Path(path)
+    return save_figure(fig, path)
+
+
+def _estimator_axis(ax: Any, rows: list[dict[str, Any]], title: str, empty: str) -> None:
+    """Ticks named after the estimators of ``rows``, log scale and legend; ``empty`` written
+    in the axes when there are none."""
+    if rows:
+        ax.set_xticks(range(len(rows)), [r["estimator"] for r in rows], fontsize=7)
+        ax.set_yscale("log")
+        ax.legend(fontsize=7)
+    else:
+        ax.text(0.5, 0.5, empty, ha="center", transform=ax.transAxes, fontsize=8)
+    ax.set_title(title, fontsize=9)
 
 
 # ---------------------------------------------------------------------------- Rerun

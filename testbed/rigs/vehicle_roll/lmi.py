@@ -14,13 +14,8 @@ from typing import Any
 import numpy as np
 from scipy.linalg import expm_frechet
 
-from filters.lmi_hinf import (
-    LMIHInfFilter,
-    StochasticLinearSystem,
-    design_above,
-    design_lmi_hinf,
-    minimal_gamma,
-)
+from filters.lmi_hinf import LMIHInfFilter, StochasticLinearSystem
+from testbed.lmi_design import verified_estimator
 from testbed.rigs.vehicle_roll.model import VehicleRollParams, paper_model, physical_model
 
 
@@ -117,21 +112,8 @@ def vehicle_lmi_estimator(design: Any, *, gamma: float | None = None,
     """
     a_y_std = design.extras.get("a_y_std", 0.1)
     system, B_u, D_u = vehicle_design_system(design, a_y_std=a_y_std)
-    gamma_min = None
-    if gamma is None:
-        search = minimal_gamma(system)
-        if search.gamma_min is None:
-            raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
-        gamma_min = search.gamma_min
-        lmi, _ = design_above(system, gamma_min, gamma_factor, objective=objective)
-    else:
-        lmi = design_lmi_hinf(system, gamma, objective=objective)
-    if not lmi.feasible:
-        raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
-                         f"{lmi.status} (solver: {lmi.solver_status})")
-    estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=B_u,
-                                          feedthrough=D_u, dt_s=design.dt_s)
-    meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gain": lmi.gain.tolist(),
-            "status": lmi.status, "spectral_radius": lmi.check.spectral_radius,
-            "objective": objective, "a_y_std": a_y_std}
+    estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
+                                         objective=objective, input_matrix=B_u,
+                                         feedthrough=D_u)
+    meta["a_y_std"] = a_y_std
     return estimator, meta
