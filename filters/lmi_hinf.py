@@ -108,7 +108,9 @@ __all__ = [
     "check_design",
     "design_above",
     "design_lmi_hinf",
+    "design_on_grid",
     "error_system",
+    "gamma_grid",
     "gari_matrix",
     "lmi_gamma_for_solution",
     "minimal_gamma",
@@ -131,11 +133,23 @@ _SOLVER_OPTIONS: dict[str, dict[str, Any]] = {
     "CLARABEL": {"equilibrate_enable": False},
     "SCS": {"max_iters": 10000, "eps_abs": 1e-9, "eps_rel": 1e-9},
 }
+#: The ``"h2-unique"`` design solves to tight tolerances (stated here): its gain must not
+#: depend on BLAS rounding; a solve that cannot reach them reports "optimal_inaccurate" and
+#: :func:`design_on_grid` moves to the next level.
+_UNIQUE_OPTIONS: dict[str, dict[str, Any]] = {
+    "CLARABEL": {"equilibrate_enable": False, "tol_gap_abs": 1e-11, "tol_gap_rel": 1e-11,
+                 "tol_feas": 1e-11, "tol_ktratio": 1e-9, "max_iter": 500},
+    "SCS": {"max_iters": 10000, "eps_abs": 1e-9, "eps_rel": 1e-9},
+}
 _SEARCH_OPTIONS: dict[str, dict[str, Any]] = {
     "CLARABEL": {"equilibrate_enable": False},
     "SCS": {"max_iters": 2500, "eps_abs": 1e-9, "eps_rel": 1e-9},
 }
-OBJECTIVES = ("feasibility", "h2")
+OBJECTIVES = ("feasibility", "h2", "h2-unique")
+#: Weight of the strictly convex term of the ``"h2-unique"`` objective (see `_Theorem4Problem`).
+UNIQUE_WEIGHT = 1e-1
+#: Mantissas of the gamma grid of :func:`design_on_grid` (1, 2, 5 per decade).
+GRID_MANTISSAS = (1.0, 2.0, 5.0)
 #: Bracketing step of the gamma search (a decade: few solves for gamma_min far from 1).
 _BRACKET = 10.0
 
@@ -618,7 +632,12 @@ class _Theorem4Problem:
     Parameters
     ----------
     system : StochasticLinearSystem
-    objective : {"feasibility", "h2"}
+    objective : {"feasibility", "h2", "h2-unique"}
+        ``"h2-unique"`` adds ``UNIQUE_WEIGHT (|X1|_F^2 + |X2|_F^2 + |Y|_F^2)`` over the
+        balanced unknowns to the ``"h2"`` trace: strictly convex, so the solution (and the
+        gain) is unique and moves continuously with the data. Without it the trace objective
+        leaves the gain undetermined along flat directions, and BLAS rounding (another
+        OpenBLAS kernel) moves the solver to another filter.
     margin : float
     fixed_gain : array_like, shape (n, n_y), optional
         Analysis of a given gain: adds ``P_K = P2 gain`` (linear in ``P2``).
@@ -694,8 +713,11 @@ class _Theorem4Problem:
             obj = cp.Minimize(g2)
         elif objective == "feasibility":
             obj = cp.Minimize(0)
-        else:
+        elif objective == "h2":
             obj = cp.Minimize(cp.trace(s1 * X1 + s2 * X2) / (n * s2))
+        else:
+            obj = cp.Minimize(cp.trace(s1 * X1 + s2 * X2) / (n * s2) + UNIQUE_WEIGHT * (
+                cp.sum_squares(X1) + cp.sum_squares(X2) + cp.sum_squares(Y)))
         self._inv_gamma = None if minimize_gamma else dv
         self._problem = cp.Problem(obj, cons)
         self._vars = (X1, X2, Y)
@@ -730,7 +752,8 @@ class _Theorem4Problem:
         reported: LMIHInfDesign | None = None
         infeasible: LMIHInfDesign | None = None
         for solver in solvers:
-            options = (_SEARCH_OPTIONS if search else _SOLVER_OPTIONS).get(solver, {})
+            options = (_SEARCH_OPTIONS if search else _UNIQUE_OPTIONS
+                       if self.objective == "h2-unique" else _SOLVER_OPTIONS).get(solver, {})
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", UserWarning)  # "may be inaccurate"
@@ -839,8 +862,9 @@ def design_lmi_hinf(system: StochasticLinearSystem, gamma: float, *,
     system : StochasticLinearSystem
     gamma : float
         Attenuation level (> 0).
-    objective : {"feasibility", "h2"}
-        ``"feasibility"``: any solution of (48); ``"h2"``: the suboptimal mixed
+    objective : {"feasibility", "h2", "h2-unique"}
+        ``"feasibility"``: any solution of (48); ``"h2-unique"``: ``"h2"`` made strictly
+        convex (see :class:`_Theorem4Problem`); ``"h2"``: the suboptimal mixed
         H2/H-infinity filter, ``min trace(P1 + P2)`` subject to (48).
     margin : float
         Relative strictness margin: ``S (48) S <= -margin I``, ``P_i >= margin s_i I``
@@ -1016,6 +1040,52 @@ def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float
         design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
                                  margin=margin)
     return design, j
+
+
+def gamma_grid(gamma_floor: float, count: int) -> list[float]:
+    """The first ``count`` values ``m 10^k >= gamma_floor`` with ``m`` in ``GRID_MANTISSAS``."""
+    gamma_floor = float(gamma_floor)
+    if not (np.isfinite(gamma_floor) and gamma_floor > 0):
+        raise ValueError(f"gamma_floor must be positive and finite, got {gamma_floor}")
+    k = int(np.floor(np.log10(gamma_floor))) - 1
+    out: list[float] = []
+    while len(out) < count:
+        for m in GRID_MANTISSAS:
+            g = float(f"{m}e{k}")
+            if g >= gamma_floor * (1.0 - 1e-12) and len(out) < count:
+                out.append(g)
+        k += 1
+    return out
+
+
+def design_on_grid(system: StochasticLinearSystem, gamma_floor: float, *,
+                   objective: str = "h2-unique", margin: float = DEFAULT_MARGIN,
+                   max_steps: int = 12) -> tuple[LMIHInfDesign, int]:
+    """The design at the smallest grid level ``gamma >= gamma_floor`` (1, 2, 5 per decade)
+    that verifies.
+
+    Why a grid: ``gamma_floor`` (typically ``factor * gamma_min``) moves in its last digits
+    with BLAS rounding, and near ``gamma_min`` the solvers return ``"optimal_inaccurate"``
+    points whose verification is a coin toss. A fixed grid makes the chosen ``gamma`` the
+    same on every machine; with the strictly convex ``"h2-unique"`` objective the gain is
+    then the same up to the solver's accuracy (keep ``gamma_floor`` a few times
+    ``gamma_min``: measured on the vehicle roll rig, a gain entry moves by 30 % between
+    OpenBLAS kernels at 2 ``gamma_min`` and by 5e-5 at 9 ``gamma_min``).
+
+    Returns
+    -------
+    design : LMIHInfDesign
+        The first verified design (or the last attempt, not feasible).
+    step : int
+        Index of the chosen grid level (0: the first level at or above ``gamma_floor``).
+    """
+    design = None
+    for step, gamma in enumerate(gamma_grid(gamma_floor, max_steps)):
+        design = design_lmi_hinf(system, gamma, objective=objective, margin=margin)
+        if design.feasible:
+            return design, step
+    assert design is not None
+    return design, max_steps - 1
 
 
 def minimal_gamma(system: StochasticLinearSystem, *, rtol: float = DEFAULT_RTOL,

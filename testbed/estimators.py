@@ -164,8 +164,8 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
         else ChannelSelect(est, index)
 
 
-def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 1.1,
-             objective: str = "h2") -> Any:
+def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
+             objective: str = "h2-unique") -> Any:
     """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
     (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
     from the discrete design model (:mod:`testbed.lmi_design`; needs a stable plant)."""

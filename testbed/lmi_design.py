@@ -30,8 +30,8 @@ from scipy.linalg import expm
 from filters.lmi_hinf import (
     LMIHInfFilter,
     StochasticLinearSystem,
-    design_above,
     design_lmi_hinf,
+    design_on_grid,
     minimal_gamma,
 )
 
@@ -82,14 +82,16 @@ def design_system(design: Any) -> tuple[StochasticLinearSystem, bool]:
     return system, len(blocks) == 2
 
 
-def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: float = 1.1,
-                  objective: str = "h2", max_doublings: int = 10
+def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: float = 5.0,
+                  objective: str = "h2-unique", max_steps: int = 12
                   ) -> tuple[LMIHInfFilter, dict[str, Any]]:
-    """The filter (45) on :func:`design_system`, at ``gamma`` or ``gamma_factor 2^j gamma_min``.
+    """The filter (45) on :func:`design_system`, at ``gamma`` or at the first level of the
+    1-2-5 grid above ``gamma_factor gamma_min`` whose design is accurate and verifies.
 
-    ``gamma_min`` comes from :func:`filters.lmi_hinf.minimal_gamma`; ``j`` is the smallest
-    number of doublings whose design verifies (near ``gamma_min`` the mixed H2/H-infinity
-    solution can be too ill-conditioned to pass the a-posteriori check).
+    ``gamma_min`` comes from :func:`filters.lmi_hinf.minimal_gamma`; the grid and the strictly
+    convex ``"h2-unique"`` objective (:func:`filters.lmi_hinf.design_on_grid`) make the
+    chosen filter the same on every machine (near ``gamma_min`` the mixed H2/H-infinity
+    solution is too ill-conditioned for a reproducible choice).
 
     Returns
     -------
@@ -108,7 +110,7 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
     plant = design.discrete
     estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
                                          objective=objective, input_matrix=plant.B,
-                                         feedthrough=plant.D, max_doublings=max_doublings)
+                                         feedthrough=plant.D, max_steps=max_steps)
     meta["design"] = "generic (testbed.lmi_design)"
     if scenario_channel:
         meta["gamma_channel"] = "scenario"
@@ -117,10 +119,11 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
 
 def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: float | None,
                        gamma_factor: float, objective: str, input_matrix: np.ndarray | None,
-                       feedthrough: np.ndarray | None, max_doublings: int = 10
+                       feedthrough: np.ndarray | None, max_steps: int = 12
                        ) -> tuple[LMIHInfFilter, dict[str, Any]]:
-    """Theorem 4's filter (45) on ``system``: at ``gamma``, or at ``gamma_factor 2^j
-    gamma_min`` (:func:`filters.lmi_hinf.design_above`), verified a posteriori.
+    """Theorem 4's filter (45) on ``system``: at ``gamma``, or at the first accurate verified
+    level of the 1-2-5 grid above ``gamma_factor gamma_min``
+    (:func:`filters.lmi_hinf.design_on_grid`), verified a posteriori.
 
     Shared by the generic design (:func:`lmi_estimator`) and the rigs' own LMI design
     systems (the vehicle roll rig's, with its multiplicative damping noise).
@@ -135,7 +138,8 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
     objective : str
     input_matrix, feedthrough : ndarray, optional
         The known input's ``B_u`` (n, k) and ``D_u`` (m, k).
-    max_doublings : int
+    max_steps : int
+        Grid levels tried at most.
 
     Returns
     -------
@@ -155,8 +159,8 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
         if search.gamma_min is None:
             raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
         gamma_min = search.gamma_min
-        lmi, _ = design_above(system, gamma_min, gamma_factor, objective=objective,
-                              max_doublings=max_doublings)
+        lmi, _ = design_on_grid(system, gamma_factor * gamma_min, objective=objective,
+                                max_steps=max_steps)
     else:
         lmi = design_lmi_hinf(system, float(gamma), objective=objective)
     if not lmi.feasible:

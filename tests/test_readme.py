@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import re
 import shlex
 import subprocess
@@ -44,8 +46,28 @@ def test_every_readme_command_parses():
 
 
 @pytest.mark.slow
-def test_readme_numbers_are_current():
-    """``scripts/readme_numbers.py --check``: the blocks equal a fresh run of their commands."""
+@pytest.mark.parametrize("coretype", [None, "Haswell"])
+def test_readme_numbers_are_current(coretype):
+    """``scripts/readme_numbers.py --check``: the blocks equal a fresh run of their commands
+    (to the script's stated tolerance), with the native OpenBLAS kernel and with the Haswell
+    kernel that some machines of this kind select."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    if coretype:
+        env["OPENBLAS_CORETYPE"] = coretype
     result = subprocess.run([sys.executable, str(ROOT / "scripts" / "readme_numbers.py"),
-                             "--check"], cwd=ROOT)
-    assert result.returncode == 0, "README numbers are stale: run scripts/readme_numbers.py"
+                             "--check"], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, (
+        f"README numbers are stale (OPENBLAS_CORETYPE={coretype}): run "
+        f"scripts/readme_numbers.py\n{result.stderr}")
+
+
+def test_readme_check_tolerates_rounding_only():
+    """The tolerance has teeth: a 1 % change of a number or any change of text fails."""
+    spec = importlib.util.spec_from_file_location("readme_numbers",
+                                                  ROOT / "scripts" / "readme_numbers.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.differences("| kalman | 0.04947 deg |", "| kalman | 0.04948 deg |") == []
+    assert module.differences("| kalman | 0.04947 deg |", "| kalman | 0.04997 deg |")
+    assert module.differences("| kalman | 0.04947 deg |", "| kalman | 0.04947 rad |")
+    assert module.differences("1.94", "1.94e-3")

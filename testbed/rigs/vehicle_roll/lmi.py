@@ -90,12 +90,13 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
 
 
 def vehicle_lmi_estimator(design: Any, *, gamma: float | None = None,
-                          gamma_factor: float = 1.1, objective: str = "h2"
+                          gamma_factor: float = 5.0, objective: str = "h2-unique"
                           ) -> tuple[LMIHInfFilter, dict[str, Any]]:
     """The filter (45) for the vehicle rig in the loop (``--filter lmi-hinf``).
 
     Designs on :func:`vehicle_design_system` by Theorem 4 at ``gamma`` (default
-    ``gamma_factor * 2^j * gamma_min``, :func:`design_above`) with the mixed H2/H-infinity
+    the first accurate verified 1-2-5 grid level above ``gamma_factor * gamma_min``,
+    :func:`filters.lmi_hinf.design_on_grid`) with the strictly convex mixed H2/H-infinity
     objective.
 
     Returns
