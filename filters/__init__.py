@@ -33,7 +33,7 @@ Input conversion
     argument (complex values, non-numeric containers, integers beyond the float range).
 """
 
-from filters._linalg import real_array
+from filters._linalg import real_array, zoh
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.errors import (
@@ -76,6 +76,7 @@ from filters.variance_discrete import (
 )
 
 __all__ = [
+    "zoh",
     "MAX_AUTO_SUBSTEPS",
     "DesignCheck",
     "DesignSearchRecord",

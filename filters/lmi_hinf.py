@@ -1239,7 +1239,7 @@ class LMIHInfFilter(_SampledFilter):
     filter therefore keeps the last measurement pending: ``step`` returns ``xhat_{k+1}``
     computed from the pending ``y_k`` and stores ``y_{k+1}``. The measurement at reset,
     ``y_0``, is given with :meth:`prime`; without it the first step is a pure prediction,
-    ``xhat_1 = A xhat_0 (+ B_u u_0)`` (e.g. :class:`~testbed.wrappers.FilterInLoop` does not
+    ``xhat_1 = A xhat_0 (+ B_u u_0)`` (e.g. :class:`~testbed.envs.wrappers.FilterInLoop` does not
     pass ``y_0`` to estimators today).
 
     Parameters

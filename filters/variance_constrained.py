@@ -420,7 +420,7 @@ class LinearFilter(_SampledFilter):
         prediction; continuous: ``xhat(t_k)`` after the measurement averaged over
         ``[t_{k-1}, t_k]``. ``testbed/UncertainLinear-v0`` returns exactly these
         measurements after each step, so the filter in
-        :class:`~testbed.wrappers.FilterInLoop` estimates the state of that step.
+        :class:`~testbed.envs.wrappers.FilterInLoop` estimates the state of that step.
     P : numpy.ndarray, shape (..., n, n), or None
         The constant ``covariance`` (constant-gain filters propagate none).
     t_s : float

@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages
 
 from filters.lmi_hinf import design_lmi_hinf, minimal_gamma  # noqa: E402
-from testbed.scenarios.zhang_hinf import paper_system  # noqa: E402
+from testbed.reproductions.zhang_lmi_hinf.scenario import paper_system  # noqa: E402
 
 
 def bench_lmi(repeats: int = 11, bisections: int = 3) -> dict[str, float]:

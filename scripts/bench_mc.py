@@ -1,4 +1,4 @@
-"""Speed and memory of the batched Monte Carlo (:func:`testbed.runner.monte_carlo`).
+"""Speed and memory of the batched Monte Carlo (:func:`testbed.experiment.runner.monte_carlo`).
 
 Usage::
 
@@ -51,10 +51,10 @@ from threadpoolctl import threadpool_limits
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from testbed.experiment.runner import monte_carlo  # noqa: E402
+from testbed.experiment.scenario import Scenario  # noqa: E402
 from testbed.rigs import resolve_rig  # noqa: E402
-from testbed.runner import monte_carlo  # noqa: E402
-from testbed.scenario import Scenario  # noqa: E402
-from testbed.simulator import default_num_threads  # noqa: E402
+from testbed.sim.simulator import default_num_threads  # noqa: E402
 
 #: Rig name -> (key prefix of its metrics, its Monte-Carlo scenario).
 RIG_SCENARIOS: dict[str, tuple[str, Scenario]] = {
@@ -66,8 +66,8 @@ RIG_SCENARIOS: dict[str, tuple[str, Scenario]] = {
 # exec, so a child would report at least its parent's size.
 _RSS_SNIPPET = """
 import resource, sys
-from testbed.runner import monte_carlo
-from testbed.scenario import Scenario
+from testbed.experiment.runner import monte_carlo
+from testbed.experiment.scenario import Scenario
 runs, steps = int(sys.argv[1]), int(sys.argv[2])
 if runs:
     monte_carlo(Scenario(rig="helicopter", estimator="kalman", duration_s=steps * 0.01),

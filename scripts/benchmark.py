@@ -16,7 +16,7 @@ shared):
   (same physics: the rig's ambient disturbance off; plus action checks, sensors, reward,
   info); ``env_overhead_ratio`` = env step time / bare step time (target <= 2.0);
   ``env_vehicle_overhead_ratio``: the same for the vehicle roll rig (at rest, zero action);
-- ``env_kf_steps_per_s``: :class:`testbed.wrappers.FilterInLoop` ``step`` with the Kalman
+- ``env_kf_steps_per_s``: :class:`testbed.envs.wrappers.FilterInLoop` ``step`` with the Kalman
   filter built by :func:`testbed.estimators.build` from the rig's design model;
 - ``kf_step_us`` / ``filterpy_step_us``: one predict + update of our ``KalmanFilter`` and of
   ``filterpy.kalman.KalmanFilter`` on the same 4-state, 2-measurement model (Basin et al.'s
@@ -72,8 +72,8 @@ from filters import (  # noqa: E402
 )
 from testbed import estimators  # noqa: E402
 from testbed.envs import RigEnv  # noqa: E402
+from testbed.envs.wrappers import FilterInLoop  # noqa: E402
 from testbed.io import atomic_path, write_json  # noqa: E402
-from testbed.wrappers import FilterInLoop  # noqa: E402
 
 #: metric -> (unit, meaning). Every key the benchmark can report.
 METRICS: dict[str, tuple[str, str]] = {
@@ -206,9 +206,9 @@ def bench_filters(calls: int, repeats: int) -> dict[str, float]:
     """Kalman (ours and filterpy's), mean-square and polynomial H-infinity steps."""
     from filterpy.kalman import KalmanFilter as FilterpyKF
 
+    from testbed.reproductions.basin_polynomial_hinf.scenario import PolynomialHinfScenario
+    from testbed.reproductions.basin_polynomial_hinf.scenario import paper_model as paper_poly_model
     from testbed.rigs.helicopter import paper_model
-    from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario
-    from testbed.scenarios.basin_polynomial_hinf import paper_model as paper_poly_model
 
     pm = paper_model()
     dt = 0.01
@@ -290,8 +290,8 @@ def bench_scale(mode: str) -> dict[str, Any]:
     papers' scale and the Ray sweep speedup."""
     import bench_mc
 
-    from testbed.runner import monte_carlo
-    from testbed.scenario import Scenario
+    from testbed.experiment.runner import monte_carlo
+    from testbed.experiment.scenario import Scenario
 
     sizes = {"full": {}, "quick": bench_mc.QUICK, "smoke": bench_mc.SMOKE}[mode]
     out: dict[str, Any] = dict(bench_mc.bench_monte_carlo(**sizes))
@@ -309,8 +309,8 @@ def bench_ray_sweep(runs: int = 32, duration_s: float = 10.0) -> dict[str, Any]:
     warmed up outside the timed region: the sweep's own cost, not Ray's start-up)."""
     import ray
 
-    from testbed.runner import sweep
-    from testbed.scenario import Scenario
+    from testbed.experiment.runner import sweep
+    from testbed.experiment.scenario import Scenario
 
     scenario = Scenario(rig="helicopter", estimator="kalman", seed=0)
     grid = {"process_noise": [0.0, 0.1, 0.2, 0.3], "params.mass_kg": [0.9, 1.0, 1.1, 1.2]}

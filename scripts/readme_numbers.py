@@ -27,10 +27,10 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from testbed import runner
 from testbed.cli import build_parser, scenario_from_args
+from testbed.experiment import runner
 from testbed.io import atomic_path
-from testbed.units import display
+from testbed.outputs.units import display
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 #: Relative tolerance of ``--check`` (see the module docstring).

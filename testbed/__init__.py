@@ -17,7 +17,7 @@ import gymnasium as gym
 
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
         and "mujoco" not in sys.modules:
-    # headless rendering (testbed.render): MuJoCo picks its OpenGL backend at import
+    # headless rendering (testbed.outputs.render): MuJoCo picks its OpenGL backend at import
     os.environ.setdefault("MUJOCO_GL", "egl")
 
 __version__ = "0.1.0"
@@ -30,10 +30,12 @@ _RIG_VECTOR = "testbed.envs.rig_env:RigVectorEnv"
 _ENVS = {
     "testbed/Helicopter2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "helicopter"}),
     "testbed/VehicleRoll-v0": (_RIG, 1000, _RIG_VECTOR, {"rig": "vehicle-roll"}),
-    "testbed/PolynomialCubic-v0": ("testbed.envs.polynomial:PolynomialCubicEnv", 1400),
-    "testbed/NonlinearDiscrete-v0": ("testbed.envs.nonlinear_discrete:NonlinearDiscreteEnv",
-                                     200),
-    "testbed/UncertainLinear-v0": ("testbed.envs.uncertain_linear:UncertainLinearEnv", 1000),
+    "testbed/PolynomialCubic-v0": (
+        "testbed.reproductions.basin_polynomial_hinf.env:PolynomialCubicEnv", 1400),
+    "testbed/NonlinearDiscrete-v0": (
+        "testbed.reproductions.zhang_lmi_hinf.env:NonlinearDiscreteEnv", 200),
+    "testbed/UncertainLinear-v0": (
+        "testbed.reproductions.variance_constrained.env:UncertainLinearEnv", 1000),
 }
 ENV_IDS = tuple(_ENVS)
 

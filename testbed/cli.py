@@ -13,7 +13,7 @@ line ``testbed: error: --NAME ...``. Exit codes:
 2     bad command line or input (nothing was simulated, nothing written)
 3     numerical failure of the filter (``filters.FilterError``: time and quantity named;
       or a user's estimator returned a non-finite estimate)
-4     the simulation diverged (``testbed.simulator.SimulationDiverged``: time and state)
+4     the simulation diverged (``testbed.sim.simulator.SimulationDiverged``: time and state)
 5     an output could not be written, or the Ray cluster could not be reached
 130   interrupted by SIGINT (Ctrl-C); 143: terminated by SIGTERM (temporaries removed)
 ====  =====================================================================================
@@ -33,13 +33,13 @@ from typing import Any, NoReturn
 import numpy as np
 
 from filters import FilterError
-from testbed.control import CONTROLLERS
 from testbed.estimators import ESTIMATORS
+from testbed.experiment.control import CONTROLLERS
+from testbed.experiment.scenario import MAX_SEED, Scenario, ScenarioError
 from testbed.io import check_output_path, write_json
+from testbed.outputs.units import display
 from testbed.rigs import RIGS, resolve_rig
-from testbed.scenario import MAX_SEED, Scenario, ScenarioError
-from testbed.simulator import SimulationDiverged
-from testbed.units import display
+from testbed.sim.simulator import SimulationDiverged
 
 #: Longest ``--duration`` (simulated seconds) accepted without ``--allow-long``.
 MAX_DURATION_S = 3600.0
@@ -338,13 +338,13 @@ def _format_table(summary: dict, units: dict[str, str]) -> str:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """``testbed run``: one closed-loop episode, summary table and output files."""
-    from testbed import runner
+    from testbed.experiment import runner
 
     scenario = scenario_from_args(args)
     if args.realtime:
         return _cmd_run_realtime(args, scenario)
     if args.video:
-        from testbed.render import check_video_path
+        from testbed.outputs.render import check_video_path
 
         check_video_path(args.video)
     live = _open_live(args, scenario)
@@ -355,13 +355,13 @@ def cmd_run(args: argparse.Namespace) -> int:
                                    observe=None if live is None else live.attach)
     except BaseException:
         if live is not None:
-            from testbed.live import stop
+            from testbed.outputs.live import stop
 
             stop(live.rec)
         raise
     wall_s = time.perf_counter() - start
     if live is not None:
-        from testbed.viz import run_description
+        from testbed.outputs.viz import run_description
 
         live.close(run_description(summary["meta"], summary))
     meta = summary.pop("meta")
@@ -375,23 +375,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
     if args.plot:
-        from testbed.plots import plot_trajectory
+        from testbed.outputs.plots import plot_trajectory
 
         title = (f"{meta['rig']}: {result['filter']} filter, {result['controller']} controller, "
                  f"seed {scenario.seed}")
         print(f"wrote {plot_trajectory(traj, args.plot, title=title, summary=summary)}")
     if args.rrd:
-        from testbed.viz import run_description, write_rrd
+        from testbed.outputs.viz import run_description, write_rrd
 
-        model = resolve_rig(scenario.rig)(profile=scenario.profile).model
+        model = traj.rig.model
         app = f"testbed/{meta['rig']}"
         path = write_rrd(traj, args.rrd, model=model, application_id=app,
                          description=run_description(meta, summary))
         print(f"wrote {path}")
     if args.video:
-        from testbed.render import frame_stride, iter_frames, write_video
+        from testbed.outputs.render import frame_stride, iter_frames, write_video
 
-        rig = resolve_rig(scenario.rig)(profile=scenario.profile)
+        rig = traj.rig
         dt_s = traj.t_s[1] - traj.t_s[0]
         stride = frame_stride(dt_s)
         frames = iter_frames(rig, traj.state, stride)
@@ -402,8 +402,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_run_realtime(args: argparse.Namespace, scenario: Scenario) -> int:
-    """``testbed run --realtime``: the episode paced to the wall clock (testbed.realtime)."""
-    from testbed.realtime import run_scenario
+    """``testbed run --realtime``: the episode paced to the wall clock
+    (testbed.experiment.realtime)."""
+    from testbed.experiment.realtime import run_scenario
 
     for flag, value in (("--plot", args.plot), ("--rrd", args.rrd), ("--video", args.video)):
         if value:
@@ -430,7 +431,7 @@ def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
     """The live view asked for by --spawn / --connect / --serve, or None."""
     if not (args.spawn or args.connect or args.serve):
         return None
-    from testbed.live import LiveView, open_recording
+    from testbed.outputs.live import LiveView, open_recording
 
     rec, url = open_recording(f"testbed/{resolve_rig(scenario.rig).name}", spawn=args.spawn,
                               connect=args.connect, serve=args.serve,
@@ -442,7 +443,7 @@ def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
 
 def _finish_live(args: argparse.Namespace, live: Any) -> None:
     """Keep a --serve server up until Ctrl-C; disconnect the others."""
-    from testbed.live import stop
+    from testbed.outputs.live import stop
 
     try:
         if args.serve:
@@ -471,7 +472,7 @@ def _print_mc(result: dict) -> None:
 
 def cmd_mc(args: argparse.Namespace) -> int:
     """``testbed mc``: a batched Monte-Carlo study."""
-    from testbed.runner import monte_carlo
+    from testbed.experiment.runner import monte_carlo
 
     result = monte_carlo(scenario_from_args(args), args.runs, batch_size=args.batch_size,
                          progress=not args.no_progress, save_npz=args.save_npz,
@@ -480,7 +481,7 @@ def cmd_mc(args: argparse.Namespace) -> int:
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
     if args.plot:
-        from testbed.study_plots import plot_monte_carlo
+        from testbed.outputs.study_plots import plot_monte_carlo
 
         print(f"wrote {plot_monte_carlo(result, args.plot)}")
     return 0
@@ -489,7 +490,7 @@ def cmd_mc(args: argparse.Namespace) -> int:
 def check_grid(scenario: Scenario, axes: list[tuple[str, list[float]]]) -> dict[str, list]:
     """The grid of ``--grid`` axes, every point's scenario checked (``ValueError`` naming
     ``--grid``)."""
-    from testbed.runner import check_grid_name, grid_points, point_scenario
+    from testbed.experiment.runner import check_grid_name, grid_points, point_scenario
 
     grid: dict[str, list] = {}
     for name, values in axes:
@@ -511,7 +512,7 @@ def check_grid(scenario: Scenario, axes: list[tuple[str, list[float]]]) -> dict[
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """``testbed sweep``: one Monte-Carlo study per grid point."""
-    from testbed.runner import check_ray_address, sweep
+    from testbed.experiment.runner import check_ray_address, sweep
 
     scenario = scenario_from_args(args)
     grid = check_grid(scenario, args.grid)
@@ -540,7 +541,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
     if args.plot:
-        from testbed.study_plots import plot_sweep
+        from testbed.outputs.study_plots import plot_sweep
 
         print(f"wrote {plot_sweep(result, args.plot, x=names[0])}")
     return 0

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import runner
-from testbed.scenario import Scenario
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
 

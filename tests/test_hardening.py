@@ -27,10 +27,10 @@ from filters import (
 )
 from filters.kalman import MAX_AUTO_SUBSTEPS
 from testbed.cli import main
+from testbed.experiment.runner import RAY_CONNECT_TIMEOUT_S
+from testbed.experiment.scenario import Scenario, ScenarioError
 from testbed.io import atomic_path, check_output_path, remove_stale_temporaries
-from testbed.runner import RAY_CONNECT_TIMEOUT_S
-from testbed.scenario import Scenario, ScenarioError
-from testbed.simulator import SimulationDiverged
+from testbed.sim.simulator import SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -165,7 +165,7 @@ def test_diverging_simulation_exits_4_and_writes_nothing(tmp_path, capsys, monke
 
 
 def test_stiff_actuator_diverges_with_time_and_state(tmp_path, monkeypatch):
-    from testbed.runner import run
+    from testbed.experiment.runner import run
 
     monkeypatch.chdir(tmp_path)
 
@@ -179,7 +179,7 @@ def test_stiff_actuator_diverges_with_time_and_state(tmp_path, monkeypatch):
 
 def test_mujoco_warning_is_detected_even_though_mujoco_resets_the_state(tmp_path,
                                                                         monkeypatch):
-    from testbed.envs.rig_env import build_simulator
+    from testbed.sim import build_simulator
 
     monkeypatch.chdir(tmp_path)
 
@@ -424,7 +424,7 @@ def test_unreachable_ray_cluster_fails_fast_with_exit_5(capsys):
 
 
 def test_long_runs_record_decimated_rows_equal_to_the_full_recording(monkeypatch):
-    from testbed import runner
+    from testbed.experiment import runner
 
     scenario = Scenario(rig="helicopter", duration_s=1.23)
     full, summary_full = runner.run(scenario, progress=False)
@@ -464,7 +464,7 @@ def test_json_only_run_memory_is_flat_in_duration(tmp_path):
 
 
 def test_json_only_run_keeps_no_trajectory(monkeypatch):
-    from testbed.loop import ClosedLoop
+    from testbed.experiment.loop import ClosedLoop
 
     seen = {}
     original = ClosedLoop.run

@@ -6,13 +6,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from testbed import runner
 from testbed.envs import RigEnv, RigVectorEnv
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.helicopter import HelicopterRig, paper_model
 from testbed.rigs.helicopter.hardware import HelicopterHardware, current_limited, deadband
 from testbed.rigs.helicopter.imu import HelicopterIMU
 from testbed.rigs.vehicle_roll import VehicleRollRig
-from testbed.scenario import Scenario
 from testbed.sensors import NoiseStreams, Sample, ScaleFactor, StateChannel
 
 

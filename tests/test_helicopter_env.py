@@ -8,8 +8,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import testbed  # noqa: F401  (registers the environments)
-from testbed.disturbances import Disturbance
 from testbed.envs import RigEnv, RigVectorEnv
+from testbed.rigs.disturbances import Disturbance
 from testbed.rigs.helicopter import (
     PITCH_LIMIT_RAD,
     basin_helicopter_disturbance,

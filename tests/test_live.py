@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from testbed import runner
 from testbed.cli import main
-from testbed.scenario import Scenario
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 
 RERUN = Path(sys.executable).with_name("rerun")
 ENV = {**os.environ, "RERUN_ANALYTICS": "off"}
@@ -87,8 +87,8 @@ def test_on_step_observer_is_bitwise_neutral_and_sees_every_row():
 
 
 def test_live_view_streams_the_run_to_a_grpc_server(grpc_sink):
-    from testbed.live import LiveView, open_recording, stop
-    from testbed.rrd_inspect import inspect_rrd, series
+    from testbed.outputs.live import LiveView, open_recording, stop
+    from testbed.outputs.rrd_inspect import inspect_rrd, series
 
     url, out, proc = grpc_sink
     rec, web = open_recording("testbed/helicopter", connect=url)
@@ -124,7 +124,7 @@ def test_live_view_streams_the_run_to_a_grpc_server(grpc_sink):
 
 
 def test_cli_run_connect(grpc_sink, capsys):
-    from testbed.rrd_inspect import inspect_rrd
+    from testbed.outputs.rrd_inspect import inspect_rrd
 
     url, out, proc = grpc_sink
     assert main(["run", "vehicle-roll", "--duration", "0.5", "--no-progress",
@@ -153,7 +153,7 @@ def test_cli_run_serve_prints_a_url_and_serves_the_run(tmp_path):
     viewer connecting to its gRPC server after the run receives the whole run."""
     if not RERUN.exists():
         pytest.skip("the rerun binary is not installed next to this Python")
-    from testbed.rrd_inspect import inspect_rrd
+    from testbed.outputs.rrd_inspect import inspect_rrd
 
     grpc, web = _free_port(), _free_port()
     env = {**ENV, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
@@ -201,7 +201,7 @@ def test_spawn_starts_this_environments_viewer(monkeypatch):
     ``rerun`` next to this Python, on the requested port, connected to our recording."""
     import rerun as rr
 
-    from testbed.live import open_recording, stop
+    from testbed.outputs.live import open_recording, stop
 
     calls = []
     monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from testbed.envs import RigEnv
-from testbed.manoeuvres import (
+from testbed.rigs.vehicle_roll import A_Y_LIMIT_M_S2, paper_disturbance
+from testbed.rigs.vehicle_roll.manoeuvres import (
     MANOEUVRES,
     DoubleLaneChange,
     PaperDecay,
@@ -14,7 +15,6 @@ from testbed.manoeuvres import (
     StepSteer,
     make_manoeuvre,
 )
-from testbed.rigs.vehicle_roll import A_Y_LIMIT_M_S2, paper_disturbance
 
 NAMES = ["double-lane-change", "paper-decay", "sine-sweep", "step-steer"]
 

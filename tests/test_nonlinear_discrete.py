@@ -9,12 +9,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from testbed.plants import nonlinear_discrete as plant
 
 import testbed  # noqa: F401  (registers the environments)
-from testbed.envs.nonlinear_discrete import NonlinearDiscreteEnv
-from testbed.plants import nonlinear_discrete as plant
+from testbed.envs.wrappers import FilterInLoop
 from testbed.reproductions import zhang_nonlinear_discrete as rep
-from testbed.wrappers import FilterInLoop
+from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
 
 
 # ------------------------------------------------------------------ plant

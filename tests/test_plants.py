@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from testbed.plants.linear import simulate_linear
-from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
+from testbed.reproductions.basin_ms_hinf.plant import simulate_linear
+from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
 
 
 def test_noise_free_integration_is_fourth_order():

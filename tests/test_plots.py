@@ -1,12 +1,12 @@
-"""Tests of the PNG summary (testbed.plots)."""
+"""Tests of the PNG summary (testbed.outputs.plots)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from testbed.plots import plot_trajectory
-from testbed.trajectory import Trajectory
+from testbed.experiment.trajectory import Trajectory
+from testbed.outputs.plots import plot_trajectory
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 T = 200
@@ -106,7 +106,7 @@ def with_units(traj):
 
 
 def test_figure_labels_units_fonts_and_legend_outside(figure_checks):
-    from testbed.plots import trajectory_figure
+    from testbed.outputs.plots import trajectory_figure
 
     fig = trajectory_figure(with_units(make_trajectory()))
     figure_checks.readable(fig)
@@ -120,7 +120,7 @@ def test_figure_labels_units_fonts_and_legend_outside(figure_checks):
 
 
 def test_title_metrics_come_from_the_summary_when_given():
-    from testbed.plots import trajectory_figure
+    from testbed.outputs.plots import trajectory_figure
 
     summary = {"rmse": {"pitch": np.radians(0.5), "yaw": 0.0, "pitch_rate": 0.0,
                         "yaw_rate": 0.0}, "nees_mean": 4.25}
@@ -129,7 +129,7 @@ def test_title_metrics_come_from_the_summary_when_given():
 
 
 def test_trajectory_metrics_match_the_definition():
-    from testbed.plots import trajectory_metrics
+    from testbed.outputs.plots import trajectory_metrics
 
     traj = make_trajectory()
     err = traj.estimate[1:] - traj.state[1:]
@@ -140,7 +140,7 @@ def test_trajectory_metrics_match_the_definition():
 
 
 def test_clipped_error_spikes_are_marked():
-    from testbed.plots import trajectory_figure
+    from testbed.outputs.plots import trajectory_figure
 
     traj = make_trajectory()
     traj.estimate[20, 0] += 0.5  # a spike in the first half: outside the steady-state axis
@@ -156,7 +156,7 @@ def test_clipped_error_spikes_are_marked():
 
 
 def test_setpoint_does_not_jump_on_the_last_sample():
-    from testbed.plots import trajectory_figure
+    from testbed.outputs.plots import trajectory_figure
 
     traj = make_trajectory()
     traj.setpoint[-1] = [1.0, 1.0]  # the schedule switches exactly at the end

@@ -11,12 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed import estimators, runner
+from testbed import estimators
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.helicopter.rig import HelicopterParams, HelicopterRig, gravity_voltage
+from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.rigs.vehicle_roll.model import VehicleRollParams
 from testbed.rigs.vehicle_roll.rig import VehicleRollRig
-from testbed.scenario import Scenario
-from testbed.score.calibration import LinearPlantRig
 
 OFFSETS = np.array([-0.2, -0.1, -0.05, -0.02, 0.02, 0.05, 0.1, 0.2])
 

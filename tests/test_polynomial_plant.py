@@ -14,10 +14,10 @@ from scipy.integrate import solve_ivp
 import testbed  # noqa: F401  (registers the environments)
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
-from testbed.envs.polynomial import PolynomialCubicEnv
-from testbed.plants.polynomial import PolynomialPlant
-from testbed.scenarios.basin_polynomial_hinf import PolynomialHinfScenario, paper_w
-from testbed.wrappers import FilterInLoop
+from testbed.envs.wrappers import FilterInLoop
+from testbed.reproductions.basin_polynomial_hinf.env import PolynomialCubicEnv
+from testbed.reproductions.basin_polynomial_hinf.plant import PolynomialPlant
+from testbed.reproductions.basin_polynomial_hinf.scenario import PolynomialHinfScenario, paper_w
 
 
 def paper_rhs(t, x):

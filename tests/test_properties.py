@@ -30,7 +30,7 @@ from filters import (
     MeanSquareHInfFilter,
 )
 from filters.hinf_mean_square import AssumptionWarning
-from testbed.simulator import RESET_OPTION_KEYS
+from testbed.sim.simulator import RESET_OPTION_KEYS
 
 STEPS = 1000
 BATCH = 3

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed import runner
 from testbed.envs import RigVectorEnv
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.helicopter.rig import (
     AMBIENT_NOISE_RAD_S15,
     PITCH_LIMIT_RAD,
@@ -14,7 +15,6 @@ from testbed.rigs.helicopter.rig import (
     X0_YAW_STD_RAD,
 )
 from testbed.rigs.vehicle_roll import rig as vehicle
-from testbed.scenario import Scenario
 
 
 @pytest.mark.parametrize("rig, std", [

@@ -10,8 +10,8 @@ import pytest
 
 from testbed.cli import main
 from testbed.envs import RigEnv
-from testbed.realtime import RealTimeRig, run_scenario
-from testbed.scenario import Scenario
+from testbed.experiment.realtime import RealTimeRig, run_scenario
+from testbed.experiment.scenario import Scenario
 
 HOVER_V = [12.5, -3.8]
 

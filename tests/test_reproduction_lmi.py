@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from filters.lmi_hinf import check_design, lmi_gamma_for_solution, minimal_gamma
-from testbed import runner
 from testbed.cli import main
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 from testbed.reproductions import zhang_lmi_hinf_vehicle_roll as rep
-from testbed.rigs.vehicle_roll import paper_model
-from testbed.scenario import Scenario
-from testbed.scenarios.zhang_hinf import (
+from testbed.reproductions.zhang_lmi_hinf.scenario import (
     PAPER_K_HAT,
     PAPER_P1,
     PAPER_P2,
@@ -25,6 +24,7 @@ from testbed.scenarios.zhang_hinf import (
     paper_system,
     rig_system,
 )
+from testbed.rigs.vehicle_roll import paper_model
 
 CASES = {"x0_zero", "x0_paper"}
 KEYS = {"gamma_min", "gamma_used", "K_hat", "lmi_solve_s", "error_spectral_radius",
@@ -124,7 +124,7 @@ def test_reproduction_short_run_writes_all_keys(tmp_path):
     assert claims["the printed Khat equals P2^-1 P_K"]["verdict"] == "differs"
     assert "6.997" in claims["the printed P1, P2, P_K solve LMI (48)"]["ours"]
     # the .rrd: each run under its own path with a text saying what it is
-    from testbed.rrd_inspect import inspect_rrd
+    from testbed.outputs.rrd_inspect import inspect_rrd
 
     c = inspect_rrd(tmp_path / "o.rrd")
     assert set(c.texts) == {"rig_x0_paper/about", "rig_x0_zero/about", "model52_x0_paper/about"}
@@ -137,7 +137,7 @@ def test_reproduction_short_run_writes_all_keys(tmp_path):
 
 
 def test_claims_mechanism(figure_checks):
-    from testbed.plots import new_figure
+    from testbed.outputs.plots import new_figure
     from testbed.reproductions.outputs import (
         Claim,
         agree_text,

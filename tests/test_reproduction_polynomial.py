@@ -20,7 +20,8 @@ G = 1.05
 
 
 def test_registered():
-    assert REPRODUCTIONS["basin-polynomial-hinf"] == "testbed.reproductions.basin_polynomial_hinf"
+    assert (REPRODUCTIONS["basin-polynomial-hinf"]
+            == "testbed.reproductions.basin_polynomial_hinf.example")
     assert load("basin-polynomial-hinf") is ph
 
 

@@ -15,8 +15,12 @@ from testbed.cli import main
 from testbed.reproductions import liu_variance_constrained_discrete as vd
 from testbed.reproductions import load
 from testbed.reproductions import wang_variance_constrained_parabolic as vc
-from testbed.scenarios.liu_variance_discrete import VarianceConstrainedDiscreteScenario
-from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
+from testbed.reproductions.variance_constrained.scenario_liu import (
+    VarianceConstrainedDiscreteScenario,
+)
+from testbed.reproductions.variance_constrained.scenario_wang import (
+    VarianceConstrainedContinuousScenario,
+)
 
 DESIGN_KEYS = {"solved", "Q1", "Q2", "K", "G"}
 PUBLISHED_KEYS = {"name", "K", "G", "hinf_worst", "variance_worst", "poles_in_region",
@@ -123,11 +127,11 @@ def _check_searched(data: dict, plant, *, discrete: bool, a: float = 0.0, b: flo
 
 
 def _capture_figures(monkeypatch) -> list:
-    import testbed.plots
+    import testbed.outputs.plots
 
     figures = []
-    save = testbed.plots.save_figure
-    monkeypatch.setattr(testbed.plots, "save_figure",
+    save = testbed.outputs.plots.save_figure
+    monkeypatch.setattr(testbed.outputs.plots, "save_figure",
                         lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
     return figures
 
@@ -135,7 +139,7 @@ def _capture_figures(monkeypatch) -> list:
 def _check_outputs(rrd_path, figures, checks, claims) -> None:
     """The figure shows the claims, readable, legends outside the data; the .rrd holds the
     episode under its own path with a text saying what it is."""
-    from testbed.rrd_inspect import inspect_rrd
+    from testbed.outputs.rrd_inspect import inspect_rrd
 
     (fig,) = figures
     shown = " ".join(" ".join(t.get_text() for t in checks.texts(fig)).split())

@@ -11,7 +11,7 @@ import pytest
 from testbed.cli import main
 from testbed.reproductions import REPRODUCTIONS, load, render_table
 from testbed.reproductions import basin_ms_hinf_helicopter as ms
-from testbed.scenarios.basin_ms_hinf import MsHinfHelicopterScenario
+from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
 
 KEYS = {"T_final", "T_max", "T_final_noisy", "T_max_noisy", "gamma", "final_error",
         "paper_T_max", "kalman_T_final"}
@@ -144,14 +144,14 @@ CASES = {
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_claims_follow_the_numbers_figure_and_runs(name, tmp_path, monkeypatch, figure_checks):
-    import testbed.plots
+    import testbed.outputs.plots
+    from testbed.outputs.rrd_inspect import inspect_rrd
     from testbed.reproductions.outputs import agree_text
-    from testbed.rrd_inspect import inspect_rrd
 
     kwargs, expected, flip, runs = CASES[name]
     figures = []
-    save = testbed.plots.save_figure
-    monkeypatch.setattr(testbed.plots, "save_figure",
+    save = testbed.outputs.plots.save_figure
+    monkeypatch.setattr(testbed.outputs.plots, "save_figure",
                         lambda fig, path, **kw: (figures.append(fig), save(fig, path, **kw))[1])
     module = load(name)
     module.reproduce(json_path=tmp_path / "r.json", plot_path=tmp_path / "r.png",

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed import runner
 from testbed.cli import main
-from testbed.scenario import Scenario
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 
 RIGS = [Scenario(rig="helicopter", duration_s=2.0, process_noise=1.0),
         Scenario(rig="vehicle-roll", duration_s=2.0)]

@@ -1,4 +1,4 @@
-"""Monte-Carlo and sweep figures (testbed.study_plots) and the streaming error envelope."""
+"""Monte-Carlo and sweep figures (testbed.outputs.study_plots) and the streaming error envelope."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
-from testbed.envelope import ErrorEnvelope
-from testbed.runner import monte_carlo, sweep
-from testbed.scenario import Scenario
-from testbed.study_plots import monte_carlo_figure, plot_monte_carlo, sweep_figure
+from testbed.experiment.runner import monte_carlo, sweep
+from testbed.experiment.scenario import Scenario
+from testbed.outputs.envelope import ErrorEnvelope
+from testbed.outputs.study_plots import monte_carlo_figure, plot_monte_carlo, sweep_figure
 
 VEHICLE = Scenario(rig="vehicle-roll", sensors="imu", manoeuvre="double-lane-change",
                    duration_s=1.0, seed=2)

@@ -11,12 +11,16 @@ from gymnasium.utils.env_checker import check_env
 import testbed  # noqa: F401  (registers the environments)
 from filters.analysis import error_covariance, steady_state_covariance
 from filters.variance_constrained import LinearFilter
-from testbed.envs.uncertain_linear import UncertainLinearEnv
-from testbed.plants.uncertain_linear import UncertainLinearPlant
-from testbed.reproductions.wang_variance_constrained_parabolic import sampled_error_covariance
-from testbed.scenarios.liu_variance_discrete import VarianceConstrainedDiscreteScenario
-from testbed.scenarios.wang_variance_parabolic import VarianceConstrainedContinuousScenario
-from testbed.wrappers import FilterInLoop
+from testbed.envs.wrappers import FilterInLoop
+from testbed.reproductions.variance_constrained.env import UncertainLinearEnv
+from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
+from testbed.reproductions.variance_constrained.scenario_liu import (
+    VarianceConstrainedDiscreteScenario,
+)
+from testbed.reproductions.variance_constrained.scenario_wang import (
+    VarianceConstrainedContinuousScenario,
+)
+from testbed.reproductions.variance_constrained.wang_parabolic import sampled_error_covariance
 
 #: The two named scenarios of the environment.
 CONTINUOUS, DISCRETE = "wang-variance-constrained-parabolic", "liu-variance-constrained-discrete"

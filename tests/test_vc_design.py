@@ -1,4 +1,4 @@
-"""The variance-constrained family on the rigs ('vc-discrete', testbed.vc_design).
+"""The variance-constrained family on the rigs ('vc-discrete', testbed.estimators.vc).
 
 The uncertainty ``M Fu N`` is checked against rigs rebuilt at the scaled parameters (their
 own MuJoCo linearization and an ``expm``, independent of the Frechet derivative used in the
@@ -17,20 +17,21 @@ from scipy.linalg import expm
 
 from filters.analysis import error_covariance, unit_disk
 from filters.variance_constrained import LinearFilter, passes, verify_design
-from testbed import estimators, runner
+from testbed import estimators
 from testbed.cli import main
-from testbed.rigs.helicopter.rig import HelicopterRig
-from testbed.rigs.vehicle_roll.model import VehicleRollParams
-from testbed.rigs.vehicle_roll.rig import VehicleRollRig
-from testbed.scenario import Scenario
-from testbed.score.calibration import LinearPlantRig
-from testbed.score.suite import HELICOPTER_MISMATCH_KEYS
-from testbed.vc_design import (
+from testbed.estimators.vc import (
     VarianceConstrainedPredictor,
     design_vc_discrete,
     mismatch_uncertainty,
     reference_covariance,
 )
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
+from testbed.rigs.helicopter.rig import HelicopterRig
+from testbed.rigs.linear_plant.rig import LinearPlantRig
+from testbed.rigs.vehicle_roll.model import VehicleRollParams
+from testbed.rigs.vehicle_roll.rig import VehicleRollRig
+from testbed.score.suite import HELICOPTER_MISMATCH_KEYS
 
 
 def _design(rig, **options):

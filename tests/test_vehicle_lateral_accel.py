@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from testbed import runner
 from testbed.cli import main
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.vehicle_roll.sensors import (
     GYRO_NOISE_DENSITY,
     SPEED_M_S,
@@ -15,7 +16,6 @@ from testbed.rigs.vehicle_roll.sensors import (
     imu,
     measured_a_y_variance,
 )
-from testbed.scenario import Scenario
 from testbed.sensors import Sample
 
 

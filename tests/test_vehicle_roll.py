@@ -11,6 +11,8 @@ from scipy.integrate import solve_ivp
 
 import testbed  # noqa: F401  (registers the environments)
 from testbed.envs import RigEnv
+from testbed.experiment.runner import run
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.helicopter import GRAVITY_M_S2
 from testbed.rigs.vehicle_roll import (
     ROLLOVER_RAD,
@@ -22,8 +24,6 @@ from testbed.rigs.vehicle_roll import (
     process_noise_intensity,
 )
 from testbed.rigs.vehicle_roll.sensors import PaperRollChannel, imu
-from testbed.runner import run
-from testbed.scenario import Scenario
 from testbed.sensors import NoiseStreams, Sample, Suite
 
 G = GRAVITY_M_S2

@@ -1,4 +1,4 @@
-"""Tests of the Rerun export (testbed.viz): entity layout, sample counts, atomicity."""
+"""Tests of the Rerun export (testbed.outputs.viz): entity layout, sample counts, atomicity."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from testbed.trajectory import Trajectory
-from testbed.viz import rrd_summary, write_rrd
-from testbed.viz_rig import quat_wxyz_to_xyzw
+from testbed.experiment.trajectory import Trajectory
+from testbed.outputs.viz import rrd_summary, write_rrd
+from testbed.outputs.viz_rig import quat_wxyz_to_xyzw
 
 T = 200
 STATES = ["pitch", "yaw", "pitch_rate", "yaw_rate"]
@@ -296,7 +296,7 @@ def _with_transient(model=None) -> Trajectory:
 
 @pytest.fixture(scope="module")
 def contents(tmp_path_factory, model):
-    from testbed.rrd_inspect import inspect_rrd
+    from testbed.outputs.rrd_inspect import inspect_rrd
 
     traj = _with_transient(model)
     path = write_rrd(traj, tmp_path_factory.mktemp("inspect") / "run.rrd", model=model,
@@ -346,7 +346,7 @@ def test_roles_are_distinct_and_readable_on_light_and_dark(contents):
 
 
 def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
-    from testbed.axes import steady_state_limit
+    from testbed.outputs.axes import steady_state_limit
 
     c, traj = contents
     t0, t1 = float(traj.t_s[0]), float(traj.t_s[-1])
@@ -376,8 +376,8 @@ def test_description_and_camera(contents, model):
 def test_camera_frames_every_visible_geom_of_the_rig(rig_name):
     """All corners of the visible, non-plane geoms (world, initial pose, computed here from
     MuJoCo) lie inside the camera's cone: nothing of the rig is cut off."""
+    from testbed.outputs.viz_rig import CAMERA_HALF_ANGLE_DEG, rig_camera
     from testbed.rigs import resolve_rig
-    from testbed.viz_rig import CAMERA_HALF_ANGLE_DEG, rig_camera
 
     model = resolve_rig(rig_name)().model
     eye, target = rig_camera(model)
@@ -398,8 +398,8 @@ def test_camera_frames_every_visible_geom_of_the_rig(rig_name):
 
 
 def test_several_runs_each_under_its_prefix_with_a_text(tmp_path, model):
-    from testbed.rrd_inspect import inspect_rrd
-    from testbed.viz import Run, write_runs
+    from testbed.outputs.rrd_inspect import inspect_rrd
+    from testbed.outputs.viz import Run, write_runs
 
     runs = [Run(make_trajectory(model), "noise_free", "# noise-free run", model),
             Run(make_trajectory(None, covariance=False), "noisy", "# noisy run")]

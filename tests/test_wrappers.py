@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from filters import KalmanFilter, LinearSystem
-from testbed.control import make_controller
 from testbed.envs import RigEnv
-from testbed.metrics import EpisodeMetrics
+from testbed.envs.wrappers import FilterInLoop
+from testbed.experiment.control import make_controller
+from testbed.experiment.metrics import EpisodeMetrics
+from testbed.experiment.runner import run
+from testbed.experiment.scenario import Scenario
 from testbed.rigs.helicopter import basin_helicopter_w, paper_model
-from testbed.runner import run
-from testbed.scenario import Scenario
-from testbed.wrappers import FilterInLoop
 
 
 def filter_in_loop(estimator: str = "kalman", **env_kwargs):

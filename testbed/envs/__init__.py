@@ -1,6 +1,8 @@
-"""Gymnasium environments: every rig through :class:`RigEnv` / :class:`RigVectorEnv`, and
-the papers' plain (non-MuJoCo) plants."""
+"""The Gymnasium face: every rig through :class:`RigEnv` / :class:`RigVectorEnv`, the
+estimator in the loop as a wrapper (:mod:`testbed.envs.wrappers`), and the base of the
+papers' plain (non-MuJoCo) plant environments (:mod:`testbed.envs.common`; the plants
+themselves live with their reproductions)."""
 
-from testbed.envs.rig_env import RigEnv, RigVectorEnv, build_simulator
+from testbed.envs.rig_env import RigEnv, RigVectorEnv
 
-__all__ = ["RigEnv", "RigVectorEnv", "build_simulator"]
+__all__ = ["RigEnv", "RigVectorEnv"]

@@ -1,6 +1,6 @@
 """Gymnasium views of the simulator: ``RigEnv`` (N = 1) and ``RigVectorEnv`` (N members).
 
-Both are thin: every reset/step semantic lives in :class:`testbed.simulator.Simulator`, so
+Both are thin: every reset/step semantic lives in :class:`testbed.sim.simulator.Simulator`, so
 ``gymnasium.make("testbed/VehicleRoll-v0")`` and member ``i`` of
 ``gymnasium.make_vec("testbed/VehicleRoll-v0", num_envs=N,
 vectorization_mode="vector_entry_point")`` follow the same code (bitwise equal with the same
@@ -27,7 +27,7 @@ profile's part of the applied input), ``process_accel`` (disturbance acceleratio
 sensor effects, see the rig's docs), ``physics_dt_s``,
 ``frame_skip``, ``sensors`` (a preset name of the rig or a :class:`~testbed.sensors.Sensor`)
 with ``sensor_kwargs``, ``disturbance`` (name of the rig's disturbances, a
-:class:`~testbed.disturbances.Disturbance` or None), ``process_noise`` (scale of the rig's
+:class:`~testbed.rigs.disturbances.Disturbance` or None), ``process_noise`` (scale of the rig's
 white process noise), ``ambient_noise`` (scale of the rig's small documented ambient
 disturbance: air turbulence, gusts; default 1, 0 for none), ``reset_noise_scale`` (scale of
 the rig's documented initial-state distribution; default 1, 0 for the fixed default state),
@@ -49,36 +49,8 @@ from gymnasium.vector.utils import batch_space
 
 from filters import real_array
 from testbed.envs.common import check_seed
-from testbed.rigs import resolve_rig
-from testbed.simulator import Simulator, positive_int
-
-
-def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: float = 0.001,
-                    frame_skip: int = 10, sensors: Any = None,
-                    sensor_kwargs: dict[str, Any] | None = None, disturbance: Any = None,
-                    process_noise: float = 0.0, setpoints: Any = None, manoeuvre: Any = None,
-                    manoeuvre_params: dict[str, Any] | None = None,
-                    params: dict[str, float] | None = None,
-                    num_threads: int | None = None, profile: str = "paper",
-                    reset_noise_scale: float = 1.0, ambient_noise: float = 1.0) -> Simulator:
-    """A :class:`Simulator` of ``num`` members from the environments' arguments.
-
-    By default the initial state is drawn from the rig's documented distribution
-    (``reset_noise_scale = 1``) and the rig's small ambient disturbance is on
-    (``ambient_noise = 1``); 0 turns either off.
-    """
-    positive_int(frame_skip, "frame_skip")
-    rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
-    dt_s = rig_obj.model.opt.timestep * int(frame_skip)
-    if sensors is None or isinstance(sensors, str):
-        sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))
-    elif sensor_kwargs:
-        raise ValueError("sensor_kwargs is only used with a sensor preset name")
-    dist = rig_obj.disturbance(disturbance, process_noise, ambient_noise)
-    return Simulator(rig_obj, sensors, num, frame_skip, disturbance=dist, params=params,
-                     setpoints=setpoints, manoeuvre=manoeuvre,
-                     manoeuvre_params=manoeuvre_params, num_threads=num_threads,
-                     reset_noise_scale=reset_noise_scale)
+from testbed.sim import build_simulator
+from testbed.sim.simulator import positive_int
 
 
 class RigEnv(gym.Env):
@@ -86,7 +58,7 @@ class RigEnv(gym.Env):
 
     See the module docstring for spaces, info, reward and arguments. ``render_mode=
     "rgb_array"``: :meth:`render` returns the rig's current pose seen from its documented
-    camera (:mod:`testbed.render`; headless: ``MUJOCO_GL=egl`` or ``osmesa``), so
+    camera (:mod:`testbed.outputs.render`; headless: ``MUJOCO_GL=egl`` or ``osmesa``), so
     Gymnasium's ``RecordVideo`` works.
     """
 
@@ -165,7 +137,7 @@ class RigEnv(gym.Env):
                             "'rgb_array')")
             return None
         if self._renderer is None:
-            from testbed.render import RigRenderer
+            from testbed.outputs.render import RigRenderer
 
             self._renderer = RigRenderer(self.rig)
         return self._renderer.render(self.sim.info["state"][0])

@@ -15,13 +15,13 @@ from types import ModuleType
 from typing import Any
 
 REPRODUCTIONS = {
-    "basin-ms-hinf-helicopter": "testbed.reproductions.basin_ms_hinf_helicopter",
-    "basin-polynomial-hinf": "testbed.reproductions.basin_polynomial_hinf",
-    "zhang-lmi-hinf-vehicle-roll": "testbed.reproductions.zhang_lmi_hinf_vehicle_roll",
-    "zhang-nonlinear-discrete": "testbed.reproductions.zhang_nonlinear_discrete",
+    "basin-ms-hinf-helicopter": "testbed.reproductions.basin_ms_hinf.helicopter",
+    "basin-polynomial-hinf": "testbed.reproductions.basin_polynomial_hinf.example",
+    "zhang-lmi-hinf-vehicle-roll": "testbed.reproductions.zhang_lmi_hinf.vehicle_roll",
+    "zhang-nonlinear-discrete": "testbed.reproductions.zhang_lmi_hinf.nonlinear_discrete",
     "wang-variance-constrained-parabolic":
-        "testbed.reproductions.wang_variance_constrained_parabolic",
-    "liu-variance-constrained-discrete": "testbed.reproductions.liu_variance_constrained_discrete",
+        "testbed.reproductions.variance_constrained.wang_parabolic",
+    "liu-variance-constrained-discrete": "testbed.reproductions.variance_constrained.liu_discrete",
 }
 
 

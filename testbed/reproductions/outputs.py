@@ -11,7 +11,7 @@ the paper's value, ours and a verdict computed from our numbers (never typed in)
 
 **Runs.** :func:`write_outputs` writes the JSON, the PNG and the ``.rrd``; the Rerun file
 holds every run the reproduction wants to show (e.g. noise-free and noisy), each under its
-own entity path with a text entry saying what it is (:class:`testbed.viz.Run`, one tab per
+own entity path with a text entry saying what it is (:class:`testbed.outputs.viz.Run`, one tab per
 run in the viewer).
 """
 
@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from testbed.trajectory import Trajectory
+from testbed.experiment.trajectory import Trajectory
 
 VERDICTS = ("agrees", "differs", "not checked")
 _VERDICT_TEXT = {"agrees": "#1b7a33", "differs": "#b3261e", "not checked": "#555555"}
@@ -153,16 +153,16 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         Draws the reproduction's figure into ``path``.
     trajectory : callable ``() -> Trajectory``, optional
         One run for the ``.rrd`` (logged at the root; ``rrd_kwargs`` go to
-        :func:`testbed.viz.write_rrd`).
-    runs : callable ``() -> list of testbed.viz.Run``, optional
+        :func:`testbed.outputs.viz.write_rrd`).
+    runs : callable ``() -> list of testbed.outputs.viz.Run``, optional
         Several runs for the ``.rrd``, each under its own prefix with its description
-        (:func:`testbed.viz.write_runs`). Only called when ``rrd_path`` is given; give
+        (:func:`testbed.outputs.viz.write_runs`). Only called when ``rrd_path`` is given; give
         ``runs`` or ``trajectory``.
     application_id : str
         Rerun application id.
     **rrd_kwargs
-        Passed to :func:`testbed.viz.write_rrd` (``model``, ``degrees``) or, with ``runs``,
-        to :func:`testbed.viz.write_runs` (``degrees``).
+        Passed to :func:`testbed.outputs.viz.write_rrd` (``model``, ``degrees``) or, with ``runs``,
+        to :func:`testbed.outputs.viz.write_runs` (``degrees``).
     """
     if rrd_path and (trajectory is None) == (runs is None):
         raise ValueError("write_outputs needs exactly one of trajectory and runs for the .rrd")
@@ -173,7 +173,7 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
     if plot_path:
         plot(plot_path)
     if rrd_path:
-        from testbed.viz import write_rrd, write_runs
+        from testbed.outputs.viz import write_rrd, write_runs
 
         if runs is not None:
             write_runs(runs(), rrd_path, application_id=application_id, **rrd_kwargs)

@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from filters import real_array
-from testbed.disturbances import Disturbance
+from testbed.rigs.disturbances import Disturbance
 from testbed.rigs.params import scaled_copy
 
 #: Standard gravity used by every rig, m/s^2.
@@ -57,7 +57,7 @@ class ParameterMismatch:
 
     Kept in ``DesignModel.extras["parameter_mismatch"]`` (picklable: the rig class and its
     nominal parameters, not a MuJoCo model); robust designs (``vc-discrete``,
-    :mod:`testbed.vc_design`) turn it into a norm-bounded uncertainty.
+    :mod:`testbed.estimators.vc`) turn it into a norm-bounded uncertainty.
 
     Attributes
     ----------
@@ -101,6 +101,14 @@ class ParameterMismatch:
         return out
 
 
+def models_dir() -> Path:
+    """The folder of the built-in rigs' MJCF models: the checkout's top-level ``models/``, or
+    ``testbed/models`` inside an installed wheel (``pyproject.toml`` maps one to the other)."""
+    package = Path(__file__).resolve().parents[1]
+    installed = package / "models"
+    return installed if installed.is_dir() else package.parent / "models"
+
+
 class Rig:
     """A MuJoCo rig: model, parameters, named state, actuation, linearization, design model.
 
@@ -126,7 +134,8 @@ class Rig:
 
     #: Registry name (``testbed run NAME``).
     name: ClassVar[str] = ""
-    #: MJCF file, absolute or relative to the module defining the subclass.
+    #: MJCF file: ``models/NAME.xml`` (built in, :func:`models_dir`), absolute, or relative
+    #: to the module defining the subclass.
     xml_path: ClassVar[Path]
     #: Parameter dataclass.
     params_type: ClassVar[type[Params]] = Params
@@ -168,7 +177,7 @@ class Rig:
     mismatch_range: ClassVar[dict[str, float]] = {}
     #: Divergence detector: the largest ``|x_i|`` per state (rig units; ``inf``: unbounded)
     #: that the physical rig can reach, with a wide margin. The simulator raises
-    #: :class:`~testbed.simulator.SimulationDiverged` for a state past it. Empty: no bound.
+    #: :class:`~testbed.sim.simulator.SimulationDiverged` for a state past it. Empty: no bound.
     state_envelope: ClassVar[tuple[float, ...]] = ()
 
     def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001,
@@ -202,11 +211,14 @@ class Rig:
 
     @classmethod
     def resolved_xml_path(cls) -> Path:
-        """The MJCF file (relative paths resolve beside the subclass's module)."""
+        """The MJCF file: a bare ``models/NAME.xml`` is a built-in model (:func:`models_dir`);
+        other relative paths resolve beside the subclass's module."""
         import sys
 
         path = Path(cls.xml_path)
-        if not path.is_absolute():
+        if path.parts[:1] == ("models",) and len(path.parts) == 2:
+            path = models_dir() / path.name
+        elif not path.is_absolute():
             path = Path(sys.modules[cls.__module__].__file__).resolve().parent / path
         if not path.is_file():
             raise FileNotFoundError(f"MJCF model of rig {cls.name!r} not found: {path}")
@@ -461,7 +473,7 @@ class Rig:
 
         Returns
         -------
-        testbed.disturbances.Disturbance or None
+        testbed.rigs.disturbances.Disturbance or None
         """
         try:
             ambient = float(ambient_noise)
@@ -613,12 +625,12 @@ class Rig:
 
         Parameters
         ----------
-        design : testbed.design.DesignModel
+        design : testbed.estimators.design.DesignModel
             The design model the expansion is written in (state, input, ``A``, ``B``).
 
         Returns
         -------
-        testbed.poly_design.CubicExpansion
+        testbed.estimators.poly.CubicExpansion
 
         Raises
         ------
@@ -637,8 +649,8 @@ class Rig:
 
         Returns
         -------
-        testbed.design.DesignModel
+        testbed.estimators.design.DesignModel
         """
-        from testbed.design import design_from_linearization
+        from testbed.estimators.design import design_from_linearization
 
         return design_from_linearization(self, sensors, dt_s, disturbance, **options)

@@ -2,9 +2,10 @@
 
 Per entry (one job; jobs run locally, in processes or on Ray) and estimator:
 
-1. the entry's scenario is built by :func:`testbed.runner.build` with the estimator (a factory
+1. the entry's scenario is built by :func:`testbed.experiment.runner.build` with the estimator (a
+factory
    that raises ``ValueError`` or a failed build skips the pair, with the message); the
-   scenario's disturbance becomes a :class:`~testbed.disturbances.SampledDisturbance` (the
+   scenario's disturbance becomes a :class:`~testbed.rigs.disturbances.SampledDisturbance` (the
    named signal sampled at the control instants: the same numbers the simulator would
    compute, plus the disturbance channel of the worst-case search);
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the
@@ -31,14 +32,14 @@ from typing import Any
 import numpy as np
 
 from filters import FilterError
-from testbed import runner
-from testbed.disturbances import SampledDisturbance
 from testbed.estimators import EstimatorWrapper, PerMember
+from testbed.experiment import runner
 from testbed.rigs import resolve_rig
+from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.suite import SuiteEntry
 from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
-from testbed.simulator import SimulationDiverged
+from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
 REFERENCE = "kalman"

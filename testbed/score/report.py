@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from testbed.io import atomic_path, write_json
+from testbed.outputs.units import display
 from testbed.score import stats
 from testbed.score.harness import REFERENCE, PairResult, ScoreRun
-from testbed.units import display
 
 #: Keys of every entry of ``results`` (the issue's JSON contract).
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
@@ -255,7 +255,7 @@ def write_worst_cases(path: str | os.PathLike, run: ScoreRun) -> Path | None:
 def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
     """RMSE with 95 % intervals, ANEES against its chi-square band, worst-case against random
     gain: one column per scenario that ran."""
-    from testbed.plots import new_figure, save_figure
+    from testbed.outputs.plots import new_figure, save_figure
 
     groups = [(s, [r for r in g if not r["skipped"]]) for s, g in _rows(summary)]
     groups = [(s, g) for s, g in groups if g]
@@ -340,7 +340,7 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from testbed.viz import TIMELINE
+    from testbed.outputs.viz import TIMELINE
 
     rec = rr.RecordingStream("testbed-score")
     if not rec.is_enabled():

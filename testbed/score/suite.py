@@ -1,6 +1,7 @@
 """The scoring suites as data: which scenarios, how many runs, which disturbance channel.
 
-A :class:`SuiteEntry` is a :class:`~testbed.scenario.Scenario` (its ``estimator`` field is
+A :class:`SuiteEntry` is a :class:`~testbed.experiment.scenario.Scenario` (its ``estimator`` field
+is
 ignored: the harness runs every estimator on it) plus what scoring needs: runs, the rig
 profile, the entry it mismatches, whether the initial state is drawn from the design prior,
 and the worst-case search settings. ``standard`` holds every entry; ``quick`` a subset with
@@ -21,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from testbed.experiment.scenario import Scenario
 from testbed.rigs import resolve_rig
 from testbed.rigs.helicopter.rig import HelicopterRig
+from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.rigs.vehicle_roll.model import physical_model
-from testbed.scenario import Scenario
-from testbed.score.calibration import LinearPlantRig
 
 #: Helicopter parameters scaled together for the +-20 % mismatch entries: the rig's declared
 #: mismatch range (:attr:`HelicopterRig.mismatch_range`: the moving mass, so the gravity

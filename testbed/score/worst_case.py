@@ -39,22 +39,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.optimize import differential_evolution
 
-from testbed.disturbances import SampledDisturbance
+from filters import zoh
+from testbed.rigs.disturbances import SampledDisturbance
 
 
 # ---------------------------------------------------------------------------- linear model
-def zoh(A: np.ndarray, G: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretization of ``x' = A x + G w``: ``(A_d, G_d)``."""
-    n, s = G.shape
-    M = np.zeros((n + s, n + s))
-    M[:n, :n], M[:n, n:] = A, G
-    E = expm(M * dt_s)
-    return E[:n, :n], E[:n, n:]
-
-
 def plant_markov(A_d: np.ndarray, G_d: np.ndarray, C: np.ndarray, Hw: np.ndarray,
                  lags: int) -> tuple[np.ndarray, np.ndarray]:
     """Responses of state and measurement to a unit ``w`` at lag 0.
@@ -275,7 +266,7 @@ class LoopEvaluator:
 
     Parameters
     ----------
-    experiment : testbed.runner.Experiment
+    experiment : testbed.experiment.runner.Experiment
         Its simulator's disturbance must be ``disturbance``.
     disturbance : SampledDisturbance
         Values (num, >= K, s), rewritten per batch.

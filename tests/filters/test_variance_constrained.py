@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm, solve_continuous_are, solve_discrete_are
 
-from filters._linalg import zoh
+from filters import zoh
 from filters.analysis import (
     Parabola,
     UncertainPlant,

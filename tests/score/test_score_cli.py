@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from testbed.cli import main
+from testbed.outputs.viz import rrd_summary
 from testbed.score.report import RESULT_KEYS
 from testbed.score.suite import get_suite
-from testbed.viz import rrd_summary
 
 HERE = Path(__file__).resolve().parent
 

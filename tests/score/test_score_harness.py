@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from filters.analysis import hinf_norm
-from testbed import runner
-from testbed.scenario import Scenario
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
+from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.score import report
-from testbed.score.calibration import LinearPlantRig
 from testbed.score.harness import score, score_pair
 from testbed.score.suite import WorstCaseSpec, calibration_entry, get_suite
 
@@ -125,7 +125,7 @@ def test_score_rejects_bad_arguments_before_running():
 
 
 def test_lmi_filter_designed_from_the_calibration_model_keeps_its_gamma():
-    """The generic LMI design (testbed.lmi_design) on the stable calibration plant: its gamma
+    """The generic LMI design (testbed.estimators.lmi) on the stable calibration plant: its gamma
     covers the scenario's channel, and the measured worst case must stay below it; on the
     helicopter (free integrators) Theorem 4 does not apply and the pair is skipped."""
     spec = WorstCaseSpec(energy=1.0, horizon_s=3.0, channel=((0.0,), (1.0,)), random_draws=2,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from filters import DiscreteLinearSystem, KalmanFilter
-from testbed.disturbances import SampledDisturbance
-from testbed.runner import build, monte_carlo
+from filters import DiscreteLinearSystem, KalmanFilter, zoh
+from testbed.experiment.runner import build, monte_carlo
+from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score.worst_case import (
     ErrorOperator,
     causal_conv,
@@ -16,7 +16,6 @@ from testbed.score.worst_case import (
     estimator_markov,
     plant_markov,
     top_singular,
-    zoh,
 )
 
 

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from testbed.disturbances import Disturbance
 from testbed.rigs.base import GRAVITY_M_S2, Params, Rig
+from testbed.rigs.disturbances import Disturbance
 from testbed.rigs.helicopter.hardware import HelicopterHardware, current_limited, deadband
 
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
@@ -307,7 +307,7 @@ class HelicopterRig(Rig):
     """
 
     name = "helicopter"
-    xml_path = "helicopter_2dof.xml"
+    xml_path = "models/helicopter_2dof.xml"
     params_type = HelicopterParams
     joints = ("pitch", "yaw")
     state_names = STATE_NAMES
@@ -539,15 +539,15 @@ class HelicopterRig(Rig):
 
         Parameters
         ----------
-        design : testbed.design.DesignModel
+        design : testbed.estimators.design.DesignModel
         pitch0_rad : float
             Expansion point, rad.
 
         Returns
         -------
-        testbed.poly_design.CubicExpansion
+        testbed.estimators.poly.CubicExpansion
         """
-        from testbed.poly_design import CubicExpansion
+        from testbed.estimators.poly import CubicExpansion
 
         if not (np.isfinite(pitch0_rad) and abs(pitch0_rad) <= PITCH_LIMIT_RAD):
             raise ValueError(f"pitch0_rad must lie within the stops +-{PITCH_LIMIT_RAD:.4f} "
@@ -580,12 +580,12 @@ class HelicopterRig(Rig):
         ----------
         sensors : Sensor
         dt_s : float
-        disturbance : testbed.disturbances.Disturbance, optional
+        disturbance : testbed.rigs.disturbances.Disturbance, optional
             Its white-noise intensity ``b b^T`` enters ``Q``, its ``G`` the design.
         process_noise_floor : float
             Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
         """
-        from testbed.design import build_design
+        from testbed.estimators.design import build_design
 
         if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
             raise ValueError(f"process_noise_floor must be finite and >= 0, got "

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.linalg import expm_frechet
 
 from filters.lmi_hinf import LMIHInfFilter, StochasticLinearSystem
-from testbed.lmi_design import verified_estimator
+from testbed.estimators.lmi import verified_estimator
 from testbed.rigs.vehicle_roll.model import VehicleRollParams, paper_model, physical_model
 
 
@@ -46,7 +46,7 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
 
     Parameters
     ----------
-    design : testbed.design.DesignModel
+    design : testbed.estimators.design.DesignModel
         The vehicle rig's design model (its stochastic channels, ``dt_s``).
     params : VehicleRollParams, optional
         The designer's parameters (nominal by default).

@@ -69,7 +69,7 @@ class VehicleRollRig(Rig):
     """
 
     name = "vehicle-roll"
-    xml_path = "vehicle_roll.xml"
+    xml_path = "models/vehicle_roll.xml"
     params_type = VehicleRollParams
     joints = ("roll",)
     state_names = STATE_NAMES
@@ -103,7 +103,7 @@ class VehicleRollRig(Rig):
         super().__init__(params, physics_dt_s, profile)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
         self._body_id = self.body_id("sprung_mass")
-        from testbed.manoeuvres import MANOEUVRES
+        from testbed.rigs.vehicle_roll.manoeuvres import MANOEUVRES
 
         self.manoeuvres = MANOEUVRES
 
@@ -196,9 +196,9 @@ class VehicleRollRig(Rig):
 
         Returns
         -------
-        testbed.poly_design.CubicExpansion
+        testbed.estimators.poly.CubicExpansion
         """
-        from testbed.poly_design import CubicExpansion
+        from testbed.estimators.poly import CubicExpansion
 
         nominal = VehicleRollParams()
         a3 = np.zeros((2, 2, 2, 2))
@@ -226,7 +226,7 @@ class VehicleRollRig(Rig):
             ``oracle`` = the applied ``a_y`` exactly; ``auto`` = measured when the sensors
             have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
         """
-        from testbed.design import build_design
+        from testbed.estimators.design import build_design
         from testbed.rigs.vehicle_roll.sensors import find_tap, measured_lateral_acceleration
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from testbed.manoeuvres import PaperDecay
 from testbed.rigs.base import GRAVITY_M_S2
+from testbed.rigs.vehicle_roll.manoeuvres import PaperDecay
 from testbed.rigs.vehicle_roll.model import paper_model
 from testbed.sensors import (
     Bias,
@@ -253,7 +253,8 @@ class PaperRollChannel(Sensor):
     """Zhang et al.'s measurement ``y_k = H x_k + L v_k`` (52), optionally with white noise.
 
     ``v_k = 0.01 * 0.9^k`` is the paper's disturbance at the sample time
-    (:class:`testbed.manoeuvres.PaperDecay`), unless the scenario's disturbance ``w``
+    (:class:`testbed.rigs.vehicle_roll.manoeuvres.PaperDecay`), unless the scenario's disturbance
+    ``w``
     (size 1) is given. The channels mix both states (no ``measured_state``).
 
     Parameters

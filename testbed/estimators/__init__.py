@@ -1,0 +1,343 @@
+"""Estimators by name or by import path: ``name -> factory(design, **options) -> Estimator``.
+
+The protocol an estimator follows (plain duck typing; :class:`filters.Estimator` is the
+typed form)::
+
+    x : ndarray (n,) or (N, n)        current estimate
+    P : ndarray (n, n) or (N, n, n)   its covariance, or None when the estimator has none
+    reset(x0, P0) -> None             restart from a prior (P0 may be None)
+    step(y, u) -> x                   y: the full sensor vector (m,) measured at the end of
+                                      the step; u: the input applied over it, in the design
+                                      model's coordinates (the loop applies
+                                      design.input_transform)
+    prime(y) -> None                  optional: use the first sample (at reset)
+    innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
+                                      and its covariance (m, m) or (N, m, m) (``testbed
+                                      score`` reports ANIS when both are there)
+    design_meta : dict                optional: design facts for outputs; ``gamma`` is the
+                                      attenuation level an H-infinity design claims, and
+                                      ``gamma_channel = "scenario"`` says that it bounds the
+                                      gain from the scenario's disturbance w (the design's
+                                      ``disturbance_matrix`` and the sensors' ``Hw``) to
+                                      ``z = output_matrix x``
+    batched : bool                    optional class attribute: True when x, y, u, P carry a
+                                      leading batch axis (N, ...) and one instance runs a
+                                      whole Monte-Carlo batch
+
+An estimator without ``batched = True`` runs in ``mc`` as one instance per run (each from
+its own factory call). ``design.measurement_index`` lists the channels of ``y`` that
+``design.discrete``/``design.continuous`` model; the built-in linear filters read only those.
+
+A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
+(``testbed run RIG --filter mymodule:make``); the factory receives the
+:class:`~testbed.estimators.design.DesignModel` and keyword options.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from filters import KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
+from testbed.estimators.design import DesignModel
+
+Factory = Callable[..., Any]
+
+
+class EstimatorWrapper:
+    """An estimator around another: ``x``, ``P``, ``reset``, ``step`` and every other member
+    (``prime``, ``design_meta``, ``innovation``...) are the inner estimator's unless a
+    subclass changes them.
+
+    Parameters
+    ----------
+    inner : estimator
+    """
+
+    def __init__(self, inner: Any):
+        self.inner = inner
+
+    @property
+    def x(self) -> np.ndarray:
+        """The inner estimate."""
+        return self.inner.x
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """The inner covariance."""
+        return self.inner.P
+
+    def reset(self, x0: Any, P0: Any) -> None:
+        """Reset the inner estimator."""
+        self.inner.reset(x0, P0)
+
+    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """Step the inner estimator."""
+        return self.inner.step(y, u)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "inner":  # not set yet (copying, unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+
+class ChannelSelect(EstimatorWrapper):
+    """An estimator reading only some channels of ``y`` (batch-transparent).
+
+    Parameters
+    ----------
+    inner : estimator
+    index : ndarray of int
+        Channels of the sensor vector given to ``inner``.
+    """
+
+    def __init__(self, inner: Any, index: np.ndarray):
+        super().__init__(inner)
+        self.index = np.asarray(index, dtype=int)
+        self.batched = getattr(inner, "batched", False)
+
+    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """Step the inner estimator on ``y[..., index]``."""
+        return self.inner.step(np.asarray(y)[..., self.index], u)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "prime" and "inner" in self.__dict__:  # only when the inner one primes
+            prime = self.inner.prime
+            return lambda y: prime(np.asarray(y)[..., self.index])
+        return super().__getattr__(name)
+
+
+def _select(estimator: Any, design: DesignModel) -> Any:
+    if len(design.measurement_index) == len(design.measurement_names):
+        return estimator
+    return ChannelSelect(estimator, design.measurement_index)
+
+
+def kalman(design: DesignModel) -> Any:
+    """Discrete Kalman filter on ``design.discrete`` (exact ZOH at the control period)."""
+    est = KalmanFilter(design.discrete, design.x0, design.P0)
+    est.batched = True
+    return _select(est, design)
+
+
+def kalman_bucy(design: DesignModel, substeps: int | str = "auto") -> Any:
+    """Continuous Kalman-Bucy filter on ``design.continuous`` (RK4, ``substeps`` per sample)."""
+    est = KalmanBucyFilter(design.continuous, design.x0, design.P0, dt_s=design.dt_s,
+                           substeps=substeps)
+    est.batched = True
+    return _select(est, design)
+
+
+def ms_hinf(design: DesignModel, gamma: float | None = None,
+            initial_weight: np.ndarray | None = None) -> Any:
+    """Basin et al.'s mean-square H-infinity filter (Theorem 1).
+
+    Needs deterministic channels ``y2 = C2 x + H w`` in the sensors and the disturbance
+    matrix ``G`` in the design (helicopter: ``--disturbance basin-helicopter``, which the
+    scenario adds by default for this filter). ``gamma`` defaults to
+    ``design.extras["gamma"]`` (the paper's 1.1), ``initial_weight`` (``R`` of (6)) to
+    ``design.extras["initial_weight"]`` or the identity.
+    """
+    det = design.deterministic_index
+    if len(det) == 0 or design.disturbance_matrix is None:
+        raise ValueError("filter 'ms-hinf' needs a deterministic channel y2 = C2 x + H w and "
+                         "the disturbance G w(t) (helicopter: disturbance 'basin-helicopter')")
+    gamma = design.extras.get("gamma", 1.1) if gamma is None else float(gamma)
+    R0 = design.extras.get("initial_weight", np.eye(design.n)) if initial_weight is None \
+        else np.asarray(initial_weight, float)
+    plant = design.continuous
+    est = MeanSquareHInfFilter(plant.A, plant.B, plant.C, plant.R, design.sensors.C[det],
+                               design.sensors.Hw[det], design.disturbance_matrix, plant.Q,
+                               design.output_matrix, gamma, R0, design.x0, design.P0,
+                               design.dt_s, substeps="auto", noise_intensities=True)
+    est.batched = True
+    # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
+    est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
+                       "certificate": "Basin et al. Theorem 1 on the design model"}
+    index = np.concatenate([design.measurement_index, det])
+    return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
+        else ChannelSelect(est, index)
+
+
+def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
+             objective: str = "h2-unique") -> Any:
+    """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
+    (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
+    from the discrete design model (:mod:`testbed.estimators.lmi`; needs a stable plant)."""
+    build = design.extras.get("lmi_system")
+    if build is None:
+        from testbed.estimators.lmi import lmi_estimator as build
+    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective)
+    est.design_meta = meta
+    est.batched = True
+    return _select(est, design)
+
+
+def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 1.5,
+              substeps: int | None = None) -> Any:
+    """Basin et al.'s central polynomial H-infinity filter (Theorem 1) on the rig's cubic
+    expansion (``design.extras["cubic_model"]``, :meth:`testbed.rigs.base.Rig.cubic_model`;
+    :mod:`testbed.estimators.poly`). ``gamma`` defaults to ``gamma_factor`` times the linear
+    part's smallest level."""
+    cubic = design.extras.get("cubic_model")
+    if cubic is None:
+        raise ValueError("filter 'poly-hinf' needs the rig's cubic expansion "
+                         "(design.extras['cubic_model']); this design has none")
+    from testbed.estimators.poly import poly_hinf_estimator
+
+    return poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
+                               substeps=substeps)
+
+
+def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,
+                sigma_factor: float | None = None, max_evaluations: int = 120) -> Any:
+    """The discrete variance-constrained H2/H-infinity predictor (Liu, Deng & Wang) on the
+    discrete design model with the rig's parameter-mismatch range as norm-bounded
+    uncertainty ``M F N`` (:mod:`testbed.estimators.vc`; needs a Schur-stable design model).
+    ``gamma`` defaults to ``gamma_factor`` times the smallest solvable level, the variance
+    bounds to the smallest power of two (or ``sigma_factor``) times the nominal Kalman
+    predictor's variances that the design meets."""
+    from testbed.estimators.vc import vc_discrete_estimator
+
+    est, _ = vc_discrete_estimator(design, gamma=gamma, gamma_factor=gamma_factor,
+                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations)
+    return _select(est, design)
+
+
+#: Built-in estimators: name -> factory(design, **options).
+ESTIMATORS: dict[str, Factory] = {
+    "kalman": kalman,
+    "kalman-bucy": kalman_bucy,
+    "ms-hinf": ms_hinf,
+    "lmi-hinf": lmi_hinf,
+    "poly-hinf": poly_hinf,
+    "vc-discrete": vc_discrete,
+}
+#: Scenario defaults a built-in estimator needs (applied where the user set nothing).
+SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
+    "ms-hinf": {"disturbance": "basin-helicopter", "disturbance_channel": True},
+}
+
+
+def resolve(name: str | Factory) -> Factory:
+    """A factory from a registered name, ``package.module:factory`` or a callable.
+
+    Raises
+    ------
+    ValueError
+        Unknown name (the registered ones listed) or an import path that does not load.
+    """
+    if callable(name):
+        return name
+    if not isinstance(name, str):
+        raise ValueError(f"filter must be a name or 'module:factory', got {name!r}")
+    if name in ESTIMATORS:
+        return ESTIMATORS[name]
+    module, sep, attr = name.partition(":")
+    if not sep or not module or not attr:
+        raise ValueError(f"unknown filter {name!r}; expected one of {sorted(ESTIMATORS)} or "
+                         "'package.module:factory'")
+    try:
+        factory = getattr(importlib.import_module(module), attr)
+    except ImportError as err:
+        raise ValueError(f"filter {name!r}: cannot import {module!r} ({err})") from None
+    except AttributeError:
+        raise ValueError(f"filter {name!r}: module {module!r} has no {attr!r}") from None
+    if not callable(factory):
+        raise ValueError(f"filter {name!r}: {attr!r} is not callable")
+    return factory
+
+
+def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
+    """Refuse option names a factory does not accept (when its signature declares them).
+
+    Raises
+    ------
+    ValueError
+        An unknown option, with the factory's options listed.
+    """
+    try:
+        params = list(inspect.signature(factory).parameters.values())[1:]  # after design
+    except (TypeError, ValueError):  # no introspectable signature: the call decides
+        return
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return
+    names = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    unknown = set(options) - names
+    if unknown:
+        label = name if isinstance(name, str) else getattr(name, "__name__", repr(name))
+        raise ValueError(f"filter {label!r} has no option(s) {sorted(unknown)}; its options: "
+                         f"{sorted(names) or 'none'}")
+
+
+def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
+    """``resolve(name)(design, **options)``, checked against the protocol."""
+    factory = resolve(name)
+    try:
+        est = factory(design, **options)
+    except TypeError as err:
+        raise ValueError(f"filter {name!r}: bad options {sorted(options)} ({err})") from None
+    for attr in ("x", "reset", "step"):
+        if not hasattr(est, attr):
+            raise ValueError(f"filter {name!r}: the factory returned {type(est).__name__}, "
+                             f"which has no {attr!r} (see testbed.estimators)")
+    return est
+
+
+class PerMember:
+    """N instances of a non-batched estimator presented as one batched estimator.
+
+    Parameters
+    ----------
+    instances : list of estimators
+        One per member, each in the single-run form (``x`` (n,)).
+    """
+
+    batched = True
+
+    def __init__(self, instances: list[Any]):
+        self.instances = instances
+
+    @classmethod
+    def build(cls, name: str | Factory, design: DesignModel, num: int,
+              **options: Any) -> PerMember:
+        """``num`` instances from ``num`` factory calls (the first one copied when cheap)."""
+        first = build(name, design, **options)
+        rest = [copy.deepcopy(first) for _ in range(num - 1)]
+        return cls([first, *rest])
+
+    @property
+    def x(self) -> np.ndarray:
+        """Estimates, shape (N, n)."""
+        return np.stack([np.asarray(e.x, float) for e in self.instances])
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """Covariances (N, n, n), or None when the estimator has none."""
+        Ps = [getattr(e, "P", None) for e in self.instances]
+        return None if any(P is None for P in Ps) else np.stack([np.asarray(P) for P in Ps])
+
+    def reset(self, x0: np.ndarray, P0: np.ndarray | None) -> None:
+        """Reset member ``i`` from ``x0[i]``, ``P0[i]`` (or a shared ``P0`` (n, n))."""
+        x0 = np.asarray(x0, float)
+        for i, e in enumerate(self.instances):
+            P = None if P0 is None else (P0 if np.ndim(P0) == 2 else P0[i])
+            e.reset(x0[i], P)
+
+    def prime(self, y: np.ndarray) -> None:
+        """Prime the instances that use the first sample."""
+        for e, yi in zip(self.instances, y, strict=True):
+            prime = getattr(e, "prime", None)
+            if prime is not None:
+                prime(yi)
+
+    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
+        """Step every instance on its row."""
+        for i, e in enumerate(self.instances):
+            e.step(y[i], None if u is None else u[i])
+        return self.x

@@ -1,0 +1,171 @@
+"""Zhang et al.'s LMI H-infinity filter designed from any rig's design model.
+
+The rig-specific design (``design.extras["lmi_system"]``, the vehicle roll rig with its
+multiplicative damping noise) takes precedence in :func:`testbed.estimators.lmi_hinf`; every
+other rig gets the system (44) built here from the discrete design model::
+
+    x_(k+1) = F x_k + B_u u_k + [G_d, Q^(1/2), 0] v_k
+    y_k     = H x_k + D_u u_k + [0,   0,  R^(1/2)] v_k          (the stochastic channels)
+    z_k     = L x_k                                             (design.output_matrix)
+
+``G_d`` is the zero-order hold of the design's disturbance matrix ``G`` (the scenario's
+``w``, held over each period, as the simulator applies it), ``Q^(1/2)``, ``R^(1/2)``
+factors of the process and measurement noise covariances; no multiplicative noise
+(``A_w = B_w = 0``: the design model has none). With ``G`` present, ``v = [w; 0; 0]`` is a
+sub-channel of the design's ``v``, so the certified ``gamma`` bounds the gain from the
+scenario's ``w`` to ``z`` (``design_meta["gamma_channel"] = "scenario"``).
+
+Assumption of Theorem 4 (it bounds the augmented state ``[x; e]``): the plant is
+(mean-square) stable, ``rho(F) < 1``. A design model with a free integrator (the
+helicopter's pitch and yaw angles) is refused with that reason.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from filters import zoh
+from filters.lmi_hinf import (
+    LMIHInfFilter,
+    StochasticLinearSystem,
+    design_lmi_hinf,
+    design_on_grid,
+    minimal_gamma,
+)
+
+
+def _factor(M: np.ndarray) -> np.ndarray:
+    """Columns ``V`` with ``V V^T = M`` for a PSD ``M`` (zero directions dropped)."""
+    values, vectors = np.linalg.eigh(0.5 * (M + M.T))
+    keep = values > 1e-12 * max(float(values.max(initial=0.0)), 1e-300)
+    return vectors[:, keep] * np.sqrt(values[keep])
+
+
+def design_system(design: Any) -> tuple[StochasticLinearSystem, bool]:
+    """The system (44) of a design model (see the module docstring).
+
+    Returns
+    -------
+    system : StochasticLinearSystem
+    scenario_channel : bool
+        True when ``v`` contains the scenario's disturbance ``w`` (``G`` given).
+
+    Raises
+    ------
+    ValueError
+        ``rho(F) >= 1`` (Theorem 4 needs a stable plant), naming the spectral radius.
+    """
+    plant = design.discrete
+    F = plant.F
+    rho = float(np.max(np.abs(np.linalg.eigvals(F))))
+    if not rho < 1.0 - 1e-9:
+        raise ValueError(f"filter 'lmi-hinf' (Zhang et al. Theorem 4) needs a stable design "
+                         f"model, but the spectral radius of its F is {rho:.6g} (free "
+                         "integrators): Theorem 4 bounds the plant state too")
+    n, m = plant.n, plant.m
+    blocks = []
+    G = design.disturbance_matrix
+    if G is not None and np.any(G):
+        blocks.append(zoh(design.continuous.A, G, design.dt_s)[1])
+    blocks.append(_factor(plant.Q))
+    B = np.hstack(blocks)
+    Rf = _factor(plant.R)
+    system = StochasticLinearSystem(
+        A=F, B=np.hstack([B, np.zeros((n, Rf.shape[1]))]), C_y=plant.H,
+        C_z=design.output_matrix,
+        D_y=np.hstack([np.zeros((m, B.shape[1])), Rf]))
+    return system, len(blocks) == 2
+
+
+def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: float = 5.0,
+                  objective: str = "h2-unique", max_steps: int = 12
+                  ) -> tuple[LMIHInfFilter, dict[str, Any]]:
+    """The filter (45) on :func:`design_system`, at ``gamma`` or at the first level of the
+    1-2-5 grid above ``gamma_factor gamma_min`` whose design is accurate and verifies.
+
+    ``gamma_min`` comes from :func:`filters.lmi_hinf.minimal_gamma`; the grid and the strictly
+    convex ``"h2-unique"`` objective (:func:`filters.lmi_hinf.design_on_grid`) make the
+    chosen filter the same on every machine (near ``gamma_min`` the mixed H2/H-infinity
+    solution is too ill-conditioned for a reproducible choice).
+
+    Returns
+    -------
+    estimator : LMIHInfFilter
+        With the known input (``B_u``, ``D_u``) and ``dt_s``.
+    meta : dict
+        ``gamma``, ``gamma_min``, ``gain``, ``status``, ``spectral_radius``, and
+        ``gamma_channel = "scenario"`` when the scenario's ``w`` is part of ``v``.
+
+    Raises
+    ------
+    ValueError
+        An unstable design model, or no verified design (the solver status named).
+    """
+    system, scenario_channel = design_system(design)
+    plant = design.discrete
+    estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
+                                         objective=objective, input_matrix=plant.B,
+                                         feedthrough=plant.D, max_steps=max_steps)
+    meta["design"] = "generic (testbed.estimators.lmi)"
+    if scenario_channel:
+        meta["gamma_channel"] = "scenario"
+    return estimator, meta
+
+
+def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: float | None,
+                       gamma_factor: float, objective: str, input_matrix: np.ndarray | None,
+                       feedthrough: np.ndarray | None, max_steps: int = 12
+                       ) -> tuple[LMIHInfFilter, dict[str, Any]]:
+    """Theorem 4's filter (45) on ``system``: at ``gamma``, or at the first accurate verified
+    level of the 1-2-5 grid above ``gamma_factor gamma_min``
+    (:func:`filters.lmi_hinf.design_on_grid`), verified a posteriori.
+
+    Shared by the generic design (:func:`lmi_estimator`) and the rigs' own LMI design
+    systems (the vehicle roll rig's, with its multiplicative damping noise).
+
+    Parameters
+    ----------
+    system : StochasticLinearSystem
+    design : testbed.estimators.design.DesignModel
+        For ``x0`` and ``dt_s``.
+    gamma : float or None
+    gamma_factor : float
+    objective : str
+    input_matrix, feedthrough : ndarray, optional
+        The known input's ``B_u`` (n, k) and ``D_u`` (m, k).
+    max_steps : int
+        Grid levels tried at most.
+
+    Returns
+    -------
+    estimator : LMIHInfFilter
+    meta : dict
+        ``gamma_min`` (None when ``gamma`` was given), ``gamma``, ``gain``, ``status``,
+        ``spectral_radius``, ``objective``.
+
+    Raises
+    ------
+    ValueError
+        LMI (48) infeasible for every gamma, or no verified design (the solver status named).
+    """
+    gamma_min = None
+    if gamma is None:
+        search = minimal_gamma(system)
+        if search.gamma_min is None:
+            raise ValueError(f"LMI (48) infeasible for every gamma up to 1e8 ({search.status})")
+        gamma_min = search.gamma_min
+        lmi, _ = design_on_grid(system, gamma_factor * gamma_min, objective=objective,
+                                max_steps=max_steps)
+    else:
+        lmi = design_lmi_hinf(system, float(gamma), objective=objective)
+    if not lmi.feasible:
+        raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
+                         f"{lmi.status} (solver: {lmi.solver_status})")
+    estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=input_matrix,
+                                          feedthrough=feedthrough, dt_s=design.dt_s)
+    meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gain": lmi.gain.tolist(),
+            "status": lmi.status, "spectral_radius": lmi.check.spectral_radius,
+            "objective": objective}
+    return estimator, meta

@@ -1,0 +1,281 @@
+"""The closed loop, batch-first: simulator -> estimator -> controller -> metrics.
+
+:class:`EstimatorStage` is the estimator in the loop (input transform, channel handling,
+priming, metrics), used by both :class:`ClosedLoop` (the runner's ``run``, ``mc``, ``sweep``
+and reproductions) and the Gymnasium wrapper :class:`testbed.envs.wrappers.FilterInLoop`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
+
+from filters import real_array
+from filters.errors import FiniteEscapeError
+from testbed.experiment.metrics import EpisodeMetrics
+from testbed.sim.simulator import Simulator
+
+
+class EstimatorStage:
+    """One (batched) estimator fed by the simulator's measurements and applied inputs.
+
+    Parameters
+    ----------
+    estimator : estimator with ``batched = True`` semantics (x (N, n))
+    input_transform : callable ``(u (N, nu), x_hat (N, n)) -> (N, nu)``, optional
+    metrics : EpisodeMetrics
+    prior : (x0 (n,), P0 (n, n) or None)
+        Default prior of every member.
+    """
+
+    def __init__(self, estimator: Any, input_transform: Callable | None,
+                 metrics: EpisodeMetrics, prior: tuple[np.ndarray, np.ndarray | None]):
+        self.estimator = estimator
+        self.input_transform = input_transform
+        self.metrics = metrics
+        self.prior = prior
+
+    def priors(self, num: int, per: list[dict[str, Any] | None]) -> tuple[np.ndarray, Any]:
+        """Priors (N, n) and (n, n) or (N, n, n) from per-member ``estimator`` options."""
+        x0, P0 = self.prior
+        xs, Ps = [], []
+        for prior in per:
+            prior = prior or {}
+            if not isinstance(prior, dict):
+                raise ValueError(f"options['estimator'] must be a dict, got {prior!r}")
+            unknown = set(prior) - {"x0", "P0"}
+            if unknown:
+                raise ValueError(f"unknown options['estimator'] keys {sorted(unknown)}; "
+                                 "expected 'x0' and/or 'P0'")
+            n = len(x0)
+            xs.append(real_array(prior["x0"], "options['estimator']['x0']", (n,))
+                      if "x0" in prior else np.asarray(x0, dtype=float))
+            Ps.append(None if prior.get("P0") is None else
+                      real_array(prior["P0"], "options['estimator']['P0']", (n, n)))
+        x = np.array(xs).reshape(num, -1)
+        if all(P is None for P in Ps):
+            return x, P0
+        return x, np.array([P0 if P is None else np.asarray(P, float) for P in Ps])
+
+    def reset(self, y: np.ndarray, x_true: np.ndarray, x0: np.ndarray, P0: Any) -> np.ndarray:
+        """Restart from the priors, prime on the first sample, restart the metrics."""
+        self.estimator.reset(x0, P0)
+        prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
+        if prime is not None:
+            prime(y)
+        self.metrics.reset(x_true)
+        return np.asarray(self.estimator.x)
+
+    def step(self, y: np.ndarray, u_applied: np.ndarray, x_true: np.ndarray,
+             w: np.ndarray | None) -> np.ndarray:
+        """One estimator step on ``y`` (N, m) with the applied input; metrics updated."""
+        est = self.estimator
+        u = u_applied
+        if self.input_transform is not None:
+            u = self.input_transform(u, np.asarray(est.x))
+        x_hat = np.asarray(est.step(y, u))
+        if not np.all(np.isfinite(x_hat)):
+            raise FiniteEscapeError("the estimator returned a non-finite estimate",
+                                    time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",
+                                    value=x_hat.copy())
+        self.metrics.update(x_true, x_hat, est.P, y, w if w is not None and w.size else None)
+        return x_hat
+
+
+@dataclass
+class LoopResult:
+    """Outcome of :meth:`ClosedLoop.run` for N members.
+
+    Attributes
+    ----------
+    seeds : ndarray of int, shape (N,)
+    steps : int
+    dt_s : float
+    metrics : EpisodeMetrics
+        Batched: ``metrics.rmse()[state]`` has shape (N,).
+    clipped_fraction : ndarray, shape (N,)
+    trajectory : dict of ndarray or None
+        With ``record``: ``t_s`` (T+1,), ``state``/``estimate`` (N, T+1, n), ``covariance``
+        (N, T+1, n, n) or absent, ``measurement`` (N, T+1, m), ``action`` (N, T+1, nu),
+        ``setpoint`` (N, T+1, r), and with poses ``body_pos``/``body_quat_wxyz``.
+    """
+
+    seeds: np.ndarray
+    steps: int
+    dt_s: float
+    metrics: EpisodeMetrics
+    clipped_fraction: np.ndarray
+    trajectory: dict[str, np.ndarray] | None = None
+
+    def summary(self, index: int) -> dict[str, Any]:
+        """Member ``index``'s summary (floats, JSON-ready)."""
+        out = self.metrics.summary(index)
+        out["clipped_fraction"] = float(self.clipped_fraction[index])
+        return out
+
+
+class ClosedLoop:
+    """N episodes of simulator + estimator + controller, stepped together.
+
+    Parameters
+    ----------
+    sim : Simulator
+    stage : EstimatorStage
+    controller : object with ``reset(num)`` and ``__call__(x_hat, t_s) -> u``
+
+    Attributes
+    ----------
+    truth_feedback : bool
+        Give the controller the true state instead of the estimate (default False), so that
+        the trajectories do not depend on the estimator (``testbed score`` compares
+        estimators on identical trajectories this way).
+    """
+
+    def __init__(self, sim: Simulator, stage: EstimatorStage, controller: Any):
+        self.sim, self.stage, self.controller = sim, stage, controller
+        self.truth_feedback = False
+
+    def run(self, seeds: np.ndarray, duration_s: float, options: Any = None, *,
+            record: bool | dict[str, np.ndarray] = False, poses: bool = False,
+            bar: tqdm | None = None,
+            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> LoopResult:
+        """Run ``len(seeds)`` episodes of ``duration_s`` (rounded to control periods).
+
+        Parameters
+        ----------
+        seeds : array of int, shape (N,)
+        duration_s : float
+        options : dict or sequence of N dicts, optional
+            Reset options of the simulator plus ``estimator`` (``x0``, ``P0``).
+        record : bool or dict of ndarray
+            Keep the trajectories (or write them into the given arrays).
+        poses : bool
+            Also record body poses (for the 3D view).
+        bar : tqdm, optional
+            Advanced by one per step.
+        on_step : callable ``(k, row) -> None``, optional
+            Observer called after the reset (``k = 0``) and after each step ``k``, with
+            ``row`` = :meth:`row` (``t_s`` and the current arrays of all N members, read-only
+            views valid during the call: copy what you keep). It only reads; the run is the
+            same with or without it.
+        """
+        sim, stage, ctrl = self.sim, self.stage, self.controller
+        n = sim.num
+        seeds = np.asarray(seeds, dtype=np.int64).reshape(-1)
+        if len(seeds) != n:
+            raise ValueError(f"got {len(seeds)} seeds for a batch of {n}")
+        n_steps = int(round(duration_s / sim.dt_s)) if np.isfinite(duration_s) else 0
+        if n_steps < 1:
+            raise ValueError(f"duration must cover at least one control period "
+                             f"({sim.dt_s} s), got {duration_s}")
+        if options is None or isinstance(options, dict):
+            shared = dict(options or {})
+            priors = [shared.pop("estimator", None)] * n
+            per: Any = shared
+        else:
+            per = [dict(o or {}) for o in options]
+            priors = [o.pop("estimator", None) for o in per]
+        x0_hat, P0 = stage.priors(n, priors)
+        sim.record_poses = poses
+        sim.reset(None, [int(s) for s in seeds], per)
+        ctrl.reset(n)
+        info = sim.info
+        x_hat = stage.reset(sim.obs.copy(), info["state"], x0_hat, P0)
+        rec = self._recorder(record, n_steps)
+        if rec is not None:
+            self._record(rec, 0)
+        if on_step is not None:
+            on_step(0, self.row(0.0))
+        clipped = np.zeros(n, dtype=np.int64)
+        with threadpool_limits(1):
+            for k in range(n_steps):
+                sim.step(ctrl(info["state"] if self.truth_feedback else x_hat,
+                              k * sim.dt_s))
+                x_hat = stage.step(sim.obs, info["action_applied"], info["state"],
+                                   info["disturbance"])
+                clipped += info["action_clipped"].any(axis=1)
+                if rec is not None:
+                    self._record(rec, k + 1)
+                if on_step is not None:
+                    on_step(k + 1, self.row((k + 1) * sim.dt_s))
+                if bar is not None:
+                    bar.update()
+                if sim.terminated.any():
+                    n_steps = k + 1
+                    if rec is not None:
+                        rec = {key: v[:, :n_steps + 1] for key, v in rec.items()}
+                    break
+        trajectory = None
+        if rec is not None:
+            rec["t_s"] = np.arange(n_steps + 1) * sim.dt_s
+            trajectory = rec
+        return LoopResult(seeds=seeds, steps=n_steps, dt_s=sim.dt_s, metrics=stage.metrics,
+                          clipped_fraction=clipped / n_steps, trajectory=trajectory)
+
+    def trajectory_shapes(self, n_steps: int, poses: bool = False) -> dict[str, tuple]:
+        """Shapes of the recorded arrays for ``n_steps`` steps (without ``t_s``)."""
+        sim = self.sim
+        n, T = sim.num, n_steps + 1
+        nx, m, nu = sim.rig.n_states, sim.sensors.dim, sim.rig.n_actions
+        shapes = {"state": (n, T, nx), "estimate": (n, T, nx), "measurement": (n, T, m),
+                  "action": (n, T, nu), "setpoint": (n, T, len(sim.rig.tracked_states))}
+        if self.stage.estimator.P is not None:
+            shapes["covariance"] = (n, T, nx, nx)
+        if poses:
+            nb = sim.physics.nbody
+            shapes.update(body_pos=(n, T, nb, 3), body_quat_wxyz=(n, T, nb, 4))
+        return shapes
+
+    def _recorder(self, record: Any, n_steps: int) -> dict[str, np.ndarray] | None:
+        if record is False or record is None:
+            return None
+        shapes = self.trajectory_shapes(n_steps, self.sim.record_poses)
+        if record is True:
+            return {k: np.zeros(s) for k, s in shapes.items()}
+        for key, shape in shapes.items():
+            if key not in record or record[key].shape != shape:
+                raise ValueError(f"record[{key!r}] must have shape {shape}")
+        return dict(record)
+
+    def row(self, t_s: float) -> dict[str, Any]:
+        """The current values of all members, as :meth:`run` records them.
+
+        Returns
+        -------
+        dict
+            ``t_s`` (float) and views ``state``/``estimate`` (N, n), ``covariance``
+            (N, n, n) or None, ``measurement`` (N, m), ``action`` (N, nu), ``setpoint``
+            (N, r), and with recorded poses ``body_pos`` (N, nbody, 3) and
+            ``body_quat_wxyz`` (N, nbody, 4).
+        """
+        sim, est = self.sim, self.stage.estimator
+        info = sim.info
+        row = {"t_s": t_s, "state": info["state"], "estimate": np.asarray(est.x),
+               "covariance": est.P, "measurement": sim.obs,
+               "action": info["action_applied"], "setpoint": info["setpoint"]}
+        if sim.record_poses:
+            row["body_pos"], row["body_quat_wxyz"] = sim.physics.poses
+        return row
+
+    def _record(self, rec: dict[str, np.ndarray], k: int) -> None:
+        sim, est = self.sim, self.stage.estimator
+        info = sim.info
+        rec["state"][:, k] = info["state"]
+        rec["estimate"][:, k] = est.x
+        if "covariance" in rec:
+            rec["covariance"][:, k] = est.P
+        rec["measurement"][:, k] = sim.obs
+        rec["action"][:, k] = info["action_applied"]
+        rec["setpoint"][:, k] = info["setpoint"]
+        if "body_pos" in rec:
+            rec["body_pos"][:, k] = sim.physics.poses[0]
+            rec["body_quat_wxyz"][:, k] = sim.physics.poses[1]
+
+    def close(self) -> None:
+        """Stop the physics threads."""
+        self.sim.close()

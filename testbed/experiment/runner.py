@@ -1,0 +1,667 @@
+"""The runner: one scenario executed once (``run``), batched (``mc``) or over a grid (``sweep``).
+
+All three build the same :class:`~testbed.experiment.loop.ClosedLoop` from a
+:class:`~testbed.experiment.scenario.Scenario`; ``run`` is a batch of one. Run ``i`` of
+``monte_carlo(scenario, runs=R)`` uses the seed ``run_seeds(scenario.seed, R)[i]`` (the
+``i``-th word of ``numpy.random.SeedSequence(seed).generate_state(R)``: independent of the
+batch size, prefix-stable, no overlap between nearby base seeds) and equals, bitwise,
+``run(scenario.replace(seed=that seed))``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import os
+import shutil
+import socket
+import time
+import zipfile
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from testbed import estimators
+from testbed.estimators.design import DesignModel
+from testbed.experiment.control import make_controller
+from testbed.experiment.loop import ClosedLoop, EstimatorStage
+from testbed.experiment.metrics import EpisodeMetrics
+from testbed.experiment.scenario import Scenario, blame
+from testbed.experiment.trajectory import Trajectory
+from testbed.io import atomic_path, temporary_directory
+from testbed.outputs.envelope import ErrorEnvelope
+from testbed.rigs import resolve_rig
+from testbed.sim import build_simulator
+
+#: Default number of trajectories stepped together by :func:`monte_carlo`.
+DEFAULT_BATCH_SIZE = 1000
+BACKENDS = ("local", "ray")
+#: Seconds :func:`sweep` waits for a Ray cluster at ``address`` to accept a connection.
+RAY_CONNECT_TIMEOUT_S = 10.0
+#: Keys of a result that measure time, not the estimator.
+TIMING_KEYS = ("wall_s", "traj_steps_per_s", "threads")
+
+
+def run_seeds(seed: int, runs: int) -> np.ndarray:
+    """Per-run seeds of ``monte_carlo`` (uint32 words of ``SeedSequence(seed)``), (runs,)."""
+    return np.random.SeedSequence(seed).generate_state(runs).astype(np.int64)
+
+
+@dataclass
+class Experiment:
+    """A built scenario: the closed loop of N members and its design model."""
+
+    scenario: Scenario
+    loop: ClosedLoop
+    design: DesignModel
+    meta: dict[str, Any]
+
+    def close(self) -> None:
+        """Stop the physics threads."""
+        self.loop.close()
+
+
+def _with_defaults(scenario: Scenario) -> Scenario:
+    """Fill the fields the user left unset from the rig's and the estimator's defaults."""
+    rig = resolve_rig(scenario.rig)
+    changes: dict[str, Any] = {}
+    for key, value in rig.scenario_defaults.items():
+        if getattr(scenario, key) is None:
+            changes[key] = value
+    name = scenario.estimator if isinstance(scenario.estimator, str) else None
+    needs = estimators.SCENARIO_DEFAULTS.get(name, {})
+    if needs.get("disturbance") not in rig.disturbance_signals:
+        needs = {}  # the rig lacks what the estimator needs: its factory says so
+    for key, value in needs.items():
+        if key == "disturbance_channel":
+            if scenario.sensors is None or isinstance(scenario.sensors, str):
+                changes["sensor_options"] = {**scenario.sensor_options, key: value}
+        elif getattr(scenario, key) is None:
+            changes[key] = value
+    return scenario.replace(**changes) if changes else scenario
+
+
+def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -> Experiment:
+    """The closed loop of ``num`` members for a scenario (everything validated first).
+
+    Raises
+    ------
+    ScenarioError
+        A bad or inapplicable option (a ``ValueError`` naming the field), before any
+        simulation runs.
+    """
+    resolved = scenario.take_resolved()
+    defaulted = _with_defaults(scenario)
+    sensors, sensor_kwargs = resolved.sensors, None
+    if (defaulted.sensors, defaulted.sensor_options) != (scenario.sensors,
+                                                         scenario.sensor_options):
+        # a default of the rig or the estimator changed the preset: build that one
+        sensors, sensor_kwargs = defaulted.sensors, defaulted.sensor_options or None
+    scenario = defaulted
+    sim = build_simulator(resolved.rig, num, physics_dt_s=scenario.physics_dt_s,
+                          frame_skip=scenario.frame_skip, sensors=sensors,
+                          sensor_kwargs=sensor_kwargs,
+                          disturbance=scenario.disturbance,
+                          process_noise=scenario.process_noise, setpoints=scenario.setpoints,
+                          manoeuvre=scenario.manoeuvre,
+                          manoeuvre_params=scenario.manoeuvre_params or None,
+                          params=scenario.params or None, num_threads=num_threads,
+                          profile=scenario.profile, ambient_noise=scenario.ambient_noise,
+                          reset_noise_scale=scenario.reset_noise_scale)
+    rig = sim.rig
+    design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
+    with blame("design_options"):
+        design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
+                                         **scenario.design_options)
+    with blame("estimator"):
+        est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
+        if not getattr(est, "batched", False):
+            est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
+                                                                **scenario.estimator_options)
+                                               for _ in range(num - 1))])
+    P = getattr(est, "P", None)
+    prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
+    metrics = EpisodeMetrics(list(rig.state_names), sim.dt_s, list(sim.sensors.measured_state),
+                             design.output_matrix)
+    stage = EstimatorStage(est, design.input_transform, metrics, prior)
+    controller = make_controller(scenario.controller, design_rig, design,
+                                 lambda t: sim.setpoints_at(t))
+    meta = {"rig": rig.name, "scenario": scenario.describe(), "sensors": sim.sensors.describe(),
+            "control_dt_s": sim.dt_s, "units": sim.units()}
+    design_meta = getattr(getattr(est, "inner", est), "design_meta", None)
+    if design_meta:
+        meta["design"] = design_meta
+    return Experiment(scenario, ClosedLoop(sim, stage, controller), design, meta)
+
+
+def _summary(result, index: int = 0) -> dict[str, Any]:
+    return result.summary(index)
+
+
+#: Most rows :func:`run` records; longer runs keep every k-th step (and the last one), so
+#: the memory of ``--plot``/``--rrd`` does not grow with the duration (20,000 rows of the
+#: helicopter with body poses: about 10 MB).
+RECORD_MAX_ROWS = 20_000
+
+
+class _DecimatedRows:
+    """A recording array ``(N, T, ...)`` for :meth:`ClosedLoop.run` keeping only some rows.
+
+    Keeps rows ``0, every, 2 every, ...`` and the last row written; the loop writes row ``k``
+    with ``rows[:, k] = value`` (or into ``rows[:, k]``) and truncates with ``rows[:, :T]``.
+    """
+
+    def __init__(self, shape: tuple[int, ...], every: int):
+        self.shape, self.every = shape, every
+        kept = (shape[1] - 1) // every + 1
+        self.data = np.zeros((shape[0], kept + 1, *shape[2:]))  # + the last row written
+        self.last = -1
+
+    def _slot(self, key: Any) -> int:
+        rows, k = key
+        if rows != slice(None) or not isinstance(k, int | np.integer):
+            raise IndexError(f"decimated recording supports [:, k] only, got {key!r}")
+        self.last = int(k)
+        return int(k) // self.every if k % self.every == 0 else -1
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        slot = self._slot(key)
+        self.data[:, slot] = value
+        if slot != -1:
+            self.data[:, -1] = value
+
+    def __getitem__(self, key: Any) -> Any:
+        if isinstance(key, tuple) and isinstance(key[1], slice):
+            return self  # truncation at an early end: rows are kept by index
+        return self.data[:, self._slot(key)]
+
+    def rows(self) -> np.ndarray:
+        """Step indices of :meth:`values`, shape (R,)."""
+        kept = np.arange(0, self.last + 1, self.every)
+        return kept if kept[-1] == self.last else np.append(kept, self.last)
+
+    def values(self) -> np.ndarray:
+        """The kept rows, shape (N, R, ...)."""
+        n = self.last // self.every + 1
+        if self.last % self.every == 0:
+            return self.data[:, :n]
+        return np.concatenate([self.data[:, :n], self.data[:, -1:]], axis=1)
+
+
+def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None,
+        observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None
+        ) -> tuple[Trajectory | None, dict[str, Any]]:
+    """One closed-loop episode of ``scenario`` (seed ``scenario.seed``).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    record : bool
+        Keep the trajectory (with body poses, for the 3D view).
+    progress : bool, optional
+        Progress bar (None: only when the run takes more than two seconds).
+    observe : callable, optional
+        Called once with the built :class:`Experiment` before the episode starts; returns
+        the per-step observer ``on_step(k, row)`` of :meth:`ClosedLoop.run` (e.g.
+        :meth:`testbed.outputs.live.LiveView.attach`, logging to a live viewer). Body poses are
+        recorded
+        for it. The run is the same with or without it.
+
+    Returns
+    -------
+    trajectory : Trajectory or None
+        With ``record`` (body poses included, for the 3D view). At most
+        :data:`RECORD_MAX_ROWS` rows: a longer run keeps every k-th step and the last one
+        (``t_s`` gives the time of each row). Without ``record`` nothing per step is kept,
+        so memory does not grow with the duration.
+    summary : dict
+        ``steps``, ``rmse``, ``measurement_rmse``, ``nees_mean``, ``T_final``,
+        ``clipped_fraction``, ``units``, ``meta`` (metrics over every step).
+    """
+    experiment = build(scenario, 1, num_threads=1)
+    loop = experiment.loop
+    n_steps = int(round(scenario.duration_s / loop.sim.dt_s))
+    every = -(-(n_steps + 1) // RECORD_MAX_ROWS)  # ceil
+    recorder: Any = record
+    if record and every > 1:
+        shapes = loop.trajectory_shapes(n_steps, poses=True)
+        recorder = {k: _DecimatedRows(shape, every) for k, shape in shapes.items()}
+    bar = tqdm(total=n_steps, desc=experiment.meta["rig"], unit="step",
+               disable=progress is False, delay=0 if progress else 2.0, leave=False)
+    try:
+        on_step = observe(experiment) if observe is not None else None
+        with bar:
+            result = loop.run(np.array([scenario.seed]), scenario.duration_s, record=recorder,
+                              poses=record or on_step is not None, bar=bar, on_step=on_step)
+    finally:
+        experiment.close()
+    summary = _summary(result)
+    summary["units"] = experiment.meta["units"]
+    summary["meta"] = experiment.meta
+    traj = None
+    if record:
+        rec = result.trajectory
+        if isinstance(recorder, dict):
+            rows = recorder["state"].rows()
+            rec = {k: v.values() for k, v in recorder.items()}
+            rec["t_s"] = rows * result.dt_s
+        sim = loop.sim
+        traj = Trajectory(
+            t_s=rec["t_s"], state=rec["state"][0], state_names=list(sim.rig.state_names),
+            measurement=rec["measurement"][0], measurement_names=list(sim.sensors.names),
+            measured_state_index=list(sim.sensors.measured_state),
+            action=rec["action"][0],
+            action_names=[f"{n} [{u}]" for n, u in zip(sim.rig.action_names,
+                                                        sim.rig.action_units, strict=True)],
+            estimate=rec["estimate"][0],
+            covariance=rec["covariance"][0] if "covariance" in rec else None,
+            setpoint=rec["setpoint"][0], body_pos=rec["body_pos"][0],
+            body_quat_wxyz=rec["body_quat_wxyz"][0],
+            meta=dict(experiment.meta, seed=scenario.seed, duration_s=result.steps * result.dt_s,
+                      setpoint_names=list(sim.rig.tracked_states), recorded_every_steps=every),
+            rig=sim.rig)
+    return traj, summary
+
+
+class _NpzStream:
+    """Trajectories written batch by batch into ``.npy`` memory maps, zipped into one ``.npz``.
+
+    RAM stays bounded by one batch; the ``.npz`` appears atomically.
+    """
+
+    def __init__(self, path: str | Path, shapes: dict[str, tuple[int, ...]]):
+        self.path = Path(path)
+        self.arrays: dict[str, np.memmap] = {}
+        self._dir = temporary_directory(self.path)
+        try:
+            for k, s in shapes.items():
+                self.arrays[k] = np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
+                                                           dtype=np.float64, shape=s)
+        except BaseException:
+            self.abort()
+            raise
+
+    def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Views of runs ``start:stop`` of every array."""
+        return {k: a[start:stop] for k, a in self.arrays.items()}
+
+    def finish(self, extra: dict[str, np.ndarray]) -> Path:
+        """Write the ``.npz`` with the trajectories and the ``extra`` arrays."""
+        try:
+            for array in self.arrays.values():
+                array.flush()
+            names = list(self.arrays)
+            self.arrays.clear()
+            with atomic_path(self.path) as tmp, zipfile.ZipFile(
+                    tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+                for key in names:
+                    zf.write(self._dir / f"{key}.npy", arcname=f"{key}.npy")
+                for key, value in extra.items():
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
+        finally:
+            self.abort()
+        return self.path
+
+    def abort(self) -> None:
+        """Remove the temporary files."""
+        self.arrays.clear()
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+
+def _stats(values: np.ndarray) -> dict[str, float]:
+    q05, q95 = np.quantile(values, [0.05, 0.95])
+    return {"mean": float(np.mean(values)), "q05": float(q05), "q95": float(q95)}
+
+
+def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None = None,
+                progress: bool = True, save_npz: str | Path | None = None,
+                num_threads: int | None = None,
+                envelope_points: int | None = None) -> dict[str, Any]:
+    """``runs`` episodes of ``scenario``, stepped in batches.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        ``scenario.seed`` is the base seed; run ``i`` uses ``run_seeds(seed, runs)[i]``.
+    runs : int
+    batch_size : int, optional
+        Members stepped together (default ``min(runs, 1000)``); results do not depend on it.
+    progress : bool
+    save_npz : path, optional
+        Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
+    num_threads : int, optional
+        Physics threads.
+    envelope_points : int, optional
+        Also gather the error envelope over runs on this many time points
+        (:class:`testbed.outputs.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
+        result then has ``error_envelope``.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``runs``, ``seeds`` (the per-run seeds), ``steps_per_run``, ``wall_s``,
+        ``traj_steps_per_s``, ``rmse``/``measurement_rmse`` ``{name: {mean, q05, q95}}``,
+        ``nees_mean``, ``nees``, ``T_final``, ``clipped_fraction_mean``, ``units``, ``meta``.
+    """
+    if isinstance(runs, bool) or int(runs) != runs or runs < 1:
+        raise ValueError(f"runs must be a positive integer, got {runs}")
+    if batch_size is not None and (int(batch_size) != batch_size or batch_size < 1):
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size}")
+    if envelope_points is not None and (isinstance(envelope_points, bool)
+                                        or int(envelope_points) != envelope_points
+                                        or envelope_points < 2):
+        raise ValueError(f"envelope_points must be an integer >= 2, got {envelope_points}")
+    runs = int(runs)
+    batch_size = min(runs, int(batch_size or DEFAULT_BATCH_SIZE))
+    start_time = time.perf_counter()
+    seeds = run_seeds(scenario.seed, runs)
+    starts = list(range(0, runs, batch_size))
+    experiments: dict[int, Experiment] = {}
+
+    def experiment_for(size: int) -> Experiment:
+        if size not in experiments:
+            experiments[size] = build(scenario, size, num_threads=num_threads)
+        return experiments[size]
+
+    first = experiment_for(batch_size)
+    dt_s = first.loop.sim.dt_s
+    n_steps = int(round(scenario.duration_s / dt_s))
+    if n_steps < 1:
+        raise ValueError(f"duration_s must cover at least one control period ({dt_s} s), "
+                         f"got {scenario.duration_s}")
+    stream = None
+    state_names = list(first.loop.sim.rig.state_names)
+    envelope = None
+    if envelope_points is not None:
+        envelope = ErrorEnvelope(runs, n_steps, dt_s, state_names, envelope_points)
+    rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
+    meas: dict[str, list[np.ndarray]] = {}
+    per_run: dict[str, list] = {"nees": [], "T": [], "clipped": []}
+    try:
+        if save_npz is not None:
+            shapes = {k: (runs, *s[1:])
+                      for k, s in first.loop.trajectory_shapes(n_steps).items()}
+            stream = _NpzStream(save_npz, shapes)
+        bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
+                   unit="step", disable=not progress)
+        with bar:
+            for start in starts:
+                size = min(batch_size, runs - start)
+                loop = experiment_for(size).loop
+                record = stream.rows(start, start + size) if stream is not None else False
+                result = loop.run(seeds[start:start + size], scenario.duration_s,
+                                  record=record, bar=bar,
+                                  on_step=None if envelope is None else envelope.observer(start))
+                for k, v in result.metrics.rmse().items():
+                    rmse[k].append(v)
+                for k, v in result.metrics.measurement_rmse().items():
+                    meas.setdefault(k, []).append(v)
+                per_run["nees"].append(result.metrics.nees_mean())
+                per_run["T"].append(result.metrics.noise_output_ratio())
+                per_run["clipped"].append(result.clipped_fraction)
+    except BaseException:
+        if stream is not None:
+            stream.abort()
+        raise
+    finally:
+        for experiment in experiments.values():
+            experiment.close()
+    try:
+        rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
+        meas_all = {k: np.concatenate(v) for k, v in meas.items()}
+        nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
+        T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
+        clipped = np.concatenate(per_run["clipped"])
+    except BaseException:
+        if stream is not None:
+            stream.abort()
+        raise
+    if stream is not None:
+        extra: dict[str, np.ndarray] = {
+            "t_s": np.arange(n_steps + 1) * dt_s, "seeds": seeds,
+            "state_names": np.array(state_names),
+            "measurement_names": np.array(first.loop.sim.sensors.names),
+            "rmse": np.stack([rmse_all[k] for k in state_names], axis=1),
+            "clipped_fraction": clipped}
+        if nees is not None:
+            extra["nees_mean"] = nees
+        if T is not None:
+            extra["T_final"] = T
+        stream.finish(extra)  # removes the temporaries whatever happens
+    wall_s = time.perf_counter() - start_time
+    extra_keys = {} if envelope is None else {"error_envelope": envelope.result()}
+    return {
+        "filter": scenario.describe()["estimator"],
+        "runs": runs,
+        "duration_s": n_steps * dt_s,
+        "steps_per_run": n_steps,
+        "seed": scenario.seed,
+        "seeds": seeds.tolist(),
+        "seed_rule": "numpy.random.SeedSequence(seed).generate_state(runs)",
+        "batch_size": batch_size,
+        "threads": first.loop.sim.physics.num_threads,
+        "wall_s": wall_s,
+        "traj_steps_per_s": runs * n_steps / wall_s,
+        "rmse": {k: _stats(v) for k, v in rmse_all.items()},
+        "rmse_per_run": {k: v.tolist() for k, v in rmse_all.items()},
+        "measurement_rmse": {k: _stats(v) for k, v in meas_all.items()},
+        "nees_mean": None if nees is None else float(np.mean(nees)),
+        "nees": None if nees is None else _stats(nees),
+        "T_final": None if T is None else _stats(T),
+        "clipped_fraction_mean": float(np.mean(clipped)),
+        "npz": None if save_npz is None else str(save_npz),
+        "units": first.meta["units"],
+        "meta": first.meta,
+        **extra_keys,
+    }
+
+
+# ---------------------------------------------------------------------------- sweeps
+def grid_points(grid: dict[str, list]) -> list[dict[str, Any]]:
+    """The Cartesian product of ``grid`` as a list of ``{name: value}`` points."""
+    if not grid:
+        raise ValueError("grid must name at least one parameter")
+    for name, values in grid.items():
+        if len(values) == 0:
+            raise ValueError(f"grid[{name!r}] has no values")
+    names = list(grid)
+    return [dict(zip(names, combo, strict=True))
+            for combo in itertools.product(*(grid[n] for n in names))]
+
+
+#: Scenario fields a grid may sweep directly (numbers).
+GRID_FIELDS = ("process_noise", "duration_s", "seed", "physics_dt_s", "frame_skip")
+_GRID_GROUPS = {"params": "params", "estimator": "estimator_options",
+                "design": "design_options", "sensors": "sensor_options"}
+
+
+def check_grid_name(scenario: Scenario, name: str) -> None:
+    """Raise ``ValueError`` listing the valid names unless ``name`` can be swept.
+
+    Valid: :data:`GRID_FIELDS`, ``params.<field>`` (a parameter of the rig, scaled),
+    ``design.<option>`` (the rig's design options), ``estimator.<option>`` and
+    ``sensors.<option>`` (options of the estimator factory and of the sensor preset, checked
+    when the point is built).
+    """
+    rig = resolve_rig(scenario.rig)
+    params = sorted(f.name for f in dataclasses.fields(rig.params_type))
+    prefix, dot, key = name.partition(".")
+    if (not dot and name in GRID_FIELDS) or (dot and key and (
+            (prefix == "params" and key in params)
+            or (prefix == "design" and key in rig.scenario_options)
+            or prefix in ("estimator", "sensors"))):
+        return
+    hint = f" (did you mean 'params.{name}'?)" if not dot and name in params else ""
+    design = "|".join(sorted(rig.scenario_options)) or "none"
+    raise ValueError(f"unknown grid name {name!r}{hint}; valid names: "
+                     f"{', '.join(GRID_FIELDS)}, params.<{'|'.join(params)}>, "
+                     f"design.<{design}>, estimator.<option>, sensors.<option>")
+
+
+def point_scenario(scenario: Scenario, point: dict[str, Any]) -> Scenario:
+    """The scenario of one grid point.
+
+    Names: see :func:`check_grid_name`.
+    """
+    changes: dict[str, Any] = {}
+    groups = _GRID_GROUPS
+    for name, value in point.items():
+        check_grid_name(scenario, name)
+        if name in ("seed", "frame_skip") and float(value).is_integer():
+            value = int(value)
+        prefix, dot, key = name.partition(".")
+        if dot:
+            field_name = groups[prefix]
+            merged = dict(changes.get(field_name, getattr(scenario, field_name)))
+            merged[key] = value
+            changes[field_name] = merged
+        else:
+            changes[name] = value
+    return scenario.replace(**changes)
+
+
+def _run_point(scenario: Scenario, runs: int) -> dict[str, Any]:
+    # one physics thread per point: the pool supplies the parallelism
+    return monte_carlo(scenario, runs, progress=False, num_threads=1)
+
+
+def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
+          backend: str = "local", workers: int | None = None, address: str | None = None,
+          progress: bool = True) -> dict[str, Any]:
+    """One Monte-Carlo study per grid point (common random numbers: one base seed).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    grid : dict of str to list
+        Swept names (see :func:`point_scenario`) and their values.
+    runs : int
+    backend : {"local", "ray"}
+        Local processes or Ray tasks (a cluster at ``address`` or a local instance).
+    address : str, optional
+        Ray cluster (``host:port``, ``ray://host:port`` or ``"auto"``); unreachable within
+        :data:`RAY_CONNECT_TIMEOUT_S` seconds: ``ConnectionError`` before any work.
+    workers : int, optional
+        Processes or local Ray CPUs (default ``os.cpu_count()``).
+
+    Returns
+    -------
+    dict
+        ``backend``, ``workers``, ``wall_s``, ``points`` (list of ``{"point", "result"}``).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
+    if address is not None and backend != "ray":
+        raise ValueError("address is only used with backend='ray'")
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
+                                or workers < 1):
+        raise ValueError(f"workers must be a positive integer, got {workers}")
+    if address is not None:
+        check_ray_address(address)
+    points = grid_points(grid)
+    workers = int(workers or os.cpu_count() or 1)
+    scenarios = [point_scenario(scenario, p) for p in points]
+    for s in scenarios:  # fail fast on a bad name or value, before any work starts
+        build(s, 1, num_threads=1).close()
+    start = time.perf_counter()
+    bar = tqdm(total=len(points), desc=f"sweep ({backend})", unit="point", disable=not progress)
+    with bar:
+        if backend == "local":
+            results = _run_local(scenarios, runs, workers, bar)
+        else:
+            results = _run_ray(scenarios, runs, workers, address, bar)
+    return {"backend": backend, "workers": workers, "wall_s": time.perf_counter() - start,
+            "points": [{"point": p, "result": r} for p, r in zip(points, results, strict=True)]}
+
+
+def _run_local(scenarios: list[Scenario], runs: int, workers: int, bar: tqdm) -> list[dict]:
+    if workers == 1:
+        out = []
+        for s in scenarios:
+            out.append(_run_point(s, runs))
+            bar.update()
+        return out
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(_run_point, s, runs) for s in scenarios]
+        out = []
+        for future in futures:
+            out.append(future.result())
+            bar.update()
+        return out
+
+
+def check_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """Check that a Ray cluster address accepts connections, within ``timeout_s`` seconds.
+
+    ``ray.init(address=...)`` retries an unreachable cluster for minutes; this TCP probe
+    fails fast instead. ``"auto"`` (the local cluster Ray finds itself) is not probed.
+
+    Parameters
+    ----------
+    address : str
+        ``host:port`` (the GCS port, 6379 by default), ``ray://host:port`` or ``"auto"``.
+    timeout_s : float
+
+    Raises
+    ------
+    ValueError
+        ``address`` is not of one of these forms.
+    ConnectionError
+        Nothing accepts a connection at ``host:port`` within ``timeout_s`` seconds.
+    """
+    if address == "auto":
+        return
+    target = address.split("://", 1)[1] if address.startswith("ray://") else address
+    host, sep, port = target.rpartition(":")
+    if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+        raise ValueError(f"address must be 'host:port', 'ray://host:port' or 'auto', got "
+                         f"{address!r}")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster reachable at {address!r} within {timeout_s:g} s "
+                              f"({exc.strerror or exc}); start one with 'ray start --head' or "
+                              "leave the address unset for a local instance") from None
+
+
+def _run_ray(scenarios: list[Scenario], runs: int, workers: int, address: str | None,
+             bar: tqdm) -> list[dict]:
+    try:
+        import ray
+    except ImportError as exc:
+        raise ValueError("backend='ray' needs Ray: pip install -e '.[ray]'") from exc
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1)(_run_point)
+        refs = [task.remote(s, runs) for s in scenarios]
+        out = []
+        for ref in refs:
+            out.append(ray.get(ref))
+            bar.update()
+        return out
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def without_timings(result: dict[str, Any]) -> dict[str, Any]:
+    """A sweep result with the timing keys removed (for comparing back-ends)."""
+    return {
+        **{k: v for k, v in result.items() if k not in ("wall_s", "backend", "workers")},
+        "points": [{"point": p["point"],
+                    "result": {k: v for k, v in p["result"].items() if k not in TIMING_KEYS}}
+                   for p in result["points"]],
+    }

@@ -1,0 +1,329 @@
+"""A scenario is data: rig, sensors, disturbance, controller or manoeuvre, estimator, horizon,
+seed and parameter mismatch. :mod:`testbed.experiment.runner` executes it once, batched or over a
+grid.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from testbed.rigs import resolve_rig
+from testbed.rigs.base import Rig
+
+#: Largest seed (numpy's and the runner's int64 seed arrays).
+MAX_SEED = 2**63 - 1
+
+
+class ScenarioError(ValueError):
+    """A scenario field has a bad or inapplicable value.
+
+    Parameters
+    ----------
+    field : str
+        The :class:`Scenario` field (``"duration_s"``, ``"estimator_options"``...).
+    message : str
+    """
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (self.field, str(self)))
+
+
+@contextlib.contextmanager
+def blame(field: str) -> Iterator[None]:
+    """Re-raise a ``ValueError`` of the block as :class:`ScenarioError` of ``field``."""
+    try:
+        yield
+    except ScenarioError:
+        raise
+    except ValueError as exc:
+        raise ScenarioError(field, str(exc)) from None
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _number(field: str, value: Any, *, positive: bool = False) -> float:
+    """A finite non-negative (or positive) real number, else :class:`ScenarioError`."""
+    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    if ok:
+        value = float(value)
+    if not (ok and np.isfinite(value) and (value > 0 if positive else value >= 0)):
+        raise ScenarioError(field, f"{field} must be a finite number "
+                            f"{'> 0' if positive else '>= 0'}, got {value!r}")
+    return value
+
+
+def _frozen(value: Any) -> Any:
+    """A comparable snapshot of a field value (objects by identity)."""
+    if isinstance(value, dict):
+        return ("dict", tuple(sorted((str(k), _frozen(v)) for k, v in value.items())))
+    if isinstance(value, list | tuple):
+        return ("seq", tuple(_frozen(v) for v in value))
+    if isinstance(value, np.ndarray):
+        return ("array", value.dtype.str, value.shape, value.tobytes())
+    if value is None or isinstance(value, str | int | float | bool | np.generic):
+        return value
+    return ("id", id(value))
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """What :meth:`Scenario.check` resolved, taken by the build (check once, build once).
+
+    Attributes
+    ----------
+    rig_cls : type
+        The rig class.
+    rig : Rig
+        The rig built for the scenario's ``profile`` and ``physics_dt_s`` at nominal
+        parameters: it becomes the simulated rig (its MJCF is read once for it).
+    sensors : Sensor
+        The sensor suite built from the preset and its options (or the scenario's object).
+    factory : callable
+        The estimator factory.
+    """
+
+    rig_cls: type
+    rig: Any
+    sensors: Any
+    factory: Any
+
+
+@dataclass
+class Scenario:
+    """Everything one closed-loop experiment needs, as plain data.
+
+    Attributes
+    ----------
+    rig : str or Rig subclass
+        Registered name (``"helicopter"``, ``"vehicle-roll"``), ``module:Class`` or a class.
+    profile : str
+        Simulation profile of the rig: ``"paper"`` (the papers' idealizations) or
+        ``"hardware"`` (actuator and sensor effects of the real rig); the estimator's design
+        model is the same in both.
+    estimator : str or callable
+        Registered filter name, ``package.module:factory`` or a factory.
+    estimator_options : dict
+        Keyword options of the factory (e.g. ``{"gamma": 2.0}``).
+    controller : str, optional
+        ``"lqr"`` or ``"open-loop"`` (default: the rig's).
+    sensors : str or Sensor, optional
+        A preset of the rig (default: its first) or a sensor object.
+    sensor_options : dict
+        Options of the preset (e.g. ``{"noise_std_rad": 0.002}``).
+    disturbance : str, optional
+        A named signal of the rig (``"basin-helicopter"``).
+    process_noise : float
+        Scale of the rig's white process noise (0: none).
+    ambient_noise : float
+        Scale of the rig's small documented ambient disturbance (air turbulence, gusts;
+        default 1, 0: none). The design model's ``Q`` includes it.
+    reset_noise_scale : float
+        Scale of the rig's documented initial-state distribution (default 1; 0: the fixed
+        default state, as in the papers).
+    manoeuvre : str, optional
+        Open-loop input profile of the rig (default: the rig's; ``"none"`` for none).
+    manoeuvre_params : dict
+    setpoints : sequence of rows, optional
+        Reference ``(t_s, *tracked)``; default the rig's.
+    params : dict
+        Scale factors of the simulated rig's parameters (model mismatch: the estimator and
+        controller keep the nominal ones).
+    design_options : dict
+        Rig-specific design options (``Rig.scenario_options``, e.g. ``process_noise_floor``).
+    duration_s : float
+    seed : int
+    physics_dt_s : float
+    frame_skip : int
+    """
+
+    rig: Any = "helicopter"
+    profile: str = "paper"
+    estimator: Any = "kalman"
+    estimator_options: dict[str, Any] = field(default_factory=dict)
+    controller: str | None = None
+    sensors: Any = None
+    sensor_options: dict[str, Any] = field(default_factory=dict)
+    disturbance: str | None = None
+    process_noise: float = 0.0
+    ambient_noise: float = 1.0
+    reset_noise_scale: float = 1.0
+    manoeuvre: Any = None
+    manoeuvre_params: dict[str, Any] = field(default_factory=dict)
+    setpoints: Any = None
+    params: dict[str, float] = field(default_factory=dict)
+    design_options: dict[str, Any] = field(default_factory=dict)
+    duration_s: float = 20.0
+    seed: int = 0
+    physics_dt_s: float = 0.001
+    frame_skip: int = 10
+
+    def replace(self, **changes: Any) -> Scenario:
+        """A copy with some fields changed; unknown names raise ``ValueError``."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = set(changes) - names
+        if unknown:
+            raise ValueError(f"unknown scenario fields {sorted(unknown)}; expected among "
+                             f"{sorted(names)}")
+        return dataclasses.replace(self, **changes)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle and copy the fields only (not the built rig of :meth:`check`)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_resolved"}
+
+    def _snapshot(self) -> tuple:
+        return tuple(_frozen(getattr(self, f.name)) for f in dataclasses.fields(self))
+
+    def take_resolved(self) -> Resolved:
+        """:meth:`check`'s result for one build: the built rig and sensors belong to the
+        caller afterwards, so the next call checks and builds anew."""
+        resolved = self.check()
+        self.__dict__.pop("_resolved", None)
+        return resolved
+
+    def check(self) -> Resolved:
+        """Validate every field before anything is built or simulated.
+
+        Checks types and ranges, the options against the rig (parameters, sensor presets,
+        disturbances, manoeuvres, design options, setpoints) and the estimator (its name
+        and, when its factory declares them, its option names). The values of estimator and
+        design options are checked when :func:`testbed.experiment.runner.build` builds them.
+
+        Returns
+        -------
+        Resolved
+            The rig class, the rig and the sensor suite built for the check, and the
+            estimator factory: :func:`testbed.experiment.runner.build` takes them
+            (:meth:`take_resolved`) instead of building them again. A second ``check`` of an
+            unchanged scenario returns the same object without work.
+
+        Raises
+        ------
+        ScenarioError
+            A bad value or an option the rig does not have; ``field`` names the field.
+        """
+        snapshot = self._snapshot()
+        cached = self.__dict__.get("_resolved")
+        if cached is not None and cached[0] == snapshot:
+            return cached[1]
+        resolved = self._check()
+        self.__dict__["_resolved"] = (snapshot, resolved)
+        return resolved
+
+    def _check(self) -> Resolved:
+        """The work of :meth:`check`."""
+        from testbed import estimators
+        from testbed.experiment.control import CONTROLLERS
+        from testbed.rigs.disturbances import Disturbance
+
+        with blame("rig"):
+            rig_cls = resolve_rig(self.rig)
+        if self.profile not in rig_cls.profiles:
+            raise ScenarioError("profile", f"profile must be one of {rig_cls.profiles} for rig "
+                                f"{rig_cls.name!r}, got {self.profile!r}")
+        _number("ambient_noise", self.ambient_noise)
+        _number("reset_noise_scale", self.reset_noise_scale)
+        dt_s = _number("physics_dt_s", self.physics_dt_s, positive=True)
+        if not _is_int(self.frame_skip) or self.frame_skip < 1:
+            raise ScenarioError("frame_skip", f"frame_skip must be a positive integer, got "
+                                f"{self.frame_skip!r}")
+        control_dt_s = dt_s * int(self.frame_skip)
+        duration = _number("duration_s", self.duration_s, positive=True)
+        if round(duration / control_dt_s) < 1:
+            raise ScenarioError("duration_s", f"duration_s must cover at least one control "
+                                f"period ({control_dt_s:g} s), got {duration:g} s")
+        if not _is_int(self.seed) or not 0 <= self.seed <= MAX_SEED:
+            raise ScenarioError("seed", f"seed must be an integer in [0, 2**63), got "
+                                f"{self.seed!r}")
+        for name in ("estimator_options", "sensor_options", "manoeuvre_params", "params",
+                     "design_options"):
+            if not isinstance(getattr(self, name), dict):
+                raise ScenarioError(name, f"{name} must be a dict, got "
+                                    f"{type(getattr(self, name)).__name__}")
+        if self.controller is not None and self.controller not in CONTROLLERS:
+            raise ScenarioError("controller", f"unknown controller {self.controller!r}; "
+                                f"expected one of {CONTROLLERS}")
+        with blame("estimator"):
+            factory = estimators.resolve(self.estimator)
+        with blame("estimator_options"):
+            estimators.check_options(factory, self.estimator, self.estimator_options)
+        with blame("params"):
+            rig_cls.params_type().scaled(self.params)
+        unknown = set(self.design_options) - set(rig_cls.scenario_options)
+        if unknown:
+            raise ScenarioError("design_options", f"design option(s) {sorted(unknown)} do not "
+                                f"apply to rig {rig_cls.name!r}; its options: "
+                                f"{sorted(rig_cls.scenario_options) or 'none'}")
+        noise = _number("process_noise", self.process_noise)
+        if noise > 0 and rig_cls.process_noise_matrix is Rig.process_noise_matrix:
+            raise ScenarioError("process_noise", f"rig {rig_cls.name!r} has no process-noise "
+                                "model; process_noise must be 0")
+        if not (self.disturbance in (None, "none") or isinstance(self.disturbance, Disturbance)
+                or self.disturbance in rig_cls.disturbance_signals):
+            raise ScenarioError("disturbance", f"unknown disturbance {self.disturbance!r} for "
+                                f"rig {rig_cls.name!r}; expected one of "
+                                f"{sorted(rig_cls.disturbance_signals) or ['none']}")
+        rig = rig_cls(physics_dt_s=dt_s, profile=self.profile)
+        sensors = self.sensors
+        if self.sensors is None or isinstance(self.sensors, str):
+            with blame("sensors"):
+                sensors = rig.sensors(self.sensors, dt_s=control_dt_s, **self.sensor_options)
+        elif self.sensor_options:
+            raise ScenarioError("sensor_options", "sensor_options apply to a sensor preset "
+                                "name, not to a sensor object")
+        self._check_manoeuvre(rig)
+        if self.setpoints is not None:
+            if not rig.tracked_states:
+                raise ScenarioError("setpoints", f"setpoints do not apply to rig {rig.name!r} "
+                                    "(no tracked states)")
+            with blame("setpoints"):
+                rig.validate_setpoints(self.setpoints)
+        return Resolved(rig_cls=rig_cls, rig=rig, sensors=sensors, factory=factory)
+
+    def _check_manoeuvre(self, rig: Rig) -> None:
+        """The manoeuvre (or the rig's default) and its parameters."""
+        name = self.manoeuvre if self.manoeuvre is not None else \
+            rig.scenario_defaults.get("manoeuvre")
+        if name is None or name == "none":
+            if self.manoeuvre_params:
+                raise ScenarioError("manoeuvre_params", "manoeuvre_params given without a "
+                                    "manoeuvre")
+            return
+        if not isinstance(name, str):
+            if not callable(name):
+                raise ScenarioError("manoeuvre", f"manoeuvre must be a name, 'none' or a "
+                                    f"callable t_s -> input, got {name!r}")
+            return
+        if name not in rig.manoeuvres:
+            raise ScenarioError("manoeuvre", f"unknown manoeuvre {name!r} for rig "
+                                f"{rig.name!r}; expected one of {sorted(rig.manoeuvres) or 'none'}")
+        try:
+            rig.manoeuvres[name](**self.manoeuvre_params)
+        except (TypeError, ValueError) as err:
+            raise ScenarioError("manoeuvre_params", f"bad manoeuvre_params for {name!r}: "
+                                f"{err}") from None
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready description (callables and objects by name)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, type):
+                value = getattr(value, "name", value.__name__)
+            elif callable(value) and not isinstance(value, str):
+                value = getattr(value, "__name__", repr(value))
+            elif hasattr(value, "describe") and not isinstance(value, dict | str):
+                value = value.describe()
+            out[f.name] = value
+        return out

@@ -1,0 +1,456 @@
+"""The variance-constrained family's shared evaluation (Wang et al.'s parabolic-region
+filter and Liu, Deng & Wang's discrete filter): the published filters checked against their
+requirements, the Monte Carlo of a filter on the uncertain plant, the Gymnasium episode
+samples, the design-search summaries and the figure."""
+
+
+from __future__ import annotations
+
+import math
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
+
+from filters import zoh
+from filters.analysis import (
+    PoleRegion,
+    UncertainPlant,
+    error_covariance,
+    error_system,
+    robust_filter_analysis,
+)
+from filters.variance_constrained import (
+    DesignSearchRecord,
+    LinearFilter,
+    VarianceDesign,
+    verify_design,
+)
+from testbed.experiment.trajectory import Trajectory
+from testbed.outputs.viz import Run
+from testbed.reproductions.outputs import (
+    Claim,
+    agree_text,
+    claims_height_in,
+    draw_claims,
+)
+from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
+
+#: Registered environment of the plant (``testbed/UncertainLinear-v0``).
+ENV_ID = "testbed/UncertainLinear-v0"
+
+
+F_VALUES = (1.0, 0.0, -1.0)
+
+
+#: Optimizer starts and objective evaluations per start of the design search (the printed
+#: parameters are start 0).
+SEARCH_STARTS = 8
+
+
+SEARCH_EVALUATIONS = 300
+
+
+#: Name of the best searched design in ``monte_carlo`` and the figure.
+SEARCHED = "searched design"
+
+
+# ========================================================================= helpers
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.ndarray, *,
+                       region: PoleRegion, gamma: float, sigma2: np.ndarray,
+                       n_grid: int = 21) -> dict[str, Any]:
+    """The three requirements of a given filter for all ``F``, and ``P`` at ``F = 1, 0, -1``.
+
+    Returns
+    -------
+    dict
+        ``name, K, G, hinf_worst, variance_worst, poles_in_region, worst_F, covariance``
+        (``{"1", "0", "-1"}``), ``pole_margin_worst``, ``meets``, ``analysis``.
+    """
+    ra = robust_filter_analysis(plant, G, K, region=region, gamma=gamma, sigma2=sigma2,
+                                n_grid=n_grid)
+    summary = ra.to_dict()
+    cov = {}
+    for F in F_VALUES:
+        try:
+            cov[f"{F:g}"] = error_covariance(plant, G, K, F).tolist()
+        except Exception:  # unstable for this F: no steady state
+            cov[f"{F:g}"] = None
+    return {
+        "name": name, "K": np.asarray(K).tolist(), "G": np.asarray(G).tolist(),
+        "hinf_worst": summary["hinf_worst"], "variance_worst": summary["variance_worst"],
+        "poles_in_region": summary["poles_in_region"], "worst_F": summary["worst_F"],
+        "covariance": cov, "pole_margin_worst": summary["pole_margin_worst"],
+        "meets": summary["meets"], "analysis": summary,
+        "filter_poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(G)],
+    }
+
+
+def _filter_maps(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    if sim.discrete:
+        return G, K
+    return zoh(G, K, sim.dt_s)
+
+
+def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray,
+                             F: float) -> np.ndarray:
+    """Exact steady-state error covariance of the *sampled* loop plant + filter, shape (n, n).
+
+    ``z = [x; xhat]``, ``z(k+1) = [[Phi_x, 0], [Gy Phi_y, Phi_g]] z + [[S_x], [Gy S_y]] xi``
+    (discrete Lyapunov). For a discrete plant this equals
+    :func:`filters.analysis.error_covariance`; for a continuous one it differs from it by the
+    sampling of the filter, O(dt).
+    """
+    tr = sim.transition(F)
+    n = sim.model.n
+    Pg, Gy = _filter_maps(sim, G, K)
+    Az = np.block([[tr.Phi[:n], np.zeros((n, n))], [Gy @ tr.Phi[n:], Pg]])
+    Bz = np.vstack([tr.S[:n], Gy @ tr.S[n:]])
+    Xz = solve_discrete_lyapunov(Az, Bz @ Bz.T)
+    T = np.hstack([np.eye(n), -np.eye(n)])
+    P = T @ Xz @ T.T
+    return 0.5 * (P + P.T)
+
+
+def monte_carlo(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray, F: float, *,
+                n_runs: int, n_steps: int, burn_in: int, rng: np.random.Generator
+                ) -> dict[str, Any]:
+    """``n_runs`` independent runs of plant + filter, stepped as one batch; error statistics
+    after burn-in.
+
+    Every run starts at ``x = xhat = 0``. The per-run time average of ``e e^T`` over steps
+    ``burn_in + 1 .. n_steps`` is averaged over runs; the standard error of each variance is
+    the spread of the per-run averages over ``sqrt(n_runs)`` (runs are independent).
+
+    Parameters
+    ----------
+    sim : UncertainLinearPlant
+        The plant's sampled simulation (the environment's own, ``env.unwrapped.plant``).
+    G, K : numpy.ndarray, shapes (n, n), (n, p)
+    F : float
+        The runs' uncertainty.
+    n_runs, n_steps, burn_in : int
+    rng : numpy.random.Generator
+        One generator for the batch: each step draws ``(n_runs, r)`` standard normals.
+
+    Returns
+    -------
+    dict
+        ``covariance`` (n, n), ``variance`` (n,), ``std_error`` (n,), ``n_runs``, ``n_steps``,
+        ``burn_in``.
+    """
+    n = sim.model.n
+    x = np.zeros((n_runs, n))
+    filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete,
+                        dt_s=sim.dt_s)
+    acc = np.zeros((n_runs, n, n))
+    for k in range(n_steps):
+        x, y, _ = sim.step(x, F, rng)
+        xhat = filt.step(y)
+        if k + 1 > burn_in:
+            e = x - xhat
+            acc += e[:, :, None] * e[:, None, :]
+    count = max(n_steps - burn_in, 1)
+    per_run = acc / count
+    cov = per_run.mean(axis=0)
+    var_runs = np.diagonal(per_run, axis1=1, axis2=2)
+    stderr = var_runs.std(axis=0, ddof=1) / math.sqrt(n_runs) if n_runs > 1 else np.zeros(n)
+    return {"covariance": 0.5 * (cov + cov.T), "variance": np.diag(cov).copy(),
+            "std_error": stderr, "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in}
+
+
+def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
+                      plant: UncertainPlant, *, n_runs: int, n_steps: int, burn_in: int,
+                      seed: int) -> list[dict[str, Any]]:
+    """Monte Carlo of every filter at ``F = 1, 0, -1``.
+
+    Parameters
+    ----------
+    sim : UncertainLinearPlant
+    filters : list of dict
+        Each with ``name``, ``K`` (n, p) and ``G`` (n, n) (the ``published`` entries, then
+        e.g. the searched design).
+    plant : UncertainPlant
+    n_runs, n_steps, burn_in, seed : int
+        Filter ``i`` at ``F_VALUES[j]`` uses the generator of child ``3 i + j`` of
+        ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged).
+
+    Returns
+    -------
+    list of dict
+        One entry per filter and ``F``: ``filter``, ``F``, ``variance_mc``, ``std_error``,
+        ``variance_lyapunov``, ``variance_sampled_loop``, ``z_vs_sampled``,
+        ``relative_to_lyapunov``, ``n_runs``, ``n_steps``, ``burn_in``, ``dt_s``.
+    """
+    seeds = np.random.SeedSequence(seed).spawn(len(filters) * len(F_VALUES))
+    out = []
+    for i, filt in enumerate(filters):
+        G, K = np.array(filt["G"]), np.array(filt["K"])
+        for j, F in enumerate(F_VALUES):
+            rng = np.random.default_rng(seeds[i * len(F_VALUES) + j])
+            mc = monte_carlo(sim, G, K, F, n_runs=n_runs, n_steps=n_steps, burn_in=burn_in,
+                             rng=rng)
+            lyap = np.diag(error_covariance(plant, G, K, F))
+            sampled = np.diag(sampled_error_covariance(sim, G, K, F))
+            z = (mc["variance"] - sampled) / np.maximum(mc["std_error"], 1e-300)
+            out.append({"filter": filt["name"], "F": F, "variance_mc": mc["variance"].tolist(),
+                        "std_error": mc["std_error"].tolist(),
+                        "variance_lyapunov": lyap.tolist(),
+                        "variance_sampled_loop": sampled.tolist(),
+                        "z_vs_sampled": z.tolist(),
+                        "relative_to_lyapunov": (mc["variance"] / lyap - 1.0).tolist(),
+                        "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in,
+                        "dt_s": sim.dt_s})
+    return out
+
+
+def make_env(plant: UncertainPlant, dt_s: float, n_steps: int) -> Any:
+    """``testbed/UncertainLinear-v0`` for ``plant`` (``gymnasium.make``, episode ``n_steps``)."""
+    import gymnasium as gym
+
+    import testbed  # noqa: F401  (registers the environments)
+
+    return gym.make(ENV_ID, plant=plant, dt_s=dt_s, max_episode_steps=n_steps)
+
+
+def env_sample(env: Any, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
+               n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
+    """One episode of ``env`` at ``F`` with the filter ``(G, K)`` in the loop.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        From :func:`make_env`.
+    name : str
+        Filter name (recorded).
+    G, K : numpy.ndarray
+    F : float
+        The episode's uncertainty (``reset(options={"F": F})``).
+    n_steps, seed : int
+    P : numpy.ndarray, shape (n, n)
+        Steady-state error covariance to report with the run.
+
+    Returns
+    -------
+    dict
+        ``t`` (T,), ``x``, ``xhat`` (T, n), ``y`` (T - 1, p) with ``T = n_steps + 1``,
+        ``filter``, ``F``, ``P``, ``seed``.
+    """
+    from testbed.envs.wrappers import FilterInLoop
+
+    inner = env.unwrapped
+    n = inner.model.n
+    est = LinearFilter(G, K, np.zeros(n), discrete=inner.model.discrete, dt_s=inner.dt_s,
+                       B=np.zeros((n, inner.plant.B.shape[1])), covariance=P)
+    loop = FilterInLoop(env, est)
+    _, info = loop.reset(seed=seed, options={"F": F})
+    t, xs, hs, ys = [info["t"]], [info["state"]], [info["estimate"]], []
+    zero = np.zeros(loop.action_space.shape)
+    for _ in range(n_steps):
+        _, _, _, _, info = loop.step(zero)
+        t.append(info["t"])
+        xs.append(info["state"])
+        hs.append(info["estimate"])
+        ys.append(info["measurement"])
+    return {"t": np.array(t), "x": np.array(xs), "xhat": np.array(hs), "y": np.array(ys),
+            "filter": name, "F": F, "P": P, "seed": seed}
+
+
+def trajectory(sample: dict[str, Any], scenario: str) -> Trajectory:
+    """A :class:`Trajectory` of one episode (``covariance``: the steady-state ``P``)."""
+    t, x, xhat, y = sample["t"], sample["x"], sample["xhat"], sample["y"]
+    n, p = x.shape[1], y.shape[1]
+    meas = np.vstack([np.zeros((1, p)), y])
+    return Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
+                      measurement=meas, measurement_names=[f"y{i + 1}" for i in range(p)],
+                      measured_state_index=[None] * p, action=np.zeros((len(t), 1)),
+                      action_names=["u"], estimate=xhat,
+                      covariance=np.broadcast_to(sample["P"], (len(t), n, n)).copy(),
+                      meta={"scenario": scenario, "filter": sample["filter"],
+                            "F": sample["F"], "seed": sample["seed"], "env": ENV_ID,
+                            "covariance": "steady-state P (Lyapunov)"})
+
+
+def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
+    """The environment episode of a reproduction as one run of its ``.rrd`` (prefix
+    ``"episode"``), with its description; ``time_text`` says what ``t`` counts."""
+    return Run(trajectory(sample, scenario), "episode", (
+        f"# {ENV_ID} episode: filter {sample['filter']}, F = {sample['F']:g} (seed "
+        f"{sample['seed']})\n\nOne episode of the uncertain plant with the filter in the loop "
+        "(FilterInLoop), from x = xhat = 0: truth, estimate and the steady-state error "
+        "covariance P (Lyapunov) as the +-3 sigma band; what the figure's last panel shows. "
+        f"The Monte-Carlo statistics are separate runs, not logged. {time_text} The system "
+        "is dimensionless (no units)."))
+
+
+def findings_claims(findings: list[dict[str, Any]], paper: dict[str, str],
+                    why: dict[str, str] | None = None) -> list[Claim]:
+    """One :class:`Claim` per finding: the finding's ``label`` as the claim, ``paper[label]``
+    as the paper's value, its ``ours``, the verdict from its computed ``agree`` and
+    ``why.get(label, "")``."""
+    why = why or {}
+    return [Claim(f["label"], paper[f["label"]], f["ours"], Claim.judge(bool(f["agree"])),
+                  why.get(f["label"], "")) for f in findings]
+
+
+def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
+    """The best verified design of a search, compactly (``None`` if none was verified).
+
+    Returns
+    -------
+    dict or None
+        ``parameters``, ``start``, ``certified``, ``diag_Q2``, ``K``, ``G``, ``residuals``
+        (of the two equations), ``hinf_worst``, ``variance_worst``, ``pole_margin_worst``,
+        ``n_candidates``, ``n_solved``, ``n_certified``, ``n_verified``, ``evaluations``,
+        ``wall_s``.
+    """
+    best, ra, d = record.best, record.verification, record.design
+    if best is None or ra is None or d is None:
+        return None
+    cands = record.candidates
+    return {
+        "parameters": best.parameters, "start": best.start, "certified": best.certified,
+        "diag_Q2": np.diag(d.Q2).tolist(), "K": d.K.tolist(), "G": d.G.tolist(),
+        "residuals": [d.residual_1, d.residual_2],
+        "hinf_worst": ra.hinf_worst, "variance_worst": ra.variance_worst.tolist(),
+        "pole_margin_worst": ra.pole_margin_worst,
+        "n_candidates": len(cands), "n_solved": sum(c.solved for c in cands),
+        "n_certified": sum(c.certified for c in cands),
+        "n_verified": sum(c.verified for c in cands),
+        "evaluations": record.evaluations, "wall_s": record.wall_s,
+    }
+
+
+def search_text(summary: dict[str, Any] | None, record: dict[str, Any], *,
+                names: tuple[str, str], region: str, margin: str) -> str:
+    """The sentence of ``row()`` on the design search."""
+    n_opt = len(record["candidates"]) - 1  # candidate 0: the printed parameters as they are
+    if summary is None:
+        return (f"Design search ({n_opt} Nelder-Mead starts, {record['evaluations']} "
+                "evaluations): no candidate passed the verification")
+    prm = summary["parameters"]
+    keys = [k for k in prm if k.startswith(("eps", "delta"))]
+    H = np.array(prm["H"]).ravel()
+    return (f"Design search ({n_opt} Nelder-Mead starts from the printed values and random "
+            f"points, {record['evaluations']} evaluations): {summary['n_certified']} of "
+            f"{n_opt} optima certified by the theorem (diag {names[1]} <= sigma^2) and "
+            f"{summary['n_verified']} verified; best "
+            + ", ".join(f"{k} = {prm[k]:.3g}" for k in keys)
+            + f", H = [{', '.join(f'{h:.3g}' for h in H)}]^T, U = {prm['U'][0][0]:g}: diag "
+            f"{names[1]} = {_fmt(summary['diag_Q2'])}, K = {_fmt(np.ravel(summary['K']))}; "
+            f"verified for all |F| <= 1: worst ||H||inf = {summary['hinf_worst']:.3g}, worst "
+            f"variances {_fmt(summary['variance_worst'])}, poles {region} with margin "
+            f"{summary['pole_margin_worst']:.3g} ({margin})")
+
+
+def _fmt(v: Any) -> str:
+    return "[" + ", ".join(f"{float(x):.3g}" for x in v) + "]"
+
+
+def design_entry(d: VarianceDesign, plant: UncertainPlant, s: Any) -> dict[str, Any]:
+    """A design's JSON with its a-posteriori verification (``None`` when not solved)."""
+    out = d.to_dict()
+    out["verification"] = None
+    if d.solved:
+        out["verification"] = verify_design(plant, d.G, d.K, region=s.region, gamma=s.gamma,
+                                            sigma2=s.sigma2).to_dict()
+    return out
+
+
+def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegion,
+                gamma: float, sigma2: np.ndarray, sample: dict[str, Any], *, discrete: bool,
+                title: list[str], path: str | Path, extra: Any = None) -> None:
+    """The figure of a variance-constrained reproduction: :func:`plot_published`'s four
+    panels, the claims (``result["claims"]``) under them, ``title`` and the claims' summary
+    on top. ``extra(ax)`` (optional) draws more into the panels before their legends."""
+    from testbed.outputs.plots import new_figure, save_figure, set_title
+
+    claims_in = claims_height_in(result["claims"], wrap=140)
+    fig = new_figure(12, 12 + claims_in)
+    grid = fig.add_gridspec(3, 2, height_ratios=[5.6, 5.6, claims_in])
+    ax = np.array([[fig.add_subplot(grid[i, j]) for j in range(2)] for i in range(2)])
+    plot_published(ax, result, plant, region, gamma, sigma2, sample, discrete=discrete,
+                   extra=extra)
+    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
+    set_title(fig, [*title, agree_text(result["claims"])])
+    save_figure(fig, path)
+
+
+def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
+                   region: PoleRegion, gamma: float, sigma2: np.ndarray,
+                   sample: dict[str, Any], *, discrete: bool, extra: Any = None) -> None:
+    """Four panels: poles over F with the region, H-infinity norm over F, variances
+    (Lyapunov curve, Monte-Carlo points), one environment episode's error with +-2 sigma.
+
+    The filters are ``result["published"]`` and, if found, ``result["searched"]``. The
+    system is dimensionless; time is in s (continuous) or samples (discrete). Legends go
+    below the panels; ``extra(ax)`` draws more before them.
+    """
+    from testbed.outputs.plots import FONT_PT
+
+    Fs = np.linspace(-1.0, 1.0, 41)
+    markers = ["o", "s", "^"]
+    filters = result["published"] + ([result["searched"]] if result.get("searched") else [])
+    for i, pub in enumerate(filters):
+        G, K = np.array(pub["G"]), np.array(pub["K"])
+        lam = np.concatenate([np.linalg.eigvals(error_system(plant, G, K, F)[0]) for F in Fs])
+        ax[0, 0].plot(lam.real, lam.imag, markers[i % 3], ms=3, alpha=0.6, label=pub["name"])
+        ra = robust_filter_analysis(plant, G, K, region=region,
+                                    samples=[("grid", F) for F in Fs])
+        ax[0, 1].plot(Fs, ra.hinf, label=pub["name"])
+        for j in range(plant.n):
+            ax[1, 0].plot(Fs, ra.variances[:, j], label=f"{pub['name']}: var e{j + 1}")
+        for mc in result["monte_carlo"]:
+            if mc["filter"] == pub["name"]:
+                ax[1, 0].errorbar([mc["F"]] * plant.n, mc["variance_mc"],
+                                  yerr=[2 * e for e in mc["std_error"]], fmt="k.", ms=4,
+                                  label="Monte Carlo +-2 s.e." if i == 0 and mc["F"] == 1.0
+                                  else None)
+    if discrete:
+        th = np.linspace(0, 2 * np.pi, 200)
+        ax[0, 0].plot(np.cos(th), np.sin(th), "k", lw=0.8, label="unit circle")
+        ax[0, 0].set(xlabel="Re z", ylabel="Im z")
+    else:
+        a, b = region.a, region.b  # type: ignore[attr-defined]
+        im = np.linspace(-3, 3, 200)
+        ax[0, 0].plot(-a - b * im**2 / 2, im, "k", lw=0.8, label=f"P({a:g}, {b:g})")
+        disk = region.proof_disk()  # type: ignore[attr-defined]
+        th = np.linspace(0, 2 * np.pi, 200)
+        c = float(np.real(disk.center))
+        ax[0, 0].plot(c + disk.radius * np.cos(th), disk.radius * np.sin(th), "k:", lw=0.8,
+                      label="disk of proof (28)")
+        ax[0, 0].set(xlabel="Re s [1/s]", ylabel="Im s [1/s]")
+    ax[0, 0].set_title("poles of A_f + M_f F N_f, F in [-1, 1]")
+    ax[0, 1].axhline(gamma, color="k", lw=0.8, label=f"gamma = {gamma:g}")
+    ax[0, 1].set(title="||H||_inf from w to L e over F", xlabel="F (dimensionless)",
+                 ylabel="||H||_inf (dimensionless)", yscale="log")
+    for j, v in enumerate(sigma2):
+        ax[1, 0].axhline(v, color="k", ls="--", lw=0.8,
+                         label=f"sigma_i^2 = {[float(x) for x in sigma2]}" if j == 0 else None)
+    ax[1, 0].set(title="steady-state error variances (lines: Lyapunov; dots: Monte Carlo)",
+                 xlabel="F (dimensionless)", ylabel="error variance (dimensionless)",
+                 yscale="log")
+    t, e = sample["t"], sample["x"] - sample["xhat"]
+    sd = np.sqrt(np.diag(sample["P"]))
+    for j in range(e.shape[1]):
+        ax[1, 1].plot(t, e[:, j], lw=0.6, label=f"e{j + 1}")
+        ax[1, 1].axhline(2 * sd[j], color=f"C{j}", ls=":", lw=0.8,
+                         label=f"e{j + 1}: +-2 sigma (steady state)")
+        ax[1, 1].axhline(-2 * sd[j], color=f"C{j}", ls=":", lw=0.8)
+    ax[1, 1].set(title=f"estimation error, one {ENV_ID} episode: {sample['filter']}, "
+                       f"F = {sample['F']:g}",
+                 xlabel="k [samples]" if discrete else "t [s]",
+                 ylabel="e = x - xhat (dimensionless)")
+    if extra is not None:
+        extra(ax)
+    for a_ in ax.ravel():
+        a_.set_title(textwrap.fill(a_.get_title(), 60), fontsize=10)
+        a_.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2,
+                  frameon=False)
