@@ -512,7 +512,8 @@ def check_grid(scenario: Scenario, axes: list[tuple[str, list[float]]]) -> dict[
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """``testbed sweep``: one Monte-Carlo study per grid point."""
-    from testbed.experiment.runner import check_ray_address, sweep
+    from testbed.experiment.backend import check_ray_address
+    from testbed.experiment.runner import sweep
 
     scenario = scenario_from_args(args)
     grid = check_grid(scenario, args.grid)

@@ -27,7 +27,7 @@ from filters import (
 )
 from filters.kalman import MAX_AUTO_SUBSTEPS
 from testbed.cli import main
-from testbed.experiment.runner import RAY_CONNECT_TIMEOUT_S
+from testbed.experiment.backend import RAY_CONNECT_TIMEOUT_S
 from testbed.experiment.scenario import Scenario, ScenarioError
 from testbed.io import atomic_path, check_output_path, remove_stale_temporaries
 from testbed.sim.simulator import SimulationDiverged

@@ -1,4 +1,5 @@
-"""The MJCF files ship in the wheel and load from an installed copy."""
+"""The MJCF files of the top-level ``models/`` ship in the wheel (as ``testbed/models``) and
+load from an installed copy."""
 
 from __future__ import annotations
 
@@ -20,10 +21,10 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
                    capture_output=True)
     (wheel,) = wheel_dir.glob("testbed-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    xmls = sorted((ROOT / "testbed" / "rigs").rglob("*.xml"))
-    assert len(xmls) == 2
+    xmls = sorted((ROOT / "models").glob("*.xml"))
+    assert len(xmls) == 3  # helicopter, vehicle roll, the calibration plant
     for xml in xmls:
-        assert xml.relative_to(ROOT).as_posix() in names
+        assert f"testbed/models/{xml.name}" in names, xml
     for source in sorted((ROOT / "testbed").rglob("*.py")) + sorted(
             (ROOT / "filters").rglob("*.py")):
         assert source.relative_to(ROOT).as_posix() in names, source
@@ -34,6 +35,10 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
                     "--target", str(target), str(wheel)], check=True, capture_output=True)
     code = ("import importlib, pkgutil, testbed, filters, mujoco;"
             "from testbed.rigs.helicopter import HelicopterRig as H;"
+            "from testbed.rigs.vehicle_roll import VehicleRollRig as V;"
+            "from testbed.rigs.linear_plant.rig import LinearPlantRig as L;"
+            "assert all('site' in str(r.resolved_xml_path()) for r in (V, L));"
+            "[r() for r in (V, L)];"
             "[importlib.import_module(m.name) for pkg in (testbed, filters) for m in "
             "pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.')];"  # every module ships
             "p = H.resolved_xml_path(); assert 'site' in str(p), p;"
@@ -42,3 +47,13 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
                             capture_output=True, text=True,
                             env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin"})
     assert result.stdout.strip() == "2"
+
+
+def test_checkout_models_load_from_the_top_level_folder():
+    """From a checkout, the built-in rigs read ``models/*.xml`` (what ``python -m
+    mujoco.viewer --mjcf=models/vehicle_roll.xml`` opens)."""
+    from testbed.rigs import RIGS, resolve_rig
+    from testbed.rigs.linear_plant.rig import LinearPlantRig
+
+    for rig in [*(resolve_rig(name) for name in RIGS), LinearPlantRig]:
+        assert rig.resolved_xml_path().parent == ROOT / "models", rig

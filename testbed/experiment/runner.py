@@ -12,15 +12,11 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 import shutil
-import socket
 import time
 import zipfile
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +25,7 @@ from tqdm import tqdm
 
 from testbed import estimators
 from testbed.estimators.design import DesignModel
+from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.control import make_controller
 from testbed.experiment.loop import ClosedLoop, EstimatorStage
 from testbed.experiment.metrics import EpisodeMetrics
@@ -41,9 +38,6 @@ from testbed.sim import build_simulator
 
 #: Default number of trajectories stepped together by :func:`monte_carlo`.
 DEFAULT_BATCH_SIZE = 1000
-BACKENDS = ("local", "ray")
-#: Seconds :func:`sweep` waits for a Ray cluster at ``address`` to accept a connection.
-RAY_CONNECT_TIMEOUT_S = 10.0
 #: Keys of a result that measure time, not the estimator.
 TIMING_KEYS = ("wall_s", "traj_steps_per_s", "threads")
 
@@ -381,9 +375,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     envelope = None
     if envelope_points is not None:
         envelope = ErrorEnvelope(runs, n_steps, dt_s, state_names, envelope_points)
-    rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
-    meas: dict[str, list[np.ndarray]] = {}
-    per_run: dict[str, list] = {"nees": [], "T": [], "clipped": []}
+    gathered = RunMetrics(state_names)
     try:
         if save_npz is not None:
             shapes = {k: (runs, *s[1:])
@@ -399,13 +391,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
                 result = loop.run(seeds[start:start + size], scenario.duration_s,
                                   record=record, bar=bar,
                                   on_step=None if envelope is None else envelope.observer(start))
-                for k, v in result.metrics.rmse().items():
-                    rmse[k].append(v)
-                for k, v in result.metrics.measurement_rmse().items():
-                    meas.setdefault(k, []).append(v)
-                per_run["nees"].append(result.metrics.nees_mean())
-                per_run["T"].append(result.metrics.noise_output_ratio())
-                per_run["clipped"].append(result.clipped_fraction)
+                gathered.add(result)
     except BaseException:
         if stream is not None:
             stream.abort()
@@ -414,30 +400,16 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         for experiment in experiments.values():
             experiment.close()
     try:
-        rmse_all = {k: np.concatenate(v) for k, v in rmse.items()}
-        meas_all = {k: np.concatenate(v) for k, v in meas.items()}
-        nees = None if per_run["nees"][0] is None else np.concatenate(per_run["nees"])
-        T = None if per_run["T"][0] is None else np.concatenate(per_run["T"])
-        clipped = np.concatenate(per_run["clipped"])
+        per_run = gathered.arrays()
     except BaseException:
         if stream is not None:
             stream.abort()
         raise
     if stream is not None:
-        extra: dict[str, np.ndarray] = {
-            "t_s": np.arange(n_steps + 1) * dt_s, "seeds": seeds,
-            "state_names": np.array(state_names),
-            "measurement_names": np.array(first.loop.sim.sensors.names),
-            "rmse": np.stack([rmse_all[k] for k in state_names], axis=1),
-            "clipped_fraction": clipped}
-        if nees is not None:
-            extra["nees_mean"] = nees
-        if T is not None:
-            extra["T_final"] = T
-        stream.finish(extra)  # removes the temporaries whatever happens
+        stream.finish(_npz_extra(per_run, seeds, n_steps, dt_s, state_names,
+                                 list(first.loop.sim.sensors.names)))  # removes temporaries
     wall_s = time.perf_counter() - start_time
-    extra_keys = {} if envelope is None else {"error_envelope": envelope.result()}
-    return {
+    result = {
         "filter": scenario.describe()["estimator"],
         "runs": runs,
         "duration_s": n_steps * dt_s,
@@ -449,18 +421,81 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         "threads": first.loop.sim.physics.num_threads,
         "wall_s": wall_s,
         "traj_steps_per_s": runs * n_steps / wall_s,
-        "rmse": {k: _stats(v) for k, v in rmse_all.items()},
-        "rmse_per_run": {k: v.tolist() for k, v in rmse_all.items()},
-        "measurement_rmse": {k: _stats(v) for k, v in meas_all.items()},
-        "nees_mean": None if nees is None else float(np.mean(nees)),
-        "nees": None if nees is None else _stats(nees),
-        "T_final": None if T is None else _stats(T),
-        "clipped_fraction_mean": float(np.mean(clipped)),
+        **per_run_summary(per_run),
         "npz": None if save_npz is None else str(save_npz),
         "units": first.meta["units"],
         "meta": first.meta,
-        **extra_keys,
     }
+    if envelope is not None:
+        result["error_envelope"] = envelope.result()
+    return result
+
+
+class RunMetrics:
+    """Per-run metrics of a Monte-Carlo study, gathered batch by batch.
+
+    Parameters
+    ----------
+    state_names : list of str
+    """
+
+    def __init__(self, state_names: list[str]):
+        self.rmse: dict[str, list[np.ndarray]] = {k: [] for k in state_names}
+        self.measurement_rmse: dict[str, list[np.ndarray]] = {}
+        self.nees: list[np.ndarray | None] = []
+        self.T: list[np.ndarray | None] = []
+        self.clipped: list[np.ndarray] = []
+
+    def add(self, result: Any) -> None:
+        """The runs of one batch (a :meth:`ClosedLoop.run` result)."""
+        for k, v in result.metrics.rmse().items():
+            self.rmse[k].append(v)
+        for k, v in result.metrics.measurement_rmse().items():
+            self.measurement_rmse.setdefault(k, []).append(v)
+        self.nees.append(result.metrics.nees_mean())
+        self.T.append(result.metrics.noise_output_ratio())
+        self.clipped.append(result.clipped_fraction)
+
+    def arrays(self) -> dict[str, Any]:
+        """``rmse``/``measurement_rmse`` ``{name: (runs,)}``, ``nees``, ``T`` ((runs,) or
+        None when the estimator has no covariance / the rig no ratio), ``clipped`` (runs,)."""
+        def joined(parts: list) -> np.ndarray | None:
+            return None if not parts or parts[0] is None else np.concatenate(parts)
+
+        return {"rmse": {k: np.concatenate(v) for k, v in self.rmse.items()},
+                "measurement_rmse": {k: np.concatenate(v)
+                                     for k, v in self.measurement_rmse.items()},
+                "nees": joined(self.nees), "T": joined(self.T),
+                "clipped": np.concatenate(self.clipped)}
+
+
+def per_run_summary(per_run: dict[str, Any]) -> dict[str, Any]:
+    """The JSON summary of :meth:`RunMetrics.arrays`: mean and 5/95 % quantiles."""
+    nees, T = per_run["nees"], per_run["T"]
+    return {
+        "rmse": {k: _stats(v) for k, v in per_run["rmse"].items()},
+        "rmse_per_run": {k: v.tolist() for k, v in per_run["rmse"].items()},
+        "measurement_rmse": {k: _stats(v) for k, v in per_run["measurement_rmse"].items()},
+        "nees_mean": None if nees is None else float(np.mean(nees)),
+        "nees": None if nees is None else _stats(nees),
+        "T_final": None if T is None else _stats(T),
+        "clipped_fraction_mean": float(np.mean(per_run["clipped"])),
+    }
+
+
+def _npz_extra(per_run: dict[str, Any], seeds: np.ndarray, n_steps: int, dt_s: float,
+               state_names: list[str], measurement_names: list[str]) -> dict[str, np.ndarray]:
+    """The per-run metrics and names stored beside the trajectories of ``--save-npz``."""
+    extra: dict[str, np.ndarray] = {
+        "t_s": np.arange(n_steps + 1) * dt_s, "seeds": seeds,
+        "state_names": np.array(state_names), "measurement_names": np.array(measurement_names),
+        "rmse": np.stack([per_run["rmse"][k] for k in state_names], axis=1),
+        "clipped_fraction": per_run["clipped"]}
+    if per_run["nees"] is not None:
+        extra["nees_mean"] = per_run["nees"]
+    if per_run["T"] is not None:
+        extra["T_final"] = per_run["T"]
+    return extra
 
 
 # ---------------------------------------------------------------------------- sweeps
@@ -556,105 +591,18 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
     dict
         ``backend``, ``workers``, ``wall_s``, ``points`` (list of ``{"point", "result"}``).
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
-    if address is not None and backend != "ray":
-        raise ValueError("address is only used with backend='ray'")
-    if workers is not None and (isinstance(workers, bool) or int(workers) != workers
-                                or workers < 1):
-        raise ValueError(f"workers must be a positive integer, got {workers}")
-    if address is not None:
-        check_ray_address(address)
+    workers = check_backend(backend, workers, address)
     points = grid_points(grid)
-    workers = int(workers or os.cpu_count() or 1)
     scenarios = [point_scenario(scenario, p) for p in points]
     for s in scenarios:  # fail fast on a bad name or value, before any work starts
         build(s, 1, num_threads=1).close()
     start = time.perf_counter()
     bar = tqdm(total=len(points), desc=f"sweep ({backend})", unit="point", disable=not progress)
     with bar:
-        if backend == "local":
-            results = _run_local(scenarios, runs, workers, bar)
-        else:
-            results = _run_ray(scenarios, runs, workers, address, bar)
+        results = map_jobs(_run_point, [(s, runs) for s in scenarios], backend=backend,
+                           workers=workers, address=address, on_done=lambda _: bar.update())
     return {"backend": backend, "workers": workers, "wall_s": time.perf_counter() - start,
             "points": [{"point": p, "result": r} for p, r in zip(points, results, strict=True)]}
-
-
-def _run_local(scenarios: list[Scenario], runs: int, workers: int, bar: tqdm) -> list[dict]:
-    if workers == 1:
-        out = []
-        for s in scenarios:
-            out.append(_run_point(s, runs))
-            bar.update()
-        return out
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(_run_point, s, runs) for s in scenarios]
-        out = []
-        for future in futures:
-            out.append(future.result())
-            bar.update()
-        return out
-
-
-def check_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
-    """Check that a Ray cluster address accepts connections, within ``timeout_s`` seconds.
-
-    ``ray.init(address=...)`` retries an unreachable cluster for minutes; this TCP probe
-    fails fast instead. ``"auto"`` (the local cluster Ray finds itself) is not probed.
-
-    Parameters
-    ----------
-    address : str
-        ``host:port`` (the GCS port, 6379 by default), ``ray://host:port`` or ``"auto"``.
-    timeout_s : float
-
-    Raises
-    ------
-    ValueError
-        ``address`` is not of one of these forms.
-    ConnectionError
-        Nothing accepts a connection at ``host:port`` within ``timeout_s`` seconds.
-    """
-    if address == "auto":
-        return
-    target = address.split("://", 1)[1] if address.startswith("ray://") else address
-    host, sep, port = target.rpartition(":")
-    if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
-        raise ValueError(f"address must be 'host:port', 'ray://host:port' or 'auto', got "
-                         f"{address!r}")
-    try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
-            pass
-    except OSError as exc:
-        raise ConnectionError(f"no Ray cluster reachable at {address!r} within {timeout_s:g} s "
-                              f"({exc.strerror or exc}); start one with 'ray start --head' or "
-                              "leave the address unset for a local instance") from None
-
-
-def _run_ray(scenarios: list[Scenario], runs: int, workers: int, address: str | None,
-             bar: tqdm) -> list[dict]:
-    try:
-        import ray
-    except ImportError as exc:
-        raise ValueError("backend='ray' needs Ray: pip install -e '.[ray]'") from exc
-    started_here = not ray.is_initialized()
-    if started_here:
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-    try:
-        task = ray.remote(num_cpus=1)(_run_point)
-        refs = [task.remote(s, runs) for s in scenarios]
-        out = []
-        for ref in refs:
-            out.append(ray.get(ref))
-            bar.update()
-        return out
-    finally:
-        if started_here:
-            ray.shutdown()
 
 
 def without_timings(result: dict[str, Any]) -> dict[str, Any]:

@@ -22,11 +22,8 @@ asked for).
 from __future__ import annotations
 
 import copy
-import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -34,6 +31,7 @@ import numpy as np
 from filters import FilterError
 from testbed.estimators import EstimatorWrapper, PerMember
 from testbed.experiment import runner
+from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
 from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
@@ -43,7 +41,6 @@ from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
 REFERENCE = "kalman"
-BACKENDS = ("local", "ray")
 
 
 class Probe(EstimatorWrapper):
@@ -315,51 +312,12 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
 
     Results do not depend on the backend or the number of workers (apart from timings).
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
-    if workers is not None and (int(workers) != workers or workers < 1):
-        raise ValueError(f"workers must be a positive integer, got {workers}")
-    workers = int(workers or 1)
+    workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
     jobs = [(e, estimators, seed, worst_case, 1) for e in entries]
-    if backend == "local" and workers == 1:
-        out = []
-        for job in jobs:
-            out.append(_job(job))
-            if progress is not None:
-                progress(job[0].name)
-        return out
-    if backend == "local":
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
-                                 mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(_job, job) for job in jobs]
-            out = []
-            for job, future in zip(jobs, futures, strict=True):
-                out.append(future.result())
-                if progress is not None:
-                    progress(job[0].name)
-            return out
-    try:
-        import ray
-    except ImportError as exc:
-        raise ValueError("backend 'ray' needs Ray: pip install -e '.[ray]'") from exc
-    started = not ray.is_initialized()
-    if started:
-        ray.init(num_cpus=workers or os.cpu_count(), include_dashboard=False,
-                 log_to_driver=False)
-    try:
-        task = ray.remote(num_cpus=1)(_job)
-        refs = [task.remote(job) for job in jobs]
-        out = []
-        for job, ref in zip(jobs, refs, strict=True):
-            out.append(ray.get(ref))
-            if progress is not None:
-                progress(job[0].name)
-        return out
-    finally:
-        if started:
-            ray.shutdown()
+    return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
+                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name))
 
 
 @dataclass
