@@ -66,7 +66,7 @@ Misprints of the paper corrected here
 * The example's (26) and (28) contain ``-(1 - gamma^-2) P C^T C P`` only, i.e. (13) with
   ``L = C = [1 0]``; the example's output is ``z = x`` (``L = I``), for which (13) adds
   ``+gamma^-2 P e2 e2^T P``. Both are obtained from these classes by the ``L`` of the
-  model (see :mod:`testbed.reproductions.basin_polynomial_hinf.scenario`).
+  model (see :mod:`testbed.reproductions.basin_polynomial.scenario`).
 * (27) prints ``0.2 m^2 + (0.3 + 0.3 sin 50t) m^3`` for the linearized state equation:
   that is ``J(m) m`` (the Jacobian at the estimate times the estimate), not the system's
   ``f(m) = 0.1 m^2 + (0.1 + 0.1 sin 50t) m^3``; :class:`LinearizedHInfFilter` offers both

@@ -206,8 +206,8 @@ def bench_filters(calls: int, repeats: int) -> dict[str, float]:
     """Kalman (ours and filterpy's), mean-square and polynomial H-infinity steps."""
     from filterpy.kalman import KalmanFilter as FilterpyKF
 
-    from testbed.reproductions.basin_polynomial_hinf.scenario import PolynomialHinfScenario
-    from testbed.reproductions.basin_polynomial_hinf.scenario import paper_model as paper_poly_model
+    from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario
+    from testbed.reproductions.basin_polynomial.scenario import paper_model as paper_poly_model
     from testbed.rigs.helicopter import paper_model
 
     pm = paper_model()

@@ -31,7 +31,7 @@ _ENVS = {
     "testbed/Helicopter2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "helicopter"}),
     "testbed/VehicleRoll-v0": (_RIG, 1000, _RIG_VECTOR, {"rig": "vehicle-roll"}),
     "testbed/PolynomialCubic-v0": (
-        "testbed.reproductions.basin_polynomial_hinf.env:PolynomialCubicEnv", 1400),
+        "testbed.reproductions.basin_polynomial.env:PolynomialCubicEnv", 1400),
     "testbed/NonlinearDiscrete-v0": (
         "testbed.reproductions.zhang_lmi_hinf.env:NonlinearDiscreteEnv", 200),
     "testbed/UncertainLinear-v0": (

@@ -302,8 +302,7 @@ def test_plain_plants_stop_at_escape_with_finite_observations_and_rewards():
 
 
 def test_plant_simulation_raises_at_escape_instead_of_returning_nan():
-    from testbed.plants import nonlinear_discrete as plant
-
+    from testbed.reproductions.zhang_lmi_hinf import plant
     v, w = np.full(5, 10.0), np.zeros((2, 5))
     with pytest.raises(FiniteEscapeError) as info:
         plant.simulate(np.array([[1.0, 1.0], [9e5, 9e5]]), v, w)

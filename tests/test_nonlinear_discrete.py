@@ -9,11 +9,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from testbed.plants import nonlinear_discrete as plant
 
 import testbed  # noqa: F401  (registers the environments)
 from testbed.envs.wrappers import FilterInLoop
-from testbed.reproductions import zhang_nonlinear_discrete as rep
+from testbed.reproductions.zhang_lmi_hinf import nonlinear_discrete as rep
+from testbed.reproductions.zhang_lmi_hinf import plant
 from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
 
 
@@ -154,7 +154,7 @@ def test_filter_50_in_the_loop_equals_the_recursion():
         assert np.allclose(run["xhat"][k], xh)
         xh = plant.filter_step(xh, run["y"][k])
     env = NonlinearDiscreteEnv()
-    loop = FilterInLoop(env, rep.filter50(), output_matrix=plant.C_Z)
+    loop = FilterInLoop(env, plant.filter50(), output_matrix=plant.C_Z)
     loop.reset(seed=2)
     _, _, _, _, info = loop.step(np.zeros(1))
     assert info["covariance"] is None

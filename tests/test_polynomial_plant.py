@@ -15,9 +15,9 @@ import testbed  # noqa: F401  (registers the environments)
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
 from testbed.envs.wrappers import FilterInLoop
-from testbed.reproductions.basin_polynomial_hinf.env import PolynomialCubicEnv
-from testbed.reproductions.basin_polynomial_hinf.plant import PolynomialPlant
-from testbed.reproductions.basin_polynomial_hinf.scenario import PolynomialHinfScenario, paper_w
+from testbed.reproductions.basin_polynomial.env import PolynomialCubicEnv
+from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
+from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_w
 
 
 def paper_rhs(t, x):

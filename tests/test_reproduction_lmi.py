@@ -14,7 +14,7 @@ from filters.lmi_hinf import check_design, lmi_gamma_for_solution, minimal_gamma
 from testbed.cli import main
 from testbed.experiment import runner
 from testbed.experiment.scenario import Scenario
-from testbed.reproductions import zhang_lmi_hinf_vehicle_roll as rep
+from testbed.reproductions.zhang_lmi_hinf import vehicle_roll as rep
 from testbed.reproductions.zhang_lmi_hinf.scenario import (
     PAPER_K_HAT,
     PAPER_P1,

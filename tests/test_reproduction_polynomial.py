@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 from testbed.cli import main
 from testbed.reproductions import REPRODUCTIONS, load
-from testbed.reproductions import basin_polynomial_hinf as ph
+from testbed.reproductions.basin_polynomial import example as ph
 
 KEYS = {"T_poly", "T_linearized", "horizon", "escaped", "curve", "paper",
         "linearized_variant", "L_identity", "gamma"}
@@ -21,7 +21,7 @@ G = 1.05
 
 def test_registered():
     assert (REPRODUCTIONS["basin-polynomial-hinf"]
-            == "testbed.reproductions.basin_polynomial_hinf.example")
+            == "testbed.reproductions.basin_polynomial.example")
     assert load("basin-polynomial-hinf") is ph
 
 

@@ -12,9 +12,9 @@ import pytest
 from scipy.linalg import solve_continuous_lyapunov, solve_discrete_lyapunov
 
 from testbed.cli import main
-from testbed.reproductions import liu_variance_constrained_discrete as vd
 from testbed.reproductions import load
-from testbed.reproductions import wang_variance_constrained_parabolic as vc
+from testbed.reproductions.variance_constrained import liu_discrete as vd
+from testbed.reproductions.variance_constrained import wang_parabolic as vc
 from testbed.reproductions.variance_constrained.scenario_liu import (
     VarianceConstrainedDiscreteScenario,
 )

@@ -10,7 +10,7 @@ import pytest
 
 from testbed.cli import main
 from testbed.reproductions import REPRODUCTIONS, load, render_table
-from testbed.reproductions import basin_ms_hinf_helicopter as ms
+from testbed.reproductions.basin_ms_hinf import helicopter as ms
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
 
 KEYS = {"T_final", "T_max", "T_final_noisy", "T_max_noisy", "gamma", "final_error",
@@ -84,7 +84,9 @@ def test_names_follow_the_papers_and_are_documented():
     references = (Path(__file__).resolve().parents[1] / "docs" / "references.md").read_text()
     for name, module in REPRODUCTIONS.items():
         assert name.split("-")[0] in {"basin", "zhang", "wang", "liu"}  # first author
-        assert module == "testbed.reproductions." + name.replace("-", "_")
+        family = module.split(".")[2]  # one folder per filter family
+        assert module.startswith("testbed.reproductions.") and len(module.split(".")) == 4
+        assert set(family.split("_")) & set(name.split("-")), (name, family)
         assert f"`{name}`" in references
 
 

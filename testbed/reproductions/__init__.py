@@ -16,7 +16,7 @@ from typing import Any
 
 REPRODUCTIONS = {
     "basin-ms-hinf-helicopter": "testbed.reproductions.basin_ms_hinf.helicopter",
-    "basin-polynomial-hinf": "testbed.reproductions.basin_polynomial_hinf.example",
+    "basin-polynomial-hinf": "testbed.reproductions.basin_polynomial.example",
     "zhang-lmi-hinf-vehicle-roll": "testbed.reproductions.zhang_lmi_hinf.vehicle_roll",
     "zhang-nonlinear-discrete": "testbed.reproductions.zhang_lmi_hinf.nonlinear_discrete",
     "wang-variance-constrained-parabolic":

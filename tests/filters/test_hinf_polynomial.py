@@ -31,7 +31,7 @@ GAMMA = 1.05
 
 def paper_model(L):
     """(22)-(23) written out here (independently of
-    testbed.reproductions.basin_polynomial_hinf.scenario)."""
+    testbed.reproductions.basin_polynomial.scenario)."""
     a1 = np.array([[0.0, 1.0], [0.0, 0.0]])
     a2 = np.zeros((2, 2, 2))
     a2[1, 1, 1] = 0.1

@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from testbed.envs.common import action_array, check_seed, initial_state, reset_options
-from testbed.plants import nonlinear_discrete as plant
+from testbed.reproductions.zhang_lmi_hinf import plant
 
 RESET_OPTION_KEYS = ("x0",)
 #: Disturbance perturbation limit of the action (dimensionless).

@@ -35,10 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from filters.lmi_hinf import LMIHInfFilter
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.plants import nonlinear_discrete as plant
 from testbed.reproductions.outputs import (
     Claim,
     agree_text,
@@ -47,6 +45,7 @@ from testbed.reproductions.outputs import (
     draw_claims,
     write_outputs,
 )
+from testbed.reproductions.zhang_lmi_hinf import plant
 from testbed.reproductions.zhang_lmi_hinf.scenario import NonlinearDiscreteScenario
 
 NAME = "zhang-nonlinear-discrete"
@@ -55,14 +54,6 @@ NAME = "zhang-nonlinear-discrete"
 HJI_V_MAX = 10.0
 HJI_V_POINTS = 41
 HJI_WIDE_HALFWIDTH = 10.0
-
-
-def filter50(x0: np.ndarray | None = None) -> LMIHInfFilter:
-    """The filter (50) as an estimator: ``xhat+ = 0.5 xhat + 0.5 y``, ``zhat = 0.1 (xhat1 +
-    xhat2)``, ``xhat_0 = 0``; ``t_s`` counts steps."""
-    return LMIHInfFilter.from_state_space(plant.FILTER_F, plant.FILTER_G,
-                                          x0=np.zeros(2) if x0 is None else x0,
-                                          C_z=plant.C_Z, dt_s=1.0)
 
 
 def run_in_loop(x0: np.ndarray, steps: int, seed: int) -> dict[str, np.ndarray]:
@@ -78,7 +69,7 @@ def run_in_loop(x0: np.ndarray, steps: int, seed: int) -> dict[str, np.ndarray]:
     from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
 
     env = NonlinearDiscreteEnv()
-    est = filter50()
+    est = plant.filter50()
     loop = FilterInLoop(env, est, output_matrix=plant.C_Z)
     _, info = loop.reset(seed=seed, options={"x0": x0})
     est.prime(info["measurement"])

@@ -50,7 +50,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from filters import FiniteEscapeError
+from filters import FiniteEscapeError, LMIHInfFilter
 
 #: Filter (50): ``xhat+ = F xhat + G y``, ``zhat = C_Z xhat``.
 FILTER_F = 0.5 * np.eye(2)
@@ -116,14 +116,27 @@ def output(x: npt.ArrayLike) -> np.ndarray:
     return 0.1 * x1 + 0.1 * x2
 
 
+def filter50(x0: npt.ArrayLike | None = None) -> LMIHInfFilter:
+    """The filter (50) as the library's :class:`filters.LMIHInfFilter`: ``xhat+ = 0.5 xhat +
+    0.5 y``, ``zhat = 0.1 (xhat1 + xhat2)``, ``xhat_0 = 0``; ``t_s`` counts steps."""
+    return LMIHInfFilter.from_state_space(FILTER_F, FILTER_G,
+                                          x0=np.zeros(2) if x0 is None else x0,
+                                          C_z=C_Z, dt_s=1.0)
+
+
 def filter_step(xhat: npt.ArrayLike, y: npt.ArrayLike) -> np.ndarray:
-    """Filter (50): ``xhat_{k+1} = 0.5 xhat_k + 0.5 y_k``, shape ``(..., 2)``."""
-    return 0.5 * np.asarray(xhat, dtype=float) + 0.5 * np.asarray(y, dtype=float)
+    """The map of filter (50), ``xhat_{k+1} = F xhat_k + G y_k`` with the matrices of
+    :func:`filter50`, shape ``(..., 2)`` (for the pointwise HJI check on a grid)."""
+    return np.asarray(xhat, dtype=float) @ FILTER_F.T + np.asarray(y, dtype=float) @ FILTER_G.T
 
 
 def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
              xhat0: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run (49) and the filter (50) together over ``N`` steps for a batch of runs.
+
+    The filter is the library's :class:`filters.LMIHInfFilter` (:func:`filter50`), batched over
+    the runs: at step ``k`` it is given ``y_k`` (``prime``) and advanced (``step``), so
+    ``xhat_{k+1} = F xhat_k + G y_k`` as in the paper.
 
     Parameters
     ----------
@@ -165,6 +178,7 @@ def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
     if not np.all(np.abs(x[:, 0]) <= ESCAPE_BOUND):
         raise ValueError(f"x0 must be finite with |x0_i| <= {ESCAPE_BOUND:g}, got {x0!r}")
     xh[:, 0] = 0.0 if xhat0 is None else np.asarray(xhat0, dtype=float)
+    estimator = filter50(xh[:, 0])
     for k in range(n):
         y[:, k] = measure(x[:, k], np.full(runs, v[k]))
         with np.errstate(over="ignore", invalid="ignore"):
@@ -174,7 +188,8 @@ def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
             r = int(np.flatnonzero(escaped)[0])
             raise FiniteEscapeError(f"the state of run {r} escaped |x| <= {ESCAPE_BOUND:g}",
                                     time=float(k + 1), quantity="x", value=x[r, k + 1].copy())
-        xh[:, k + 1] = filter_step(xh[:, k], y[:, k])
+        estimator.prime(y[:, k])
+        xh[:, k + 1] = estimator.step(y[:, k])
     return x, xh, y
 
 

@@ -2,7 +2,7 @@
 filter for a cubic polynomial system (see docs/references.md).
 
 ``testbed reproduce basin-polynomial-hinf``. The plant is the paper's system (22)-(24)
-(:class:`~testbed.reproductions.basin_polynomial_hinf.scenario.PolynomialHinfScenario`), integrated
+(:class:`~testbed.reproductions.basin_polynomial.scenario.PolynomialHinfScenario`), integrated
 with
 RK4 on a ``dt_s`` grid (default 0.1 ms, far below the 0.126 s period of ``sin 50t``) with the
 printed L2 disturbance ``w1 = 1/(1+t)^2``, ``w2 = 2/(2+t)^2``; the filters get the interval
@@ -12,7 +12,7 @@ Filters (all from ``x_f(0) = 0``, ``P(0) = R^-1 = I``, ``gamma = 1.05``):
 
 - **poly**: :class:`~filters.hinf_polynomial.PolynomialHInfFilter`, Theorem 1. The main
   run uses the ``L`` for which (13) gives the printed (26) (``L = [1 0]``, see
-  :mod:`testbed.reproductions.basin_polynomial_hinf.scenario`); a test proves the implementation
+  :mod:`testbed.reproductions.basin_polynomial.scenario`); a test proves the implementation
   equals
   (25)-(26).
 - **linearized**: :class:`~filters.hinf_polynomial.LinearizedHInfFilter`, (27)-(28). The
@@ -50,7 +50,7 @@ from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.basin_polynomial_hinf.scenario import PolynomialHinfScenario, paper_model
+from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_model
 from testbed.reproductions.outputs import (
     Claim,
     agree_text,

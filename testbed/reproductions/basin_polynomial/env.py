@@ -18,8 +18,8 @@ from filters import real_array
 from filters.errors import FiniteEscapeError
 from filters.polynomial_model import EscapeTest
 from testbed.envs.common import action_array, check_seed, initial_state, reset_options
-from testbed.reproductions.basin_polynomial_hinf.plant import PolynomialPlant
-from testbed.reproductions.basin_polynomial_hinf.scenario import paper_model, paper_w
+from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
+from testbed.reproductions.basin_polynomial.scenario import paper_model, paper_w
 
 STATE_NAMES = ("x1", "x2")
 ACTION_LIMIT = 10.0
@@ -87,7 +87,7 @@ class PolynomialCubicEnv(gym.Env):
     ``y = x1 + w2``, ``z = x`` (eqs. (22)-(24); the input ``u`` is an extension, 0 gives the
     paper's system). The cubic term is positive: the state escapes in finite time (about
     1.78 s from the paper's ``x0 = [1, 1]`` with its disturbance). The model, for filters,
-    is :attr:`model` (:func:`testbed.reproductions.basin_polynomial_hinf.scenario.paper_model` with
+    is :attr:`model` (:func:`testbed.reproductions.basin_polynomial.scenario.paper_model` with
     ``E = [0, 1]^T``).
 
     ## Action space
