@@ -20,7 +20,7 @@ from testbed.reproductions.variance_constrained.scenario_liu import (
 from testbed.reproductions.variance_constrained.scenario_wang import (
     VarianceConstrainedContinuousScenario,
 )
-from testbed.reproductions.variance_constrained.wang_parabolic import sampled_error_covariance
+from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 
 #: The two named scenarios of the environment.
 CONTINUOUS, DISCRETE = "wang-variance-constrained-parabolic", "liu-variance-constrained-discrete"
