@@ -13,6 +13,7 @@ from filters.analysis import error_covariance, steady_state_covariance
 from filters.variance_constrained import LinearFilter
 from testbed.envs.wrappers import FilterInLoop
 from testbed.reproductions.variance_constrained.env import UncertainLinearEnv
+from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 from testbed.reproductions.variance_constrained.scenario_liu import (
     VarianceConstrainedDiscreteScenario,
@@ -20,7 +21,6 @@ from testbed.reproductions.variance_constrained.scenario_liu import (
 from testbed.reproductions.variance_constrained.scenario_wang import (
     VarianceConstrainedContinuousScenario,
 )
-from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 
 #: The two named scenarios of the environment.
 CONTINUOUS, DISCRETE = "wang-variance-constrained-parabolic", "liu-variance-constrained-discrete"
