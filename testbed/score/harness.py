@@ -36,6 +36,7 @@ from testbed.disturbances import SampledDisturbance
 from testbed.estimators import EstimatorWrapper, PerMember
 from testbed.rigs import resolve_rig
 from testbed.score import stats
+from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
 from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
 from testbed.simulator import SimulationDiverged
@@ -50,7 +51,8 @@ class Probe(EstimatorWrapper):
 
     ``innovation`` (N, m) and ``innovation_cov`` (N, m, m), when the estimator exposes both
     after a step (the optional members of the estimator protocol), give
-    ``NIS = nu^T S^-1 nu`` per member.
+    ``NIS = nu^T S^-1 nu`` per member and the whitened innovation ``L^-1 nu`` (``S = L L^T``)
+    for the whiteness test.
 
     Parameters
     ----------
@@ -64,16 +66,19 @@ class Probe(EstimatorWrapper):
         self.elapsed_ns = 0
         self.calls = 0
         self.nis: list[np.ndarray] = []
+        self.whitened: list[np.ndarray] = []
         self.nis_dim: int | None = None
         self.nis_missing = False
+        self.nis_error: str | None = None
 
     def reset(self, x0: Any, P0: Any) -> None:
         """Reset the inner estimator and the records."""
         self.inner.reset(x0, P0)
         self.elapsed_ns, self.calls, self.nis, self.nis_missing = 0, 0, [], False
+        self.whitened, self.nis_error = [], None
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """Step the inner estimator (timed), then record its NIS."""
+        """Step the inner estimator (timed), then record its NIS and whitened innovation."""
         start = time.perf_counter_ns()
         x = self.inner.step(y, u)
         self.elapsed_ns += time.perf_counter_ns() - start
@@ -85,7 +90,15 @@ class Probe(EstimatorWrapper):
         elif not self.nis_missing:
             nu = np.asarray(nu, dtype=float).reshape(len(x), -1)
             S = np.broadcast_to(np.asarray(S, dtype=float), (*nu.shape, nu.shape[1]))
-            self.nis.append(np.sum(nu * np.linalg.solve(S, nu[..., None])[..., 0], axis=-1))
+            try:
+                z = whiten(nu, S)
+            except np.linalg.LinAlgError:
+                self.nis_missing = True
+                self.nis_error = (f"innovation covariance not positive definite at step "
+                                  f"{self.calls}: NIS and whiteness not computed")
+                return x
+            self.whitened.append(z)
+            self.nis.append(np.sum(z * z, axis=-1))
             self.nis_dim = nu.shape[1]
         return x
 
@@ -103,6 +116,7 @@ class PairResult:
     nees: np.ndarray | None = None
     nis: np.ndarray | None = None
     nis_dim: int | None = None
+    innovations: np.ndarray | None = None
     step_us: float | None = None
     certified_gamma: float | None = None
     worst: Any = None
@@ -218,6 +232,9 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
                 out.notes.append(str(err))
         if probe.nis and not probe.nis_missing:
             out.nis, out.nis_dim = np.stack(probe.nis, axis=1), probe.nis_dim
+            out.innovations = np.stack(probe.whitened, axis=1)
+        if probe.nis_error:
+            out.notes.append(probe.nis_error)
         out.step_us = probe.elapsed_ns / 1e3 / max(probe.calls * entry.runs, 1)
         design_meta = experiment.meta.get("design") or {}
         gamma = design_meta.get("gamma")
@@ -298,26 +315,30 @@ def _held(values: np.ndarray, length: int) -> np.ndarray:
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
-                worst_case: bool = True, num_threads: int | None = None
-                ) -> dict[str, PairResult]:
-    """Every estimator (and the Kalman reference) on one entry; keys: estimator names."""
+                worst_case: bool = True, num_threads: int | None = None,
+                reference: Any = REFERENCE) -> dict[str, PairResult]:
+    """Every estimator, the Kalman timing reference and the comparison ``reference`` on one
+    entry; keys: estimator names."""
     names = [_name(e) for e in estimators]
     todo = list(zip(names, estimators, strict=True))
-    if REFERENCE not in names:
-        todo.append((REFERENCE, REFERENCE))
+    for extra in (REFERENCE, reference):
+        if _name(extra) not in [name for name, _ in todo]:
+            todo.append((_name(extra), extra))
     return {name: score_pair(entry, est, seed, worst_case=worst_case and name in names,
                              num_threads=num_threads)
             for name, est in todo}
 
 
 def _job(args: tuple) -> dict[str, PairResult]:
-    entry, estimators, seed, worst_case, num_threads = args
-    return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads)
+    entry, estimators, seed, worst_case, num_threads, reference = args
+    return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads,
+                       reference=reference)
 
 
 def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
                 backend: str = "local", workers: int | None = None,
-                worst_case: bool = True, progress: Any = None) -> list[dict[str, PairResult]]:
+                worst_case: bool = True, progress: Any = None,
+                reference: Any = REFERENCE) -> list[dict[str, PairResult]]:
     """:func:`score_entry` for every entry, locally (``workers`` processes) or on Ray.
 
     Results do not depend on the backend or the number of workers (apart from timings).
@@ -329,7 +350,7 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
     workers = int(workers or 1)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
-    jobs = [(e, estimators, seed, worst_case, 1) for e in entries]
+    jobs = [(e, estimators, seed, worst_case, 1, reference) for e in entries]
     if backend == "local" and workers == 1:
         out = []
         for job in jobs:
@@ -380,8 +401,11 @@ class ScoreRun:
     estimators : list of str
     entries : list of SuiteEntry
     pairs : list of dict of str to PairResult
-        Per entry, per estimator name (the Kalman reference included).
+        Per entry, per estimator name (the Kalman timing reference and the comparison
+        reference included).
     wall_s : float
+    reference : str
+        The estimator the others are compared with (paired, on common random numbers).
     """
 
     suite: str
@@ -390,12 +414,13 @@ class ScoreRun:
     entries: list[SuiteEntry]
     pairs: list[dict[str, PairResult]]
     wall_s: float
+    reference: str = REFERENCE
 
 
 def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
           runs: int | None = None, scenarios: list[str] | None = None,
           backend: str = "local", workers: int | None = None, worst_case: bool = True,
-          progress: Any = None) -> ScoreRun:
+          progress: Any = None, reference: Any = REFERENCE) -> ScoreRun:
     """Score estimators on a suite (see the module docstring).
 
     Parameters
@@ -415,6 +440,9 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
     worst_case : bool
         Run the worst-case searches.
     progress : callable ``entry name -> None``, optional
+    reference : str or callable
+        The estimator every other one is compared with (default ``"kalman"``); run on every
+        entry, reported only when it is among ``estimators``.
 
     Raises
     ------
@@ -429,7 +457,7 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
     names = [_name(e) for e in estimators]
     if len(set(names)) != len(names):
         raise ValueError(f"estimators must be distinct, got {names}")
-    for est in estimators:
+    for est in [*estimators, reference]:
         resolve(est)  # unknown names and import paths fail here, naming them
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -447,6 +475,8 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
         entries = [e.replace(runs=int(runs)) for e in entries]
     start = time.perf_counter()
     pairs = run_entries(entries, list(estimators), int(seed), backend=backend,
-                        workers=workers, worst_case=worst_case, progress=progress)
+                        workers=workers, worst_case=worst_case, progress=progress,
+                        reference=reference)
     return ScoreRun(suite=suite, seed=int(seed), estimators=names, entries=entries,
-                    pairs=pairs, wall_s=time.perf_counter() - start)
+                    pairs=pairs, wall_s=time.perf_counter() - start,
+                    reference=_name(reference))
