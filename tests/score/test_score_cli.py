@@ -50,7 +50,8 @@ def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
     code = main(["score", "--estimator", "kalman", "--estimator", "fixed_gain:make",
                  "--suite", "quick", "--scenario", "calibration", "--runs", "3",
                  "--reference", "kalman-bucy", "--json", str(out / "s.json"),
-                 "--markdown", str(out / "s.md"), "--plot", str(out / "s.png"), "--rrd", str(out / "s.rrd")])
+                 "--markdown", str(out / "s.md"), "--plot", str(out / "s.png"),
+                 "--rrd", str(out / "s.rrd")])
     assert code == 0
     data = json.loads((out / "s.json").read_text())
     assert data["estimators"] == ["kalman", "fixed_gain:make"]
