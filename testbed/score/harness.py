@@ -10,12 +10,15 @@ Per entry (one job; jobs run locally, in processes or on Ray) and estimator:
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the
    same for every estimator and entry), the true initial states drawn from the design prior
    when the entry asks, the estimator wrapped in a :class:`Probe` (step time, innovations);
-3. RMSE, NEES, NIS from the recorded trajectories (:mod:`testbed.score.stats`);
+3. RMSE, NEES, NIS and the whitened innovations from the recorded trajectories
+   (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
+   :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
 4. the worst-case search (:mod:`testbed.score.worst_case`) on a second loop of a few members
    whose estimator is a copy of the first.
 
-The built-in Kalman filter runs on every entry as the timing reference (reported only when
-asked for).
+The built-in Kalman filter runs on every entry as the timing reference, and the comparison
+reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
+when asked for).
 """
 
 from __future__ import annotations

@@ -4,7 +4,9 @@ A :class:`SuiteEntry` is a :class:`~testbed.scenario.Scenario` (its ``estimator`
 ignored: the harness runs every estimator on it) plus what scoring needs: runs, the rig
 profile, the entry it mismatches, whether the initial state is drawn from the design prior,
 and the worst-case search settings. ``standard`` holds every entry; ``quick`` a subset with
-fewer runs and shorter horizons (under a minute on two cores).
+fewer runs and shorter horizons (under a minute on two cores). Each suite has a version
+(:data:`SUITE_VERSIONS`) and a content hash of its definitions (:func:`suite_hash`), written
+in every score output.
 
 Profiles: an entry names the rig profile it needs (``"paper"``: the papers' idealizations,
 today's rigs; ``"hardware"``). It runs when the profile is available, detected at run time
