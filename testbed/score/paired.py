@@ -112,11 +112,11 @@ def compare_family(per_run: dict[str, np.ndarray], reference: np.ndarray,
     return out
 
 
-def comparison_text(comparison: dict[str, Any]) -> str:
-    """``"<verdict>: d = <mean> [<ci>], ratio <r> [<ci>], p_holm <p>"``."""
+def comparison_text(comparison: dict[str, Any], unit: str = "") -> str:
+    """``"<verdict>: d = <mean> [<ci>] <unit>, ratio <r> [<ci>], p_holm <p>"``."""
     lo, hi = comparison["difference_ci"]
     text = (f"{comparison['verdict']}: d = {comparison['mean_difference']:.3g} "
-            f"[{lo:.3g}, {hi:.3g}]")
+            f"[{lo:.3g}, {hi:.3g}]{' ' + unit if unit else ''}")
     if comparison["ratio"] is not None:
         rlo, rhi = comparison["ratio_ci"]
         text += f", ratio {comparison['ratio']:.4g} [{rlo:.4g}, {rhi:.4g}]"

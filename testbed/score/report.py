@@ -170,7 +170,14 @@ def _consistency_text(res: dict[str, Any]) -> str:
     return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] {verdict}"
 
 
-def _details(group: list[dict[str, Any]]) -> list[str]:
+def _squared(unit: str) -> str:
+    """The unit of a mean-square error (SI): ``m`` -> ``m^2``, ``m/s`` -> ``(m/s)^2``."""
+    if not unit:
+        return ""
+    return f"{unit}^2" if unit.isalnum() else f"({unit})^2"
+
+
+def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
     """Per estimator of one scenario: the NEES and NIS tests, the whiteness of the
     innovations and the paired comparison with the reference, one line each."""
     lines = []
@@ -190,7 +197,8 @@ def _details(group: list[dict[str, Any]]) -> list[str]:
                          f"standardized autocorrelation at lags {zs})")
         versus = res["versus_reference"]
         if versus is not None:
-            parts = [f"{state} {comparison_text(c)}" for state, c in versus["states"].items()]
+            parts = [f"{state} {comparison_text(c, _squared(units.get(state, '')))}"
+                     for state, c in versus["states"].items()]
             lines.append(f"{name} vs {versus['reference']} (MSE difference per run, 95 % "
                          f"CI): {'; '.join(parts)}")
     return lines
@@ -244,7 +252,7 @@ def leaderboard(summary: dict[str, Any]) -> str:
             lines.append(f"  {res['estimator']:<16}{_rmse_text(res, units, states):<44}"
                          f"{_consistency_text(res):<32}{_fmt(res['anis']):>7}  "
                          f"{_gain_text(res):<30}{cost:<18}{_mismatch_text(res):<16}")
-        lines += [f"  {line}" for line in _details(group)]
+        lines += [f"  {line}" for line in _details(group, units)]
     return "\n".join(lines)
 
 
@@ -291,7 +299,7 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
                        f"{_consistency_text(res)} | {anis} | {_gain_text(res)} | {cost} | "
                        f"{_mismatch_text(res)} | |")
         out.append("")
-        details = _details(group)
+        details = _details(group, units)
         if details:
             out += [f"- {line}" for line in details] + [""]
     if remarks:
