@@ -253,6 +253,8 @@ def _add_score_parser(sub: Any) -> None:
     sc.add_argument("--runs", type=_positive_int, default=None,
                     help="override the runs of every entry")
     sc.add_argument("--seed", type=_seed, default=0)
+    sc.add_argument("--reference", default="kalman", metavar="NAME_OR_MODULE:FACTORY",
+                    help="estimator the others are compared with, paired (default kalman)")
     sc.add_argument("--no-worst-case", action="store_true", help="skip the worst-case search")
     sc.add_argument("--backend", default="local", choices=("local", "ray"))
     sc.add_argument("--workers", type=_positive_int, default=None,
@@ -580,9 +582,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_score(args: argparse.Namespace) -> int:
     """``testbed score``: estimators on a scenario suite, leaderboard and output files."""
     from testbed.score import harness, report
-    from testbed.score.suite import describe_suite
+    from testbed.score.suite import describe_suite, suite_identity
 
     if args.list:
+        identity = suite_identity(args.suite)
+        print(f"suite {identity['suite']} version {identity['version']} sha256 "
+              f"{identity['hash']}")
         for entry in describe_suite(args.suite):
             status = f"skipped: {entry['skipped']}" if entry["skipped"] else \
                 f"{entry['runs']} runs"
@@ -597,7 +602,7 @@ def cmd_score(args: argparse.Namespace) -> int:
             raise ValueError(f"--{flag} needs a file path")
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
-                        worst_case=not args.no_worst_case,
+                        worst_case=not args.no_worst_case, reference=args.reference,
                         progress=lambda name: print(f"  scored {name}", file=sys.stderr))
     summary = report.results(run)
     remarks = report.notes(run)

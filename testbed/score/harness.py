@@ -11,12 +11,15 @@ factory
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the
    same for every estimator and entry), the true initial states drawn from the design prior
    when the entry asks, the estimator wrapped in a :class:`Probe` (step time, innovations);
-3. RMSE, NEES, NIS from the recorded trajectories (:mod:`testbed.score.stats`);
+3. RMSE, NEES, NIS and the whitened innovations from the recorded trajectories
+   (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
+   :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
 4. the worst-case search (:mod:`testbed.score.worst_case`) on a second loop of a few members
    whose estimator is a copy of the first.
 
-The built-in Kalman filter runs on every entry as the timing reference (reported only when
-asked for).
+The built-in Kalman filter runs on every entry as the timing reference, and the comparison
+reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
+when asked for).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
 from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
+from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
 from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
 from testbed.sim.simulator import SimulationDiverged
@@ -48,7 +52,8 @@ class Probe(EstimatorWrapper):
 
     ``innovation`` (N, m) and ``innovation_cov`` (N, m, m), when the estimator exposes both
     after a step (the optional members of the estimator protocol), give
-    ``NIS = nu^T S^-1 nu`` per member.
+    ``NIS = nu^T S^-1 nu`` per member and the whitened innovation ``L^-1 nu`` (``S = L L^T``)
+    for the whiteness test.
 
     Parameters
     ----------
@@ -62,16 +67,19 @@ class Probe(EstimatorWrapper):
         self.elapsed_ns = 0
         self.calls = 0
         self.nis: list[np.ndarray] = []
+        self.whitened: list[np.ndarray] = []
         self.nis_dim: int | None = None
         self.nis_missing = False
+        self.nis_error: str | None = None
 
     def reset(self, x0: Any, P0: Any) -> None:
         """Reset the inner estimator and the records."""
         self.inner.reset(x0, P0)
         self.elapsed_ns, self.calls, self.nis, self.nis_missing = 0, 0, [], False
+        self.whitened, self.nis_error = [], None
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """Step the inner estimator (timed), then record its NIS."""
+        """Step the inner estimator (timed), then record its NIS and whitened innovation."""
         start = time.perf_counter_ns()
         x = self.inner.step(y, u)
         self.elapsed_ns += time.perf_counter_ns() - start
@@ -83,7 +91,15 @@ class Probe(EstimatorWrapper):
         elif not self.nis_missing:
             nu = np.asarray(nu, dtype=float).reshape(len(x), -1)
             S = np.broadcast_to(np.asarray(S, dtype=float), (*nu.shape, nu.shape[1]))
-            self.nis.append(np.sum(nu * np.linalg.solve(S, nu[..., None])[..., 0], axis=-1))
+            try:
+                z = whiten(nu, S)
+            except np.linalg.LinAlgError:
+                self.nis_missing = True
+                self.nis_error = (f"innovation covariance not positive definite at step "
+                                  f"{self.calls}: NIS and whiteness not computed")
+                return x
+            self.whitened.append(z)
+            self.nis.append(np.sum(z * z, axis=-1))
             self.nis_dim = nu.shape[1]
         return x
 
@@ -101,6 +117,7 @@ class PairResult:
     nees: np.ndarray | None = None
     nis: np.ndarray | None = None
     nis_dim: int | None = None
+    innovations: np.ndarray | None = None
     step_us: float | None = None
     certified_gamma: float | None = None
     worst: Any = None
@@ -140,11 +157,19 @@ def _sampled(entry: SuiteEntry, scenario, num: int, steps: int,
     return SampledDisturbance(G, tiled, dt_s, b=b, n_positions=len(rig.joints))
 
 
+#: Spawn key of the stream the true initial states are drawn from: ``default_rng([seed,
+#: PRIOR_STREAM])``. Not ``default_rng(seed)``: that is the simulator's own noise stream of the
+#: run (``gymnasium.utils.seeding.np_random(seed)``), so the initial state would equal a
+#: multiple of the first process and measurement noise draws, and the first steps' NEES of
+#: the Kalman filter would be far above its band (3.1 at step 1 for n = 2).
+PRIOR_STREAM = 17
+
+
 def _trajectory_x0(entry: SuiteEntry, design: Any, seeds: np.ndarray) -> Any:
     if not entry.x0_from_prior:
         return None
-    return [{"x0": np.random.default_rng(int(s)).multivariate_normal(design.x0, design.P0)}
-            for s in seeds]
+    return [{"x0": np.random.default_rng([int(s), PRIOR_STREAM]).multivariate_normal(
+        design.x0, design.P0)} for s in seeds]
 
 
 def _unwrap(estimator: Any) -> Any:
@@ -208,6 +233,9 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
                 out.notes.append(str(err))
         if probe.nis and not probe.nis_missing:
             out.nis, out.nis_dim = np.stack(probe.nis, axis=1), probe.nis_dim
+            out.innovations = np.stack(probe.whitened, axis=1)
+        if probe.nis_error:
+            out.notes.append(probe.nis_error)
         out.step_us = probe.elapsed_ns / 1e3 / max(probe.calls * entry.runs, 1)
         design_meta = experiment.meta.get("design") or {}
         gamma = design_meta.get("gamma")
@@ -288,26 +316,30 @@ def _held(values: np.ndarray, length: int) -> np.ndarray:
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
-                worst_case: bool = True, num_threads: int | None = None
-                ) -> dict[str, PairResult]:
-    """Every estimator (and the Kalman reference) on one entry; keys: estimator names."""
+                worst_case: bool = True, num_threads: int | None = None,
+                reference: Any = REFERENCE) -> dict[str, PairResult]:
+    """Every estimator, the Kalman timing reference and the comparison ``reference`` on one
+    entry; keys: estimator names."""
     names = [_name(e) for e in estimators]
     todo = list(zip(names, estimators, strict=True))
-    if REFERENCE not in names:
-        todo.append((REFERENCE, REFERENCE))
+    for extra in (REFERENCE, reference):
+        if _name(extra) not in [name for name, _ in todo]:
+            todo.append((_name(extra), extra))
     return {name: score_pair(entry, est, seed, worst_case=worst_case and name in names,
                              num_threads=num_threads)
             for name, est in todo}
 
 
 def _job(args: tuple) -> dict[str, PairResult]:
-    entry, estimators, seed, worst_case, num_threads = args
-    return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads)
+    entry, estimators, seed, worst_case, num_threads, reference = args
+    return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads,
+                       reference=reference)
 
 
 def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
                 backend: str = "local", workers: int | None = None,
-                worst_case: bool = True, progress: Any = None) -> list[dict[str, PairResult]]:
+                worst_case: bool = True, progress: Any = None,
+                reference: Any = REFERENCE) -> list[dict[str, PairResult]]:
     """:func:`score_entry` for every entry, locally (``workers`` processes) or on Ray.
 
     Results do not depend on the backend or the number of workers (apart from timings).
@@ -315,7 +347,7 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
-    jobs = [(e, estimators, seed, worst_case, 1) for e in entries]
+    jobs = [(e, estimators, seed, worst_case, 1, reference) for e in entries]
     return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
                     on_done=None if progress is None else lambda i: progress(jobs[i][0].name))
 
@@ -331,8 +363,11 @@ class ScoreRun:
     estimators : list of str
     entries : list of SuiteEntry
     pairs : list of dict of str to PairResult
-        Per entry, per estimator name (the Kalman reference included).
+        Per entry, per estimator name (the Kalman timing reference and the comparison
+        reference included).
     wall_s : float
+    reference : str
+        The estimator the others are compared with (paired, on common random numbers).
     """
 
     suite: str
@@ -341,12 +376,13 @@ class ScoreRun:
     entries: list[SuiteEntry]
     pairs: list[dict[str, PairResult]]
     wall_s: float
+    reference: str = REFERENCE
 
 
 def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
           runs: int | None = None, scenarios: list[str] | None = None,
           backend: str = "local", workers: int | None = None, worst_case: bool = True,
-          progress: Any = None) -> ScoreRun:
+          progress: Any = None, reference: Any = REFERENCE) -> ScoreRun:
     """Score estimators on a suite (see the module docstring).
 
     Parameters
@@ -366,6 +402,9 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
     worst_case : bool
         Run the worst-case searches.
     progress : callable ``entry name -> None``, optional
+    reference : str or callable
+        The estimator every other one is compared with (default ``"kalman"``); run on every
+        entry, reported only when it is among ``estimators``.
 
     Raises
     ------
@@ -380,7 +419,7 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
     names = [_name(e) for e in estimators]
     if len(set(names)) != len(names):
         raise ValueError(f"estimators must be distinct, got {names}")
-    for est in estimators:
+    for est in [*estimators, reference]:
         resolve(est)  # unknown names and import paths fail here, naming them
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -398,6 +437,8 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
         entries = [e.replace(runs=int(runs)) for e in entries]
     start = time.perf_counter()
     pairs = run_entries(entries, list(estimators), int(seed), backend=backend,
-                        workers=workers, worst_case=worst_case, progress=progress)
+                        workers=workers, worst_case=worst_case, progress=progress,
+                        reference=reference)
     return ScoreRun(suite=suite, seed=int(seed), estimators=names, entries=entries,
-                    pairs=pairs, wall_s=time.perf_counter() - start)
+                    pairs=pairs, wall_s=time.perf_counter() - start,
+                    reference=_name(reference))

@@ -1,9 +1,14 @@
 """Outputs of a score: the JSON results, a terminal leaderboard, Markdown, a PNG and a
 comparison Rerun recording.
 
-JSON (:func:`results`): top level ``suite``, ``seed``, ``estimators``, ``scenarios`` (the
-entries' descriptions), ``units``, ``wall_s`` and ``results``, one entry per estimator and
-scenario with exactly the keys of :data:`RESULT_KEYS`. Gains are in the output's unit per
+JSON (:func:`results`): top level ``suite``, ``suite_version``, ``suite_hash``, ``seed``,
+``level``, ``reference``, ``estimators``, ``scenarios`` (the entries' descriptions),
+``units``, ``wall_s`` and ``results``, one entry per estimator and scenario with exactly the
+keys of :data:`RESULT_KEYS`. ``nees_test``/``nis_test`` are
+:func:`testbed.score.consistency.consistency_test` (with the per-step curve),
+``whiteness`` :func:`~testbed.score.consistency.whiteness_test` and ``versus_reference``
+the paired comparison of each state's per-run MSE with the reference's
+(:mod:`testbed.score.paired`, Holm over the estimators compared). Gains are in the output's unit per
 unit of the scenario's ``w``; RMSE in the states' units (SI; the leaderboard, the Markdown
 and the PNG show angles in degrees).
 """
@@ -19,13 +24,15 @@ import numpy as np
 from testbed.io import atomic_path, write_json
 from testbed.outputs.units import display
 from testbed.score import stats
+from testbed.score.consistency import consistency_test, verdict_text, whiteness_test
 from testbed.score.harness import REFERENCE, PairResult, ScoreRun
+from testbed.score.paired import compare_family, comparison_text
 
 #: Keys of every entry of ``results`` (the issue's JSON contract).
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
                "consistent", "anis", "anis_bounds", "worst_case_gain", "random_gain",
                "certified_gamma", "step_us", "step_vs_kalman", "mismatch_rmse_ratio",
-               "skipped")
+               "nees_test", "nis_test", "whiteness", "versus_reference", "skipped")
 
 
 def _entry_result(pair: PairResult, reference: PairResult | None,
@@ -40,11 +47,14 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
         rmse[name], ci[name] = stats.rmse_ci(values)
     out["rmse"], out["rmse_ci95"] = rmse, {k: list(v) for k, v in ci.items()}
     if pair.nees is not None:
-        anees, bounds, ok = stats.consistency(pair.nees, len(pair.state_names))
-        out.update(anees=anees, anees_bounds=list(bounds), consistent=ok)
+        test = consistency_test(pair.nees, len(pair.state_names))
+        out.update(anees=test["mean"], anees_bounds=test["band"],
+                   consistent=test["verdict"] == "consistent", nees_test=test)
     if pair.nis is not None:
-        anis, bounds, _ = stats.consistency(pair.nis, pair.nis_dim)
-        out.update(anis=anis, anis_bounds=list(bounds))
+        test = consistency_test(pair.nis, pair.nis_dim)
+        out.update(anis=test["mean"], anis_bounds=test["band"], nis_test=test)
+    if pair.innovations is not None:
+        out["whiteness"] = whiteness_test(pair.innovations)
     if pair.worst is not None:
         out.update(worst_case_gain=pair.worst.worst_case_gain,
                    random_gain=pair.worst.random_gain)
@@ -59,23 +69,53 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
     return out
 
 
+def comparisons(pairs: dict[str, PairResult], estimators: list[str], reference: str,
+                level: float = stats.LEVEL) -> dict[str, dict[str, Any]]:
+    """Paired comparisons of one entry: estimator name to ``{"reference", "states"}`` with,
+    per state, :func:`testbed.score.paired.compare_family` of the per-run MSE (Holm over the
+    estimators compared on that state). Estimators skipped, the reference itself, and all
+    when the reference was skipped, are left out."""
+    ref = pairs.get(reference)
+    if ref is None or ref.skipped:
+        return {}
+    names = [n for n in estimators if n != reference and not pairs[n].skipped]
+    out: dict[str, dict[str, Any]] = {n: {"reference": reference, "loss": "per-run MSE",
+                                          "states": {}} for n in names}
+    for state, ref_rmse in ref.rmse_per_run.items():
+        family = {n: pairs[n].rmse_per_run[state] ** 2 for n in names
+                  if state in pairs[n].rmse_per_run}
+        if not family:
+            continue
+        for n, comparison in compare_family(family, ref_rmse**2, level).items():
+            out[n]["states"][state] = comparison
+    return out
+
+
 def results(run: ScoreRun) -> dict[str, Any]:
     """The JSON document of a score (see the module docstring)."""
+    from testbed.score.suite import suite_identity
+
     by_name = {e.name: pairs for e, pairs in zip(run.entries, run.pairs, strict=True)}
+    reference = getattr(run, "reference", REFERENCE)
     entries_out, units = [], {}
     for entry, pairs in zip(run.entries, run.pairs, strict=True):
         nominal_pairs = by_name.get(entry.nominal) if entry.nominal else None
+        versus = comparisons(pairs, run.estimators, reference)
         for name in run.estimators:
             pair = pairs[name]
             units.update(pair.units)
-            entries_out.append(_entry_result(
-                pair, pairs.get(REFERENCE),
-                None if nominal_pairs is None else nominal_pairs.get(name)))
+            res = _entry_result(pair, pairs.get(REFERENCE),
+                                None if nominal_pairs is None else nominal_pairs.get(name))
+            res["versus_reference"] = versus.get(name)
+            entries_out.append(res)
     units.update({"rmse": "state units", "step_us": "us",
                   "worst_case_gain": "output unit per unit of w",
                   "random_gain": "output unit per unit of w",
                   "certified_gamma": "as the estimator's design states it"})
-    return {"suite": run.suite, "seed": run.seed, "estimators": list(run.estimators),
+    identity = suite_identity(run.suite)
+    return {"suite": run.suite, "suite_version": identity["version"],
+            "suite_hash": identity["hash"], "seed": run.seed, "level": stats.LEVEL,
+            "reference": reference, "estimators": list(run.estimators),
             "scenarios": [e.describe() for e in run.entries], "units": units,
             "wall_s": run.wall_s, "results": entries_out}
 
@@ -121,11 +161,47 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
 
 
 def _consistency_text(res: dict[str, Any]) -> str:
-    if res["anees"] is None:
+    """``ANEES [t interval of the per-run time averages] verdict``."""
+    test = res["nees_test"]
+    if test is None:
         return "-"
-    lo, hi = res["anees_bounds"]
-    verdict = "ok" if res["consistent"] else "INCONSISTENT"
-    return f"{res['anees']:.3g} [{lo:.3g}, {hi:.3g}] {verdict}"
+    lo, hi = test["mean_ci"]
+    verdict = "ok" if test["verdict"] == "consistent" else test["verdict"].upper()
+    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] {verdict}"
+
+
+def _squared(unit: str) -> str:
+    """The unit of a mean-square error (SI): ``m`` -> ``m^2``, ``m/s`` -> ``(m/s)^2``."""
+    if not unit:
+        return ""
+    return f"{unit}^2" if unit.isalnum() else f"({unit})^2"
+
+
+def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
+    """Per estimator of one scenario: the NEES and NIS tests, the whiteness of the
+    innovations and the paired comparison with the reference, one line each."""
+    lines = []
+    for res in group:
+        if res["skipped"]:
+            continue
+        name = res["estimator"]
+        if res["nees_test"] is not None:
+            lines.append(f"{name} NEES: {verdict_text(res['nees_test'])}")
+        if res["nis_test"] is not None:
+            lines.append(f"{name} NIS: {verdict_text(res['nis_test'])}")
+        white = res["whiteness"]
+        if white is not None:
+            zs = ", ".join(f"{lag}: {z:+.2g}" for lag, z in zip(white["lags"], white["z"],
+                                                                strict=True))
+            lines.append(f"{name} innovations: {white['verdict']} (p {white['p']:.2g}; "
+                         f"standardized autocorrelation at lags {zs})")
+        versus = res["versus_reference"]
+        if versus is not None:
+            parts = [f"{state} {comparison_text(c, _squared(units.get(state, '')))}"
+                     for state, c in versus["states"].items()]
+            lines.append(f"{name} vs {versus['reference']} (MSE difference per run, 95 % "
+                         f"CI): {'; '.join(parts)}")
+    return lines
 
 
 def _gain_text(res: dict[str, Any]) -> str:
@@ -157,9 +233,10 @@ def _sorted(group: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def leaderboard(summary: dict[str, Any]) -> str:
     """A plain-text leaderboard: per scenario, estimators by RMSE of the first state."""
     units = summary["units"]
-    lines = [f"testbed score: suite {summary['suite']}, seed {summary['seed']}, "
-             f"{summary['wall_s']:.1f} s wall"]
-    header = (f"  {'estimator':<16}{'RMSE':<44}{'ANEES [95 % bounds]':<32}{'ANIS':>7}  "
+    lines = [f"testbed score: suite {summary['suite']} (version {summary['suite_version']}, "
+             f"sha256 {summary['suite_hash'][:12]}), seed {summary['seed']}, reference "
+             f"{summary['reference']}, {summary['wall_s']:.1f} s wall"]
+    header = (f"  {'estimator':<16}{'RMSE':<44}{'ANEES [95 % CI] verdict':<32}{'ANIS':>7}  "
               f"{'worst / random gain':<30}{'us/step (x KF)':<18}{'mismatch':<16}")
     for scenario, group in _rows(summary):
         lines.append("")
@@ -175,6 +252,7 @@ def leaderboard(summary: dict[str, Any]) -> str:
             lines.append(f"  {res['estimator']:<16}{_rmse_text(res, units, states):<44}"
                          f"{_consistency_text(res):<32}{_fmt(res['anis']):>7}  "
                          f"{_gain_text(res):<30}{cost:<18}{_mismatch_text(res):<16}")
+        lines += [f"  {line}" for line in _details(group, units)]
     return "\n".join(lines)
 
 
@@ -182,10 +260,14 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     """The leaderboard as Markdown (one table per scenario, then the remarks)."""
     units = summary["units"]
     out = [f"# testbed score: suite `{summary['suite']}`", "",
+           f"Suite version {summary['suite_version']}, sha256 `{summary['suite_hash']}`. "
            f"Seed {summary['seed']}, estimators {', '.join(summary['estimators'])}, "
+           f"reference {summary['reference']}, "
            f"{summary['wall_s']:.1f} s wall. RMSE in display units (angles in degrees) with "
-           "the 95 % interval; ANEES/ANIS against the two-sided 95 % chi-square bounds for "
-           "the runs and the dimension; worst-case / random gain in the output's unit per "
+           "the 95 % interval; ANEES with the 95 % t interval of the per-run time averages "
+           "and the verdict (consistent / overconfident / underconfident: the mean test and "
+           "the per-step chi-square band test agree), ANIS with the per-step band; "
+           "worst-case / random gain in the output's unit per "
            "unit of the scenario's w (a lower bound found by search, not a certificate); "
            "gamma as the estimator's design states it; cost in microseconds per "
            "trajectory-step and relative to the Kalman filter timed in the same run; mismatch "
@@ -195,8 +277,8 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     for scenario, group in _rows(summary):
         desc = descriptions.get(scenario, {})
         out += [f"## {scenario}", "", desc.get("description", ""), "",
-                "| estimator | RMSE (95 % CI) | ANEES [bounds] | ANIS [bounds] | worst / random "
-                "gain (gamma) | us/step (x KF) | mismatch | skipped |",
+                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] verdict | ANIS [band] | worst / "
+                "random gain (gamma) | us/step (x KF) | mismatch | skipped |",
                 "|---|---|---|---|---|---|---|---|"]
         for res in _sorted(group):
             if res["skipped"]:
@@ -217,6 +299,9 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
                        f"{_consistency_text(res)} | {anis} | {_gain_text(res)} | {cost} | "
                        f"{_mismatch_text(res)} | |")
         out.append("")
+        details = _details(group, units)
+        if details:
+            out += [f"- {line}" for line in details] + [""]
     if remarks:
         out += ["## Remarks", ""] + [f"- {r}" for r in remarks] + [""]
     return "\n".join(out)
@@ -253,8 +338,8 @@ def write_worst_cases(path: str | os.PathLike, run: ScoreRun) -> Path | None:
 
 # ---------------------------------------------------------------------------- PNG
 def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
-    """RMSE with 95 % intervals, ANEES against its chi-square band, worst-case against random
-    gain: one column per scenario that ran."""
+    """RMSE with 95 % intervals, the per-step NEES curves against their chi-square band,
+    worst-case against random gain: one column per scenario that ran."""
     from testbed.outputs.plots import new_figure, save_figure
 
     groups = [(s, [r for r in g if not r["skipped"]]) for s, g in _rows(summary)]
@@ -284,13 +369,23 @@ def write_png(path: str | os.PathLike, summary: dict[str, Any]) -> Path:
         ax.set_title(f"{scenario}: RMSE (95 % CI)", fontsize=9)
         ax.legend(fontsize=7)
         ax = axes[1, c]
-        with_cov = [r for r in group if r["anees"] is not None]
-        for j, res in enumerate(with_cov):
-            ax.plot(j, res["anees"], "o", color=colors[res["estimator"]])
+        with_cov = [r for r in group if r["nees_test"] is not None]
+        for res in with_cov:
+            test = res["nees_test"]
+            ax.plot(np.arange(1, test["steps"] + 1), test["per_step"], lw=0.8,
+                    color=colors[res["estimator"]],
+                    label=f"{res['estimator']}: {test['verdict']}")
         if with_cov:
-            lo, hi = with_cov[0]["anees_bounds"]
-            ax.axhspan(lo, hi, color="0.85", label="95 % chi-square band")
-        _estimator_axis(ax, with_cov, "ANEES", "no estimator reports a covariance")
+            lo, hi = with_cov[0]["nees_test"]["band"]
+            ax.axhspan(lo, hi, color="0.85", label="95 % per-step band")
+            ax.set_yscale("log")
+            ax.set_xlabel("step", fontsize=7)
+            ax.legend(fontsize=6)
+        else:
+            ax.text(0.5, 0.5, "no estimator reports a covariance", ha="center",
+                    transform=ax.transAxes, fontsize=8)
+        ax.set_title(f"N-run average NEES per step ({with_cov[0]['runs'] if with_cov else 0} "
+                     "runs)", fontsize=9)
         ax = axes[2, c]
         searched = [r for r in group if r["worst_case_gain"] is not None]
         for j, res in enumerate(searched):

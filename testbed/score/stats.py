@@ -1,13 +1,15 @@
-"""Statistics of a scored Monte-Carlo study: RMSE with confidence intervals, NEES/NIS with
-chi-square consistency bounds.
+"""Statistics of a scored Monte-Carlo study: RMSE with confidence intervals, NEES and the
+per-step chi-square band (the consistency tests and their verdicts are in
+:mod:`testbed.score.consistency`, the paired comparisons in :mod:`testbed.score.paired`).
 
 Definitions (``N`` runs, ``K`` steps, state dimension ``n``; see docs/scoring.md):
 
 - per-run RMSE of state ``j``: ``r_ij = sqrt(mean_k e_ijk^2)``; the score's RMSE is the pooled
   ``sqrt(mean_i r_ij^2)`` with a 95 % interval from Student's t on the mean of ``r_ij^2``
   (the square root of the interval of the mean-square error);
-- ``NEES_ik = e_ik^T P_ik^-1 e_ik``, ``ANEES = mean_ik NEES_ik``; the two-sided 95 % bounds
-  are ``chi2.ppf([0.025, 0.975], N n) / N`` (Bar-Shalom et al.'s test of the N-run average);
+- ``NEES_ik = e_ik^T P_ik^-1 e_ik``; the two-sided 95 % band of the N-run average at one
+  step is ``chi2.ppf([0.025, 0.975], N n) / N`` (Bar-Shalom et al.'s test of the N-run
+  average);
 - ``NIS_ik = nu_ik^T S_ik^-1 nu_ik`` with the innovation dimension ``m`` likewise.
 """
 
@@ -85,32 +87,3 @@ def nees(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
                          "undefined") from None
     z = np.linalg.solve(chol, error[..., None])[..., 0]
     return np.sum(z * z, axis=-1)
-
-
-def consistency(values: np.ndarray, dim: int, level: float = LEVEL
-                ) -> tuple[float, tuple[float, float], bool]:
-    """Average of NEES (or NIS) values, its chi-square bounds and the verdict.
-
-    Parameters
-    ----------
-    values : ndarray, shape (N, K)
-        Per-run, per-step normalized squares.
-    dim : int
-        Their degrees of freedom (state or innovation dimension).
-
-    Returns
-    -------
-    average : float
-        Mean over runs and steps.
-    bounds : (float, float)
-        :func:`chi2_bounds` for ``N`` runs.
-    consistent : bool
-        The average lies within the bounds. The time average has the N-run average's mean
-        and a smaller spread, so the test is conservative (docs/scoring.md).
-    """
-    values = np.asarray(values, dtype=float)
-    if values.ndim != 2 or not np.all(np.isfinite(values)):
-        raise ValueError(f"values must be finite with shape (N, K), got {values.shape}")
-    average = float(np.mean(values))
-    bounds = chi2_bounds(values.shape[0], dim, level)
-    return average, bounds, bool(bounds[0] <= average <= bounds[1])

@@ -5,7 +5,9 @@ is
 ignored: the harness runs every estimator on it) plus what scoring needs: runs, the rig
 profile, the entry it mismatches, whether the initial state is drawn from the design prior,
 and the worst-case search settings. ``standard`` holds every entry; ``quick`` a subset with
-fewer runs and shorter horizons (under a minute on two cores).
+fewer runs and shorter horizons (under a minute on two cores). Each suite has a version
+(:data:`SUITE_VERSIONS`) and a content hash of its definitions (:func:`suite_hash`), written
+in every score output.
 
 Profiles: an entry names the rig profile it needs (``"paper"``: the papers' idealizations,
 today's rigs; ``"hardware"``). It runs when the profile is available, detected at run time
@@ -17,6 +19,8 @@ skipped with the reason.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -269,6 +273,9 @@ def quick() -> list[SuiteEntry]:
 
 
 SUITES = {"quick": quick, "standard": standard}
+#: Version of each suite's definition: bump it whenever :func:`suite_hash` changes (a test pins
+#: the hash of the current version), so that scores are compared only within one version.
+SUITE_VERSIONS = {"quick": 1, "standard": 1}
 
 
 def get_suite(name: str) -> list[SuiteEntry]:
@@ -288,10 +295,29 @@ def get_suite(name: str) -> list[SuiteEntry]:
     return entries
 
 
+def suite_hash(name: str) -> str:
+    """sha256 of the canonical JSON of the suite's entries (:meth:`SuiteEntry.describe`
+    without the run-time ``skipped``; keys sorted, no whitespace), hex."""
+    entries = []
+    for entry in get_suite(name):
+        described = entry.describe()
+        described.pop("skipped")
+        entries.append(described)
+    text = json.dumps(entries, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def suite_identity(name: str) -> dict[str, Any]:
+    """``{"suite", "version", "hash"}`` of a suite (written in every score output)."""
+    get_suite(name)  # unknown names fail here
+    return {"suite": name, "version": SUITE_VERSIONS[name], "hash": suite_hash(name)}
+
+
 def describe_suite(name: str) -> list[dict[str, Any]]:
     """JSON-ready descriptions of a suite's entries (``testbed score --list``)."""
     return [e.describe() for e in get_suite(name)]
 
 
-__all__ = ["HELICOPTER_MISMATCH_KEYS", "QUICK", "SUITES", "SuiteEntry", "WorstCaseSpec",
-           "calibration_entry", "describe_suite", "get_suite", "quick", "standard"]
+__all__ = ["HELICOPTER_MISMATCH_KEYS", "QUICK", "SUITES", "SUITE_VERSIONS", "SuiteEntry",
+           "WorstCaseSpec", "calibration_entry", "describe_suite", "get_suite", "quick",
+           "standard", "suite_hash", "suite_identity"]

@@ -53,18 +53,36 @@ def make(design, **options):
 
 def overconfident(design):
     """The Kalman filter whose covariance is divided by 10."""
-    return Overconfident(design)
+    return ScaledCovariance(design, 0.1)
 
 
-class Overconfident:
-    """The built-in Kalman filter reporting ``P / 10``."""
+def half_covariance(design):
+    """The Kalman filter reporting ``P / 2`` (overconfident)."""
+    return ScaledCovariance(design, 0.5)
+
+
+def double_covariance(design):
+    """The Kalman filter reporting ``2 P`` (underconfident)."""
+    return ScaledCovariance(design, 2.0)
+
+
+def same_as_kalman(design):
+    """The built-in Kalman filter under another name (an identical estimator)."""
+    from testbed.estimators import kalman
+
+    return kalman(design)
+
+
+class ScaledCovariance:
+    """The built-in Kalman filter reporting ``scale * P`` (its estimates unchanged)."""
 
     batched = True
 
-    def __init__(self, design):
+    def __init__(self, design, scale: float):
         from testbed.estimators import kalman
 
         self.inner = kalman(design)
+        self.scale = float(scale)
 
     @property
     def x(self):
@@ -72,7 +90,7 @@ class Overconfident:
 
     @property
     def P(self):
-        return self.inner.P / 10.0
+        return self.scale * self.inner.P
 
     def reset(self, x0, P0):
         self.inner.reset(x0, P0)

@@ -10,7 +10,7 @@ import numpy as np
 from testbed.cli import main
 from testbed.outputs.viz import rrd_summary
 from testbed.score.report import RESULT_KEYS
-from testbed.score.suite import get_suite
+from testbed.score.suite import SUITE_VERSIONS, get_suite, suite_hash, suite_identity
 
 HERE = Path(__file__).resolve().parent
 
@@ -24,6 +24,24 @@ def test_list_shows_every_entry_with_both_profiles(capsys):
     assert any(e.profile == "hardware" for e in get_suite("standard"))
     quick = {e.name for e in get_suite("quick")}
     assert quick < {e.name for e in get_suite("standard")}
+    assert f"suite standard version {SUITE_VERSIONS['standard']} sha256 " \
+        f"{suite_hash('standard')}" in out
+
+
+#: The definitions of each suite version. A change of an entry changes the hash: bump the
+#: suite's version in testbed.score.suite.SUITE_VERSIONS and record the new hash here.
+PINNED = {"quick": (1, "1acc8bc651893ba90ba761ebc0541eceb2c5afa8482a135101d44cb2fb97da04"),
+          "standard": (1, "4d3540eff12114f79f0f12ea7ea1fc8f56aa4d6c0bc55d80ba82cae49ce1d83c")}
+
+
+def test_suite_versions_and_hashes_are_pinned():
+    for name, (version, digest) in PINNED.items():
+        identity = suite_identity(name)
+        assert (identity["version"], identity["hash"]) == (version, digest), (
+            f"suite {name!r} changed: bump SUITE_VERSIONS[{name!r}] and record the new hash "
+            f"{identity['hash']}")
+    runs_changed = get_suite("quick")[0].replace(runs=33)
+    assert runs_changed.describe() != get_suite("quick")[0].describe()
 
 
 def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
@@ -31,19 +49,35 @@ def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
     out = tmp_path / "runs"
     code = main(["score", "--estimator", "kalman", "--estimator", "fixed_gain:make",
                  "--suite", "quick", "--scenario", "calibration", "--runs", "3",
-                 "--json", str(out / "s.json"), "--markdown", str(out / "s.md"),
-                 "--plot", str(out / "s.png"), "--rrd", str(out / "s.rrd")])
+                 "--reference", "kalman-bucy", "--json", str(out / "s.json"),
+                 "--markdown", str(out / "s.md"), "--plot", str(out / "s.png"),
+                 "--rrd", str(out / "s.rrd")])
     assert code == 0
     data = json.loads((out / "s.json").read_text())
     assert data["estimators"] == ["kalman", "fixed_gain:make"]
     assert [r["estimator"] for r in data["results"]] == data["estimators"]
+    identity = suite_identity("quick")
+    assert (data["suite_version"], data["suite_hash"]) == (identity["version"],
+                                                           identity["hash"])
+    assert data["reference"] == "kalman-bucy"  # run for the comparison, not reported itself
     for res in data["results"]:
         assert tuple(res) == RESULT_KEYS
         assert res["worst_case_gain"] >= res["random_gain"] > 0
+        versus = res["versus_reference"]
+        assert versus["reference"] == "kalman-bucy"
+        assert set(versus["states"]) == {"position", "velocity"}
+        for comparison in versus["states"].values():
+            assert comparison["verdict"] in ("better", "worse", "no detectable difference")
+            assert comparison["difference_ci"][0] <= comparison["difference_ci"][1]
+    kalman = data["results"][0]
+    assert len(kalman["nees_test"]["per_step"]) == kalman["nees_test"]["steps"] == 500
+    assert kalman["whiteness"]["verdict"] in ("white", "correlated")
     assert data["units"]["position"] == "m"
     worst = np.load(out / "s.worst_case.npz")
     assert sorted(worst.files) == ["fixed_gain:make|calibration", "kalman|calibration"]
-    assert "| kalman |" in (out / "s.md").read_text()
+    markdown = (out / "s.md").read_text()
+    assert "| kalman |" in markdown and identity["hash"] in markdown
+    assert "kalman vs kalman-bucy (MSE difference per run" in markdown
     assert (out / "s.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     entities = rrd_summary(out / "s.rrd")
     assert any("calibration/truth/position" in k for k in entities)

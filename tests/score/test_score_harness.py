@@ -92,7 +92,8 @@ def test_score_skips_with_reasons_and_gives_every_key(user_module):
     run = score(["kalman", "fixed_gain:make", "ms-hinf"], "quick", runs=4,
                 scenarios=["calibration", "helicopter-hardware"], worst_case=False)
     summary = report.results(run)
-    assert set(summary) == {"suite", "seed", "estimators", "scenarios", "units", "wall_s",
+    assert set(summary) == {"suite", "suite_version", "suite_hash", "seed", "level",
+                            "reference", "estimators", "scenarios", "units", "wall_s",
                             "results"}
     assert [r["scenario"] for r in summary["results"]] == ["calibration"] * 3 + [
         "helicopter-hardware"] * 3

@@ -48,12 +48,6 @@ def test_nees_matches_the_explicit_inverse(rng):
         stats.nees(e, P)
 
 
-def test_consistency_verdict_and_bad_input():
-    values = np.full((10, 7), 2.0)
-    average, bounds, ok = stats.consistency(values, 2)
-    assert average == 2.0 and ok and bounds == stats.chi2_bounds(10, 2)
-    assert not stats.consistency(values * 10, 2)[2]
-    with pytest.raises(ValueError):
-        stats.consistency(np.array([1.0, np.nan])[None], 2)
+def test_rmse_ci_bad_input():
     with pytest.raises(ValueError):
         stats.rmse_ci(np.array([1.0]))

@@ -1,0 +1,197 @@
+"""Consistency tests of a Monte-Carlo study: NEES/NIS with directions, and innovation whiteness.
+
+``N`` independent runs of ``K`` steps; ``values[i, k]`` is the NEES (or NIS) of run ``i`` at
+step ``k`` with ``dim`` degrees of freedom (Bar-Shalom, Li & Kirubarajan 2001, ch. 5.4;
+docs/scoring.md). Two tests, both reported:
+
+- **time average** (the mean test): the per-run time averages ``a_i = mean_k values[i, k]``
+  are independent across runs (the steps of one run are not), so Student's t interval of
+  their mean is valid whatever the correlation in time. Under consistency ``E a_i = dim``.
+- **per-step band** (the step test): at each step the N-run average times ``N`` is
+  ``chi2(N dim)``, so it lies outside ``[chi2.ppf(a/2, N dim), chi2.ppf(1-a/2, N dim)] / N``
+  with probability ``a = 1 - level``. The fraction of steps outside has a Clopper-Pearson
+  interval; that interval treats the steps as independent, which they are not (a consistent
+  filter's per-step averages are correlated over its error time constant): it is nominal and
+  too narrow, so the step test alone false-alarms more often than ``a``.
+
+The verdict says which way: ``"overconfident"`` (NEES above ``dim``: the reported covariance
+is too small), ``"underconfident"`` (below) or ``"consistent"``. It is given only when both
+tests reject in the same direction: the rule's false-alarm rate is at most the mean test's
+``a`` (the step test guards the verdict against a chance excursion of the time average, the
+mean test against the step test's correlated exceedances). Each test's own verdict is in the
+result, so a reader sees when only one rejects.
+
+Whiteness: the normalized (whitened) innovations ``z_ik = S_ik^-1/2 nu_ik`` of a consistent
+filter are white. Per run and lag ``l``, ``r_i(l) = sum_k z_ik . z_i,k+l / sum_k |z_ik|^2``;
+the average over runs is about ``N(0, (K - l) / (N K^2 m))`` (``1 / (N K m)`` for ``l << K``),
+and the sum of the squared standardized averages over a few lags is about ``chi2(lags)``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.stats import beta, chi2, t
+
+from testbed.score.stats import LEVEL, chi2_bounds
+
+#: Verdict words of the NEES/NIS tests.
+CONSISTENT, OVERCONFIDENT, UNDERCONFIDENT = "consistent", "overconfident", "underconfident"
+#: Lags of the whiteness test (those below ``K / 2`` are used).
+LAGS = (1, 2, 5, 10)
+
+
+def _sig(value: float, digits: int = 4) -> float:
+    """``value`` rounded to ``digits`` significant digits (compact JSON)."""
+    return float(f"{value:.{digits}g}")
+
+
+def t_interval(x: np.ndarray, mu0: float = 0.0, level: float = LEVEL
+               ) -> tuple[float, tuple[float, float], float]:
+    """Mean of independent samples, Student's t interval and the two-sided p-value of
+    ``mean == mu0``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N,), N >= 2, finite
+    mu0 : float
+    level : float
+
+    Returns
+    -------
+    mean : float
+    ci : (float, float)
+    p : float
+        1 when every sample equals ``mu0``; 0 when the samples are equal to another value.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 1 or len(x) < 2 or not np.all(np.isfinite(x)):
+        raise ValueError(f"x must be finite with shape (N,), N >= 2, got {x.shape}")
+    n = len(x)
+    mean = float(np.mean(x))
+    se = float(np.std(x, ddof=1) / np.sqrt(n))
+    if se == 0.0:
+        return mean, (mean, mean), 1.0 if mean == mu0 else 0.0
+    half = float(t.ppf(0.5 + level / 2, n - 1) * se)
+    p = float(2 * t.sf(abs(mean - mu0) / se, n - 1))
+    return mean, (mean - half, mean + half), p
+
+
+def clopper_pearson(k: int, n: int, level: float = LEVEL) -> tuple[float, float]:
+    """Exact (Clopper-Pearson) interval of a binomial proportion, ``k`` of ``n``."""
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n, n >= 1, got k = {k}, n = {n}")
+    a = 1 - level
+    lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
+def consistency_test(values: np.ndarray, dim: int, level: float = LEVEL) -> dict[str, Any]:
+    """NEES (or NIS) of N runs and K steps against ``dim``: the mean and step tests, the
+    verdict and the per-step curve (see the module docstring).
+
+    Parameters
+    ----------
+    values : ndarray, shape (N, K), N >= 2, finite
+    dim : int
+        Degrees of freedom (state or innovation dimension).
+    level : float
+
+    Returns
+    -------
+    dict
+        ``dim``, ``runs``, ``steps``; ``mean`` (over runs and steps), ``mean_ci`` (t interval
+        of the per-run time averages), ``mean_p`` (p-value of ``mean == dim``),
+        ``mean_verdict``; ``band`` (per-step N-run band), ``steps_above``, ``steps_below``,
+        ``steps_outside_fraction``, ``steps_outside_ci`` (Clopper-Pearson),
+        ``steps_verdict``; ``verdict``; ``per_step`` (the N-run average at each step, 4
+        significant digits).
+    """
+    values = np.asarray(values, dtype=float)
+    if values.ndim != 2 or values.shape[0] < 2 or values.shape[1] < 1 \
+            or not np.all(np.isfinite(values)):
+        raise ValueError(f"values must be finite with shape (N, K), N >= 2, got "
+                         f"{values.shape}")
+    N, K = values.shape
+    mean, ci, p = t_interval(values.mean(axis=1), dim, level)
+    mean_verdict = (OVERCONFIDENT if ci[0] > dim else UNDERCONFIDENT if ci[1] < dim
+                    else CONSISTENT)
+    lo, hi = chi2_bounds(N, dim, level)
+    per_step = values.mean(axis=0)
+    above, below = int(np.sum(per_step > hi)), int(np.sum(per_step < lo))
+    cp = clopper_pearson(above + below, K, level)
+    steps_verdict = CONSISTENT
+    if cp[0] > 1 - level:
+        steps_verdict = OVERCONFIDENT if above >= below else UNDERCONFIDENT
+    verdict = mean_verdict if mean_verdict == steps_verdict else CONSISTENT
+    return {"dim": int(dim), "runs": N, "steps": K, "mean": mean, "mean_ci": list(ci),
+            "mean_p": p, "mean_verdict": mean_verdict, "band": [lo, hi],
+            "steps_above": above, "steps_below": below,
+            "steps_outside_fraction": (above + below) / K, "steps_outside_ci": list(cp),
+            "steps_verdict": steps_verdict, "verdict": verdict,
+            "per_step": [_sig(v) for v in per_step]}
+
+
+def whiteness_test(z: np.ndarray, lags: tuple[int, ...] = LAGS, level: float = LEVEL
+                   ) -> dict[str, Any] | None:
+    """Whiteness of normalized innovations (see the module docstring).
+
+    Parameters
+    ----------
+    z : ndarray, shape (N, K, m)
+        Whitened innovations ``S^-1/2 nu`` of N runs and K steps.
+    lags : tuple of int
+        Candidate lags; those with ``2 l <= K`` are tested.
+    level : float
+
+    Returns
+    -------
+    dict or None
+        ``lags``, ``autocorrelation`` (the run average at each lag), ``sd`` (its null
+        standard deviation), ``z`` (standardized), ``statistic`` (sum of ``z^2``), ``p``
+        (``chi2(len(lags))`` tail) and ``verdict`` (``"white"`` or ``"correlated"``); None
+        when no lag fits.
+    """
+    z = np.asarray(z, dtype=float)
+    if z.ndim != 3 or z.shape[0] < 1 or not np.all(np.isfinite(z)):
+        raise ValueError(f"z must be finite with shape (N, K, m), got {z.shape}")
+    N, K, m = z.shape
+    used = [int(lag) for lag in lags if 1 <= lag and 2 * lag <= K]
+    if not used:
+        return None
+    energy = np.sum(z * z, axis=(1, 2))
+    if np.any(energy == 0):
+        raise ValueError("a run has all-zero innovations: whiteness undefined")
+    r = np.array([np.mean(np.sum(z[:, :-lag] * z[:, lag:], axis=(1, 2)) / energy)
+                  for lag in used])
+    sd = np.sqrt((K - np.array(used)) / (N * K**2 * m))
+    score = r / sd
+    statistic = float(np.sum(score**2))
+    p = float(chi2.sf(statistic, len(used)))
+    return {"lags": used, "autocorrelation": [_sig(v) for v in r],
+            "sd": [_sig(v) for v in sd], "z": [_sig(v) for v in score],
+            "statistic": statistic, "p": p,
+            "verdict": "white" if p >= 1 - level else "correlated"}
+
+
+def whiten(innovation: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """``L^-1 nu`` with ``S = L L^T`` (Cholesky), for any leading shape."""
+    chol = np.linalg.cholesky(covariance)
+    return np.linalg.solve(chol, innovation[..., None])[..., 0]
+
+
+def verdict_text(test: dict[str, Any] | None) -> str:
+    """``"<verdict>: <mean> [<ci>], <pct> of steps outside [<ci>]"`` or ``"-"``."""
+    if test is None:
+        return "-"
+    lo, hi = test["mean_ci"]
+    flo, fhi = test["steps_outside_ci"]
+    text = (f"{test['verdict']}: {test['mean']:.3g} [{lo:.3g}, {hi:.3g}] vs {test['dim']}, "
+            f"{100 * test['steps_outside_fraction']:.1f} % of steps outside "
+            f"[{100 * flo:.1f}, {100 * fhi:.1f}]")
+    if test["mean_verdict"] != test["steps_verdict"]:
+        text += (f" (mean test: {test['mean_verdict']}, step test: "
+                 f"{test['steps_verdict']})")
+    return text

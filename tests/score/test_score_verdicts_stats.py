@@ -1,0 +1,181 @@
+"""The consistency tests and paired comparisons against scipy and Monte Carlo of their nulls."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+from scipy.signal import lfilter
+
+from testbed.score import consistency as cons
+from testbed.score import paired
+from testbed.score.stats import chi2_bounds
+
+
+def ar_nees(rng: np.random.Generator, runs: int, steps: int, dim: int, phi: float,
+            scale: float = 1.0) -> np.ndarray:
+    """NEES of a consistent filter whose errors are AR(1) in time (coefficient ``phi``):
+    every value is exactly chi2(dim) (times ``scale``), correlated over ~1/(1-phi^2) steps."""
+    w = rng.standard_normal((runs, steps, dim))
+    w[:, 0] /= np.sqrt(1 - phi**2)
+    e = lfilter([np.sqrt(1 - phi**2)], [1, -phi], w, axis=1)
+    return scale * np.sum(e**2, axis=-1)
+
+
+# ---------------------------------------------------------------- against scipy
+def test_t_interval_matches_scipy(rng):
+    x = rng.normal(1.3, 2.0, size=17)
+    mean, (lo, hi), p = cons.t_interval(x, 1.0)
+    ref = sps.ttest_1samp(x, 1.0)
+    ci = ref.confidence_interval(0.95)
+    assert mean == pytest.approx(np.mean(x))
+    assert (lo, hi) == pytest.approx((ci.low, ci.high), rel=1e-12)
+    assert p == pytest.approx(ref.pvalue, rel=1e-10)
+    assert cons.t_interval(np.full(5, 2.0), 2.0) == (2.0, (2.0, 2.0), 1.0)
+    assert cons.t_interval(np.full(5, 2.0), 1.0)[2] == 0.0
+    with pytest.raises(ValueError):
+        cons.t_interval(np.array([1.0]))
+
+
+@pytest.mark.parametrize("k, n", [(0, 10), (1, 10), (5, 10), (10, 10), (23, 500), (114, 500)])
+def test_clopper_pearson_matches_scipy_binomtest(k, n):
+    ci = sps.binomtest(k, n).proportion_ci(0.95, method="exact")
+    assert cons.clopper_pearson(k, n) == pytest.approx((ci.low, ci.high), rel=1e-9, abs=1e-12)
+
+
+def test_consistency_test_fields_against_scipy(rng):
+    values = rng.chisquare(3, size=(20, 40))
+    test = cons.consistency_test(values, 3)
+    ref = sps.ttest_1samp(values.mean(axis=1), 3.0)
+    assert test["mean"] == pytest.approx(values.mean())
+    assert test["mean_ci"] == pytest.approx(list(ref.confidence_interval(0.95)), rel=1e-12)
+    assert test["mean_p"] == pytest.approx(ref.pvalue, rel=1e-10)
+    lo, hi = sps.chi2.ppf([0.025, 0.975], 60) / 20
+    assert test["band"] == pytest.approx([lo, hi]) and tuple(test["band"]) == chi2_bounds(20, 3)
+    per_step = values.mean(axis=0)
+    assert test["steps_above"] == np.sum(per_step > hi)
+    assert test["steps_below"] == np.sum(per_step < lo)
+    assert test["per_step"] == pytest.approx(per_step, rel=1e-3)
+    with pytest.raises(ValueError):
+        cons.consistency_test(values[:1], 3)
+
+
+def test_paired_comparison_matches_scipy(rng):
+    common = rng.gamma(2.0, 1.0, size=30)
+    a = common * 1.05 + 0.02 * rng.standard_normal(30)
+    b = common
+    c = paired.paired_comparison(a, b)
+    ref = sps.ttest_rel(a, b)
+    assert c["mean_difference"] == pytest.approx(np.mean(a - b))
+    assert c["difference_ci"] == pytest.approx(list(ref.confidence_interval(0.95)), rel=1e-10)
+    assert c["p_t"] == pytest.approx(ref.pvalue, rel=1e-10)
+    assert c["p_wilcoxon"] == pytest.approx(sps.wilcoxon(a - b).pvalue, rel=1e-12)
+    assert c["effect_size"] == pytest.approx(np.mean(a - b) / np.std(a - b, ddof=1))
+    assert c["correlation"] == pytest.approx(sps.pearsonr(a, b).statistic)
+    assert c["ratio"] == pytest.approx(np.mean(a) / np.mean(b))
+    assert c["ratio_ci"][0] < c["ratio"] < c["ratio_ci"][1]
+
+
+def test_holm_by_hand():
+    # sorted p 0.01, 0.02, 0.04 times 3, 2, 1: 0.03, 0.04, 0.04 (made monotone)
+    assert paired.holm([0.04, 0.01, 0.02]) == pytest.approx([0.04, 0.03, 0.04])
+    assert paired.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])  # 2 x 0.5, then monotone
+    assert paired.holm([0.2, 0.9]) == pytest.approx([0.4, 0.9])
+    assert paired.holm([]) == []
+    with pytest.raises(ValueError):
+        paired.holm([1.5])
+
+
+def test_identical_estimators_no_detectable_difference(rng):
+    a = rng.gamma(2.0, 1.0, size=12)
+    out = paired.compare_family({"same": a, "other": 1.5 * a}, a)
+    assert out["same"]["verdict"] == paired.NO_DIFFERENCE
+    assert out["same"]["difference_ci"] == [0.0, 0.0] and out["same"]["p_wilcoxon"] == 1.0
+    assert out["same"]["ratio_ci"] == pytest.approx([1.0, 1.0])
+    assert out["other"]["verdict"] == paired.WORSE
+    assert paired.compare_family({"x": 0.5 * a}, a)["x"]["verdict"] == paired.BETTER
+
+
+# ---------------------------------------------------------------- Monte Carlo of the nulls
+def test_mean_test_false_alarm_rate_with_correlated_steps():
+    """Runs independent, steps correlated (AR(1), ~8x variance inflation as the calibration
+    plant's Kalman filter): the t interval of the per-run averages keeps its level; the step
+    test's Clopper-Pearson interval, which treats steps as independent, does not; the verdict
+    (both must agree) stays below the level."""
+    rng = np.random.default_rng(7)
+    reps = 600
+    tests = [cons.consistency_test(ar_nees(rng, 32, 200, 2, 0.886), 2) for _ in range(reps)]
+    mean_rate = np.mean([t["mean_verdict"] != cons.CONSISTENT for t in tests])
+    step_rate = np.mean([t["steps_verdict"] != cons.CONSISTENT for t in tests])
+    verdict_rate = np.mean([t["verdict"] != cons.CONSISTENT for t in tests])
+    print(f"false alarms: mean test {mean_rate:.3f}, step test {step_rate:.3f}, "
+          f"verdict {verdict_rate:.3f}")
+    assert mean_rate == pytest.approx(0.05, abs=0.025)
+    assert verdict_rate <= 0.05
+    assert step_rate > 0.05  # the documented limitation of the nominal binomial interval
+
+
+def test_verdict_directions_and_power():
+    rng = np.random.default_rng(8)
+    over = [cons.consistency_test(ar_nees(rng, 64, 400, 2, 0.886, 1.13), 2)["verdict"]
+            for _ in range(100)]
+    under = [cons.consistency_test(ar_nees(rng, 64, 400, 2, 0.886, 0.87), 2)["verdict"]
+             for _ in range(100)]
+    assert np.mean([v == cons.OVERCONFIDENT for v in over]) >= 0.95
+    assert np.mean([v == cons.UNDERCONFIDENT for v in under]) >= 0.95
+    assert cons.consistency_test(ar_nees(rng, 16, 100, 3, 0.5, 2.0), 3)["verdict"] == \
+        cons.OVERCONFIDENT
+    assert cons.consistency_test(ar_nees(rng, 16, 100, 3, 0.5, 0.5), 3)["verdict"] == \
+        cons.UNDERCONFIDENT
+
+
+def test_whiteness_null_and_alternative():
+    rng = np.random.default_rng(9)
+    N, K, m = 16, 120, 2
+    white = [cons.whiteness_test(rng.standard_normal((N, K, m))) for _ in range(800)]
+    rate = np.mean([w["verdict"] != "white" for w in white])
+    scores = np.array([w["z"] for w in white])
+    print(f"whiteness false alarms {rate:.3f}, sd of the standardized lags "
+          f"{scores.std(axis=0)}")
+    assert rate == pytest.approx(0.05, abs=0.025)
+    assert np.allclose(scores.std(axis=0), 1.0, atol=0.08)  # the N(0, (K-l)/(N K^2 m)) null
+    w = rng.standard_normal((N, K, m))
+    colored = lfilter([1.0], [1.0, -0.3], w, axis=1)
+    assert cons.whiteness_test(colored)["verdict"] == "correlated"
+    assert cons.whiteness_test(w[:, :1]) is None  # no lag fits one step
+    z = cons.whiten(np.array([[3.0, 4.0]]), np.array([[[4.0, 0.0], [0.0, 16.0]]]))
+    assert z == pytest.approx(np.array([[1.5, 1.0]]))
+
+
+def test_paired_t_and_wilcoxon_false_alarm_and_ratio_coverage():
+    """Correlated per-run MSEs with equal means: the paired tests' false-alarm rate is near
+    the level; the delta-method interval of the mean ratio covers the true ratio ~95 %."""
+    rng = np.random.default_rng(10)
+    reps, n = 1000, 32
+    alarms_t = alarms_w = covered = 0
+    for _ in range(reps):
+        common = rng.gamma(4.0, 1.0, size=n)
+        a = common * rng.gamma(50.0, 1 / 50.0, size=n)
+        b = common * rng.gamma(50.0, 1 / 50.0, size=n) * 1.1
+        c = paired.paired_comparison(a, b / 1.1)
+        alarms_t += c["p_t"] < 0.05
+        alarms_w += c["p_wilcoxon"] < 0.05
+        r = paired.paired_comparison(a, b)["ratio_ci"]
+        covered += r[0] <= 1 / 1.1 <= r[1]
+    print(f"paired t {alarms_t / reps:.3f}, Wilcoxon {alarms_w / reps:.3f}, ratio coverage "
+          f"{covered / reps:.3f}")
+    assert alarms_t / reps == pytest.approx(0.05, abs=0.02)
+    assert alarms_w / reps == pytest.approx(0.05, abs=0.02)
+    assert covered / reps == pytest.approx(0.95, abs=0.02)
+
+
+def test_holm_controls_the_family_wise_error_rate():
+    rng = np.random.default_rng(11)
+    reps, any_alarm = 400, 0
+    for _ in range(reps):
+        ref = rng.gamma(4.0, 1.0, size=20)
+        family = {f"e{j}": ref + 0.3 * rng.standard_normal(20) for j in range(4)}
+        out = paired.compare_family(family, ref)
+        any_alarm += any(c["verdict"] != paired.NO_DIFFERENCE for c in out.values())
+    print(f"family-wise false alarms {any_alarm / reps:.3f}")
+    assert any_alarm / reps <= 0.05 + 0.025
