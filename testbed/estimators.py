@@ -89,33 +89,98 @@ class EstimatorWrapper:
 class ChannelSelect(EstimatorWrapper):
     """An estimator reading only some channels of ``y`` (batch-transparent).
 
+    Takes the full sensor vector (``m`` channels: it selects) or the selected channels
+    (what the loop gives an estimator whose ``channels`` are ``index``: passed through).
+
     Parameters
     ----------
     inner : estimator
     index : ndarray of int
         Channels of the sensor vector given to ``inner``.
+    m : int, optional
+        Channels of the full sensor vector (default: ``max(index) + 1``).
+    request : bool
+        Set :attr:`channels` to ``index``: the loop then gives the estimator these channels
+        (beyond ``design.measurement_index``, e.g. the deterministic ``y2`` of ``ms-hinf``).
     """
 
-    def __init__(self, inner: Any, index: np.ndarray):
+    def __init__(self, inner: Any, index: np.ndarray, m: int | None = None,
+                 request: bool = False):
         super().__init__(inner)
         self.index = np.asarray(index, dtype=int)
+        self.m = int(self.index.max()) + 1 if m is None else int(m)
         self.batched = getattr(inner, "batched", False)
+        if request:
+            self.channels = self.index
+
+    def _pick(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y)
+        if y.shape[-1] == len(self.index) and len(self.index) != self.m:
+            return y  # already the selected channels
+        return y[..., self.index]
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         """Step the inner estimator on ``y[..., index]``."""
-        return self.inner.step(np.asarray(y)[..., self.index], u)
+        return self.inner.step(self._pick(y), u)
 
     def __getattr__(self, name: str) -> Any:
         if name == "prime" and "inner" in self.__dict__:  # only when the inner one primes
             prime = self.inner.prime
-            return lambda y: prime(np.asarray(y)[..., self.index])
+            return lambda y: prime(self._pick(y))
         return super().__getattr__(name)
 
 
 def _select(estimator: Any, design: DesignModel) -> Any:
     if len(design.measurement_index) == len(design.measurement_names):
         return estimator
-    return ChannelSelect(estimator, design.measurement_index)
+    return ChannelSelect(estimator, design.measurement_index, len(design.measurement_names))
+
+
+def channels_for(estimator: Any, design: DesignModel) -> np.ndarray | None:
+    """The channels of the sensor vector the loop gives ``estimator``: its own
+    ``channels`` attribute (indices, or ``"all"``) or ``design.measurement_index``
+    (None: every channel)."""
+    asked = getattr(estimator, "channels", None)
+    if isinstance(asked, str):
+        if asked != "all":
+            raise ValueError(f"estimator channels must be indices or 'all', got {asked!r}")
+        return None
+    index = design.measurement_index if asked is None else np.asarray(asked, dtype=int)
+    if np.array_equal(index, np.arange(len(design.measurement_names))):
+        return None
+    return np.asarray(index, dtype=int)
+
+
+def paper_design_only(name: str | Factory) -> str | None:
+    """Why an estimator family designs from the paper model only (None: it takes the
+    matched, possibly augmented design): the factory's ``paper_design_only`` attribute."""
+    try:
+        factory = resolve(name)
+    except ValueError:
+        return None
+    reason = getattr(factory, "paper_design_only", None)
+    return None if reason is None else str(reason)
+
+
+def design_for(name: str | Factory, design: DesignModel) -> tuple[DesignModel, str | None]:
+    """The design an estimator family is built from, and why it is not ``design``.
+
+    An augmented (matched) design goes to every family except those declaring
+    ``paper_design_only`` (their reason returned), which get ``design.extras["paper_design"]``.
+
+    Raises
+    ------
+    ValueError
+        The family needs the paper design and the design does not carry one.
+    """
+    reason = paper_design_only(name) if design.augmented else None
+    if reason is None:
+        return design, None
+    paper = design.extras.get("paper_design")
+    if paper is None:
+        raise ValueError(f"filter {name!r} designs from the rig's paper model only ({reason}); "
+                         "this augmented design carries none (extras['paper_design'])")
+    return paper, reason
 
 
 def kalman(design: DesignModel) -> Any:
@@ -161,7 +226,7 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
                        "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
     return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
-        else ChannelSelect(est, index)
+        else ChannelSelect(est, index, len(design.measurement_names), request=True)
 
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
@@ -208,6 +273,15 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
                                    sigma_factor=sigma_factor, max_evaluations=max_evaluations)
     return _select(est, design)
 
+
+ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
+                             "continuous model with the deterministic channel y2; the "
+                             "whole-sample IMU delays have no continuous-time form")
+lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias random walks "
+                              "and the vehicle's own LMI system are the paper's states")
+poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
+vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
+                                 "model's A; bias random walks are not Schur-stable")
 
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
@@ -302,6 +376,9 @@ class PerMember:
 
     def __init__(self, instances: list[Any]):
         self.instances = instances
+        channels = getattr(instances[0], "channels", None)
+        if channels is not None:
+            self.channels = channels
 
     @classmethod
     def build(cls, name: str | Factory, design: DesignModel, num: int,
