@@ -297,7 +297,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     channels : ndarray of int, optional
         Channels the design uses (default: the stochastic, non-input ones).
     rows : dict, optional
-        ``{channel: row (n_rig,)}``: the channel's linearization instead of the sensor's.
+        ``{channel: row (n_rig,) or (n0,)}``: the channel's linearization instead of the
+        sensor's (with ``n0`` entries it also reads the extra states).
     extra_R : dict, optional
         ``{channel: variance}`` added to the channel's per-sample noise variance.
     effects : list of ChannelEffects, optional
@@ -320,7 +321,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     C0[:, :nr] = model.C[index]
     for pos, ch in enumerate(index):
         if rows is not None and int(ch) in rows:
-            C0[pos, :nr] = rows[int(ch)]
+            row = np.asarray(rows[int(ch)], float)
+            C0[pos, :len(row)] = row
     D0 = model.D[index].astype(float)
     R = model.R[np.ix_(index, index)].astype(float)
     if input_noise_cov is not None:
