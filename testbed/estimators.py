@@ -225,8 +225,10 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
                        "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
-    return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
-        else ChannelSelect(est, index, len(design.measurement_names), request=True)
+    if np.array_equal(index, np.arange(len(design.measurement_names))):
+        est.channels = "all"  # the deterministic channels too
+        return est
+    return ChannelSelect(est, index, len(design.measurement_names), request=True)
 
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,

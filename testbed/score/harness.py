@@ -145,8 +145,9 @@ def _sampled(entry: SuiteEntry, scenario, num: int, steps: int,
 def _trajectory_x0(entry: SuiteEntry, design: Any, seeds: np.ndarray) -> Any:
     if not entry.x0_from_prior:
         return None
-    return [{"x0": np.random.default_rng(int(s)).multivariate_normal(design.x0, design.P0)}
-            for s in seeds]
+    i = getattr(design, "physical", np.arange(len(design.x0)))  # the rig's states' prior
+    x0, P0 = design.x0[i], design.P0[np.ix_(i, i)]
+    return [{"x0": np.random.default_rng(int(s)).multivariate_normal(x0, P0)} for s in seeds]
 
 
 def _unwrap(estimator: Any) -> Any:
