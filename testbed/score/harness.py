@@ -33,7 +33,7 @@ import numpy as np
 from filters import FilterError
 from testbed import runner
 from testbed.disturbances import SampledDisturbance
-from testbed.estimators import EstimatorWrapper, PerMember
+from testbed.estimators import ChannelSelect, EstimatorWrapper, PerMember
 from testbed.rigs import resolve_rig
 from testbed.score import stats
 from testbed.score.suite import SuiteEntry
@@ -272,8 +272,10 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         R = np.diag(model.R)
         deltas = np.where(R > 0, 1e-3 * np.sqrt(np.abs(R)), 1e-6)
         k0 = max(1, K // 4)
-        h = estimator_markov(wc.loop.stage.estimator, design.input_transform,
-                             wc.loop.stage.prior, y, u, k0, deltas, num)
+        stage = wc.loop.stage
+        est = stage.estimator if stage.channels is None else \
+            ChannelSelect(stage.estimator, stage.channels, m)  # the channels the loop gives
+        h = estimator_markov(est, design.input_transform, stage.prior, y, u, k0, deltas, num)
         evaluator = LoopEvaluator(wc, dist, seed, K, design.output_matrix)
         rng = np.random.default_rng([int(seed), 16])
         return search(evaluator, A, G, model.C, Hw, design.output_matrix, h,
