@@ -6,10 +6,14 @@ typed form)::
     x : ndarray (n,) or (N, n)        current estimate
     P : ndarray (n, n) or (N, n, n)   its covariance, or None when the estimator has none
     reset(x0, P0) -> None             restart from a prior (P0 may be None)
-    step(y, u) -> x                   y: the full sensor vector (m,) measured at the end of
-                                      the step; u: the input applied over it, in the design
+    step(y, u) -> x                   y: the channels design.discrete's H (with D) describes
+                                      (design.measurement_index), measured at the end of the
+                                      step; u: the input applied over it, in the design
                                       model's coordinates (the loop applies
                                       design.input_transform)
+    channels                          optional: other channels of the sensor vector the
+                                      estimator wants (indices, or "all"; e.g. ms-hinf's
+                                      deterministic y2)
     prime(y) -> None                  optional: use the first sample (at reset)
     innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
                                       and its covariance (m, m) or (N, m, m) (``testbed
@@ -25,8 +29,27 @@ typed form)::
                                       whole Monte-Carlo batch
 
 An estimator without ``batched = True`` runs in ``mc`` as one instance per run (each from
-its own factory call). ``design.measurement_index`` lists the channels of ``y`` that
-``design.discrete``/``design.continuous`` model; the built-in linear filters read only those.
+its own factory call). Channels an input is computed from (``SensorModel.inputs``) go to the
+loop's input transform, not to the estimator: a Kalman filter written from ``F, B, H, D, Q,
+R`` alone works on every rig.
+
+Physical states: a design may be augmented (the ``hardware`` profile's matched design:
+actuator, sensor-bias and delay states after the rig's physical ones). The estimator keeps
+its whole state ``x`` (n,) and ``P`` (n, n); the loop reports ``x[..., physical_index]`` and
+the marginal block ``P[..., physical_index, physical_index]``
+(``design.physical_index``): the metrics, recordings and the controller see the rig's
+states only.
+
+Checks: after the factory and after the first step the loop checks ``x`` ((n,) or (N, n))
+and ``P`` ((n, n) or (N, n, n)): finite, symmetric and positive semidefinite to a relative
+tolerance (:func:`testbed.loop.check_estimate`); otherwise one line names the estimator and
+the expected shape.
+
+Design profiles: a factory whose theory needs the paper's model sets
+``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
+instead of an augmented design (:func:`design_for`). Built in: ``kalman`` and
+``kalman-bucy`` design from the matched model; ``ms-hinf``, ``lmi-hinf``, ``poly-hinf`` and
+``vc-discrete`` fall back to the paper design (the reasons are their attributes).
 
 A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
 (``testbed run RIG --filter mymodule:make``); the factory receives the

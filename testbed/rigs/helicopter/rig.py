@@ -256,6 +256,9 @@ MOTOR_PRIOR_STD_V = 0.01
 #: Matched ``hardware`` design: a typical rate for the gyros' sensitivity error in ``R``,
 #: rad/s (the rig's rates under the default setpoints stay below about 0.5 rad/s).
 DESIGN_RATE_RAD_S = 0.3
+#: Matched ``hardware`` design: the pitch at which the yaw gyro's ``yaw_rate cos(pitch)`` is
+#: linearized, rad (level: where the rig flies its setpoints).
+YAW_GYRO_PITCH_RAD = 0.0
 
 
 def basin_helicopter_w(t_s: float) -> np.ndarray:
@@ -661,6 +664,10 @@ class HelicopterRig(Rig):
                     if names[i] != "accel_x"]
         extra_R = {i: (effects[i].scale_std * DESIGN_RATE_RAD_S) ** 2
                    for i in channels if names[i].startswith("gyro_")}
+        rows = {}
+        if "gyro_yaw" in names:  # yaw_rate cos(pitch) at the operating pitch
+            rows[names.index("gyro_yaw")] = np.array([0.0, 0.0, 0.0,
+                                                      np.cos(YAW_GYRO_PITCH_RAD)])
 
         def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
             v_g = gravity_voltage(nominal, x_hat[:, 0])
@@ -671,7 +678,7 @@ class HelicopterRig(Rig):
         return build_matched_design(
             self, sensors, dt_s, A, B, Qm, x0, P0,
             extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
-            extra_R=extra_R, effects=effects, paper_design=paper,
+            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
             input_transform=matched_input, disturbance_matrix=G,
             extras={"paper_model": paper.extras["paper_model"]})
 
