@@ -280,8 +280,10 @@ def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: flo
                          "(design.extras['cubic_model']); this design has none")
     from testbed.poly_design import poly_hinf_estimator
 
-    return poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
-                               substeps=substeps)
+    est = poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
+                              substeps=substeps)
+    est.channels = "all"  # it keeps design.measurement_index itself
+    return est
 
 
 def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,

@@ -307,7 +307,8 @@ class HelicopterRig(Rig):
     Profiles: ``"paper"`` (torque proportional to voltage at every instant, ideal encoders
     by default) and ``"hardware"`` (:mod:`testbed.rigs.helicopter.hardware`: rotor lag,
     amplifier voltage and current limits, deadband; default sensors ``"hardware"`` with an
-    IMU). The design model is the paper's in both.
+    IMU). The design model follows the profile (:meth:`design_model`; the runner's
+    ``design_profile="paper"`` keeps the paper's on the hardware rig).
 
     Parameters
     ----------
@@ -586,7 +587,8 @@ class HelicopterRig(Rig):
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
                      process_noise_floor: float = 0.05):
-        """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor.
+        """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor; in the
+        ``hardware`` profile augmented with what it declares (:meth:`_matched_design`).
 
         Parameters
         ----------
