@@ -271,7 +271,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
                          output_matrix: np.ndarray | None = None,
                          disturbance_matrix: np.ndarray | None = None,
                          extras: dict[str, Any] | None = None,
-                         input_noise_cov: np.ndarray | None = None) -> DesignModel:
+                         input_noise_cov: np.ndarray | None = None,
+                         extra_inputs: tuple[tuple[str, str], ...] = ()) -> DesignModel:
     """A design model augmented with what the rig and its sensors declare.
 
     State ``[physical (rig.n_states), extra (actuators...), biases, delays]``:
@@ -305,6 +306,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         Per channel of ``sensors`` (default :func:`channel_effects`).
     paper_design : DesignModel, optional
         Kept in ``extras["paper_design"]``.
+    extra_inputs : tuple of (name, unit)
+        Inputs after the rig's actions in ``B`` (computed by ``input_transform``).
     input_transform, output_matrix, disturbance_matrix, extras, input_noise_cov
         As in :func:`build_design` (``output_matrix`` in the rig's states: padded here).
     """
@@ -314,6 +317,7 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     nr = rig.n_states
     A, B, Q = (np.asarray(a, float) for a in (A, B, Q))
     n0, nu = B.shape
+    nu_rig = len(rig.action_names)
     index = (np.flatnonzero(model.stochastic & ~model.inputs) if channels is None
              else np.asarray(channels, int))
     effects = channel_effects(sensors) if effects is None else effects
@@ -323,10 +327,11 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         if rows is not None and int(ch) in rows:
             row = np.asarray(rows[int(ch)], float)
             C0[pos, :len(row)] = row
-    D0 = model.D[index].astype(float)
+    D0 = np.zeros((len(index), nu))
+    D0[:, :nu_rig] = model.D[index]
     R = model.R[np.ix_(index, index)].astype(float)
     if input_noise_cov is not None:
-        R = R + D0 @ np.asarray(input_noise_cov, float) @ D0.T
+        R = R + D0[:, :nu_rig] @ np.asarray(input_noise_cov, float) @ D0[:, :nu_rig].T
     for pos, ch in enumerate(index):
         R[pos, pos] += (extra_R or {}).get(int(ch), 0.0)
     names = list(rig.state_names) + [n for n, _ in extra_states]
@@ -405,7 +410,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     return DesignModel(
         dt_s=float(dt_s), continuous=plant, discrete=discrete, x0=x0_full, P0=P0_full,
         state_names=tuple(names), state_units=tuple(units),
-        input_names=tuple(rig.action_names), input_units=tuple(rig.action_units),
+        input_names=tuple(rig.action_names) + tuple(nm for nm, _ in extra_inputs),
+        input_units=tuple(rig.action_units) + tuple(un for _, un in extra_inputs),
         measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
         measurement_index=index, sensors=model, output_matrix=L,
         disturbance_matrix=G, input_transform=input_transform, extras=all_extras,

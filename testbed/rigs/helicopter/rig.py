@@ -259,6 +259,9 @@ DESIGN_RATE_RAD_S = 0.3
 #: Matched ``hardware`` design: the pitch at which the yaw gyro's ``yaw_rate cos(pitch)`` is
 #: linearized, rad (level: where the rig flies its setpoints).
 YAW_GYRO_PITCH_RAD = 0.0
+#: Matched ``hardware`` design: an estimated pitch within this of the lower stop rests on it
+#: (the stop's reaction cancels a downward acceleration), rad (two pitch-encoder counts).
+STOP_TOLERANCE_RAD = 2 * 2 * np.pi / 4096
 
 
 def basin_helicopter_w(t_s: float) -> np.ndarray:
@@ -636,7 +639,10 @@ class HelicopterRig(Rig):
           gravity-compensating voltage, from :meth:`linearize` ``(motor_states=True)`` at
           level pitch (poles ``-1/tau``: -16.7 and -40 rad/s); prior: motors at rest;
         - the input: the command past the declared deadband and current limit (at the
-          estimated rotor speed) minus ``V_g`` at the estimated pitch;
+          estimated rotor speed) minus ``V_g`` at the estimated pitch, and a third input,
+          the pitch stops' reaction: with the estimated pitch on a stop (within
+          :data:`STOP_TOLERANCE_RAD`) it cancels the model's pitch acceleration into the
+          stop (the rig starts resting on the lower stop, motors at rest);
         - IMU: gyro bias states (declared random walk and reset spread) and delay states
           for each IMU channel's declared whole-sample delay; ``gyro_yaw`` measures
           ``yaw_rate cos(pitch)``, linearized at the operating pitch (level, where the rig
@@ -671,17 +677,25 @@ class HelicopterRig(Rig):
             rows[names.index("gyro_yaw")] = np.array([0.0, 0.0, 0.0,
                                                       np.cos(YAW_GYRO_PITCH_RAD)])
 
+        B = np.hstack([B, np.eye(6)[:, 2:3]])  # the pitch stops' reaction, rad/s^2
+        accel_row = A[2].copy()
+        resting = PITCH_LIMIT_RAD - STOP_TOLERANCE_RAD
+
         def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-            v_g = gravity_voltage(nominal, x_hat[:, 0])
+            pitch = x_hat[:, 0]
+            v_g = gravity_voltage(nominal, pitch)
             volts = current_limited(deadband(u, consts[:2]), x_hat[:, 4:6] + v_g,
                                     consts[2:4], consts[4:6])
-            return volts - v_g
+            accel = x_hat[:, :6] @ accel_row  # the model's pitch acceleration now
+            into_stop = ((pitch <= -resting) & (accel < 0)) | ((pitch >= resting) & (accel > 0))
+            return np.column_stack([volts - v_g, np.where(into_stop, -accel, 0.0)])
 
         return build_matched_design(
             self, sensors, dt_s, A, B, Qm, x0, P0,
             extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
             rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
             input_transform=matched_input, disturbance_matrix=G,
+            extra_inputs=(("stop_reaction", "rad/s^2"),),
             extras={"paper_model": paper.extras["paper_model"]})
 
 
