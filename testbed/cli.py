@@ -52,6 +52,7 @@ FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-o
          "manoeuvre": "--manoeuvre", "manoeuvre_params": "--manoeuvre-param",
          "disturbance": "--disturbance", "process_noise": "--process-noise",
          "design_options": "--design-option", "params": "--param", "profile": "--profile",
+         "design_profile": "--design-profile",
          "ambient_noise": "--ambient-noise", "reset_noise_scale": "--reset-noise-scale"}
 
 
@@ -128,6 +129,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
     p.add_argument("--profile", default="paper", choices=("paper", "hardware"),
                    help="paper: the papers' idealizations; hardware: motor lag, amplifier "
                    "limits, deadband, IMU and sensor timing of the real rig (see docs)")
+    p.add_argument("--design-profile", default="matched", choices=("matched", "paper"),
+                   help="matched: the filter designs from the rig as its profile declares it "
+                   "(hardware: motor, bias and delay states); paper: from the papers' model "
+                   "(model-mismatch study)")
     p.add_argument("--filter", default="kalman",
                    help=f"{', '.join(ESTIMATORS)} or package.module:factory")
     p.add_argument("--filter-option", type=_name_value, action="append", default=[],
@@ -292,7 +297,8 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
             raise ValueError(f"--a-y-source does not apply to rig {rig.name!r} (its input is "
                              "not a lateral acceleration)")
         design_options["a_y_source"] = args.a_y_source
-    scenario = Scenario(rig=args.rig, profile=args.profile, estimator=args.filter,
+    scenario = Scenario(rig=args.rig, profile=args.profile,
+                        design_profile=args.design_profile, estimator=args.filter,
                         estimator_options=dict(args.filter_option), controller=args.controller,
                         sensors=args.sensors, sensor_options=sensor_options,
                         disturbance=args.disturbance, process_noise=args.process_noise or 0.0,

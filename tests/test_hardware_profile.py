@@ -242,15 +242,21 @@ def test_hardware_vector_env_equals_single_envs_bitwise(rig):
     vec.close()
 
 
-def test_design_model_stays_the_papers_under_hardware():
+def test_design_model_stays_the_papers_under_hardware_with_design_profile_paper():
     paper = runner.build(Scenario(rig="helicopter", sensors="encoders"))
-    hard = runner.build(Scenario(rig="helicopter", profile="hardware", sensors="encoders"))
+    hard = runner.build(Scenario(rig="helicopter", profile="hardware", sensors="encoders",
+                                 design_profile="paper"))
+    matched = runner.build(Scenario(rig="helicopter", profile="hardware", sensors="encoders"))
     for name in ("A", "B", "C", "Q", "R"):
         np.testing.assert_array_equal(getattr(hard.design.continuous, name),
                                       getattr(paper.design.continuous, name))
     assert hard.loop.sim.rig.profile == "hardware" and hard.loop.sim.rig.model.na == 2
-    paper.close()
-    hard.close()
+    # matched: the rotor states augment the paper model (encoders: no IMU states)
+    assert matched.design.state_names[4:] == ("dact_pitch", "dact_yaw")
+    np.testing.assert_allclose(matched.design.continuous.A[:4, :4],
+                               paper.design.continuous.A, atol=1e-6)
+    for experiment in (paper, hard, matched):
+        experiment.close()
     with pytest.raises(ValueError, match="profile must be one of"):
         Scenario(rig="helicopter", profile="lab").check()
 

@@ -17,7 +17,6 @@ class SteadyStateKF:
         S = sys_.H @ P @ sys_.H.T + sys_.R
         self.K = P @ sys_.H.T @ np.linalg.inv(S)
         self.D = sys_.D
-        self.index = design.measurement_index  # channels the linear model covers
         self.x = design.x0.copy()
         self.P = None  # no covariance reported
 
@@ -27,7 +26,7 @@ class SteadyStateKF:
     def step(self, y, u):
         x_pred = self.F @ self.x + self.B @ u
         y_pred = self.H @ x_pred + (0 if self.D is None else self.D @ u)
-        self.x = x_pred + self.K @ (np.asarray(y)[self.index] - y_pred)
+        self.x = x_pred + self.K @ (np.asarray(y) - y_pred)  # y: the channels H describes
         return self.x
 
 

@@ -41,6 +41,10 @@ class FilterInLoop(gym.Wrapper):
         voltage so a linear model sees only the unbalanced part).
     measurement_index : sequence of int, optional
         Channels of the sensor vector given to the estimator (default: all).
+    physical_index : sequence of int, optional
+        The rig's physical states in the estimator's state (an augmented design's
+        ``design.physical_index``; default: all): the observation, ``info["estimate"]``,
+        ``info["covariance"]`` and the metrics are theirs (the marginal covariance block).
     output_matrix, ratio_weight : ndarray, optional
         ``L`` and ``R`` of the noise-output ratio (see :class:`EpisodeMetrics`).
 
@@ -56,13 +60,14 @@ class FilterInLoop(gym.Wrapper):
     def __init__(self, env: gym.Env, estimator: Estimator, *,
                  input_transform: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
                  measurement_index: Sequence[int] | None = None,
+                 physical_index: Sequence[int] | None = None,
                  output_matrix: np.ndarray | None = None,
                  ratio_weight: np.ndarray | None = None):
         super().__init__(env)
         self.estimator = estimator
         P = estimator.P  # None for estimators without a covariance
         x0 = np.array(estimator.x, dtype=float, copy=True)
-        n = x0.shape[-1]
+        n = x0.shape[-1] if physical_index is None else len(physical_index)
         self.observation_space = spaces.Box(-np.inf, np.inf, (n,), np.float64)
         inner = env.unwrapped
         self._index = None if measurement_index is None else np.asarray(measurement_index)
@@ -73,7 +78,8 @@ class FilterInLoop(gym.Wrapper):
         metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
                                  measured, output_matrix, ratio_weight)
         self._stage = EstimatorStage(estimator, input_transform, metrics,
-                                     (x0, None if P is None else np.array(P, copy=True)))
+                                     (x0, None if P is None else np.array(P, copy=True)),
+                                     physical_index=physical_index)
         self._needs_reset = True
 
     @classmethod
@@ -98,7 +104,9 @@ class FilterInLoop(gym.Wrapper):
         if design is None:
             design = inner.rig.design_model(inner.sensors, inner.dt_s,
                                             inner.sim.known_disturbance)
+        design, _ = estimators.design_for(estimator, design)
         est = estimators.build(estimator, design, **options)
+        channels = estimators.channels_for(est, design)
         if getattr(est, "batched", False):
             est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results
         batched_transform = design.input_transform
@@ -106,7 +114,9 @@ class FilterInLoop(gym.Wrapper):
         if batched_transform is not None:
             def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
                 return batched_transform(u[None], np.asarray(x_hat)[None])[0]
-        return cls(env, est, input_transform=transform, output_matrix=design.output_matrix)
+        return cls(env, est, input_transform=transform, measurement_index=channels,
+                   physical_index=design.physical,
+                   output_matrix=design.output_matrix[:, design.physical])
 
     @property
     def input_transform(self) -> Callable | None:
@@ -126,8 +136,8 @@ class FilterInLoop(gym.Wrapper):
         return y if self._index is None else y[self._index]
 
     def _augment(self, info: dict[str, Any], y: np.ndarray) -> dict[str, Any]:
-        x_hat = np.array(self.estimator.x, copy=True)
-        P = self.estimator.P
+        x_hat = np.array(self._stage.x, copy=True)
+        P = self._stage.P
         info = dict(info)
         info["measurement"] = y
         info["estimate"] = x_hat
@@ -147,7 +157,7 @@ class FilterInLoop(gym.Wrapper):
         y, info = self.env.reset(seed=seed, options=options or None)
         self._stage.reset(self._select(y), info["state"], x0, P0)
         self._needs_reset = False
-        return np.array(self.estimator.x, copy=True), self._augment(info, y)
+        return np.array(self._stage.x, copy=True), self._augment(info, y)
 
     def step(self, action):
         """Step the environment, then the estimator on the new measurement."""

@@ -6,10 +6,14 @@ typed form)::
     x : ndarray (n,) or (N, n)        current estimate
     P : ndarray (n, n) or (N, n, n)   its covariance, or None when the estimator has none
     reset(x0, P0) -> None             restart from a prior (P0 may be None)
-    step(y, u) -> x                   y: the full sensor vector (m,) measured at the end of
-                                      the step; u: the input applied over it, in the design
+    step(y, u) -> x                   y: the channels design.discrete's H (with D) describes
+                                      (design.measurement_index), measured at the end of the
+                                      step; u: the input applied over it, in the design
                                       model's coordinates (the loop applies
                                       design.input_transform)
+    channels                          optional: other channels of the sensor vector the
+                                      estimator wants (indices, or "all"; e.g. ms-hinf's
+                                      deterministic y2)
     prime(y) -> None                  optional: use the first sample (at reset)
     innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
                                       and its covariance (m, m) or (N, m, m) (``testbed
@@ -30,8 +34,27 @@ typed form)::
                                       whole Monte-Carlo batch
 
 An estimator without ``batched = True`` runs in ``mc`` as one instance per run (each from
-its own factory call). ``design.measurement_index`` lists the channels of ``y`` that
-``design.discrete``/``design.continuous`` model; the built-in linear filters read only those.
+its own factory call). Channels an input is computed from (``SensorModel.inputs``) go to the
+loop's input transform, not to the estimator: a Kalman filter written from ``F, B, H, D, Q,
+R`` alone works on every rig.
+
+Physical states: a design may be augmented (the ``hardware`` profile's matched design:
+actuator, sensor-bias and delay states after the rig's physical ones). The estimator keeps
+its whole state ``x`` (n,) and ``P`` (n, n); the loop reports ``x[..., physical_index]`` and
+the marginal block ``P[..., physical_index, physical_index]``
+(``design.physical_index``): the metrics, recordings and the controller see the rig's
+states only.
+
+Checks: after the factory and after the first step the loop checks ``x`` ((n,) or (N, n))
+and ``P`` ((n, n) or (N, n, n)): finite, symmetric and positive semidefinite to a relative
+tolerance (:func:`testbed.experiment.loop.check_estimate`); otherwise one line names the
+estimator and the expected shape.
+
+Design profiles: a factory whose theory needs the paper's model sets
+``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
+instead of an augmented design (:func:`design_for`). Built in: ``kalman`` and
+``kalman-bucy`` design from the matched model; ``ms-hinf``, ``lmi-hinf``, ``poly-hinf`` and
+``vc-discrete`` fall back to the paper design (the reasons are their attributes).
 
 A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
 (``testbed run RIG --filter mymodule:make``); the factory receives the
@@ -94,33 +117,98 @@ class EstimatorWrapper:
 class ChannelSelect(EstimatorWrapper):
     """An estimator reading only some channels of ``y`` (batch-transparent).
 
+    Takes the full sensor vector (``m`` channels: it selects) or the selected channels
+    (what the loop gives an estimator whose ``channels`` are ``index``: passed through).
+
     Parameters
     ----------
     inner : estimator
     index : ndarray of int
         Channels of the sensor vector given to ``inner``.
+    m : int, optional
+        Channels of the full sensor vector (default: ``max(index) + 1``).
+    request : bool
+        Set :attr:`channels` to ``index``: the loop then gives the estimator these channels
+        (beyond ``design.measurement_index``, e.g. the deterministic ``y2`` of ``ms-hinf``).
     """
 
-    def __init__(self, inner: Any, index: np.ndarray):
+    def __init__(self, inner: Any, index: np.ndarray, m: int | None = None,
+                 request: bool = False):
         super().__init__(inner)
         self.index = np.asarray(index, dtype=int)
+        self.m = int(self.index.max()) + 1 if m is None else int(m)
         self.batched = getattr(inner, "batched", False)
+        if request:
+            self.channels = self.index
+
+    def _pick(self, y: np.ndarray) -> np.ndarray:
+        y = np.asarray(y)
+        if y.shape[-1] == len(self.index) and len(self.index) != self.m:
+            return y  # already the selected channels
+        return y[..., self.index]
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         """Step the inner estimator on ``y[..., index]``."""
-        return self.inner.step(np.asarray(y)[..., self.index], u)
+        return self.inner.step(self._pick(y), u)
 
     def __getattr__(self, name: str) -> Any:
         if name == "prime" and "inner" in self.__dict__:  # only when the inner one primes
             prime = self.inner.prime
-            return lambda y: prime(np.asarray(y)[..., self.index])
+            return lambda y: prime(self._pick(y))
         return super().__getattr__(name)
 
 
 def _select(estimator: Any, design: DesignModel) -> Any:
     if len(design.measurement_index) == len(design.measurement_names):
         return estimator
-    return ChannelSelect(estimator, design.measurement_index)
+    return ChannelSelect(estimator, design.measurement_index, len(design.measurement_names))
+
+
+def channels_for(estimator: Any, design: DesignModel) -> np.ndarray | None:
+    """The channels of the sensor vector the loop gives ``estimator``: its own
+    ``channels`` attribute (indices, or ``"all"``) or ``design.measurement_index``
+    (None: every channel)."""
+    asked = getattr(estimator, "channels", None)
+    if isinstance(asked, str):
+        if asked != "all":
+            raise ValueError(f"estimator channels must be indices or 'all', got {asked!r}")
+        return None
+    index = design.measurement_index if asked is None else np.asarray(asked, dtype=int)
+    if np.array_equal(index, np.arange(len(design.measurement_names))):
+        return None
+    return np.asarray(index, dtype=int)
+
+
+def paper_design_only(name: str | Factory) -> str | None:
+    """Why an estimator family designs from the paper model only (None: it takes the
+    matched, possibly augmented design): the factory's ``paper_design_only`` attribute."""
+    try:
+        factory = resolve(name)
+    except ValueError:
+        return None
+    reason = getattr(factory, "paper_design_only", None)
+    return None if reason is None else str(reason)
+
+
+def design_for(name: str | Factory, design: DesignModel) -> tuple[DesignModel, str | None]:
+    """The design an estimator family is built from, and why it is not ``design``.
+
+    An augmented (matched) design goes to every family except those declaring
+    ``paper_design_only`` (their reason returned), which get ``design.extras["paper_design"]``.
+
+    Raises
+    ------
+    ValueError
+        The family needs the paper design and the design does not carry one.
+    """
+    reason = paper_design_only(name) if design.augmented else None
+    if reason is None:
+        return design, None
+    paper = design.extras.get("paper_design")
+    if paper is None:
+        raise ValueError(f"filter {name!r} designs from the rig's paper model only ({reason}); "
+                         "this augmented design carries none (extras['paper_design'])")
+    return paper, reason
 
 
 def kalman(design: DesignModel) -> Any:
@@ -166,8 +254,10 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
                        "gamma_kind": "continuous-observation",
                        "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
-    return est if np.array_equal(index, np.arange(len(design.measurement_names))) \
-        else ChannelSelect(est, index)
+    if np.array_equal(index, np.arange(len(design.measurement_names))):
+        est.channels = "all"  # the deterministic channels too
+        return est
+    return ChannelSelect(est, index, len(design.measurement_names), request=True)
 
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
@@ -196,8 +286,10 @@ def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: flo
                          "(design.extras['cubic_model']); this design has none")
     from testbed.estimators.poly import poly_hinf_estimator
 
-    return poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
-                               substeps=substeps)
+    est = poly_hinf_estimator(design, cubic(design), gamma=gamma, gamma_factor=gamma_factor,
+                              substeps=substeps)
+    est.channels = "all"  # it keeps design.measurement_index itself
+    return est
 
 
 def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,
@@ -214,6 +306,15 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
                                    sigma_factor=sigma_factor, max_evaluations=max_evaluations)
     return _select(est, design)
 
+
+ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
+                             "continuous model with the deterministic channel y2; the "
+                             "whole-sample IMU delays have no continuous-time form")
+lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias random walks "
+                              "and the vehicle's own LMI system are the paper's states")
+poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
+vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
+                                 "model's A; bias random walks are not Schur-stable")
 
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
@@ -308,6 +409,9 @@ class PerMember:
 
     def __init__(self, instances: list[Any]):
         self.instances = instances
+        channels = getattr(instances[0], "channels", None)
+        if channels is not None:
+            self.channels = channels
 
     @classmethod
     def build(cls, name: str | Factory, design: DesignModel, num: int,

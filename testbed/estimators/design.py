@@ -55,6 +55,15 @@ class DesignModel:
         Rig-specific design data (paper models, LMI design systems); ``cubic_model`` is the
         rig's :meth:`~testbed.rigs.base.Rig.cubic_model` and ``parameter_mismatch`` its
         :meth:`~testbed.rigs.base.Rig.parameter_mismatch` (both set by :func:`build_design`).
+        A matched design (:func:`build_matched_design`) keeps the rig's paper design in
+        ``extras["paper_design"]`` (the fallback of estimator families that cannot use an
+        augmented model, and the controller's model).
+    physical_index : ndarray of int, shape (n_rig,), or None
+        Where the rig's physical states (``x = [positions, velocities]``, the rig's order)
+        sit in the design state. None: the design state *is* the rig's state. An augmented
+        design (actuator, sensor-bias and delay states) sets it; the loop and the metrics
+        compare ``x[..., physical_index]`` with the truth and use the marginal covariance
+        ``P[..., physical_index, physical_index]``.
     """
 
     dt_s: float
@@ -74,11 +83,24 @@ class DesignModel:
     disturbance_matrix: np.ndarray | None = None
     input_transform: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
     extras: dict[str, Any] = field(default_factory=dict)
+    physical_index: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         """State dimension."""
         return len(self.state_names)
+
+    @property
+    def physical(self) -> np.ndarray:
+        """:attr:`physical_index`, or every state when the design is not augmented."""
+        if self.physical_index is None:
+            return np.arange(self.n)
+        return np.asarray(self.physical_index, dtype=int)
+
+    @property
+    def augmented(self) -> bool:
+        """Whether the design state has more than the rig's physical states."""
+        return self.physical_index is not None and len(self.physical_index) != self.n
 
     @property
     def deterministic_index(self) -> np.ndarray:
@@ -168,3 +190,229 @@ def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=Non
     return build_design(rig, sensors, dt_s, A, B, Q, rig.default_x0(),
                         prior_std**2 * np.eye(n), disturbance_matrix=G,
                         input_transform=relative_input)
+
+
+#: Design profiles: ``matched`` (the model of the rig as its profile declares it) and
+#: ``paper`` (the papers' model whatever the profile: a deliberate model-mismatch study).
+DESIGN_PROFILES = ("matched", "paper")
+
+
+@dataclass(frozen=True)
+class ChannelEffects:
+    """What the sensor objects of one channel declare about its imperfections.
+
+    Read from the decorators (:func:`channel_effects`): declared parameters only, never
+    the values an episode draws.
+
+    Attributes
+    ----------
+    delay : int
+        Whole samples of delay (:class:`~testbed.sensors.Delay`).
+    bias_walk : float
+        Bias random-walk intensity, unit/sqrt(s) (:class:`~testbed.sensors.BiasRandomWalk`).
+    bias0_std : float
+        Standard deviation of the bias drawn at reset.
+    scale_std : float
+        Standard deviation of the sensitivity error drawn at reset
+        (:class:`~testbed.sensors.ScaleFactor`).
+    hold : int
+        Samples a value is held (:class:`~testbed.sensors.SampleAndHold`).
+    """
+
+    delay: int = 0
+    bias_walk: float = 0.0
+    bias0_std: float = 0.0
+    scale_std: float = 0.0
+    hold: int = 1
+
+
+def channel_effects(sensor: Sensor) -> list[ChannelEffects]:
+    """The declared imperfections of every channel of a sensor (suite), in channel order."""
+    from testbed.sensors import BiasRandomWalk, Decorator, Delay, SampleAndHold, ScaleFactor
+    from testbed.sensors.base import Suite
+
+    out = [dict(delay=0, bias_walk=0.0, bias0_std=0.0, scale_std=0.0, hold=1)
+           for _ in range(sensor.dim)]
+
+    def walk(s: Sensor, offset: int) -> None:
+        if isinstance(s, Suite):
+            for part in s.sensors:
+                walk(part, offset)
+                offset += part.dim
+            return
+        if not isinstance(s, Decorator):
+            return
+        for j in range(s.dim):
+            e = out[offset + j]
+            if isinstance(s, Delay):
+                e["delay"] += s.samples
+            elif isinstance(s, BiasRandomWalk):
+                e["bias_walk"] = float(np.hypot(e["bias_walk"], s.walk[j]))
+                e["bias0_std"] = float(np.hypot(e["bias0_std"], s.initial_std[j]))
+            elif isinstance(s, ScaleFactor):
+                e["scale_std"] = float(np.hypot(e["scale_std"], s.initial_std[j]))
+            elif isinstance(s, SampleAndHold):
+                e["hold"] *= s.every
+        walk(s.inner, offset)
+
+    walk(sensor, 0)
+    return [ChannelEffects(**e) for e in out]
+
+
+def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray,
+                         Q: np.ndarray, x0: np.ndarray, P0: np.ndarray, *,
+                         extra_states: tuple[tuple[str, str], ...] = (),
+                         channels: np.ndarray | None = None,
+                         rows: dict[int, np.ndarray] | None = None,
+                         extra_R: dict[int, float] | None = None,
+                         effects: list[ChannelEffects] | None = None,
+                         paper_design: DesignModel | None = None,
+                         input_transform: Callable | None = None,
+                         output_matrix: np.ndarray | None = None,
+                         disturbance_matrix: np.ndarray | None = None,
+                         extras: dict[str, Any] | None = None,
+                         input_noise_cov: np.ndarray | None = None,
+                         extra_inputs: tuple[tuple[str, str], ...] = ()) -> DesignModel:
+    """A design model augmented with what the rig and its sensors declare.
+
+    State ``[physical (rig.n_states), extra (actuators...), biases, delays]``:
+
+    - ``A, B, Q, x0, P0`` (continuous, the physical states first, then ``extra_states``);
+    - one **bias state** per used channel with a declared bias (random walk of the declared
+      intensity, prior variance the declared reset spread): ``y_i += b_i``;
+    - one **delay state** per sample of a used channel's declared whole-sample delay: the
+      discrete model shifts ``s_1 <- h_i x + d_i u``, ``s_j <- s_{j-1}`` exactly and the
+      channel reads ``s_d``. Continuous time cannot hold a pure delay: ``design.continuous``
+      has each shift as a first-order lag of time constant ``dt_s`` (Pade (0, 1)), so
+      ``design.discrete`` is the ZOH of ``design.continuous`` except on the delay rows.
+
+    Parameters
+    ----------
+    rig, sensors, dt_s
+        As in :func:`build_design`.
+    A, B, Q : ndarray, shapes (n0, n0), (n0, nu), (n0, n0)
+        Continuous model of the physical and extra states (intensity ``Q``).
+    x0, P0 : ndarray, shapes (n0,), (n0, n0)
+    extra_states : tuple of (name, unit)
+        The states after the physical ones in ``A``.
+    channels : ndarray of int, optional
+        Channels the design uses (default: the stochastic, non-input ones).
+    rows : dict, optional
+        ``{channel: row (n_rig,) or (n0,)}``: the channel's linearization instead of the
+        sensor's (with ``n0`` entries it also reads the extra states).
+    extra_R : dict, optional
+        ``{channel: variance}`` added to the channel's per-sample noise variance.
+    effects : list of ChannelEffects, optional
+        Per channel of ``sensors`` (default :func:`channel_effects`).
+    paper_design : DesignModel, optional
+        Kept in ``extras["paper_design"]``.
+    extra_inputs : tuple of (name, unit)
+        Inputs after the rig's actions in ``B`` (computed by ``input_transform``).
+    input_transform, output_matrix, disturbance_matrix, extras, input_noise_cov
+        As in :func:`build_design` (``output_matrix`` in the rig's states: padded here).
+    """
+    from scipy.linalg import block_diag
+
+    model = sensors.linear_model()
+    nr = rig.n_states
+    A, B, Q = (np.asarray(a, float) for a in (A, B, Q))
+    n0, nu = B.shape
+    nu_rig = len(rig.action_names)
+    index = (np.flatnonzero(model.stochastic & ~model.inputs) if channels is None
+             else np.asarray(channels, int))
+    effects = channel_effects(sensors) if effects is None else effects
+    C0 = np.zeros((len(index), n0))
+    C0[:, :nr] = model.C[index]
+    for pos, ch in enumerate(index):
+        if rows is not None and int(ch) in rows:
+            row = np.asarray(rows[int(ch)], float)
+            C0[pos, :len(row)] = row
+    D0 = np.zeros((len(index), nu))
+    D0[:, :nu_rig] = model.D[index]
+    R = model.R[np.ix_(index, index)].astype(float)
+    if input_noise_cov is not None:
+        R = R + D0[:, :nu_rig] @ np.asarray(input_noise_cov, float) @ D0[:, :nu_rig].T
+    for pos, ch in enumerate(index):
+        R[pos, pos] += (extra_R or {}).get(int(ch), 0.0)
+    names = list(rig.state_names) + [n for n, _ in extra_states]
+    units = list(rig.state_units) + [u for _, u in extra_states]
+    # bias states (random walks)
+    biased = [(pos, int(ch)) for pos, ch in enumerate(index)
+              if effects[ch].bias_walk > 0 or effects[ch].bias0_std > 0]
+    nb = len(biased)
+    Qb = np.diag([effects[ch].bias_walk ** 2 for _, ch in biased]) if nb else np.zeros((0, 0))
+    Pb = np.diag([effects[ch].bias0_std ** 2 for _, ch in biased]) if nb else np.zeros((0, 0))
+    for _, ch in biased:
+        names.append(f"bias_{sensors.names[ch]}")
+        units.append(sensors.units[ch])
+    n1 = n0 + nb
+    A1 = block_diag(A, np.zeros((nb, nb)))
+    B1 = np.vstack([B, np.zeros((nb, nu))])
+    Q1 = block_diag(Q, Qb)
+    H1 = np.hstack([C0, np.zeros((len(index), nb))])
+    for j, (pos, _) in enumerate(biased):
+        H1[pos, n0 + j] = 1.0
+    # delay states
+    delayed = [(pos, int(ch), effects[ch].delay) for pos, ch in enumerate(index)
+               if effects[ch].delay > 0]
+    nd = sum(d for *_, d in delayed)
+    n = n1 + nd
+    Ac, Bc = np.zeros((n, n)), np.zeros((n, nu))
+    Ac[:n1, :n1], Bc[:n1] = A1, B1
+    F, Bd = np.zeros((n, n)), np.zeros((n, nu))
+    disc = LinearSystem(A=A1, B=B1, C=np.zeros((1, n1)), Q=Q1, R=np.eye(1)).discretize(dt_s)
+    F[:n1, :n1], Bd[:n1] = disc.F, disc.B
+    H = np.hstack([H1, np.zeros((len(index), nd))])
+    D = D0.copy()
+    T0 = [np.eye(n1)]  # prior of the delay states: the first sample repeats (s_j = h x0)
+    k = n1
+    for pos, ch, d in delayed:
+        src_x, src_u = C0[pos], D0[pos]
+        for j in range(d):
+            names.append(f"{sensors.names[ch]}_delay{j + 1}")
+            units.append(sensors.units[ch])
+            if j == 0:
+                F[k, :n0], Bd[k] = src_x, src_u
+                Ac[k, :n0], Bc[k] = src_x / dt_s, src_u / dt_s
+            else:
+                F[k, k - 1] = 1.0
+                Ac[k, k - 1] = 1.0 / dt_s
+            Ac[k, k] = -1.0 / dt_s
+            row = np.zeros(n1)
+            row[:n0] = src_x
+            T0.append(row[None])
+            k += 1
+        H[pos, :n0] = 0.0
+        H[pos, k - 1] = 1.0
+        D[pos] = 0.0
+    T = np.vstack(T0)
+    x0_full = T @ np.concatenate([np.asarray(x0, float), np.zeros(nb)])
+    P0_full = T @ block_diag(np.asarray(P0, float), Pb) @ T.T
+    Qc = block_diag(Q1, np.zeros((nd, nd)))
+    has_d = bool(np.any(D))
+    plant = LinearSystem(A=Ac, B=Bc, C=H, Q=Qc, R=R * dt_s, D=D if has_d else None)
+    discrete = DiscreteLinearSystem(F=F, B=Bd, H=H, Q=block_diag(disc.Q, np.zeros((nd, nd))),
+                                    R=R, dt_s=dt_s, D=D if has_d else None)
+    if output_matrix is None:
+        output_matrix = np.eye(nr)[rig.tracked_index]
+    L = np.zeros((len(output_matrix), n))
+    L[:, :nr] = output_matrix
+    G = None
+    if disturbance_matrix is not None:
+        G = np.zeros((n, np.shape(disturbance_matrix)[1]))
+        G[:nr] = np.asarray(disturbance_matrix, float)[:nr]
+    all_extras = {"cubic_model": None, "parameter_mismatch": None,
+                  "paper_design": paper_design, "design_profile": "matched",
+                  "augmentation": {"extra": [nm for nm, _ in extra_states],
+                                   "biases": [sensors.names[ch] for _, ch in biased],
+                                   "delays": {sensors.names[ch]: d for _, ch, d in delayed}},
+                  **(extras or {})}
+    return DesignModel(
+        dt_s=float(dt_s), continuous=plant, discrete=discrete, x0=x0_full, P0=P0_full,
+        state_names=tuple(names), state_units=tuple(units),
+        input_names=tuple(rig.action_names) + tuple(nm for nm, _ in extra_inputs),
+        input_units=tuple(rig.action_units) + tuple(un for _, un in extra_inputs),
+        measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
+        measurement_index=index, sensors=model, output_matrix=L,
+        disturbance_matrix=G, input_transform=input_transform, extras=all_extras,
+        physical_index=np.arange(nr))

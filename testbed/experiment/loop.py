@@ -21,6 +21,51 @@ from testbed.experiment.metrics import EpisodeMetrics
 from testbed.sim.simulator import Simulator
 
 
+class EstimatorContractError(ValueError):
+    """An estimator's ``x`` or ``P`` breaks the contract (shape, symmetry, finiteness, PSD)."""
+
+
+#: Relative tolerance of the covariance checks (symmetry and smallest eigenvalue).
+COVARIANCE_TOLERANCE = 1e-8
+
+
+def check_estimate(name: str, x: Any, P: Any, n: int, when: str) -> None:
+    """Raise :class:`EstimatorContractError` (one line) unless ``x`` is (n,) or (N, n) and
+    ``P`` (when not None) is (n, n) or (N, n, n), finite, symmetric and PSD to a tolerance.
+
+    Parameters
+    ----------
+    name : str
+        The estimator, for the message.
+    x, P : array_like
+    n : int
+        The design's state dimension.
+    when : str
+        ``"after the factory"`` or ``"after the first step"``.
+    """
+    x = np.asarray(x)
+    if x.ndim not in (1, 2) or x.shape[-1] != n:
+        raise EstimatorContractError(f"filter {name!r}: x must have shape ({n},) (or (N, {n}) "
+                                     f"batched) {when}, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise EstimatorContractError(f"filter {name!r}: x is not finite {when}")
+    if P is None:
+        return
+    P = np.asarray(P)
+    if P.ndim not in (2, 3) or P.shape[-2:] != (n, n):
+        raise EstimatorContractError(f"filter {name!r}: P must have shape ({n}, {n}) (or "
+                                     f"(N, {n}, {n}) batched) {when}, got {P.shape}")
+    if not np.all(np.isfinite(P)):
+        raise EstimatorContractError(f"filter {name!r}: P ({n}, {n}) is not finite {when}")
+    scale = max(1.0, float(np.max(np.abs(P))))
+    if np.max(np.abs(P - np.swapaxes(P, -1, -2))) > COVARIANCE_TOLERANCE * scale:
+        raise EstimatorContractError(f"filter {name!r}: P ({n}, {n}) is not symmetric {when}")
+    low = float(np.min(np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, -1, -2)))))
+    if low < -COVARIANCE_TOLERANCE * scale:
+        raise EstimatorContractError(f"filter {name!r}: P ({n}, {n}) is not positive "
+                                     f"semidefinite {when} (smallest eigenvalue {low:.3g})")
+
+
 class EstimatorStage:
     """One (batched) estimator fed by the simulator's measurements and applied inputs.
 
@@ -31,14 +76,57 @@ class EstimatorStage:
     metrics : EpisodeMetrics
     prior : (x0 (n,), P0 (n, n) or None)
         Default prior of every member.
+    channels : ndarray of int, optional
+        Channels of the sensor vector the estimator receives (default: all). The runner
+        gives ``design.measurement_index`` (what ``design.discrete``'s ``H`` describes)
+        unless the estimator asks for others (its ``channels`` attribute).
+    physical_index : ndarray of int, optional
+        The rig's physical states in the estimator's state (default: all): the metrics,
+        the recording and the controller see ``x[..., physical_index]`` and
+        ``P[..., physical_index, physical_index]``.
+    name : str
+        The estimator's name in error messages.
     """
 
     def __init__(self, estimator: Any, input_transform: Callable | None,
-                 metrics: EpisodeMetrics, prior: tuple[np.ndarray, np.ndarray | None]):
+                 metrics: EpisodeMetrics, prior: tuple[np.ndarray, np.ndarray | None], *,
+                 channels: np.ndarray | None = None, physical_index: np.ndarray | None = None,
+                 name: str = "estimator"):
         self.estimator = estimator
         self.input_transform = input_transform
         self.metrics = metrics
         self.prior = prior
+        self.channels = None if channels is None else np.asarray(channels, dtype=int)
+        n = len(prior[0])
+        phys = None if physical_index is None else np.asarray(physical_index, dtype=int)
+        self.physical_index = None if phys is None or np.array_equal(phys, np.arange(n)) \
+            else phys
+        self.name = name
+        self._checked = False
+
+    def select(self, y: np.ndarray) -> np.ndarray:
+        """The channels of ``y`` (..., m) the estimator receives."""
+        return y if self.channels is None else np.asarray(y)[..., self.channels]
+
+    @property
+    def x(self) -> np.ndarray:
+        """The estimate of the rig's physical states, (N, n_rig)."""
+        x = np.asarray(self.estimator.x)
+        return x if self.physical_index is None else x[..., self.physical_index]
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """The marginal covariance of the physical states, (N, n_rig, n_rig), or None."""
+        P = self.estimator.P
+        if P is None or self.physical_index is None:
+            return P
+        i = self.physical_index
+        return np.asarray(P)[..., i[:, None], i]
+
+    def check(self, when: str) -> None:
+        """:func:`check_estimate` of the estimator's full ``x`` and ``P``."""
+        check_estimate(self.name, self.estimator.x, self.estimator.P, len(self.prior[0]),
+                       when)
 
     def priors(self, num: int, per: list[dict[str, Any] | None]) -> tuple[np.ndarray, Any]:
         """Priors (N, n) and (n, n) or (N, n, n) from per-member ``estimator`` options."""
@@ -63,28 +151,35 @@ class EstimatorStage:
         return x, np.array([P0 if P is None else np.asarray(P, float) for P in Ps])
 
     def reset(self, y: np.ndarray, x_true: np.ndarray, x0: np.ndarray, P0: Any) -> np.ndarray:
-        """Restart from the priors, prime on the first sample, restart the metrics."""
+        """Restart from the priors, prime on the first sample, restart the metrics; returns
+        the physical estimate."""
         self.estimator.reset(x0, P0)
         prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
         if prime is not None:
-            prime(y)
+            prime(self.select(y))
         self.metrics.reset(x_true)
-        return np.asarray(self.estimator.x)
+        self._checked = False
+        return self.x
 
     def step(self, y: np.ndarray, u_applied: np.ndarray, x_true: np.ndarray,
              w: np.ndarray | None) -> np.ndarray:
-        """One estimator step on ``y`` (N, m) with the applied input; metrics updated."""
+        """One estimator step on ``y`` (N, m) with the applied input; metrics updated;
+        returns the physical estimate (N, n_rig)."""
         est = self.estimator
         u = u_applied
         if self.input_transform is not None:
             u = self.input_transform(u, np.asarray(est.x))
-        x_hat = np.asarray(est.step(y, u))
+        x_hat = np.asarray(est.step(self.select(y), u))
         if not np.all(np.isfinite(x_hat)):
             raise FiniteEscapeError("the estimator returned a non-finite estimate",
                                     time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",
                                     value=x_hat.copy())
-        self.metrics.update(x_true, x_hat, est.P, y, w if w is not None and w.size else None)
-        return x_hat
+        if not self._checked:
+            self.check("after the first step")
+            self._checked = True
+        x_phys = self.x
+        self.metrics.update(x_true, x_phys, self.P, y, w if w is not None and w.size else None)
+        return x_phys
 
 
 @dataclass
@@ -224,7 +319,7 @@ class ClosedLoop:
         nx, m, nu = sim.rig.n_states, sim.sensors.dim, sim.rig.n_actions
         shapes = {"state": (n, T, nx), "estimate": (n, T, nx), "measurement": (n, T, m),
                   "action": (n, T, nu), "setpoint": (n, T, len(sim.rig.tracked_states))}
-        if self.stage.estimator.P is not None:
+        if self.stage.estimator.P is not None:  # the physical states' block
             shapes["covariance"] = (n, T, nx, nx)
         if poses:
             nb = sim.physics.nbody
@@ -253,22 +348,22 @@ class ClosedLoop:
             (N, r), and with recorded poses ``body_pos`` (N, nbody, 3) and
             ``body_quat_wxyz`` (N, nbody, 4).
         """
-        sim, est = self.sim, self.stage.estimator
+        sim, stage = self.sim, self.stage
         info = sim.info
-        row = {"t_s": t_s, "state": info["state"], "estimate": np.asarray(est.x),
-               "covariance": est.P, "measurement": sim.obs,
+        row = {"t_s": t_s, "state": info["state"], "estimate": stage.x,
+               "covariance": stage.P, "measurement": sim.obs,
                "action": info["action_applied"], "setpoint": info["setpoint"]}
         if sim.record_poses:
             row["body_pos"], row["body_quat_wxyz"] = sim.physics.poses
         return row
 
     def _record(self, rec: dict[str, np.ndarray], k: int) -> None:
-        sim, est = self.sim, self.stage.estimator
+        sim, stage = self.sim, self.stage
         info = sim.info
         rec["state"][:, k] = info["state"]
-        rec["estimate"][:, k] = est.x
+        rec["estimate"][:, k] = stage.x
         if "covariance" in rec:
-            rec["covariance"][:, k] = est.P
+            rec["covariance"][:, k] = stage.P
         rec["measurement"][:, k] = sim.obs
         rec["action"][:, k] = info["action_applied"]
         rec["setpoint"][:, k] = info["setpoint"]

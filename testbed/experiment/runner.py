@@ -27,7 +27,7 @@ from testbed import estimators
 from testbed.estimators.design import DesignModel
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.control import make_controller
-from testbed.experiment.loop import ClosedLoop, EstimatorStage
+from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
 from testbed.experiment.trajectory import Trajectory
@@ -109,12 +109,26 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                           profile=scenario.profile, ambient_noise=scenario.ambient_noise,
                           reset_noise_scale=scenario.reset_noise_scale)
     rig = sim.rig
-    design_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)  # nominal: the designer's
+    # the designer's rigs: nominal parameters; the controller's is always the paper
+    # profile's (the same controller whatever the estimator's design), the estimator's
+    # knows the scenario's profile unless design_profile is "paper"
+    control_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)
+    matched = scenario.design_profile == "matched" and scenario.profile != "paper"
+    design_rig = (type(rig)(physics_dt_s=scenario.physics_dt_s, profile=scenario.profile)
+                  if matched else control_rig)
     with blame("design_options"):
         design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
                                          **scenario.design_options)
+        control_design = design
+        if design.augmented:
+            control_design = design.extras.get("paper_design") or control_rig.design_model(
+                sim.sensors, sim.dt_s, sim.known_disturbance, **scenario.design_options)
+    name = scenario.estimator if isinstance(scenario.estimator, str) else \
+        getattr(scenario.estimator, "__name__", repr(scenario.estimator))
     with blame("estimator"):
+        design, fallback = estimators.design_for(scenario.estimator, design)
         est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
+        check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
         if not getattr(est, "batched", False):
             est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
                                                                 **scenario.estimator_options)
@@ -122,12 +136,17 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     P = getattr(est, "P", None)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
     metrics = EpisodeMetrics(list(rig.state_names), sim.dt_s, list(sim.sensors.measured_state),
-                             design.output_matrix)
-    stage = EstimatorStage(est, design.input_transform, metrics, prior)
-    controller = make_controller(scenario.controller, design_rig, design,
+                             design.output_matrix[:, design.physical])
+    stage = EstimatorStage(est, design.input_transform, metrics, prior,
+                           channels=estimators.channels_for(est, design),
+                           physical_index=design.physical, name=name)
+    controller = make_controller(scenario.controller, control_rig, control_design,
                                  lambda t: sim.setpoints_at(t))
     meta = {"rig": rig.name, "scenario": scenario.describe(), "sensors": sim.sensors.describe(),
             "control_dt_s": sim.dt_s, "units": sim.units()}
+    if matched:
+        meta["design_profile"] = "paper (fallback: " + fallback + ")" if fallback else "matched"
+        meta["design_states"] = list(design.state_names)
     design_meta = getattr(getattr(est, "inner", est), "design_meta", None)
     if design_meta:
         meta["design"] = design_meta

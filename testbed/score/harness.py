@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from filters import FilterError
-from testbed.estimators import EstimatorWrapper, PerMember
+from testbed.estimators import ChannelSelect, EstimatorWrapper, PerMember
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
@@ -169,8 +169,10 @@ PRIOR_STREAM = 17
 def _trajectory_x0(entry: SuiteEntry, design: Any, seeds: np.ndarray) -> Any:
     if not entry.x0_from_prior:
         return None
-    return [{"x0": np.random.default_rng([int(s), PRIOR_STREAM]).multivariate_normal(
-        design.x0, design.P0)} for s in seeds]
+    i = getattr(design, "physical", np.arange(len(design.x0)))  # the rig's states' prior
+    x0, P0 = design.x0[i], design.P0[np.ix_(i, i)]
+    return [{"x0": np.random.default_rng([int(s), PRIOR_STREAM]).multivariate_normal(x0, P0)}
+            for s in seeds]
 
 
 def _unwrap(estimator: Any) -> Any:
@@ -299,8 +301,10 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         R = np.diag(model.R)
         deltas = np.where(R > 0, 1e-3 * np.sqrt(np.abs(R)), 1e-6)
         k0 = max(1, K // 4)
-        h = estimator_markov(wc.loop.stage.estimator, design.input_transform,
-                             wc.loop.stage.prior, y, u, k0, deltas, num)
+        stage = wc.loop.stage
+        est = stage.estimator if stage.channels is None else \
+            ChannelSelect(stage.estimator, stage.channels, m)  # the channels the loop gives
+        h = estimator_markov(est, design.input_transform, stage.prior, y, u, k0, deltas, num)
         evaluator = LoopEvaluator(wc, dist, seed, K, design.output_matrix)
         rng = np.random.default_rng([int(seed), 16])
         return search(evaluator, A, G, model.C, Hw, design.output_matrix, h,

@@ -20,7 +20,6 @@ class FixedGainKalman:
         system = design.discrete
         P_prior, K = KalmanFilter(system, design.x0, design.P0).steady_state()
         self.F, self.B, self.H = system.F, system.B, system.H
-        self.index = np.asarray(design.measurement_index)  # the channels the model covers
         self.gain = float(gain_scale) * K
         self.P_post = P_prior - K @ system.H @ P_prior
         self.P_post = 0.5 * (self.P_post + self.P_post.T)
@@ -41,7 +40,7 @@ class FixedGainKalman:
         x = self._x @ self.F.T
         if u is not None:
             x = x + np.asarray(u) @ self.B.T
-        y = np.asarray(y)[..., self.index]
+        y = np.asarray(y)  # the channels the design's H describes (the loop selects them)
         self._x = x + (y - x @ self.H.T) @ self.gain.T
         return self._x
 

@@ -14,7 +14,9 @@ What the real Quanser 2-DOF helicopter adds to Basin et al.'s static "torque per
 - **IMU** (rate gyros and an accelerometer at the pivot, MPU-9250 class, see
   :mod:`testbed.rigs.helicopter.imu`).
 
-The design model the filters receive stays Basin et al.'s: the hardware is model mismatch.
+The matched design model (``HelicopterRig.design_model`` in this profile) models these
+effects from the declared parameters; ``design_profile="paper"`` keeps Basin et al.'s model,
+for which the hardware is model mismatch.
 """
 
 from __future__ import annotations

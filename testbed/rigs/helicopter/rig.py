@@ -247,6 +247,21 @@ AMBIENT_NOISE_RAD_S15 = 0.093
 #: Encoder resolutions (pitch, yaw), counts per revolution (Quanser's).
 ENCODER_COUNTS = (4096, 8192)
 SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper", "hardware")
+#: Matched ``hardware`` design: white-noise intensity of the rotor states, as the rms
+#: change over one time constant (V): the deadband and current limit are modelled at the
+#: estimate, the rotor torque's small nonlinearity is not (assumption).
+MOTOR_STATE_NOISE_V = 0.1
+#: Matched ``hardware`` design: prior std of the rotor states at rest, V.
+MOTOR_PRIOR_STD_V = 0.01
+#: Matched ``hardware`` design: a typical rate for the gyros' sensitivity error in ``R``,
+#: rad/s (the rig's rates under the default setpoints stay below about 0.5 rad/s).
+DESIGN_RATE_RAD_S = 0.3
+#: Matched ``hardware`` design: the pitch at which the yaw gyro's ``yaw_rate cos(pitch)`` is
+#: linearized, rad (level: where the rig flies its setpoints).
+YAW_GYRO_PITCH_RAD = 0.0
+#: Matched ``hardware`` design: an estimated pitch within this of the lower stop rests on it
+#: (the stop's reaction cancels a downward acceleration), rad (two pitch-encoder counts).
+STOP_TOLERANCE_RAD = 2 * 2 * np.pi / 4096
 
 
 def basin_helicopter_w(t_s: float) -> np.ndarray:
@@ -295,7 +310,8 @@ class HelicopterRig(Rig):
     Profiles: ``"paper"`` (torque proportional to voltage at every instant, ideal encoders
     by default) and ``"hardware"`` (:mod:`testbed.rigs.helicopter.hardware`: rotor lag,
     amplifier voltage and current limits, deadband; default sensors ``"hardware"`` with an
-    IMU). The design model is the paper's in both.
+    IMU). The design model follows the profile (:meth:`design_model`; the runner's
+    ``design_profile="paper"`` keeps the paper's on the hardware rig).
 
     Parameters
     ----------
@@ -574,7 +590,8 @@ class HelicopterRig(Rig):
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
                      process_noise_floor: float = 0.05):
-        """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor.
+        """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor; in the
+        ``hardware`` profile augmented with what it declares (:meth:`_matched_design`).
 
         Parameters
         ----------
@@ -603,11 +620,83 @@ class HelicopterRig(Rig):
         def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
             return u - gravity_voltage(nominal, x_hat[:, 0])
 
-        return build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
-                            np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
-                            input_transform=unbalanced_input,
-                            extras={"paper_model": model, "gamma": PAPER_GAMMA,
-                                    "initial_weight": PAPER_INITIAL_WEIGHT})
+        paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
+                             np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
+                             input_transform=unbalanced_input,
+                             extras={"paper_model": model, "gamma": PAPER_GAMMA,
+                                     "initial_weight": PAPER_INITIAL_WEIGHT})
+        if self.hardware is None:
+            return paper
+        return self._matched_design(paper, sensors, dt_s, Q, G)
+
+    def _matched_design(self, paper, sensors, dt_s: float, Q: np.ndarray, G):
+        """The ``hardware`` profile's design: the paper design plus what the rig declares.
+
+        State ``[pitch, yaw, pitch_rate, yaw_rate, dact_pitch, dact_yaw, biases...,
+        delays...]`` (:func:`testbed.estimators.design.build_matched_design`):
+
+        - rotor lag: ``dact = act - V_g(pitch)``, the volt-equivalent rotor speeds above the
+          gravity-compensating voltage, from :meth:`linearize` ``(motor_states=True)`` at
+          level pitch (poles ``-1/tau``: -16.7 and -40 rad/s); prior: motors at rest;
+        - the input: the command past the declared deadband and current limit (at the
+          estimated rotor speed) minus ``V_g`` at the estimated pitch, and a third input,
+          the pitch stops' reaction: with the estimated pitch on a stop (within
+          :data:`STOP_TOLERANCE_RAD`) it cancels the model's pitch acceleration into the
+          stop (the rig starts resting on the lower stop, motors at rest);
+        - IMU: gyro bias states (declared random walk and reset spread) and delay states
+          for each IMU channel's declared whole-sample delay; ``gyro_yaw`` measures
+          ``yaw_rate cos(pitch)``, linearized at the operating pitch (level, where the rig
+          flies its setpoints; 24 % off only on the stop at the start, at zero yaw rate);
+          the sensitivity error's variance at :data:`DESIGN_RATE_RAD_S` is added to ``R``;
+          the accelerometer (``g sin(pitch)``: its reset offset of 0.05 m/s^2 is 0.3 deg
+          of pitch, 12 times the encoder's resolution noise) is left out;
+        - encoders: quantization ``q^2 / 12`` in ``R`` (the sensors' linear model).
+        """
+        from testbed.estimators.design import build_matched_design, channel_effects
+
+        hw = self.hardware
+        nominal = HelicopterParams()
+        A, B = self.linearize(motor_states=True)
+        tau = np.asarray(hw.motor_time_constant_s, float)
+        Qm = np.zeros((6, 6))
+        Qm[:4, :4] = Q
+        Qm[4:, 4:] = np.diag((MOTOR_STATE_NOISE_V * np.ones(2)) ** 2 / tau)
+        x0 = np.concatenate([self.default_x0(),
+                             -gravity_voltage(nominal, self.default_x0()[0])])
+        P0 = np.diag([1e-4] * 4 + [MOTOR_PRIOR_STD_V**2] * 2)
+        consts = hw.constants()
+        names = tuple(sensors.names)
+        effects = channel_effects(sensors)
+        channels = [i for i in np.flatnonzero(sensors.linear_model().stochastic
+                                              & ~sensors.linear_model().inputs)
+                    if names[i] != "accel_x"]
+        extra_R = {i: (effects[i].scale_std * DESIGN_RATE_RAD_S) ** 2
+                   for i in channels if names[i].startswith("gyro_")}
+        rows = {}
+        if "gyro_yaw" in names:  # yaw_rate cos(pitch) at the operating pitch
+            rows[names.index("gyro_yaw")] = np.array([0.0, 0.0, 0.0,
+                                                      np.cos(YAW_GYRO_PITCH_RAD)])
+
+        B = np.hstack([B, np.eye(6)[:, 2:3]])  # the pitch stops' reaction, rad/s^2
+        accel_row = A[2].copy()
+        resting = PITCH_LIMIT_RAD - STOP_TOLERANCE_RAD
+
+        def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+            pitch = x_hat[:, 0]
+            v_g = gravity_voltage(nominal, pitch)
+            volts = current_limited(deadband(u, consts[:2]), x_hat[:, 4:6] + v_g,
+                                    consts[2:4], consts[4:6])
+            accel = x_hat[:, :6] @ accel_row  # the model's pitch acceleration now
+            into_stop = ((pitch <= -resting) & (accel < 0)) | ((pitch >= resting) & (accel > 0))
+            return np.column_stack([volts - v_g, np.where(into_stop, -accel, 0.0)])
+
+        return build_matched_design(
+            self, sensors, dt_s, A, B, Qm, x0, P0,
+            extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
+            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            input_transform=matched_input, disturbance_matrix=G,
+            extra_inputs=(("stop_reaction", "rad/s^2"),),
+            extras={"paper_model": paper.extras["paper_model"]})
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):

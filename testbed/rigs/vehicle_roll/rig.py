@@ -33,6 +33,10 @@ X0_STD = (float(np.deg2rad(0.5)), float(np.deg2rad(1.0)))
 #: roll axis (0.088 rad/s^2 rms) with a 0.1 s correlation time: intensity
 #: 2 sigma^2 tau_c = 1.6e-3 rad^2/s^3, b = 0.04 (assumption, docs/vehicle_roll.md).
 AMBIENT_NOISE_RAD_S15 = 0.04
+#: Matched ``hardware`` design: a typical lateral acceleration for the sensitivity errors
+#: of the accelerometer and the speed in ``R``, m/s^2 (the double lane change's rms at
+#: 80 km/h is about 2 m/s^2; assumption).
+DESIGN_A_Y_M_S2 = 2.0
 
 
 def process_noise_intensity(params: VehicleRollParams, dt_s: float, a_y_std: float,
@@ -255,14 +259,76 @@ class VehicleRollRig(Rig):
         Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
         if disturbance is not None and disturbance.intensity is not None:
             Q = Q + disturbance.intensity
+        input_noise_cov = measured_a_y_variance(tap) if transform else None
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
                               output_matrix=paper_model().M, input_transform=transform,
-                              input_noise_cov=(measured_a_y_variance(tap) if transform
-                                               else None))
+                              input_noise_cov=input_noise_cov)
+        design.extras["input_noise_cov"] = input_noise_cov
         from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_estimator
 
         design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_estimator,
                              lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
-        return design
+        if self.profile == "paper":
+            return design
+        return self._matched_design(design, sensors, dt_s, A, B, Q, tap if transform else None,
+                                    design_roll_rate)
+
+    def _matched_design(self, paper, sensors, dt_s: float, A: np.ndarray, B: np.ndarray,
+                        Q: np.ndarray, tap, design_roll_rate: float):
+        """The ``hardware`` profile's design: the paper design plus what the sensors declare.
+
+        State ``[roll, roll_rate, (bias_a_y), biases..., delays...]``
+        (:func:`testbed.estimators.design.build_matched_design`):
+
+        - the measured input's bias ``bias_a_y = v b_r`` (the yaw-rate gyro's declared bias
+          times the speed; random walk ``v q_r``): the roll dynamics see ``a_y - bias_a_y``
+          and so does the lateral accelerometer (with the measured input only);
+        - bias states of the roll-rate gyro (declared random walk and reset offset) and of
+          the lateral accelerometer (declared reset offset, constant);
+        - delay states for each channel's declared whole-sample CAN latency (the measured
+          input arrives as late as the accelerometer it feeds through: the delay state's
+          ``s <- g roll + a_y`` uses the input of the same sample);
+        - the sensitivity errors' variances in ``R``: the gyro's at ``design_roll_rate``,
+          the accelerometer's and the speed scale's at :data:`DESIGN_A_Y_M_S2`.
+        """
+        from scipy.linalg import block_diag
+
+        from testbed.estimators.design import build_matched_design, channel_effects
+
+        names = tuple(sensors.names)
+        effects = channel_effects(sensors)
+        index = paper.measurement_index
+        extra: tuple[tuple[str, str], ...] = ()
+        A0, B0, Q0, P0 = A, B, Q, paper.P0
+        x0 = np.zeros(2)
+        rows: dict[int, np.ndarray] = {}
+        speed_scale = 0.0
+        if tap is not None and "yaw_rate" in names and "speed" in names:
+            gyro = effects[names.index("yaw_rate")]
+            speed = 1.0 / tap.linear_model().D[1, 0]
+            speed_scale = effects[names.index("speed")].scale_std
+            if gyro.bias_walk > 0 or gyro.bias0_std > 0:
+                extra = (("bias_a_y", "m/s^2"),)
+                A0 = np.block([[A, -B], [np.zeros((1, 3))]])
+                B0 = np.vstack([B, np.zeros((1, 1))])
+                Q0 = block_diag(Q, [[(speed * gyro.bias_walk) ** 2]])
+                P0 = block_diag(paper.P0, [[(speed * gyro.bias0_std) ** 2]])
+                x0 = np.zeros(3)
+                model = sensors.linear_model()
+                for ch in index:
+                    rows[int(ch)] = np.concatenate([model.C[ch], -model.D[ch]])
+        extra_R = {}
+        for ch in index:
+            e = effects[ch]
+            if names[ch] == "roll_rate":
+                extra_R[int(ch)] = (e.scale_std * design_roll_rate) ** 2
+            elif names[ch] == "lateral_accel":
+                extra_R[int(ch)] = (e.scale_std**2 + speed_scale**2) * DESIGN_A_Y_M_S2**2
+        return build_matched_design(
+            self, sensors, dt_s, A0, B0, Q0, x0, P0, extra_states=extra, channels=index,
+            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            input_transform=paper.input_transform, output_matrix=paper.output_matrix,
+            input_noise_cov=(paper.extras.get("input_noise_cov")),
+            extras={k: paper.extras[k] for k in ("paper_model", "a_y_std", "a_y_source")})

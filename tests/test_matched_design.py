@@ -1,0 +1,171 @@
+"""Estimators designed for the rig they run on: matched design models, physical-state
+metrics and the contract a textbook filter meets."""
+
+import numpy as np
+import pytest
+
+from testbed import estimators
+from testbed.cli import main
+from testbed.experiment import runner
+from testbed.experiment.loop import EstimatorContractError
+from testbed.experiment.scenario import Scenario, ScenarioError
+
+
+class TextbookKF:
+    """The Kalman filter from ``F, B, H, D, Q, R`` alone (one run, not batched)."""
+
+    def __init__(self, design):
+        s = design.discrete
+        self.F, self.B, self.H, self.Q, self.R = s.F, s.B, s.H, s.Q, s.R
+        self.D = np.zeros((s.m, s.k)) if s.D is None else s.D
+        self.x, self.P = design.x0.copy(), design.P0.copy()
+
+    def reset(self, x0, P0):
+        self.x, self.P = np.array(x0, float), np.array(P0, float)
+
+    def step(self, y, u):
+        x = self.F @ self.x + self.B @ u
+        P = self.F @ self.P @ self.F.T + self.Q
+        S = self.H @ P @ self.H.T + self.R
+        K = np.linalg.solve(S, self.H @ P).T
+        self.x = x + K @ (y - self.H @ x - self.D @ u)
+        I_KH = np.eye(len(x)) - K @ self.H
+        self.P = I_KH @ P @ I_KH.T + K @ self.R @ K.T
+        return self.x
+
+
+def textbook(design):
+    return TextbookKF(design)
+
+
+def _run(**fields):
+    _, summary = runner.run(Scenario(**fields), record=False, progress=False)
+    return summary
+
+
+@pytest.mark.parametrize("fields", [
+    {"rig": "helicopter", "profile": "hardware"},
+    {"rig": "vehicle-roll", "profile": "hardware"},
+    {"rig": "vehicle-roll"},  # input channels (speed, yaw rate) and a feedthrough D
+])
+def test_textbook_kalman_filter_equals_the_built_in_one(fields):
+    ours = _run(estimator=textbook, duration_s=2.0, **fields)
+    built_in = _run(estimator="kalman", duration_s=2.0, **fields)
+    for name, value in built_in["rmse"].items():
+        assert ours["rmse"][name] == pytest.approx(value, rel=1e-7)
+    assert ours["nees_mean"] == pytest.approx(built_in["nees_mean"], rel=1e-6)
+
+
+def test_helicopter_hardware_kalman_is_consistent_and_beats_the_encoder():
+    # 10 s: the lift-off from the pitch stop (not in the linear model) weighs less
+    out = runner.monte_carlo(Scenario(rig="helicopter", profile="hardware", duration_s=10.0),
+                             runs=4, progress=False)
+    assert 2.0 <= out["nees_mean"] <= 8.0  # the rig's 4 physical states
+    assert out["rmse"]["pitch"]["mean"] < out["measurement_rmse"]["pitch"]["mean"]
+    assert out["meta"]["design_profile"] == "matched"
+    assert out["meta"]["design_states"][4:6] == ["dact_pitch", "dact_yaw"]
+
+
+def test_vehicle_hardware_kalman_is_consistent():
+    out = runner.monte_carlo(Scenario(rig="vehicle-roll", profile="hardware", duration_s=4.0),
+                             runs=8, progress=False)
+    paper = runner.monte_carlo(Scenario(rig="vehicle-roll", profile="hardware", duration_s=4.0,
+                                        design_profile="paper"), runs=8, progress=False)
+    assert 1.0 <= out["nees_mean"] <= 4.0  # the rig's 2 physical states
+    assert paper["nees_mean"] > 20.0
+    assert out["rmse"]["roll"]["mean"] < 0.7 * paper["rmse"]["roll"]["mean"]
+
+
+def test_design_profile_paper_reproduces_the_numbers_before_matched_designs():
+    # measured before matched designs existed (the hardware profile's paper design)
+    heli = _run(rig="helicopter", profile="hardware", duration_s=4.0, design_profile="paper")
+    assert heli["rmse"]["pitch"] == pytest.approx(0.0012973392021634635, rel=1e-9)
+    assert heli["rmse"]["yaw_rate"] == pytest.approx(0.017815094649126385, rel=1e-9)
+    assert heli["nees_mean"] == pytest.approx(434.87155930468913, rel=1e-9)
+    roll = _run(rig="vehicle-roll", profile="hardware", duration_s=4.0, design_profile="paper")
+    assert roll["rmse"]["roll"] == pytest.approx(0.0023769451351618783, rel=1e-9)
+    assert roll["nees_mean"] == pytest.approx(51.28687491107696, rel=1e-9)
+
+
+def test_paper_profile_designs_are_the_same_matched_or_paper():
+    for rig in ("helicopter", "vehicle-roll"):
+        a = _run(rig=rig, duration_s=1.0)
+        b = _run(rig=rig, duration_s=1.0, design_profile="paper")
+        assert a["rmse"] == b["rmse"] and a["nees_mean"] == b["nees_mean"]
+
+
+def test_recorded_estimate_and_covariance_are_the_physical_block():
+    experiment = runner.build(Scenario(rig="helicopter", profile="hardware", duration_s=0.1))
+    try:
+        design = experiment.design
+        assert design.augmented and design.n > 4
+        np.testing.assert_array_equal(design.physical, np.arange(4))
+        result = experiment.loop.run(np.array([0]), 0.1, record=True)
+        assert result.trajectory["estimate"].shape[-1] == 4
+        assert result.trajectory["covariance"].shape[-2:] == (4, 4)
+        P = experiment.loop.stage.estimator.P[0]
+        np.testing.assert_array_equal(result.trajectory["covariance"][0, -1], P[:4, :4])
+    finally:
+        experiment.close()
+
+
+def test_families_without_a_matched_theory_fall_back_to_the_paper_design():
+    reason = estimators.paper_design_only("ms-hinf")
+    assert reason and "continuous" in reason
+    assert estimators.paper_design_only("kalman") is None
+    assert estimators.paper_design_only("kalman-bucy") is None
+    experiment = runner.build(Scenario(rig="helicopter", profile="hardware",
+                                       estimator="poly-hinf"))
+    try:
+        assert experiment.design.n == 4
+        assert experiment.meta["design_profile"].startswith("paper (fallback")
+    finally:
+        experiment.close()
+
+
+def test_bad_design_profile_names_the_option(capsys):
+    with pytest.raises(ScenarioError, match="design_profile must be one of") as err:
+        Scenario(design_profile="exact").check()
+    assert err.value.field == "design_profile"
+    with pytest.raises(SystemExit) as done:
+        main(["run", "helicopter", "--design-profile", "exact"])
+    assert done.value.code == 2
+    assert "--design-profile" in capsys.readouterr().err
+
+
+class _Broken:
+    batched = True
+
+    def __init__(self, design, shape, bad_P=False):
+        self.design, self.bad_P = design, bad_P
+        self.x, self.P = np.zeros(shape), np.eye(design.n)
+
+    def reset(self, x0, P0):
+        self.x, self.P = np.array(x0, float), np.broadcast_to(np.eye(len(x0[0])), (len(x0),
+                                                              len(x0[0]), len(x0[0])))
+
+    def step(self, y, u):
+        if self.bad_P:
+            P = np.array(self.P)
+            P[:, 0, 1] += 1.0  # not symmetric
+            self.P = P
+        return self.x
+
+
+def wrong_shape(design):
+    return _Broken(design, design.n + 1)
+
+
+def asymmetric(design):
+    return _Broken(design, design.n, bad_P=True)
+
+
+def test_wrong_x_shape_after_the_factory_is_one_line():
+    with pytest.raises(ValueError, match=r"filter 'wrong_shape': x must have shape \(4,\)"):
+        runner.build(Scenario(rig="helicopter", estimator=wrong_shape))
+
+
+def test_asymmetric_P_after_the_first_step_is_one_line():
+    with pytest.raises(EstimatorContractError,
+                       match=r"filter 'asymmetric': P \(2, 2\) is not symmetric after the first"):
+        _run(rig="vehicle-roll", estimator=asymmetric, duration_s=0.1)
