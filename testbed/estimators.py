@@ -209,6 +209,25 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
     return _select(est, design)
 
 
+def ekf(design: DesignModel, eps: float = 1e-6) -> Any:
+    """Extended Kalman filter on the rig's nominal MuJoCo model (Jacobians by
+    ``mjd_transitionFD``, step ``eps``), ``Q``/``R`` of ``design.discrete``
+    (:mod:`testbed.nonlinear_design`)."""
+    from testbed.nonlinear_design import nonlinear_estimator
+
+    return _select(nonlinear_estimator(design, "ekf", eps=eps), design)
+
+
+def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
+        kappa: float = 0.0) -> Any:
+    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``) on the rig's
+    nominal MuJoCo model, ``Q``/``R`` of ``design.discrete`` (:mod:`testbed.nonlinear_design`)."""
+    from testbed.nonlinear_design import nonlinear_estimator
+
+    return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa),
+                   design)
+
+
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
     "kalman": kalman,
@@ -217,6 +236,8 @@ ESTIMATORS: dict[str, Factory] = {
     "lmi-hinf": lmi_hinf,
     "poly-hinf": poly_hinf,
     "vc-discrete": vc_discrete,
+    "ekf": ekf,
+    "ukf": ukf,
 }
 #: Scenario defaults a built-in estimator needs (applied where the user set nothing).
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {

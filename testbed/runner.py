@@ -113,6 +113,9 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     with blame("design_options"):
         design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
                                          **scenario.design_options)
+    # the designer's MuJoCo rig, for the nonlinear filters (testbed.nonlinear_design)
+    design.extras.setdefault("rig_type", type(design_rig))
+    design.extras.setdefault("physics_dt_s", float(design_rig.model.opt.timestep))
     with blame("estimator"):
         est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
         if not getattr(est, "batched", False):
