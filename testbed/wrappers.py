@@ -97,6 +97,8 @@ class FilterInLoop(gym.Wrapper):
         if design is None:
             design = inner.rig.design_model(inner.sensors, inner.dt_s,
                                             inner.sim.known_disturbance)
+            design.extras.setdefault("rig_type", type(inner.rig))  # as testbed.runner.build
+            design.extras.setdefault("physics_dt_s", float(inner.rig.model.opt.timestep))
         est = estimators.build(estimator, design, **options)
         if getattr(est, "batched", False):
             est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results

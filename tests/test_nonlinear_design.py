@@ -195,3 +195,17 @@ def test_a_batch_of_runs_equals_the_single_runs():
         _, single = runner.run(sc.replace(seed=int(seed)), record=False, progress=False)
         for k, v in single["rmse"].items():
             assert result["rmse_per_run"][k][i] == v
+
+
+@pytest.mark.parametrize("name", ["ekf", "ukf"])
+def test_from_design_in_a_gymnasium_loop_equals_the_runner(name):
+    from testbed.envs import RigEnv
+    from testbed.wrappers import FilterInLoop
+
+    env = RigEnv("vehicle-roll", manoeuvre="double-lane-change")  # the runner's default
+    wrapped = FilterInLoop.from_design(env, name)
+    wrapped.reset(seed=4)
+    estimates = [wrapped.step(np.zeros(env.action_space.shape))[0] for _ in range(20)]
+    traj, _ = runner.run(Scenario(rig="vehicle-roll", estimator=name, duration_s=0.2, seed=4),
+                         progress=False)
+    np.testing.assert_array_equal(np.array(estimates), traj.estimate[1:])
