@@ -209,13 +209,13 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
     return _select(est, design)
 
 
-def ekf(design: DesignModel, eps: float = 1e-6) -> Any:
+def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False) -> Any:
     """Extended Kalman filter on the rig's nominal MuJoCo model (Jacobians by
-    ``mjd_transitionFD``, step ``eps``), ``Q``/``R`` of ``design.discrete``
-    (:mod:`testbed.nonlinear_design`)."""
+    ``mjd_transitionFD``: step ``eps``, forward or ``centered`` differences), ``Q``/``R`` of
+    ``design.discrete`` (:mod:`testbed.nonlinear_design`)."""
     from testbed.nonlinear_design import nonlinear_estimator
 
-    return _select(nonlinear_estimator(design, "ekf", eps=eps), design)
+    return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered), design)
 
 
 def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,

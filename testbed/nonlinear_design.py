@@ -12,10 +12,10 @@ Process model :class:`MujocoProcessModel`
     ``f(x, u)``: the nominal model stepped over one control period (``frame_skip`` physics
     steps of the designer's copy, the input held: zero-order hold), all rows of ``x`` in one
     :func:`mujoco.rollout.rollout` call (the UKF's sigma points of every member at once).
-    ``F(x, u)``: the Jacobian ``df/dx``, the product of MuJoCo's finite-difference transition
-    derivatives (:func:`mujoco.mjd_transitionFD`, central differences) of the physics steps
-    along the step's own trajectory; it also yields ``f(x, u)``, which ``f`` then returns
-    from a cache (the EKF evaluates ``F`` before ``f``).
+    ``F(x, u)``: the Jacobian ``df/dx``, the product of MuJoCo's finite-difference
+    transition derivatives (:func:`mujoco.mjd_transitionFD`, forward or central differences)
+    of the physics steps along the step's own trajectory; it also yields ``f(x, u)``, which
+    ``f`` then returns from a cache (the EKF evaluates ``F`` before ``f``).
 Measurement model :class:`MeasurementModel`
     ``h(x, u) = C x + D u`` with the sensors' linear model at ``design.measurement_index``
     (``design.sensors``), except channels whose nonlinear form is known
@@ -77,6 +77,10 @@ class MujocoProcessModel:
         Control period, a whole number of the model's physics steps.
     eps : float
         Finite-difference step of :func:`mujoco.mjd_transitionFD`.
+    centered : bool
+        Central differences (``2 (2 nv)`` extra physics steps per physics step of the period)
+        or forward differences (default: ``2 nv``, half the cost; first-order accurate in
+        ``eps``, an error of order ``eps`` relative, far below what a filter notices).
 
     Attributes
     ----------
@@ -92,7 +96,8 @@ class MujocoProcessModel:
         freedom or actuator states outside the rig's state.
     """
 
-    def __init__(self, rig: Rig, dt_s: float, *, eps: float = FD_EPS) -> None:
+    def __init__(self, rig: Rig, dt_s: float, *, eps: float = FD_EPS,
+                 centered: bool = False) -> None:
         model = rig.model
         step = float(model.opt.timestep)
         frame_skip = int(round(float(dt_s) / step))
@@ -107,6 +112,7 @@ class MujocoProcessModel:
         if not (np.isfinite(eps) and eps > 0):
             raise ValueError(f"eps must be positive and finite, got {eps!r}")
         self.rig, self.model, self.frame_skip, self.eps = rig, model, frame_skip, float(eps)
+        self.centered = bool(centered)
         self.n, self.k = rig.n_states, rig.n_actions
         self._j = j
         self._data = mujoco.MjData(model)
@@ -186,7 +192,8 @@ class MujocoProcessModel:
         """``F(x, u) = df/dx``, shape (M, n, n), by :func:`mujoco.mjd_transitionFD`.
 
         For each row: the product ``A_s ... A_1`` of the transition derivatives of the
-        ``frame_skip`` physics steps (central differences, :attr:`eps`) along the row's own
+        ``frame_skip`` physics steps (:attr:`centered` differences, step :attr:`eps`) along
+        the row's own
         trajectory, in the rig's state order. The trajectory's end, ``f(x, u)``, is cached
         for the next :meth:`__call__` at the same arguments.
         """
@@ -208,7 +215,8 @@ class MujocoProcessModel:
                 data.xfrc_applied[:] = xfrc[i]
             Ji = None
             for _ in range(self.frame_skip):
-                mujoco.mjd_transitionFD(model, data, self.eps, True, A, None, None, None)
+                mujoco.mjd_transitionFD(model, data, self.eps, self.centered, A, None, None,
+                                        None)
                 Ji = A.copy() if Ji is None else A @ Ji
                 mujoco.mj_step(model, data)
             J[i] = Ji[np.ix_(gather, gather)]
@@ -342,7 +350,7 @@ def nominal_rig(design: DesignModel) -> Rig:
     return rig_type(physics_dt_s=float(physics_dt_s))
 
 
-def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS
+def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool = False
                      ) -> tuple[Rig, MujocoProcessModel, MeasurementModel]:
     """The nominal rig, its process model at ``design.dt_s`` and the measurement model.
 
@@ -355,12 +363,13 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS
     if tuple(design.state_names) != tuple(rig.state_names):
         raise ValueError(f"the nonlinear filters model the rig's state {list(rig.state_names)}; "
                          f"this design's state is {list(design.state_names)}")
-    return rig, MujocoProcessModel(rig, design.dt_s, eps=eps), MeasurementModel(design, rig.name)
+    process = MujocoProcessModel(rig, design.dt_s, eps=eps, centered=centered)
+    return rig, process, MeasurementModel(design, rig.name)
 
 
 def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
-                        alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0
-                        ) -> AbsoluteInput:
+                        centered: bool = False, alpha: float = 1e-3, beta: float = 2.0,
+                        kappa: float = 0.0) -> AbsoluteInput:
     """An EKF (``kind="ekf"``) or UKF (``"ukf"``) on the rig's nominal MuJoCo model.
 
     ``Q``, ``R`` and the prior are the design's (``design.discrete``, ``x0``, ``P0``); the
@@ -372,6 +381,8 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
     kind : {"ekf", "ukf"}
     eps : float
         Finite-difference step of the EKF's Jacobian.
+    centered : bool
+        Central or forward (default) differences for the EKF's Jacobian.
     alpha, beta, kappa : float
         The UKF's sigma-point parameters (Wan & van der Merwe's defaults).
 
@@ -380,7 +391,7 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
     AbsoluteInput
         The batched filter (``x`` (N, n) after a batched reset) with the input correction.
     """
-    rig, process, measure = nonlinear_models(design, eps=eps)
+    rig, process, measure = nonlinear_models(design, eps=eps, centered=centered)
     plant = design.discrete
     k = len(design.input_names)
     if kind == "ekf":

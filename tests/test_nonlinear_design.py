@@ -39,9 +39,10 @@ def central_differences(f, x: np.ndarray, u: np.ndarray, eps: float = 1e-6) -> n
     (VehicleRollRig, [[0.05, -0.1], [-0.02, 0.3]], [[2.0], [-4.0]]),
     (LinearPlantRig, [[0.1, -0.2], [0.0, 1.0]], [[3.0], [-1.0]]),
 ])
-def test_jacobian_equals_central_differences_of_f(rig_type, x, u):
+@pytest.mark.parametrize("centered", [True, False])
+def test_jacobian_equals_central_differences_of_f(rig_type, x, u, centered):
     rig = rig_type()
-    process = MujocoProcessModel(rig, 0.01)
+    process = MujocoProcessModel(rig, 0.01, centered=centered)
     x, u = np.array(x, float), np.array(u, float)
     J = process.jacobian(x, u)
     fx = process(x, u)  # from the cache of jacobian()
@@ -50,7 +51,8 @@ def test_jacobian_equals_central_differences_of_f(rig_type, x, u):
     np.testing.assert_array_equal(fx, process(x, u))  # rollout = the mjd trajectory, bitwise
     assert cache is not None
     J_fd = central_differences(process, x, u)
-    np.testing.assert_allclose(J, J_fd, rtol=0, atol=1e-6 * max(1.0, np.abs(J_fd).max()))
+    tol = 1e-6 if centered else 1e-5  # forward differences: first order in eps
+    np.testing.assert_allclose(J, J_fd, rtol=0, atol=tol * max(1.0, np.abs(J_fd).max()))
     assert J.shape == (len(x), rig.n_states, rig.n_states)
 
 
@@ -165,7 +167,8 @@ def test_on_the_calibration_plant_ekf_and_ukf_match_kalman_and_are_consistent():
         rmse[name] = np.array(list(summary["rmse"].values()))
         nees[name] = summary["nees_mean"]
     for name in ("ekf", "ukf"):
-        np.testing.assert_allclose(rmse[name], rmse["kalman"], rtol=0.02)
+        # within 2 % asked; the MuJoCo map of this plant is linear, so they agree to rounding
+        np.testing.assert_allclose(rmse[name], rmse["kalman"], rtol=1e-6)
         assert 1.0 <= nees[name] <= 4.0  # n = 2: within a factor 2
 
 
