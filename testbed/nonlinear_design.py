@@ -28,7 +28,8 @@ Input
     step). Every rig's design takes the input relative to :meth:`Rig.operating_input` at the
     estimate (the helicopter: minus the voltage compensating gravity; zero for the others),
     so :class:`AbsoluteInput` adds ``operating_input(nominal, x_hat)`` back before the filter
-    runs ``f``: ``f`` sees the voltage the motors got. (A vehicle-roll design with measured
+    runs ``f``: ``f`` sees the voltage the motors got (a design without an input transform
+    gets ``u`` unchanged). (A vehicle-roll design with measured
     ``a_y`` replaces ``u`` by the measurement: its operating input is zero, so ``f`` gets the
     measured ``a_y``.)
 
@@ -301,19 +302,22 @@ class AbsoluteInput(EstimatorWrapper):
     Parameters
     ----------
     inner : estimator with batched ``x`` (N, n) (or (n,))
-    offset : callable ``x_hat (N, n) -> (N, k)``
+    offset : callable ``x_hat (N, n) -> (N, k)``, or None
+        None: ``u`` is passed on unchanged (a design without an input transform).
     k : int
         Input dimension.
     """
 
     batched = True
 
-    def __init__(self, inner: Any, offset: Callable[[np.ndarray], np.ndarray], k: int):
+    def __init__(self, inner: Any, offset: Callable[[np.ndarray], np.ndarray] | None, k: int):
         super().__init__(inner)
         self.offset, self.k = offset, int(k)
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         """Step the inner filter with ``u + offset(x)`` (``u = None``: zero)."""
+        if self.offset is None:
+            return self.inner.step(y, u)
         x = np.asarray(self.inner.x)
         xb = x if x.ndim == 2 else x[None]
         extra = np.asarray(self.offset(xb), float)
@@ -404,5 +408,7 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
     else:
         raise ValueError(f"kind must be 'ekf' or 'ukf', got {kind!r}")
     est.batched = True
+    if design.input_transform is None:  # the loop passes the applied input unchanged
+        return AbsoluteInput(est, None, k)
     params = rig.params
     return AbsoluteInput(est, lambda x: rig.operating_input(params, x), k)
