@@ -93,8 +93,9 @@ class MujocoProcessModel:
     Raises
     ------
     ValueError
-        ``dt_s`` is not a whole number of physics steps, or the model has degrees of
-        freedom or actuator states outside the rig's state.
+        ``dt_s`` is not a whole number of physics steps, the model has degrees of freedom or
+        actuator states outside the rig's state, or the rig sets its input per physics step
+        (:attr:`Rig.needs_substep`).
     """
 
     def __init__(self, rig: Rig, dt_s: float, *, eps: float = FD_EPS,
@@ -110,6 +111,9 @@ class MujocoProcessModel:
             raise ValueError(f"rig {rig.name!r}: the nonlinear design model needs a MuJoCo model "
                              f"whose state is the rig's (nq = nv = {j}, na = 0), got nq = "
                              f"{model.nq}, nv = {model.nv}, na = {model.na}")
+        if rig.needs_substep:
+            raise ValueError(f"rig {rig.name!r}: a per-physics-step input (substep_ctrl) is not "
+                             "in the nonlinear design model; use the rig's first profile")
         if not (np.isfinite(eps) and eps > 0):
             raise ValueError(f"eps must be positive and finite, got {eps!r}")
         self.rig, self.model, self.frame_skip, self.eps = rig, model, frame_skip, float(eps)
