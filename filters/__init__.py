@@ -11,6 +11,8 @@ Models
     :class:`PolynomialModel` (degree <= 3, tensor coefficients).
 Estimators (satisfy the :class:`Estimator` protocol)
     :class:`KalmanFilter` (``"kalman"``), :class:`KalmanBucyFilter` (``"kalman-bucy"``),
+    :class:`ExtendedKalmanFilter` (``"ekf"``) and :class:`UnscentedKalmanFilter` (``"ukf"``,
+    Julier & Uhlmann; Wan & van der Merwe) on user callables ``f``, ``h``,
     :class:`MeanSquareHInfFilter` (Basin et al., ``"ms-hinf"``),
     :class:`PolynomialHInfFilter`, :class:`NonOrthonormalPolynomialHInfFilter` and
     :class:`LinearizedHInfFilter` (Basin et al.), :class:`LinearFilter` (fixed gains
@@ -36,6 +38,7 @@ Input conversion
 from filters._linalg import real_array, zoh
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
+from filters.ekf import ExtendedKalmanFilter
 from filters.errors import (
     FilterError,
     FiniteEscapeError,
@@ -63,6 +66,7 @@ from filters.lmi_hinf import (
 )
 from filters.models import DiscreteLinearSystem, LinearSystem
 from filters.polynomial_model import EscapeTest, PolynomialModel
+from filters.ukf import UnscentedKalmanFilter
 from filters.variance_constrained import DesignSearchRecord, LinearFilter, VarianceDesign
 from filters.variance_continuous import (
     ParabolicDesignParameters,
@@ -84,6 +88,7 @@ __all__ = [
     "DiscreteLinearSystem",
     "EscapeTest",
     "Estimator",
+    "ExtendedKalmanFilter",
     "FilterError",
     "FiniteEscapeError",
     "GammaSearch",
@@ -103,6 +108,7 @@ __all__ = [
     "StochasticLinearSystem",
     "SubstepLimitError",
     "UncertainPlant",
+    "UnscentedKalmanFilter",
     "VarianceDesign",
     "certify_gain",
     "check_covariance",

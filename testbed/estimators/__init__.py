@@ -307,6 +307,25 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
     return _select(est, design)
 
 
+def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False) -> Any:
+    """Extended Kalman filter on the rig's nominal MuJoCo model (Jacobians by
+    ``mjd_transitionFD``: step ``eps``, forward or ``centered`` differences), ``Q``/``R`` of
+    ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
+    from testbed.estimators.nonlinear import nonlinear_estimator
+
+    return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered), design)
+
+
+def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
+        kappa: float = 0.0) -> Any:
+    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``) on the rig's
+    nominal MuJoCo model, ``Q``/``R`` of ``design.discrete``
+    (:mod:`testbed.estimators.nonlinear`)."""
+    from testbed.estimators.nonlinear import nonlinear_estimator
+
+    return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa),
+                   design)
+
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
                              "whole-sample IMU delays have no continuous-time form")
@@ -315,6 +334,9 @@ lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias r
 poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
 vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
                                  "model's A; bias random walks are not Schur-stable")
+ekf.paper_design_only = ukf.paper_design_only = (
+    "the MuJoCo process model covers the rig's physical states; the matched design's motor, "
+    "bias and delay states have no MuJoCo counterpart yet")
 
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {
@@ -324,6 +346,8 @@ ESTIMATORS: dict[str, Factory] = {
     "lmi-hinf": lmi_hinf,
     "poly-hinf": poly_hinf,
     "vc-discrete": vc_discrete,
+    "ekf": ekf,
+    "ukf": ukf,
 }
 #: Scenario defaults a built-in estimator needs (applied where the user set nothing).
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
