@@ -10,7 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from filters import Estimator
-from testbed.loop import EstimatorStage
+from testbed.loop import EstimatorStage, check_estimate
 from testbed.metrics import EpisodeMetrics
 
 
@@ -105,6 +105,9 @@ class FilterInLoop(gym.Wrapper):
                                             inner.sim.known_disturbance)
         design, _ = estimators.design_for(estimator, design)
         est = estimators.build(estimator, design, **options)
+        name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
+                                                                    repr(estimator))
+        check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
         channels = estimators.channels_for(est, design)
         if getattr(est, "batched", False):
             est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results

@@ -168,3 +168,22 @@ def test_asymmetric_P_after_the_first_step_is_one_line():
     with pytest.raises(EstimatorContractError,
                        match=r"filter 'asymmetric': P \(2, 2\) is not symmetric after the first"):
         _run(rig="vehicle-roll", estimator=asymmetric, duration_s=0.1)
+
+
+def test_filter_in_loop_observes_the_physical_states_of_a_matched_design():
+    import gymnasium as gym
+
+    import testbed  # noqa: F401  (registers the environments)
+    from testbed.wrappers import FilterInLoop
+
+    env = FilterInLoop.from_design(gym.make("testbed/Helicopter2DOF-v0", profile="hardware"),
+                                   "kalman")
+    try:
+        x_hat, info = env.reset(seed=0)
+        assert x_hat.shape == (4,) and env.observation_space.shape == (4,)
+        for _ in range(5):
+            x_hat, _, _, _, info = env.step(np.array([12.0, -4.0]))
+        assert info["covariance"].shape == (4, 4) and info["error"].shape == (4,)
+        assert env.unwrapped.sensors.dim == 5 and len(env.measurement_index) == 4
+    finally:
+        env.close()
