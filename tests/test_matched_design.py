@@ -46,6 +46,7 @@ def _run(**fields):
     {"rig": "helicopter", "profile": "hardware"},
     {"rig": "vehicle-roll", "profile": "hardware"},
     {"rig": "vehicle-roll"},  # input channels (speed, yaw rate) and a feedthrough D
+    {"rig": "vehicle-roll", "profile": "hardware", "design_options": {"a_y_source": "oracle"}},
 ])
 def test_textbook_kalman_filter_equals_the_built_in_one(fields):
     ours = _run(estimator=textbook, duration_s=2.0, **fields)
