@@ -47,6 +47,7 @@ def _run(**fields):
     {"rig": "helicopter", "profile": "hardware"},
     {"rig": "vehicle-roll", "profile": "hardware"},
     {"rig": "vehicle-roll"},  # input channels (speed, yaw rate) and a feedthrough D
+    {"rig": "vehicle-roll", "profile": "hardware", "design_options": {"a_y_source": "oracle"}},
 ])
 def test_textbook_kalman_filter_equals_the_built_in_one(fields):
     ours = _run(estimator=textbook, duration_s=2.0, **fields)
@@ -169,3 +170,22 @@ def test_asymmetric_P_after_the_first_step_is_one_line():
     with pytest.raises(EstimatorContractError,
                        match=r"filter 'asymmetric': P \(2, 2\) is not symmetric after the first"):
         _run(rig="vehicle-roll", estimator=asymmetric, duration_s=0.1)
+
+
+def test_filter_in_loop_observes_the_physical_states_of_a_matched_design():
+    import gymnasium as gym
+
+    import testbed  # noqa: F401  (registers the environments)
+    from testbed.envs.wrappers import FilterInLoop
+
+    env = FilterInLoop.from_design(gym.make("testbed/Helicopter2DOF-v0", profile="hardware"),
+                                   "kalman")
+    try:
+        x_hat, info = env.reset(seed=0)
+        assert x_hat.shape == (4,) and env.observation_space.shape == (4,)
+        for _ in range(5):
+            x_hat, _, _, _, info = env.step(np.array([12.0, -4.0]))
+        assert info["covariance"].shape == (4, 4) and info["error"].shape == (4,)
+        assert env.unwrapped.sensors.dim == 5 and len(env.measurement_index) == 4
+    finally:
+        env.close()

@@ -10,7 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from filters import Estimator
-from testbed.experiment.loop import EstimatorStage
+from testbed.experiment.loop import EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 
 
@@ -109,6 +109,9 @@ class FilterInLoop(gym.Wrapper):
             design.extras.setdefault("physics_dt_s", float(inner.rig.model.opt.timestep))
         design, _ = estimators.design_for(estimator, design)
         est = estimators.build(estimator, design, **options)
+        name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
+                                                                    repr(estimator))
+        check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
         channels = estimators.channels_for(est, design)
         if getattr(est, "batched", False):
             est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results

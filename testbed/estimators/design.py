@@ -272,7 +272,8 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
                          disturbance_matrix: np.ndarray | None = None,
                          extras: dict[str, Any] | None = None,
                          input_noise_cov: np.ndarray | None = None,
-                         extra_inputs: tuple[tuple[str, str], ...] = ()) -> DesignModel:
+                         extra_inputs: tuple[tuple[str, str], ...] = (),
+                         input_memory_std: np.ndarray | None = None) -> DesignModel:
     """A design model augmented with what the rig and its sensors declare.
 
     State ``[physical (rig.n_states), extra (actuators...), biases, delays]``:
@@ -308,6 +309,11 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         Kept in ``extras["paper_design"]``.
     extra_inputs : tuple of (name, unit)
         Inputs after the rig's actions in ``B`` (computed by ``input_transform``).
+    input_memory_std : ndarray, shape (nu,), optional
+        The input the estimator receives is on time while the delayed channels' feedthrough
+        ``d_i u`` is as late as the channel: add **input-memory states** ``p <- u`` (prior std
+        this, mean 0) and feed the first delay stage ``d_i p`` (None: the input is as late
+        as the delayed channels, e.g. computed from channels of the same delay).
     input_transform, output_matrix, disturbance_matrix, extras, input_noise_cov
         As in :func:`build_design` (``output_matrix`` in the rig's states: padded here).
     """
@@ -356,13 +362,16 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     delayed = [(pos, int(ch), effects[ch].delay) for pos, ch in enumerate(index)
                if effects[ch].delay > 0]
     nd = sum(d for *_, d in delayed)
-    n = n1 + nd
+    nm = nu if input_memory_std is not None and any(np.any(D0[pos]) for pos, *_ in delayed) \
+        else 0
+    km = n1 + nd  # the input-memory states
+    n = km + nm
     Ac, Bc = np.zeros((n, n)), np.zeros((n, nu))
     Ac[:n1, :n1], Bc[:n1] = A1, B1
     F, Bd = np.zeros((n, n)), np.zeros((n, nu))
     disc = LinearSystem(A=A1, B=B1, C=np.zeros((1, n1)), Q=Q1, R=np.eye(1)).discretize(dt_s)
     F[:n1, :n1], Bd[:n1] = disc.F, disc.B
-    H = np.hstack([H1, np.zeros((len(index), nd))])
+    H = np.hstack([H1, np.zeros((len(index), nd + nm))])
     D = D0.copy()
     T0 = [np.eye(n1)]  # prior of the delay states: the first sample repeats (s_j = h x0)
     k = n1
@@ -371,7 +380,10 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         for j in range(d):
             names.append(f"{sensors.names[ch]}_delay{j + 1}")
             units.append(sensors.units[ch])
-            if j == 0:
+            if j == 0 and nm:
+                F[k, :n0], F[k, km:] = src_x, src_u
+                Ac[k, :n0], Ac[k, km:] = src_x / dt_s, src_u / dt_s
+            elif j == 0:
                 F[k, :n0], Bd[k] = src_x, src_u
                 Ac[k, :n0], Bc[k] = src_x / dt_s, src_u / dt_s
             else:
@@ -385,13 +397,24 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         H[pos, :n0] = 0.0
         H[pos, k - 1] = 1.0
         D[pos] = 0.0
+    input_names = tuple(rig.action_names) + tuple(nm_ for nm_, _ in extra_inputs)
+    input_units = tuple(rig.action_units) + tuple(un for _, un in extra_inputs)
+    if nm:
+        F[km:, km:], Bd[km:] = 0.0, np.eye(nu)
+        Ac[km:, km:], Bc[km:] = -np.eye(nu) / dt_s, np.eye(nu) / dt_s
+        names.extend(f"{name}_prev" for name in input_names)
+        units.extend(input_units)
     T = np.vstack(T0)
-    x0_full = T @ np.concatenate([np.asarray(x0, float), np.zeros(nb)])
-    P0_full = T @ block_diag(np.asarray(P0, float), Pb) @ T.T
-    Qc = block_diag(Q1, np.zeros((nd, nd)))
+    x0_full = np.concatenate([T @ np.concatenate([np.asarray(x0, float), np.zeros(nb)]),
+                              np.zeros(nm)])
+    P0_full = block_diag(T @ block_diag(np.asarray(P0, float), Pb) @ T.T,
+                         np.diag(np.asarray(input_memory_std, float) ** 2) if nm
+                         else np.zeros((0, 0)))
+    Qc = block_diag(Q1, np.zeros((nd + nm, nd + nm)))
     has_d = bool(np.any(D))
     plant = LinearSystem(A=Ac, B=Bc, C=H, Q=Qc, R=R * dt_s, D=D if has_d else None)
-    discrete = DiscreteLinearSystem(F=F, B=Bd, H=H, Q=block_diag(disc.Q, np.zeros((nd, nd))),
+    discrete = DiscreteLinearSystem(F=F, B=Bd, H=H, Q=block_diag(disc.Q,
+                                                                 np.zeros((nd + nm, nd + nm))),
                                     R=R, dt_s=dt_s, D=D if has_d else None)
     if output_matrix is None:
         output_matrix = np.eye(nr)[rig.tracked_index]
@@ -410,8 +433,7 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     return DesignModel(
         dt_s=float(dt_s), continuous=plant, discrete=discrete, x0=x0_full, P0=P0_full,
         state_names=tuple(names), state_units=tuple(units),
-        input_names=tuple(rig.action_names) + tuple(nm for nm, _ in extra_inputs),
-        input_units=tuple(rig.action_units) + tuple(un for _, un in extra_inputs),
+        input_names=input_names, input_units=input_units,
         measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
         measurement_index=index, sensors=model, output_matrix=L,
         disturbance_matrix=G, input_transform=input_transform, extras=all_extras,

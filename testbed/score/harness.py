@@ -305,9 +305,11 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         est = stage.estimator if stage.channels is None else \
             ChannelSelect(stage.estimator, stage.channels, m)  # the channels the loop gives
         h = estimator_markov(est, design.input_transform, stage.prior, y, u, k0, deltas, num)
-        evaluator = LoopEvaluator(wc, dist, seed, K, design.output_matrix)
+        h = h[:, design.physical]  # an augmented design's physical states
+        L = design.output_matrix[:, design.physical]
+        evaluator = LoopEvaluator(wc, dist, seed, K, L)
         rng = np.random.default_rng([int(seed), 16])
-        return search(evaluator, A, G, model.C, Hw, design.output_matrix, h,
+        return search(evaluator, A, G, model.C, Hw, L, h,
                       energy=spec.energy, random_draws=spec.random_draws, basis=spec.basis,
                       generations=spec.generations, rng=rng)
     finally:

@@ -273,10 +273,10 @@ class VehicleRollRig(Rig):
         if self.profile == "paper":
             return design
         return self._matched_design(design, sensors, dt_s, A, B, Q, tap if transform else None,
-                                    design_roll_rate)
+                                    design_roll_rate, a_y_std)
 
     def _matched_design(self, paper, sensors, dt_s: float, A: np.ndarray, B: np.ndarray,
-                        Q: np.ndarray, tap, design_roll_rate: float):
+                        Q: np.ndarray, tap, design_roll_rate: float, a_y_std: float):
         """The ``hardware`` profile's design: the paper design plus what the sensors declare.
 
         State ``[roll, roll_rate, (bias_a_y), biases..., delays...]``
@@ -287,9 +287,11 @@ class VehicleRollRig(Rig):
           and so does the lateral accelerometer (with the measured input only);
         - bias states of the roll-rate gyro (declared random walk and reset offset) and of
           the lateral accelerometer (declared reset offset, constant);
-        - delay states for each channel's declared whole-sample CAN latency (the measured
+        - delay states for each channel's declared whole-sample CAN latency. The measured
           input arrives as late as the accelerometer it feeds through: the delay state's
-          ``s <- g roll + a_y`` uses the input of the same sample);
+          ``s <- g roll + a_y`` uses the input of the same sample. The oracle input is on
+          time: an input-memory state ``a_y_prev <- a_y`` (prior std ``a_y_std``) holds the
+          sample the delayed accelerometer sees;
         - the sensitivity errors' variances in ``R``: the gyro's at ``design_roll_rate``,
           the accelerometer's and the speed scale's at :data:`DESIGN_A_Y_M_S2`.
         """
@@ -329,6 +331,7 @@ class VehicleRollRig(Rig):
         return build_matched_design(
             self, sensors, dt_s, A0, B0, Q0, x0, P0, extra_states=extra, channels=index,
             rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            input_memory_std=None if tap is not None else np.array([a_y_std]),
             input_transform=paper.input_transform, output_matrix=paper.output_matrix,
             input_noise_cov=(paper.extras.get("input_noise_cov")),
             extras={k: paper.extras[k] for k in ("paper_model", "a_y_std", "a_y_source")})
