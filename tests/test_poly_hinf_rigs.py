@@ -14,6 +14,7 @@ import pytest
 from testbed import estimators
 from testbed.experiment import runner
 from testbed.experiment.scenario import Scenario
+from testbed.rigs.base import Rig
 from testbed.rigs.helicopter.rig import HelicopterParams, HelicopterRig, gravity_voltage
 from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.rigs.vehicle_roll.model import VehicleRollParams
@@ -77,8 +78,15 @@ def test_vehicle_sin_roll_expansion_matches_mujoco_to_third_order():
             assert abs(_qacc(rig, x)[0] - x @ cubic.a1[1]) > 100 * abs(residual)
 
 
+class _NoExpansionRig(LinearPlantRig):
+    """The calibration plant without its (exact, linear) expansion: a rig that gives none."""
+
+    name = "no-expansion"
+    cubic_model = classmethod(Rig.cubic_model.__func__)
+
+
 def test_rig_without_expansion_is_refused_with_the_reason():
-    design = runner.build(Scenario(rig=LinearPlantRig, estimator="kalman", duration_s=0.1),
+    design = runner.build(Scenario(rig=_NoExpansionRig, estimator="kalman", duration_s=0.1),
                           1).design
     with pytest.raises(ValueError, match="provides no cubic expansion"):
         estimators.build("poly-hinf", design)
