@@ -315,7 +315,7 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 
 
 def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None = None,
-                progress: bool = True, save_npz: str | Path | None = None,
+                progress: bool = False, save_npz: str | Path | None = None,
                 num_threads: int | None = None,
                 envelope_points: int | None = None) -> dict[str, Any]:
     """``runs`` episodes of ``scenario``, stepped in batches.
@@ -328,6 +328,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     batch_size : int, optional
         Members stepped together (default ``min(runs, 1000)``); results do not depend on it.
     progress : bool
+        Show a progress bar (on stderr; default off).
     save_npz : path, optional
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
@@ -342,7 +343,10 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     dict
         JSON-ready: ``runs``, ``seeds`` (the per-run seeds), ``steps_per_run``, ``wall_s``,
         ``traj_steps_per_s``, ``rmse``/``measurement_rmse`` ``{name: {mean, q05, q95}}``,
-        ``nees_mean``, ``nees``, ``T_final``, ``clipped_fraction_mean``, ``units``, ``meta``.
+        ``nees_mean``, ``nees``, ``T_final``, ``clipped_fraction_mean``, ``units``,
+        ``scenario`` (every field, the rig's defaults filled in: what ran; a scenario file
+        holding it reproduces the study, see :mod:`testbed.experiment.scenario_file`) and
+        ``meta`` (rig, sensors, control period, units, design).
     """
     if isinstance(runs, bool) or int(runs) != runs or runs < 1:
         raise ValueError(f"runs must be a positive integer, got {runs}")
@@ -424,7 +428,8 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         **per_run_summary(per_run),
         "npz": None if save_npz is None else str(save_npz),
         "units": first.meta["units"],
-        "meta": first.meta,
+        "scenario": first.meta["scenario"],
+        "meta": {k: v for k, v in first.meta.items() if k != "scenario"},
     }
     if envelope is not None:
         result["error_envelope"] = envelope.result()
@@ -569,7 +574,7 @@ def _run_point(scenario: Scenario, runs: int) -> dict[str, Any]:
 
 def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
           backend: str = "local", workers: int | None = None, address: str | None = None,
-          progress: bool = True) -> dict[str, Any]:
+          progress: bool = False) -> dict[str, Any]:
     """One Monte-Carlo study per grid point (common random numbers: one base seed).
 
     Parameters
@@ -585,11 +590,15 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         :data:`RAY_CONNECT_TIMEOUT_S` seconds: ``ConnectionError`` before any work.
     workers : int, optional
         Processes or local Ray CPUs (default ``os.cpu_count()``).
+    progress : bool
+        Show a progress bar (on stderr; default off).
 
     Returns
     -------
     dict
-        ``backend``, ``workers``, ``wall_s``, ``points`` (list of ``{"point", "result"}``).
+        ``backend``, ``workers``, ``wall_s``, ``scenario`` (the base scenario, as in
+        :func:`monte_carlo`), ``grid``, ``runs``, ``units``, ``points`` (list of ``{"point",
+        "result"}``).
     """
     workers = check_backend(backend, workers, address)
     points = grid_points(grid)
@@ -602,6 +611,8 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         results = map_jobs(_run_point, [(s, runs) for s in scenarios], backend=backend,
                            workers=workers, address=address, on_done=lambda _: bar.update())
     return {"backend": backend, "workers": workers, "wall_s": time.perf_counter() - start,
+            "scenario": _with_defaults(scenario).describe(), "grid": dict(grid), "runs": runs,
+            "units": results[0]["units"],
             "points": [{"point": p, "result": r} for p, r in zip(points, results, strict=True)]}
 
 
