@@ -34,9 +34,9 @@ import numpy as np
 
 from filters import FilterError
 from testbed import __version__
+from testbed.completion import add_completion
 from testbed.estimators import ESTIMATORS
 from testbed.experiment import scenario_file
-from testbed.completion import add_completion
 from testbed.experiment.control import CONTROLLERS
 from testbed.experiment.scenario import MAX_SEED, Scenario, ScenarioError
 from testbed.io import check_output_path, write_json
@@ -404,19 +404,30 @@ def check_outputs(args: argparse.Namespace) -> None:
         check_output_path(args.doc, "--doc", ".md")
 
 
+def _units_note(units: dict[str, str]) -> str | None:
+    """The line saying that the console shows display units and the JSON SI units."""
+    shown = sorted({f"{u} as {display(u)[1]}" for u in units.values() if display(u)[0] != 1})
+    if not shown:
+        return None
+    return (f"(table in display units: {', '.join(shown)}; the JSON holds SI units, listed "
+            "under 'units')")
+
+
 def _format_table(summary: dict, units: dict[str, str]) -> str:
-    lines = [f"{'state':<14}{'estimate RMSE':>18}{'measurement RMSE':>22}"]
+    width = max([len("state"), *map(len, summary["rmse"])]) + 2
+    lines = [f"{'state':<{width}}{'estimate RMSE':>18}{'measurement RMSE':>22}"]
     for name, value in summary["rmse"].items():
         scale, unit = display(units.get(name, ""))
         meas = summary["measurement_rmse"].get(name)
         meas_txt = f"{meas * scale:.4f} {unit}" if meas is not None else "-"
-        lines.append(f"{name:<14}{value * scale:>11.4f} {unit:<6}{meas_txt:>22}")
+        lines.append(f"{name:<{width}}{value * scale:>11.4f} {unit:<6}{meas_txt:>22}")
     if summary.get("nees_mean") is not None:
         lines.append(f"mean NEES {summary['nees_mean']:.3f} (consistent filter: "
                      f"{len(summary['rmse'])})")
     if summary.get("T_final") is not None:
         lines.append(f"noise-output ratio T = {summary['T_final']:.4f}")
-    return "\n".join(lines)
+    note = _units_note({k: units.get(k, "") for k in summary["rmse"]})
+    return "\n".join(lines + ([note] if note else []))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -551,15 +562,19 @@ def _finish_live(args: argparse.Namespace, live: Any) -> None:
 def _print_mc(result: dict) -> None:
     print(f"{result['runs']} runs x {result['steps_per_run']} steps in {result['wall_s']:.2f} s "
           f"({result['traj_steps_per_s']:,.0f} trajectory-steps/s)")
-    print(f"{'state':<14}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
+    width = max([len("state"), *map(len, result["rmse"])]) + 2
+    print(f"{'state':<{width}}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
     for name, stats in result["rmse"].items():
         scale, unit = display(result["units"].get(name, ""))
-        print(f"{name:<14}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
+        print(f"{name:<{width}}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
               f"{stats['q95'] * scale:>12.4f}  {unit}")
     if result.get("nees_mean") is not None:
         print(f"mean NEES {result['nees_mean']:.3f}")
     if result.get("T_final"):
         print(f"T_final mean {result['T_final']['mean']:.4f}")
+    note = _units_note({k: result["units"].get(k, "") for k in result["rmse"]})
+    if note:
+        print(note)
 
 
 def cmd_mc(args: argparse.Namespace) -> int:
@@ -634,14 +649,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
           f"in {result['wall_s']:.2f} s")
     first = result["points"][0]["result"]
     states = list(first["rmse"])[:2]
-    header = "".join(f"{s + ' RMSE ' + display(first['units'].get(s, ''))[1]:>22}"
-                     for s in states)
-    print("  ".join(f"{n:>16}" for n in names) + header)
+    titles = [f"{s} RMSE {display(first['units'].get(s, ''))[1]}".strip() for s in states]
+    widths = [max(16, len(n)) for n in names] + [max(14, len(t)) for t in titles]
+    print("  ".join(f"{t:>{w}}" for t, w in zip(names + titles, widths, strict=True)))
     for entry in result["points"]:
         rmse, units = entry["result"]["rmse"], entry["result"]["units"]
-        print("  ".join(f"{entry['point'][n]:>16g}" for n in names)
-              + "".join(f"{rmse[s]['mean'] * display(units.get(s, ''))[0]:>22.4f}"
-                        for s in states))
+        cells = [f"{entry['point'][n]:g}" for n in names] + [
+            f"{rmse[s]['mean'] * display(units.get(s, ''))[0]:.4f}" for s in states]
+        print("  ".join(f"{c:>{w}}" for c, w in zip(cells, widths, strict=True)))
+    note = _units_note({s: first["units"].get(s, "") for s in states})
+    if note:
+        print(note)
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
     if args.plot:
