@@ -81,6 +81,13 @@ def _with_defaults(scenario: Scenario) -> Scenario:
     return scenario.replace(**changes) if changes else scenario
 
 
+def described(scenario: Scenario) -> dict[str, Any]:
+    """The ``scenario`` block of the outputs: :meth:`Scenario.describe` without the fields
+    left at None (TOML has no null; a missing key is the default), so that the block saved
+    as TOML or JSON is a scenario file (:mod:`testbed.experiment.scenario_file`)."""
+    return {k: v for k, v in scenario.describe().items() if v is not None}
+
+
 def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -> Experiment:
     """The closed loop of ``num`` members for a scenario (everything validated first).
 
@@ -126,7 +133,7 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     stage = EstimatorStage(est, design.input_transform, metrics, prior)
     controller = make_controller(scenario.controller, design_rig, design,
                                  lambda t: sim.setpoints_at(t))
-    meta = {"rig": rig.name, "scenario": scenario.describe(), "sensors": sim.sensors.describe(),
+    meta = {"rig": rig.name, "scenario": described(scenario), "sensors": sim.sensors.describe(),
             "control_dt_s": sim.dt_s, "units": sim.units()}
     design_meta = getattr(getattr(est, "inner", est), "design_meta", None)
     if design_meta:
@@ -611,7 +618,7 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         results = map_jobs(_run_point, [(s, runs) for s in scenarios], backend=backend,
                            workers=workers, address=address, on_done=lambda _: bar.update())
     return {"backend": backend, "workers": workers, "wall_s": time.perf_counter() - start,
-            "scenario": _with_defaults(scenario).describe(), "grid": dict(grid), "runs": runs,
+            "scenario": described(_with_defaults(scenario)), "grid": dict(grid), "runs": runs,
             "units": results[0]["units"],
             "points": [{"point": p, "result": r} for p, r in zip(points, results, strict=True)]}
 

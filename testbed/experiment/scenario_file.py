@@ -254,11 +254,10 @@ def _plain(value: Any) -> Any:
 def block(scenario: Scenario) -> dict[str, Any]:
     """The scenario block of the JSON outputs: every field, the rig's and the estimator's
     defaults filled in (what ran), JSON-ready; :func:`read` accepts it unchanged."""
-    from testbed.experiment.runner import _with_defaults
+    from testbed.experiment.runner import _with_defaults, described
 
-    described = _with_defaults(scenario).describe()
     return {k: (_plain(v) if isinstance(v, dict | list | tuple | np.ndarray | np.generic) else v)
-            for k, v in described.items()}
+            for k, v in described(_with_defaults(scenario)).items()}
 
 
 def check_destination(path: str | os.PathLike, name: str = "--save-scenario") -> Path:
