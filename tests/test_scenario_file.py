@@ -207,3 +207,12 @@ def test_no_progress_bar_off_a_terminal(tmp_path):
     assert "\r" not in err.read_text()
     for function in (runner.monte_carlo, runner.sweep):
         assert inspect.signature(function).parameters["progress"].default is False
+
+
+def test_the_readme_toml_snippet_is_its_example_file():
+    import re
+
+    snippet = re.search(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    example = ROOT / "docs" / "examples" / "helicopter_kalman.toml"
+    assert f"`docs/examples/{example.name}`" in (ROOT / "README.md").read_text()
+    assert tomllib.loads(snippet) == tomllib.loads(example.read_text())
