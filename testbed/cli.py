@@ -631,7 +631,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if not axes:
         raise ValueError("--grid: give NAME=V1,V2,... (repeatable) or a [study] grid in the "
                          "--scenario file")
-    grid = check_grid(scenario, axes)
+    try:
+        grid = check_grid(scenario, axes)
+    except ValueError as exc:
+        if axes is args.grid:
+            raise
+        detail = str(exc).removeprefix("--grid").lstrip(": ")
+        raise ValueError(f"{source.path}: study.grid: {detail}") from None
     runs = _study(args, source, "runs")
     if args.save_scenario:
         return _save_scenario(args, scenario, runs=runs, grid=grid)

@@ -124,13 +124,15 @@ def test_only_the_options_typed_override_the_file(tmp_path):
     ('rig = "nope"\n', "rig"),
     ('rig = "helicopter"\nduration_s = 5000.0\n', "duration_s"),
     ('rig = "helicopter\n', "not valid TOML"),
+    ('rig = "helicopter"\n[study]\ngrid = {nope = [1.0]}\n', "study.grid"),
 ])
 def test_bad_files_are_one_line_errors_naming_the_file_and_the_key(tmp_path, capsys, text,
                                                                     key):
     source = tmp_path / "bad.toml"
     source.write_text(text)
     out = tmp_path / "r.json"
-    assert main(["mc", "--scenario", str(source), "--runs", "2", "--json", str(out)]) == 2
+    command = "sweep" if "grid" in text else "mc"
+    assert main([command, "--scenario", str(source), "--runs", "2", "--json", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"testbed: error: {source}: {key}"), err
     assert not out.exists()
@@ -205,7 +207,7 @@ def test_no_progress_bar_off_a_terminal(tmp_path):
                         stdout=subprocess.PIPE, stderr=f)
     assert done.returncode == 0, err.read_text()
     assert "\r" not in err.read_text()
-    for function in (runner.monte_carlo, runner.sweep):
+    for function in (runner.run, runner.monte_carlo, runner.sweep):
         assert inspect.signature(function).parameters["progress"].default is False
 
 

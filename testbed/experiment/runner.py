@@ -195,7 +195,7 @@ class _DecimatedRows:
         return np.concatenate([self.data[:, :n], self.data[:, -1:]], axis=1)
 
 
-def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None,
+def run(scenario: Scenario, *, record: bool = True, progress: bool | None = False,
         observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None
         ) -> tuple[Trajectory | None, dict[str, Any]]:
     """One closed-loop episode of ``scenario`` (seed ``scenario.seed``).
@@ -205,8 +205,9 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     scenario : Scenario
     record : bool
         Keep the trajectory (with body poses, for the 3D view).
-    progress : bool, optional
-        Progress bar (None: only when the run takes more than two seconds).
+    progress : bool or None
+        Progress bar on stderr: False (default) none, True always, None only when the run
+        takes more than two seconds (the CLI's choice on a terminal).
     observe : callable, optional
         Called once with the built :class:`Experiment` before the episode starts; returns
         the per-step observer ``on_step(k, row)`` of :meth:`ClosedLoop.run` (e.g.
