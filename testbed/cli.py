@@ -409,8 +409,7 @@ def _units_note(units: dict[str, str]) -> str | None:
     shown = sorted({f"{u} as {display(u)[1]}" for u in units.values() if display(u)[0] != 1})
     if not shown:
         return None
-    return (f"(table in display units: {', '.join(shown)}; the JSON holds SI units, listed "
-            "under 'units')")
+    return f"(shown: {', '.join(shown)}; the JSON is in SI units, see its 'units')"
 
 
 def _format_table(summary: dict, units: dict[str, str]) -> str:
