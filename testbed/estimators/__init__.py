@@ -19,7 +19,12 @@ typed form)::
                                       ``gamma_channel = "scenario"`` says that it bounds the
                                       gain from the scenario's disturbance w (the design's
                                       ``disturbance_matrix`` and the sensors' ``Hw``) to
-                                      ``z = output_matrix x``
+                                      ``z = output_matrix x``; ``gamma_kind`` is
+                                      ``"discrete"`` (a bound on the sampled loop) or
+                                      ``"continuous-observation"`` (a bound for continuous
+                                      observation, which does not certify the sampled
+                                      loop: ``testbed score`` prints the sampled loop's
+                                      linearized gain beside it)
     batched : bool                    optional class attribute: True when x, y, u, P carry a
                                       leading batch axis (N, ...) and one instance runs a
                                       whole Monte-Carlo batch
@@ -158,6 +163,7 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     est.batched = True
     # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
     est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
+                       "gamma_kind": "continuous-observation",
                        "certificate": "Basin et al. Theorem 1 on the design model"}
     index = np.concatenate([design.measurement_index, det])
     return est if np.array_equal(index, np.arange(len(design.measurement_names))) \

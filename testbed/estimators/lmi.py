@@ -165,7 +165,8 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
                          f"{lmi.status} (solver: {lmi.solver_status})")
     estimator = LMIHInfFilter.from_design(system, lmi, x0=design.x0, input_matrix=input_matrix,
                                           feedthrough=feedthrough, dt_s=design.dt_s)
-    meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gain": lmi.gain.tolist(),
+    meta = {"gamma_min": gamma_min, "gamma": lmi.gamma, "gamma_kind": "discrete",
+            "gain": lmi.gain.tolist(),
             "status": lmi.status, "spectral_radius": lmi.check.spectral_radius,
             "objective": objective}
     return estimator, meta

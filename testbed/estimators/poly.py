@@ -325,7 +325,7 @@ def poly_hinf_estimator(design: Any, expansion: CubicExpansion, *, gamma: float 
     filt = PolynomialHInfFilter(model, gamma, np.linalg.inv(design.P0), design.dt_s,
                                 x0=design.x0, substeps=int(substeps))
     meta: dict[str, Any] = {
-        "gamma": gamma, "gamma_min_linear": gamma_min,
+        "gamma": gamma, "gamma_kind": "continuous-observation", "gamma_min_linear": gamma_min,
         "substeps": "auto" if auto else int(substeps),
         "expansion": expansion.description, "degree": model.degree,
         "certificate": "Basin et al. Theorem 1 on the rig's cubic expansion with "

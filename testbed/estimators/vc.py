@@ -351,7 +351,7 @@ class VCDesign:
         """``design_meta`` of the estimator (JSON-ready)."""
         v = self.verification
         prm = self.design.parameters
-        out = {"gamma": self.gamma, "gamma_min": self.gamma_min,
+        out = {"gamma": self.gamma, "gamma_kind": "discrete", "gamma_min": self.gamma_min,
                "sigma2": self.sigma2.tolist(), "sigma_factor": self.sigma_factor,
                "variance_bound": self.bound.tolist(),
                "kalman_variance": self.reference.tolist(),

@@ -120,6 +120,7 @@ class PairResult:
     innovations: np.ndarray | None = None
     step_us: float | None = None
     certified_gamma: float | None = None
+    gamma_kind: str | None = None
     worst: Any = None
     worst_skipped: str | None = None
     trajectory: dict[str, np.ndarray] | None = None
@@ -241,6 +242,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         gamma = design_meta.get("gamma")
         if gamma is not None and design_meta.get("gamma_channel") == "scenario":
             out.certified_gamma = float(gamma)
+            out.gamma_kind = design_meta.get("gamma_kind", "unstated")
         elif gamma is not None:
             out.notes.append(f"the design states gamma = {gamma:.4g} for its own disturbance "
                              "model, not for this scenario's channel (no gamma_channel = "

@@ -31,7 +31,8 @@ from testbed.score.paired import compare_family, comparison_text
 #: Keys of every entry of ``results`` (the issue's JSON contract).
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
                "consistent", "anis", "anis_bounds", "worst_case_gain", "random_gain",
-               "certified_gamma", "step_us", "step_vs_kalman", "mismatch_rmse_ratio",
+               "certified_gamma", "gamma_kind", "sampled_loop_gain", "certificate",
+               "step_us", "step_vs_kalman", "mismatch_rmse_ratio",
                "nees_test", "nis_test", "whiteness", "versus_reference", "skipped")
 
 
@@ -59,6 +60,11 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
         out.update(worst_case_gain=pair.worst.worst_case_gain,
                    random_gain=pair.worst.random_gain)
     out["certified_gamma"] = pair.certified_gamma
+    out["gamma_kind"] = pair.gamma_kind
+    if pair.worst is not None:
+        out["sampled_loop_gain"] = pair.worst.linear_gain
+    out["certificate"] = certificate(pair.certified_gamma, pair.gamma_kind,
+                                     out["sampled_loop_gain"])
     out["step_us"] = pair.step_us
     if reference is not None and not reference.skipped and reference.step_us:
         out["step_vs_kalman"] = pair.step_us / reference.step_us
@@ -67,6 +73,32 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
             k: float(np.sqrt(np.mean(v**2)) / np.sqrt(np.mean(nominal.rmse_per_run[k] ** 2)))
             for k, v in pair.rmse_per_run.items()}
     return out
+
+
+def certificate(gamma: float | None, kind: str | None, sampled_gain: float | None
+                ) -> str | None:
+    """What a design's ``gamma`` says about the loop as it runs, sampled at the control
+    period.
+
+    ``sampled_gain`` is the l2 gain of the linearized error system of the filter as it runs
+    (discrete, ``w`` held over each period, over the search horizon: the worst-case
+    search's ``linear_gain``). A discrete design's gamma certifies it: ``"holds"`` when
+    ``sampled_gain <= gamma``, else ``"violated"``. A continuous-observation gamma
+    (Basin et al.'s filters integrated over each period with the sample held) certifies
+    no sampled loop: ``"not a sampled-loop certificate"``, whatever the two numbers.
+
+    Returns
+    -------
+    str or None
+        None when no gamma is stated for the scenario's channel.
+    """
+    if gamma is None:
+        return None
+    if sampled_gain is None:
+        return "sampled-loop gain not computed (no worst-case search)"
+    if kind != "discrete":
+        return "not a sampled-loop certificate (continuous-observation gamma)"
+    return "holds" if sampled_gain <= gamma * (1 + 1e-9) else "violated"
 
 
 def comparisons(pairs: dict[str, PairResult], estimators: list[str], reference: str,
@@ -111,7 +143,8 @@ def results(run: ScoreRun) -> dict[str, Any]:
     units.update({"rmse": "state units", "step_us": "us",
                   "worst_case_gain": "output unit per unit of w",
                   "random_gain": "output unit per unit of w",
-                  "certified_gamma": "as the estimator's design states it"})
+                  "certified_gamma": "as the estimator's design states it",
+                  "sampled_loop_gain": "output unit per unit of w (held over each period)"})
     identity = suite_identity(run.suite)
     return {"suite": run.suite, "suite_version": identity["version"],
             "suite_hash": identity["hash"], "seed": run.seed, "level": stats.LEVEL,
@@ -195,6 +228,12 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
                                                                 strict=True))
             lines.append(f"{name} innovations: {white['verdict']} (p {white['p']:.2g}; "
                          f"standardized autocorrelation at lags {zs})")
+        if res["certificate"] is not None:
+            sampled = res["sampled_loop_gain"]
+            lines.append(f"{name} certificate: design gamma {res['certified_gamma']:.4g} "
+                         f"({res['gamma_kind']}), sampled loop's linearized gain "
+                         f"{'-' if sampled is None else f'{sampled:.4g}'}: "
+                         f"{res['certificate']}")
         versus = res["versus_reference"]
         if versus is not None:
             parts = [f"{state} {comparison_text(c, _squared(units.get(state, '')))}"
@@ -209,7 +248,11 @@ def _gain_text(res: dict[str, Any]) -> str:
         return "-"
     text = f"{res['worst_case_gain']:.3g} / {res['random_gain']:.3g}"
     if res["certified_gamma"] is not None:
-        text += f" (gamma {res['certified_gamma']:.3g})"
+        sampled = res["sampled_loop_gain"]
+        text += f" (gamma {res['certified_gamma']:.3g}"
+        if sampled is not None:
+            text += f", sampled loop {sampled:.3g}"
+        text += ")"
     return text
 
 
@@ -238,7 +281,7 @@ def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
 
 #: Columns of :func:`leaderboard`.
 _COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] verdict", "ANIS",
-            "worst / random gain", "us/step (x KF)", "mismatch")
+            "worst / random gain (gamma, sampled loop)", "us/step (x KF)", "mismatch")
 
 
 def leaderboard(summary: dict[str, Any]) -> str:

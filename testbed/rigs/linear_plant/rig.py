@@ -150,6 +150,30 @@ class LinearPlantRig(Rig):
         E = (step(np.zeros(2), 0.0, 1.0) - zero)[:, None]
         return F, B, E
 
+    @classmethod
+    def cubic_model(cls, design):
+        """The exact third-order expansion of a linear plant: ``a0 = 0``, ``a1 = A``,
+        ``E = B`` and no quadratic or cubic terms.
+
+        With ``a2 = a3 = 0`` Basin et al.'s central polynomial filter (Theorem 1) is the
+        central H-infinity filter of the linear system, so ``poly-hinf`` applies here too.
+
+        Parameters
+        ----------
+        design : testbed.estimators.design.DesignModel
+
+        Returns
+        -------
+        testbed.estimators.poly.CubicExpansion
+        """
+        from testbed.estimators.poly import CubicExpansion
+
+        plant = design.continuous
+        return CubicExpansion(a0=np.zeros(plant.A.shape[0]), a1=np.array(plant.A),
+                              a2=None, a3=None, E=np.array(plant.B),
+                              description="linear plant: the expansion is exact (no "
+                                          "quadratic or cubic terms)")
+
     def design_model(self, sensors, dt_s: float, disturbance=None):
         """The exact discrete model of the simulated plant, its noise and the harness prior.
 
