@@ -218,3 +218,16 @@ def test_the_readme_toml_snippet_is_its_example_file():
     example = ROOT / "docs" / "examples" / "helicopter_kalman.toml"
     assert f"`docs/examples/{example.name}`" in (ROOT / "README.md").read_text()
     assert tomllib.loads(snippet) == tomllib.loads(example.read_text())
+
+
+def test_units_in_the_reproduce_json(tmp_path):
+    from testbed.reproductions.outputs import DIMENSIONLESS, write_outputs
+
+    out = tmp_path / "r.json"
+    assert main(["reproduce", "basin-ms-hinf-helicopter", "--horizon", "1", "--json",
+                 str(out)]) == 0
+    assert _read(out)["units"]["final_error"] == "rad"
+    result = {"x": 1.0}
+    write_outputs(result, json_path=tmp_path / "d.json", plot_path=None, rrd_path=None,
+                  plot=lambda path: None, application_id="t")
+    assert _read(tmp_path / "d.json")["units"] == DIMENSIONLESS == result["units"]
