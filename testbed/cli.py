@@ -33,7 +33,10 @@ from typing import Any, NoReturn
 import numpy as np
 
 from filters import FilterError
+from testbed import __version__
+from testbed.completion import add_completion
 from testbed.estimators import ESTIMATORS
+from testbed.experiment import scenario_file
 from testbed.experiment.control import CONTROLLERS
 from testbed.experiment.scenario import MAX_SEED, Scenario, ScenarioError
 from testbed.io import check_output_path, write_json
@@ -63,6 +66,12 @@ class _Parser(argparse.ArgumentParser):
         if message.startswith("argument "):
             message = message[len("argument "):]
         self.exit(EXIT_USAGE, f"testbed: error: {message}\n")
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        # the deferred defaults of run/mc/sweep: a scenario file's values yield only to the
+        # options typed (testbed.experiment.scenario_file.defer_defaults)
+        namespace, extras = super().parse_known_args(args, namespace)
+        return scenario_file.fill_deferred(self, namespace), extras
 
 
 def _name_value(text: str) -> tuple[str, float]:
@@ -125,7 +134,14 @@ def _grid_axis(text: str) -> tuple[str, list[float]]:
 
 
 def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
-    p.add_argument("rig", help=f"one of {', '.join(RIGS)} or package.module:RigClass")
+    p.add_argument("rig", nargs="?", default=None,
+                   help=f"one of {', '.join(RIGS)} or package.module:RigClass (default: the "
+                   "--scenario file's)")
+    p.add_argument("--scenario", metavar="FILE", default=None,
+                   help="read the scenario from a TOML or JSON file; the options given beside "
+                   "it override its fields (docs/examples/*.toml)")
+    p.add_argument("--save-scenario", metavar="FILE", default=None,
+                   help="write the effective scenario (.toml or .json) and exit without running")
     p.add_argument("--profile", default="paper", choices=("paper", "hardware"),
                    help="paper: the papers' idealizations; hardware: motor lag, amplifier "
                    "limits, deadband, IMU and sensor timing of the real rig (see docs)")
@@ -179,6 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
                      epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
                      "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
                      "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
+    parser.add_argument("--version", action="version", version=f"testbed {__version__}")
+    add_completion(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     _add_scenario_options(run, 20.0)
@@ -214,9 +232,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_options(sw, 10.0)
     sw.add_argument("--runs", type=_positive_int, default=100)
     sw.add_argument("--grid", type=_grid_axis, action="append", default=[],
-                    metavar="NAME=V1,V2,...", required=True,
+                    metavar="NAME=V1,V2,...",
                     help="a swept scenario field (process_noise, ...), params.<field>, "
-                    "estimator.<option> or design.<option>; repeatable")
+                    "estimator.<option> or design.<option>; repeatable (or the --scenario "
+                    "file's [study] grid)")
     sw.add_argument("--backend", default="local", choices=("local", "ray"))
     sw.add_argument("--workers", type=_positive_int, default=None)
     sw.add_argument("--address", default=None,
@@ -224,6 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "10 s: exit code 5")
     sw.add_argument("--json", help="write the results here")
     sw.add_argument("--plot", help="write RMSE versus the first --grid parameter (PNG) here")
+    for p in (run, mc, sw):
+        scenario_file.defer_defaults(p)
 
     from testbed.reproductions import REPRODUCTIONS
 
@@ -270,48 +291,106 @@ def _add_score_parser(sub: Any) -> None:
     sc.add_argument("--rrd", help="write the comparison Rerun recording here")
 
 
-def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The checked :class:`Scenario` of ``run``/``mc``/``sweep`` arguments.
+#: ``run``/``mc``/``sweep`` options that set one scenario field (others: _cli_fields).
+ARG_FIELDS = {"rig": "rig", "profile": "profile", "design_profile": "design_profile",
+              "filter": "estimator",
+              "controller": "controller", "duration": "duration_s", "seed": "seed",
+              "sensors": "sensors", "manoeuvre": "manoeuvre", "disturbance": "disturbance",
+              "process_noise": "process_noise", "ambient_noise": "ambient_noise",
+              "reset_noise_scale": "reset_noise_scale", "filter_option": "estimator_options",
+              "manoeuvre_param": "manoeuvre_params", "design_option": "design_options",
+              "param": "params"}
+
+
+def _cli_fields(args: argparse.Namespace, rig: Any, dests: set[str]) -> dict[str, Any]:
+    """The scenario fields set by the options ``dests`` (unset ones, None, left out)."""
+    out: dict[str, Any] = {}
+    for dest, name in ARG_FIELDS.items():
+        value = getattr(args, dest, None)
+        if dest in dests and value is not None:
+            out[name] = dict(value) if isinstance(value, list) else value
+    if "encoder_noise" in dests and args.encoder_noise is not None:
+        if rig.name != "helicopter":
+            raise ValueError(f"--encoder-noise does not apply to rig {rig.name!r} (it has no "
+                             "encoders)")
+        out["sensor_options"] = {"noise_std_rad": args.encoder_noise}
+    if "a_y_source" in dests and args.a_y_source is not None:
+        if "a_y_source" not in rig.scenario_options:
+            raise ValueError(f"--a-y-source does not apply to rig {rig.name!r} (its input is "
+                             "not a lateral acceleration)")
+        out["design_options"] = {**out.get("design_options", {}), "a_y_source": args.a_y_source}
+    return out
+
+
+def scenario_and_file(args: argparse.Namespace
+                      ) -> tuple[Scenario, scenario_file.ScenarioFile | None]:
+    """The checked :class:`Scenario` of ``run``/``mc``/``sweep`` arguments and the
+    ``--scenario`` file read (or None): the command's defaults, then the file's fields, then
+    the options typed on the command line (testbed.experiment.scenario_file).
 
     Raises
     ------
     ValueError
-        A bad value or an option the rig does not have, the message starting with the flag.
+        A bad value or an option the rig does not have, the message starting with the flag
+        (or with the file and its key).
     """
+    source = scenario_file.read(args.scenario) if getattr(args, "scenario", None) else None
+    every = set(ARG_FIELDS) | {"encoder_noise", "a_y_source"}
+    given = getattr(args, scenario_file.GIVEN, every) if source is not None else every
+    from_file = source.fields if source is not None else {}
+    rig_name = args.rig if args.rig is not None else from_file.get("rig")
+    if rig_name is None:
+        raise ValueError(f"rig: give a rig ({', '.join(RIGS)} or package.module:RigClass) "
+                         "or --scenario FILE")
     try:
-        rig = resolve_rig(args.rig)
+        rig = resolve_rig(rig_name)
     except ValueError as exc:
-        raise ValueError(f"rig: {exc}") from None
-    if args.duration > MAX_DURATION_S and not args.allow_long:
-        raise ValueError(f"--duration {args.duration:g} s is above the limit of "
-                         f"{MAX_DURATION_S:g} s; add --allow-long to run it anyway")
-    sensor_options: dict[str, Any] = {}
-    if args.encoder_noise is not None:
-        if rig.name != "helicopter":
-            raise ValueError(f"--encoder-noise does not apply to rig {rig.name!r} (it has no "
-                             "encoders)")
-        sensor_options["noise_std_rad"] = args.encoder_noise
-    design_options: dict[str, Any] = dict(args.design_option)
-    if args.a_y_source is not None:
-        if "a_y_source" not in rig.scenario_options:
-            raise ValueError(f"--a-y-source does not apply to rig {rig.name!r} (its input is "
-                             "not a lateral acceleration)")
-        design_options["a_y_source"] = args.a_y_source
-    scenario = Scenario(rig=args.rig, profile=args.profile,
-                        design_profile=args.design_profile, estimator=args.filter,
-                        estimator_options=dict(args.filter_option), controller=args.controller,
-                        sensors=args.sensors, sensor_options=sensor_options,
-                        disturbance=args.disturbance, process_noise=args.process_noise or 0.0,
-                        ambient_noise=args.ambient_noise,
-                        reset_noise_scale=args.reset_noise_scale,
-                        manoeuvre=args.manoeuvre, manoeuvre_params=dict(args.manoeuvre_param),
-                        params=dict(args.param), design_options=design_options,
-                        duration_s=args.duration, seed=args.seed)
+        where = f"{source.path}: rig" if args.rig is None and source else "rig"
+        raise ValueError(f"{where}: {exc}") from None
+    typed = _cli_fields(args, rig, given)
+    defaults = {k: v for k, v in _cli_fields(args, rig, every).items() if k not in from_file}
+    values = scenario_file.merge(scenario_file.merge(defaults, from_file), typed)
+    scenario = Scenario(**values)
+
+    def message(field: str, text: str) -> str:
+        return scenario_file.scenario_error(source, set(typed), field, text,
+                                            FLAGS.get(field, field))
+
+    if scenario.duration_s > MAX_DURATION_S and not args.allow_long:
+        raise ValueError(message("duration_s", f"{scenario.duration_s:g} s is above the limit "
+                                 f"of {MAX_DURATION_S:g} s; add --allow-long to run it anyway"))
     try:
         scenario.check()
     except ScenarioError as exc:
-        raise ValueError(f"{FLAGS.get(exc.field, exc.field)}: {exc}") from None
-    return scenario
+        raise ValueError(message(exc.field, str(exc))) from None
+    return scenario, source
+
+
+def scenario_from_args(args: argparse.Namespace) -> Scenario:
+    """The checked :class:`Scenario` of ``run``/``mc``/``sweep`` arguments
+    (:func:`scenario_and_file`)."""
+    return scenario_and_file(args)[0]
+
+
+def _study(args: argparse.Namespace, source: scenario_file.ScenarioFile | None,
+           name: str) -> Any:
+    """``--runs``/``--grid`` if typed, else the ``--scenario`` file's ``[study]`` value, else
+    the option's default."""
+    if source is None or name in getattr(args, scenario_file.GIVEN, {name}):
+        return getattr(args, name)
+    return source.study.get(name, getattr(args, name))
+
+
+def _save_scenario(args: argparse.Namespace, scenario: Scenario, **study: Any) -> int:
+    """``--save-scenario FILE``: write the effective scenario, run nothing."""
+    path = scenario_file.write(args.save_scenario, scenario_file.block(scenario), study)
+    print(f"wrote {path}")
+    return 0
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    """Progress bars only on a terminal, and never with --no-progress."""
+    return not args.no_progress and sys.stderr.isatty()
 
 
 #: Output flags and the suffix of the file each writes.
@@ -324,24 +403,36 @@ def check_outputs(args: argparse.Namespace) -> None:
         path = getattr(args, attr, None)
         if path is not None:
             check_output_path(path, "--" + attr.replace("_", "-"), suffix)
+    if getattr(args, "save_scenario", None) is not None:
+        scenario_file.check_destination(args.save_scenario)
     if args.command == "reproduce" and args.name == "all":
         check_output_path(args.out_dir, "--out-dir", None)
         check_output_path(args.doc, "--doc", ".md")
 
 
+def _units_note(units: dict[str, str]) -> str | None:
+    """The line saying that the console shows display units and the JSON SI units."""
+    shown = sorted({f"{u} as {display(u)[1]}" for u in units.values() if display(u)[0] != 1})
+    if not shown:
+        return None
+    return f"(shown: {', '.join(shown)}; the JSON is in SI units, see its 'units')"
+
+
 def _format_table(summary: dict, units: dict[str, str]) -> str:
-    lines = [f"{'state':<14}{'estimate RMSE':>18}{'measurement RMSE':>22}"]
+    width = max([len("state"), *map(len, summary["rmse"])]) + 2
+    lines = [f"{'state':<{width}}{'estimate RMSE':>18}{'measurement RMSE':>22}"]
     for name, value in summary["rmse"].items():
         scale, unit = display(units.get(name, ""))
         meas = summary["measurement_rmse"].get(name)
         meas_txt = f"{meas * scale:.4f} {unit}" if meas is not None else "-"
-        lines.append(f"{name:<14}{value * scale:>11.4f} {unit:<6}{meas_txt:>22}")
+        lines.append(f"{name:<{width}}{value * scale:>11.4f} {unit:<6}{meas_txt:>22}")
     if summary.get("nees_mean") is not None:
         lines.append(f"mean NEES {summary['nees_mean']:.3f} (consistent filter: "
                      f"{len(summary['rmse'])})")
     if summary.get("T_final") is not None:
         lines.append(f"noise-output ratio T = {summary['T_final']:.4f}")
-    return "\n".join(lines)
+    note = _units_note({k: units.get(k, "") for k in summary["rmse"]})
+    return "\n".join(lines + ([note] if note else []))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -349,6 +440,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed.experiment import runner
 
     scenario = scenario_from_args(args)
+    if args.save_scenario:
+        return _save_scenario(args, scenario)
     if args.realtime:
         return _cmd_run_realtime(args, scenario)
     if args.video:
@@ -359,7 +452,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd or args.video),
-                                   progress=False if args.no_progress else None,
+                                   progress=None if _progress(args) else False,
                                    observe=None if live is None else live.attach)
     except BaseException:
         if live is not None:
@@ -376,7 +469,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     result = {"rig": meta["rig"], "filter": meta["scenario"]["estimator"],
               "controller": meta["scenario"]["controller"], "seed": scenario.seed,
               "duration_s": float(scenario.duration_s), **summary, "wall_s": wall_s,
-              "config": meta}
+              **_scenario_and_meta(meta)}
     print(f"{meta['rig']} | filter {result['filter']} | controller {result['controller']} | "
           f"sensors {meta['sensors']} | {summary['steps']} steps in {wall_s:.2f} s wall")
     print(_format_table(summary, summary["units"]))
@@ -430,9 +523,16 @@ def _cmd_run_realtime(args: argparse.Namespace, scenario: Scenario) -> int:
           f"lateness {1e3 * pacing['max_lateness_s']:.2f} ms")
     print(_format_table(summary, summary["units"]))
     if args.json:
-        result = {"rig": meta["rig"], "seed": scenario.seed, **summary, "config": meta}
+        result = {"rig": meta["rig"], "seed": scenario.seed, **summary,
+                  **_scenario_and_meta(meta)}
         print(f"wrote {write_json(args.json, result)}")
     return 0
+
+
+def _scenario_and_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """The JSON's ``scenario`` block (what ``--scenario`` reads) and ``meta`` (the rest)."""
+    return {"scenario": meta["scenario"], "meta": {k: v for k, v in meta.items()
+                                                   if k != "scenario"}}
 
 
 def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
@@ -467,23 +567,31 @@ def _finish_live(args: argparse.Namespace, live: Any) -> None:
 def _print_mc(result: dict) -> None:
     print(f"{result['runs']} runs x {result['steps_per_run']} steps in {result['wall_s']:.2f} s "
           f"({result['traj_steps_per_s']:,.0f} trajectory-steps/s)")
-    print(f"{'state':<14}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
+    width = max([len("state"), *map(len, result["rmse"])]) + 2
+    print(f"{'state':<{width}}{'RMSE mean':>14}{'5 %':>12}{'95 %':>12}")
     for name, stats in result["rmse"].items():
         scale, unit = display(result["units"].get(name, ""))
-        print(f"{name:<14}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
+        print(f"{name:<{width}}{stats['mean'] * scale:>14.4f}{stats['q05'] * scale:>12.4f}"
               f"{stats['q95'] * scale:>12.4f}  {unit}")
     if result.get("nees_mean") is not None:
         print(f"mean NEES {result['nees_mean']:.3f}")
     if result.get("T_final"):
         print(f"T_final mean {result['T_final']['mean']:.4f}")
+    note = _units_note({k: result["units"].get(k, "") for k in result["rmse"]})
+    if note:
+        print(note)
 
 
 def cmd_mc(args: argparse.Namespace) -> int:
     """``testbed mc``: a batched Monte-Carlo study."""
     from testbed.experiment.runner import monte_carlo
 
-    result = monte_carlo(scenario_from_args(args), args.runs, batch_size=args.batch_size,
-                         progress=not args.no_progress, save_npz=args.save_npz,
+    scenario, source = scenario_and_file(args)
+    runs = _study(args, source, "runs")
+    if args.save_scenario:
+        return _save_scenario(args, scenario, runs=runs)
+    result = monte_carlo(scenario, runs, batch_size=args.batch_size,
+                         progress=_progress(args), save_npz=args.save_npz,
                          envelope_points=200 if args.plot else None)
     _print_mc(result)
     if args.json:
@@ -523,8 +631,21 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from testbed.experiment.backend import check_ray_address
     from testbed.experiment.runner import sweep
 
-    scenario = scenario_from_args(args)
-    grid = check_grid(scenario, args.grid)
+    scenario, source = scenario_and_file(args)
+    axes = _study(args, source, "grid")
+    if not axes:
+        raise ValueError("--grid: give NAME=V1,V2,... (repeatable) or a [study] grid in the "
+                         "--scenario file")
+    try:
+        grid = check_grid(scenario, axes)
+    except ValueError as exc:
+        if axes is args.grid:
+            raise
+        detail = str(exc).removeprefix("--grid").lstrip(": ")
+        raise ValueError(f"{source.path}: study.grid: {detail}") from None
+    runs = _study(args, source, "runs")
+    if args.save_scenario:
+        return _save_scenario(args, scenario, runs=runs, grid=grid)
     if args.address is not None:
         if args.backend != "ray":
             raise ValueError("--address is only used with --backend ray")
@@ -532,21 +653,24 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             check_ray_address(args.address)
         except ValueError as exc:
             raise ValueError(f"--address: {exc}") from None
-    result = sweep(scenario, grid, runs=args.runs, backend=args.backend,
-                   workers=args.workers, address=args.address, progress=not args.no_progress)
+    result = sweep(scenario, grid, runs=runs, backend=args.backend,
+                   workers=args.workers, address=args.address, progress=_progress(args))
     names = list(grid)
     print(f"{len(result['points'])} points on {result['backend']} ({result['workers']} workers) "
           f"in {result['wall_s']:.2f} s")
     first = result["points"][0]["result"]
     states = list(first["rmse"])[:2]
-    header = "".join(f"{s + ' RMSE ' + display(first['units'].get(s, ''))[1]:>22}"
-                     for s in states)
-    print("  ".join(f"{n:>16}" for n in names) + header)
+    titles = [f"{s} RMSE {display(first['units'].get(s, ''))[1]}".strip() for s in states]
+    widths = [max(16, len(n)) for n in names] + [max(14, len(t)) for t in titles]
+    print("  ".join(f"{t:>{w}}" for t, w in zip(names + titles, widths, strict=True)))
     for entry in result["points"]:
         rmse, units = entry["result"]["rmse"], entry["result"]["units"]
-        print("  ".join(f"{entry['point'][n]:>16g}" for n in names)
-              + "".join(f"{rmse[s]['mean'] * display(units.get(s, ''))[0]:>22.4f}"
-                        for s in states))
+        cells = [f"{entry['point'][n]:g}" for n in names] + [
+            f"{rmse[s]['mean'] * display(units.get(s, ''))[0]:.4f}" for s in states]
+        print("  ".join(f"{c:>{w}}" for c, w in zip(cells, widths, strict=True)))
+    note = _units_note({s: first["units"].get(s, "") for s in states})
+    if note:
+        print(note)
     if args.json:
         print(f"wrote {write_json(args.json, result)}")
     if args.plot:

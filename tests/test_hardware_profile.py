@@ -292,7 +292,7 @@ def test_cli_profile_flag(tmp_path, capsys):
     import json
 
     data = json.loads(path.read_text())
-    assert data["config"]["scenario"]["profile"] == "hardware"
-    assert "gyro_pitch" in data["config"]["sensors"]
+    assert data["scenario"]["profile"] == "hardware"
+    assert "gyro_pitch" in data["meta"]["sensors"]
     with pytest.raises(SystemExit):
         main(["run", "helicopter", "--profile", "lab"])

@@ -220,8 +220,8 @@ def test_cli_run_on_the_vehicle(tmp_path, vehicle_vc):
     out = json.loads(path.read_text())
     assert out["filter"] == "vc-discrete" and out["nees_mean"] is None
     assert all(np.isfinite(v) for v in out["rmse"].values())
-    assert out["config"]["design"]["gamma"] == pytest.approx(vehicle_vc.gamma)
-    assert out["config"]["design"]["certified"] is True
+    assert out["meta"]["design"]["gamma"] == pytest.approx(vehicle_vc.gamma)
+    assert out["meta"]["design"]["certified"] is True
 
 
 def test_member_of_a_batch_equals_the_single_run_bitwise(vehicle_vc):

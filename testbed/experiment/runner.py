@@ -81,6 +81,13 @@ def _with_defaults(scenario: Scenario) -> Scenario:
     return scenario.replace(**changes) if changes else scenario
 
 
+def described(scenario: Scenario) -> dict[str, Any]:
+    """The ``scenario`` block of the outputs: :meth:`Scenario.describe` without the fields
+    left at None (TOML has no null; a missing key is the default), so that the block saved
+    as TOML or JSON is a scenario file (:mod:`testbed.experiment.scenario_file`)."""
+    return {k: v for k, v in scenario.describe().items() if v is not None}
+
+
 def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -> Experiment:
     """The closed loop of ``num`` members for a scenario (everything validated first).
 
@@ -145,7 +152,7 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
                            physical_index=design.physical, name=name)
     controller = make_controller(scenario.controller, control_rig, control_design,
                                  lambda t: sim.setpoints_at(t))
-    meta = {"rig": rig.name, "scenario": scenario.describe(), "sensors": sim.sensors.describe(),
+    meta = {"rig": rig.name, "scenario": described(scenario), "sensors": sim.sensors.describe(),
             "control_dt_s": sim.dt_s, "units": sim.units()}
     if matched:
         meta["design_profile"] = "paper (fallback: " + fallback + ")" if fallback else "matched"
@@ -210,7 +217,7 @@ class _DecimatedRows:
         return np.concatenate([self.data[:, :n], self.data[:, -1:]], axis=1)
 
 
-def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None,
+def run(scenario: Scenario, *, record: bool = True, progress: bool | None = False,
         observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None
         ) -> tuple[Trajectory | None, dict[str, Any]]:
     """One closed-loop episode of ``scenario`` (seed ``scenario.seed``).
@@ -220,8 +227,9 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = None
     scenario : Scenario
     record : bool
         Keep the trajectory (with body poses, for the 3D view).
-    progress : bool, optional
-        Progress bar (None: only when the run takes more than two seconds).
+    progress : bool or None
+        Progress bar on stderr: False (default) none, True always, None only when the run
+        takes more than two seconds (the CLI's choice on a terminal).
     observe : callable, optional
         Called once with the built :class:`Experiment` before the episode starts; returns
         the per-step observer ``on_step(k, row)`` of :meth:`ClosedLoop.run` (e.g.
@@ -337,7 +345,7 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 
 
 def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None = None,
-                progress: bool = True, save_npz: str | Path | None = None,
+                progress: bool = False, save_npz: str | Path | None = None,
                 num_threads: int | None = None,
                 envelope_points: int | None = None) -> dict[str, Any]:
     """``runs`` episodes of ``scenario``, stepped in batches.
@@ -350,6 +358,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     batch_size : int, optional
         Members stepped together (default ``min(runs, 1000)``); results do not depend on it.
     progress : bool
+        Show a progress bar (on stderr; default off).
     save_npz : path, optional
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
@@ -364,7 +373,10 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     dict
         JSON-ready: ``runs``, ``seeds`` (the per-run seeds), ``steps_per_run``, ``wall_s``,
         ``traj_steps_per_s``, ``rmse``/``measurement_rmse`` ``{name: {mean, q05, q95}}``,
-        ``nees_mean``, ``nees``, ``T_final``, ``clipped_fraction_mean``, ``units``, ``meta``.
+        ``nees_mean``, ``nees``, ``T_final``, ``clipped_fraction_mean``, ``units``,
+        ``scenario`` (every field, the rig's defaults filled in: what ran; a scenario file
+        holding it reproduces the study, see :mod:`testbed.experiment.scenario_file`) and
+        ``meta`` (rig, sensors, control period, units, design).
     """
     if isinstance(runs, bool) or int(runs) != runs or runs < 1:
         raise ValueError(f"runs must be a positive integer, got {runs}")
@@ -446,7 +458,8 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         **per_run_summary(per_run),
         "npz": None if save_npz is None else str(save_npz),
         "units": first.meta["units"],
-        "meta": first.meta,
+        "scenario": first.meta["scenario"],
+        "meta": {k: v for k, v in first.meta.items() if k != "scenario"},
     }
     if envelope is not None:
         result["error_envelope"] = envelope.result()
@@ -591,7 +604,7 @@ def _run_point(scenario: Scenario, runs: int) -> dict[str, Any]:
 
 def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
           backend: str = "local", workers: int | None = None, address: str | None = None,
-          progress: bool = True) -> dict[str, Any]:
+          progress: bool = False) -> dict[str, Any]:
     """One Monte-Carlo study per grid point (common random numbers: one base seed).
 
     Parameters
@@ -607,11 +620,15 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         :data:`RAY_CONNECT_TIMEOUT_S` seconds: ``ConnectionError`` before any work.
     workers : int, optional
         Processes or local Ray CPUs (default ``os.cpu_count()``).
+    progress : bool
+        Show a progress bar (on stderr; default off).
 
     Returns
     -------
     dict
-        ``backend``, ``workers``, ``wall_s``, ``points`` (list of ``{"point", "result"}``).
+        ``backend``, ``workers``, ``wall_s``, ``scenario`` (the base scenario, as in
+        :func:`monte_carlo`), ``grid``, ``runs``, ``units``, ``points`` (list of ``{"point",
+        "result"}``).
     """
     workers = check_backend(backend, workers, address)
     points = grid_points(grid)
@@ -624,6 +641,8 @@ def sweep(scenario: Scenario, grid: dict[str, list], *, runs: int = 100,
         results = map_jobs(_run_point, [(s, runs) for s in scenarios], backend=backend,
                            workers=workers, address=address, on_done=lambda _: bar.update())
     return {"backend": backend, "workers": workers, "wall_s": time.perf_counter() - start,
+            "scenario": described(_with_defaults(scenario)), "grid": dict(grid), "runs": runs,
+            "units": results[0]["units"],
             "points": [{"point": p, "result": r} for p, r in zip(points, results, strict=True)]}
 
 

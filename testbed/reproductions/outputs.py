@@ -135,12 +135,16 @@ def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int 
         offset += (len(lines) * 1.3 + 0.6) * fontsize
 
 
+#: ``units`` of a reproduction of a dimensionless system.
+DIMENSIONLESS = {"state": "1 (dimensionless system)", "time": "s"}
+
+
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
                   plot: Callable[[str | os.PathLike], None],
                   trajectory: Callable[[], Trajectory] | None = None,
                   runs: Callable[[], list[Any]] | None = None, application_id: str,
-                  **rrd_kwargs: Any) -> None:
+                  units: dict[str, str] | None = None, **rrd_kwargs: Any) -> None:
     """Write whichever outputs were asked for (each atomically).
 
     Parameters
@@ -160,12 +164,16 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         ``runs`` or ``trajectory``.
     application_id : str
         Rerun application id.
+    units : dict, optional
+        The units of the result's quantities, stored as its ``units`` (every JSON output has
+        one; default: the system is dimensionless, time in s).
     **rrd_kwargs
         Passed to :func:`testbed.outputs.viz.write_rrd` (``model``, ``degrees``) or, with ``runs``,
         to :func:`testbed.outputs.viz.write_runs` (``degrees``).
     """
     if rrd_path and (trajectory is None) == (runs is None):
         raise ValueError("write_outputs needs exactly one of trajectory and runs for the .rrd")
+    result.setdefault("units", dict(units) if units is not None else DIMENSIONLESS)
     if json_path:
         from testbed.io import write_json
 

@@ -264,39 +264,60 @@ def _mismatch_text(res: dict[str, Any]) -> str:
     return f"{ratio[state]:.3g} ({state})"
 
 
-def _sorted(group: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    def key(res: dict[str, Any]) -> tuple:
-        if res["skipped"]:
-            return (1, 0.0)
-        first = next(iter(res["rmse"].values()))
-        return (0, first)
-    return sorted(group, key=key)
+def _sorted(group: list[dict[str, Any]], order: list[str] | None = None
+            ) -> list[dict[str, Any]]:
+    """The rows of one scenario in the order the estimators were given (the same order in
+    every scenario; :func:`_ranks` gives the RMSE rank)."""
+    index = {name: i for i, name in enumerate(order or [])}
+    return sorted(group, key=lambda res: index.get(res["estimator"], len(index)))
+
+
+def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
+    """Rank of each estimator scored on the scenario by the RMSE of the first state."""
+    scored = [res for res in group if not res["skipped"]]
+    scored.sort(key=lambda res: next(iter(res["rmse"].values())))
+    return {res["estimator"]: i + 1 for i, res in enumerate(scored)}
+
+
+#: Columns of :func:`leaderboard`.
+_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] verdict", "ANIS",
+            "worst / random gain (gamma, sampled loop)", "us/step (x KF)", "mismatch")
 
 
 def leaderboard(summary: dict[str, Any]) -> str:
-    """A plain-text leaderboard: per scenario, estimators by RMSE of the first state."""
+    """A plain-text leaderboard: per scenario, the estimators in the order given (the same
+    in every scenario) with their rank by the RMSE of the first state; columns as wide as
+    their widest cell."""
     units = summary["units"]
     lines = [f"testbed score: suite {summary['suite']} (version {summary['suite_version']}, "
              f"sha256 {summary['suite_hash'][:12]}), seed {summary['seed']}, reference "
              f"{summary['reference']}, {summary['wall_s']:.1f} s wall"]
-    gain_head = "worst / random gain (gamma, sampled loop)"
-    header = (f"  {'estimator':<16}{'RMSE':<44}{'ANEES [95 % CI] verdict':<32}{'ANIS':>7}  "
-              f"{gain_head:<50}{'us/step (x KF)':<18}{'mismatch':<16}")
+    blocks = []
     for scenario, group in _rows(summary):
-        lines.append("")
-        lines.append(f"{scenario} ({group[0]['runs']} runs)")
-        lines.append(header)
-        for res in _sorted(group):
+        ranks, rows = _ranks(group), []
+        for res in _sorted(group, summary.get("estimators")):
             if res["skipped"]:
-                lines.append(f"  {res['estimator']:<16}skipped: {res['skipped']}")
+                rows.append((res["estimator"], f"skipped: {res['skipped']}"))
                 continue
             states = list(res["rmse"])[:2]
             cost = (f"{res['step_us']:.3g}" + (f" (x{res['step_vs_kalman']:.2g})"
                                                 if res["step_vs_kalman"] else ""))
-            lines.append(f"  {res['estimator']:<16}{_rmse_text(res, units, states):<44}"
-                         f"{_consistency_text(res):<32}{_fmt(res['anis']):>7}  "
-                         f"{_gain_text(res):<50}{cost:<18}{_mismatch_text(res):<16}")
-        lines += [f"  {line}" for line in _details(group, units)]
+            rows.append((res["estimator"], str(ranks[res["estimator"]]),
+                         _rmse_text(res, units, states), _consistency_text(res),
+                         _fmt(res["anis"]), _gain_text(res), cost, _mismatch_text(res)))
+        blocks.append((scenario, group, rows))
+    every = [row for _, _, rows in blocks for row in rows]
+    full = [_COLUMNS] + [row for row in every if len(row) == len(_COLUMNS)]
+    widths = [max(len(row[i]) for row in full) for i in range(len(_COLUMNS))]
+    widths[0] = max([widths[0], *(len(row[0]) for row in every)])
+
+    def line(row: tuple[str, ...]) -> str:
+        return "  " + "  ".join(f"{c:<{w}}" for c, w in zip(row, widths, strict=False)).rstrip()
+
+    for scenario, group, rows in blocks:
+        lines += ["", f"{scenario} ({group[0]['runs']} runs)", line(_COLUMNS)]
+        lines += [line(row) for row in rows]
+        lines += [f"  {text}" for text in _details(group, units)]
     return "\n".join(lines)
 
 
@@ -324,7 +345,7 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
                 "| estimator | RMSE (95 % CI) | ANEES [95 % CI] verdict | ANIS [band] | worst / "
                 "random gain (gamma) | us/step (x KF) | mismatch | skipped |",
                 "|---|---|---|---|---|---|---|---|"]
-        for res in _sorted(group):
+        for res in _sorted(group, summary.get("estimators")):
             if res["skipped"]:
                 out.append(f"| {res['estimator']} | | | | | | | {res['skipped']} |")
                 continue

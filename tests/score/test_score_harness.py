@@ -110,6 +110,27 @@ def test_score_skips_with_reasons_and_gives_every_key(user_module):
     assert all(np.isfinite(v) for r in hardware.values() for v in r["rmse"].values())
     text = report.leaderboard(summary)
     assert "INCONSISTENT" not in text.split("calibration")[1].split("fixed_gain")[0]
+    _leaderboard_is_aligned_and_in_a_stable_order(summary)
+
+
+def _leaderboard_is_aligned_and_in_a_stable_order(summary):
+    """Rows in the order the estimators were given in every scenario; a 16-character name
+    does not run into the next column."""
+    long_name = "sixteen-chars-xx"
+    renamed = {**summary, "estimators": [long_name if e == "kalman" else e
+                                         for e in summary["estimators"]],
+               "results": [{**r, "estimator": long_name if r["estimator"] == "kalman"
+                            else r["estimator"]} for r in summary["results"]]}
+    text = report.leaderboard(renamed)
+    for block in text.split("\n\n")[1:]:
+        rows = block.splitlines()[1:]
+        header, table = rows[0], rows[1:1 + len(renamed["estimators"])]
+        assert [r.split()[0] for r in table] == renamed["estimators"]
+        column = header.index("rank")
+        for row in table:
+            if "skipped:" in row:
+                continue
+            assert row[column - 2:column] == "  " and row[column] != " ", text
 
 
 def test_score_rejects_bad_arguments_before_running():

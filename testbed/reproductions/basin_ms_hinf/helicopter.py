@@ -229,6 +229,7 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(mean, noisy, yaw_errors, result, s, path),
+                  units={"time": "s", "final_error": "rad", "T": "1 (noise-output ratio)"},
                   runs=lambda: _runs(mean, noisy, s, result),
                   application_id="testbed-" + NAME)
     return result

@@ -325,6 +325,8 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(sim, result, s, path),
+                  units={"state": "1 (dimensionless system)", "time": "s",
+                         "T": "1 (noise-output ratio)"},
                   runs=lambda: _runs(sim, result),
                   application_id="testbed-" + NAME, degrees=False)
     return result

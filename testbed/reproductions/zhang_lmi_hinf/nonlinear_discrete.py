@@ -181,6 +181,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     loop = run_in_loop(x0, steps, seed) if (plot_path or rrd_path) else None
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
+                  units={"state": "1 (dimensionless system)", "time": "steps"},
                   plot=lambda path: _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma,
                                           s, path),
                   runs=lambda: _runs(loop, result),

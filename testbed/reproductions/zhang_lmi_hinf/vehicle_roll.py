@@ -332,6 +332,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(curves, result, s, path),
+                  units={"time": "s", "roll": "rad", "roll_rate": "rad/s"},
                   runs=lambda: _runs(curves, result, s), application_id="testbed-" + NAME)
     return result
 
