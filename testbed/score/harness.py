@@ -40,7 +40,13 @@ from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
+from testbed.score.worst_case import (
+    LoopEvaluator,
+    estimator_markov,
+    population,
+    search,
+    without_quantization,
+)
 from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
@@ -277,7 +283,11 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         return copy.deepcopy(template)
 
     copy_factory.__name__ = _name(estimator)
+    original = experiment.loop.sim.sensors
+    probe_sensors, removed = without_quantization(original)
     sc = scenario.replace(estimator=copy_factory, disturbance=dist, process_noise=0.0)
+    if removed:
+        sc = sc.replace(sensors=probe_sensors, sensor_options={})
     wc = runner.build(sc, num, num_threads=1)
     wc.loop.truth_feedback = entry.feedback == "truth"
     try:
@@ -294,16 +304,19 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         Hw = model.Hw if model.Hw.shape == (m, s) else np.zeros((m, s))
         y = _held(rec["measurement"][0], K + 1)
         u = _held(rec["action"][0, 1:], K)
-        R = np.diag(model.R)
+        R = np.diag(original.linear_model().R)
         deltas = np.where(R > 0, 1e-3 * np.sqrt(np.abs(R)), 1e-6)
         k0 = max(1, K // 4)
         h = estimator_markov(wc.loop.stage.estimator, design.input_transform,
                              wc.loop.stage.prior, y, u, k0, deltas, num)
         evaluator = LoopEvaluator(wc, dist, seed, K, design.output_matrix)
         rng = np.random.default_rng([int(seed), 16])
-        return search(evaluator, A, G, model.C, Hw, design.output_matrix, h,
-                      energy=spec.energy, random_draws=spec.random_draws, basis=spec.basis,
-                      generations=spec.generations, rng=rng)
+        result = search(evaluator, A, G, model.C, Hw, design.output_matrix, h,
+                        energy=spec.energy, random_draws=spec.random_draws, basis=spec.basis,
+                        generations=spec.generations, rng=rng)
+        result.probe_sensors = sim.sensors.describe()
+        result.quantization_removed = removed
+        return result
     finally:
         wc.close()
 
