@@ -32,7 +32,8 @@ from testbed.score.paired import compare_family, comparison_text
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
                "consistent", "anis", "anis_bounds", "worst_case_gain", "random_gain",
                "certified_gamma", "step_us", "step_vs_kalman", "mismatch_rmse_ratio",
-               "nees_test", "nis_test", "whiteness", "versus_reference", "skipped")
+               "nees_test", "nis_test", "whiteness", "versus_reference", "worst_case_search",
+               "skipped")
 
 
 def _entry_result(pair: PairResult, reference: PairResult | None,
@@ -57,7 +58,8 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
         out["whiteness"] = whiteness_test(pair.innovations)
     if pair.worst is not None:
         out.update(worst_case_gain=pair.worst.worst_case_gain,
-                   random_gain=pair.worst.random_gain)
+                   random_gain=pair.worst.random_gain,
+                   worst_case_search=pair.worst.describe())
     out["certified_gamma"] = pair.certified_gamma
     out["step_us"] = pair.step_us
     if reference is not None and not reference.skipped and reference.step_us:
@@ -132,9 +134,11 @@ def notes(run: ScoreRun) -> list[str]:
                 out.append(f"{prefix}: {pair.worst_skipped}")
             if pair.worst is not None:
                 w = pair.worst
+                probe = (f"sensors without quantization ({', '.join(w.quantization_removed)})"
+                         if w.quantization_removed else "the scenario's sensors")
                 out.append(f"{prefix}: worst-case search over {w.horizon_s:g} s, energy "
-                           f"{w.energy:g}: linearized error system predicts "
-                           f"{w.linear_gain:.4g}, found {w.worst_case_gain:.4g} in "
+                           f"{w.energy:g}, probe runs on {probe}: linearized error system "
+                           f"predicts {w.linear_gain:.4g}, found {w.worst_case_gain:.4g} in "
                            f"{w.evaluations} closed-loop runs")
                 out += [f"{prefix}: {note}" for note in w.notes]
     return out
@@ -268,7 +272,10 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
            "and the verdict (consistent / overconfident / underconfident: the mean test and "
            "the per-step chi-square band test agree), ANIS with the per-step band; "
            "worst-case / random gain in the output's unit per "
-           "unit of the scenario's w (a lower bound found by search, not a certificate); "
+           "unit of the scenario's w (a lower bound found by search, not a certificate; "
+           "measured on probe runs whose sensors have their quantization removed, so that "
+           "the change of quantization error does not floor it: the remarks name the "
+           "channels); "
            "gamma as the estimator's design states it; cost in microseconds per "
            "trajectory-step and relative to the Kalman filter timed in the same run; mismatch "
            "= RMSE at the mismatched parameters / nominal (largest over the states). "
