@@ -405,13 +405,15 @@ def _rmse_panel(ax: Any, scenario: str, group: list[dict[str, Any]], unit: str,
     ax.set_ylim(len(states) - 0.5, -0.5)
     names = [r["estimator"] for r in group]
     ax.set_yticks([i + (j - (rows - 1) / 2) * spacing for i in range(len(states))
-                   for j in range(rows)], names * len(states), minor=True,
-                  fontsize=MIN_FONT_PT)
-    ax.set_yticks(range(len(states)), states, fontsize=FONT_PT, rotation=90, va="center")
+                   for j in range(rows)], names * len(states), minor=True)
+    ax.set_yticks(range(len(states)), states)
     pad = 0.62 * MIN_FONT_PT * max(len(n) for n in names) + 8
     ax.yaxis.remove_overlapping_locs = False  # a row at a state's centre keeps its name
-    ax.tick_params(axis="y", which="major", length=0, pad=pad)
-    ax.tick_params(axis="y", which="minor", length=2)
+    ax.tick_params(axis="y", which="major", length=0, pad=pad, labelsize=FONT_PT,
+                   labelrotation=90)
+    ax.tick_params(axis="y", which="minor", length=2, labelsize=MIN_FONT_PT)
+    for label in ax.get_yticklabels():
+        label.set_verticalalignment("center")
     for i in range(1, len(states)):
         ax.axhline(i - 0.5, color="0.7", lw=0.8)
     ax.set_xlabel(f"RMSE [{unit}]" if unit else "RMSE", fontsize=FONT_PT)
