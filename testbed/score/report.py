@@ -406,7 +406,7 @@ def _rmse_panel(ax: Any, scenario: str, group: list[dict[str, Any]], unit: str,
     names = [r["estimator"] for r in group]
     ax.set_yticks([i + (j - (rows - 1) / 2) * spacing for i in range(len(states))
                    for j in range(rows)], names * len(states), minor=True)
-    ax.set_yticks(range(len(states)), states)
+    ax.set_yticks(range(len(states)), states if len(states) > 1 else [""])
     pad = 0.62 * MIN_FONT_PT * max(len(n) for n in names) + 8
     ax.yaxis.remove_overlapping_locs = False  # a row at a state's centre keeps its name
     ax.tick_params(axis="y", which="major", length=0, pad=pad, labelsize=FONT_PT,
@@ -417,7 +417,7 @@ def _rmse_panel(ax: Any, scenario: str, group: list[dict[str, Any]], unit: str,
     for i in range(1, len(states)):
         ax.axhline(i - 0.5, color="0.7", lw=0.8)
     ax.set_xlabel(f"RMSE [{unit}]" if unit else "RMSE", fontsize=FONT_PT)
-    ax.set_ylabel("state", fontsize=FONT_PT)
+    ax.set_ylabel("state" if len(states) > 1 else states[0], fontsize=FONT_PT)
     ax.set_title(f"RMSE [{unit}] with 95 % CI; \u00d7 MSE / reference's" if unit
                  else "RMSE with 95 % CI; \u00d7 MSE / reference's", fontsize=FONT_PT)
     ax.tick_params(axis="x", labelsize=MIN_FONT_PT)
@@ -560,19 +560,20 @@ def score_figure(summary: dict[str, Any]) -> Any:
         searched = [r for r in group if r["worst_case_gain"] is not None]
         layouts.append((scenario, group, rmse_axes, with_cov, searched))
     width = max(11.0, 3.6 * max(len(lay[2]) for lay in layouts))
-    heights = [2.6 + 0.5 * len(group) + (2.8 if with_cov or searched else 0.0)
-               for _, group, _, with_cov, searched in layouts]
+    upper = [1.5 + 0.28 * len(group) * max(len(states) for _, states in rmse_axes)
+             for _, group, rmse_axes, _, _ in layouts]
+    heights = [top + (2.8 if with_cov or searched else 0.0)
+               for top, (_, _, _, with_cov, searched) in zip(upper, layouts, strict=True)]
     fig = new_figure(width, sum(heights) + 1.6)
     subfigs = np.atleast_1d(fig.subfigures(len(layouts), 1, height_ratios=heights))
     verdicts: set = set()
     gains = {"any": False, "linear": False, "gamma": False}
-    for sub, (scenario, group, rmse_axes, with_cov, searched) in zip(subfigs, layouts,
-                                                                   strict=True):
+    for sub, top, (scenario, group, rmse_axes, with_cov, searched) in zip(
+            subfigs, upper, layouts, strict=True):
         sub.suptitle(f"{scenario} ({group[0]['runs']} runs)", fontsize=FONT_PT + 1,
                      fontweight="bold")
         lower = bool(with_cov or searched)
-        parts = sub.subfigures(2, 1, height_ratios=[2.6 + 0.5 * len(group), 2.8]) if lower \
-            else [sub]
+        parts = sub.subfigures(2, 1, height_ratios=[top, 2.8]) if lower else [sub]
         axes = parts[0].subplots(1, len(rmse_axes), squeeze=False)[0]
         for ax, (unit, states) in zip(axes, rmse_axes, strict=True):
             _rmse_panel(ax, scenario, group, unit, states, units, colors, reference)
