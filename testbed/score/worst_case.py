@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from filters import zoh
 from testbed.rigs.disturbances import SampledDisturbance
 
 
@@ -406,6 +405,39 @@ class LoopEvaluator:
             raise FloatingPointError("a worst-case candidate gave a non-finite gain")
         return gains
 
+    def impulse_response(self, k0: int, eps: float) -> np.ndarray:
+        """The loop's error system measured: ``t_l`` for ``l = 0..K``, shape (K + 1, q, s).
+
+        One batched closed-loop run of ``k0 + K`` steps: member 0 without ``w``, member
+        ``1 + j`` with ``w_(k0) = eps e_j`` (one step, channel ``j``);
+        ``t_l[:, j] = dz_(k0 + l) / eps`` (the timing of :class:`ErrorOperator`). The
+        controller's reaction to the disturbed truth (or estimate), the estimator's response
+        to the measurements and to the inputs, the sensors' delays and holds are all in it;
+        for a linear loop it is exact, otherwise the linearization about the run (``eps``
+        small) at step ``k0`` (an estimator whose gains still move after ``k0`` is taken as
+        time-invariant).
+        """
+        s = self.dist.values.shape[2]
+        if self.num < s + 1:
+            raise ValueError(f"the loop has {self.num} members; the impulse response of "
+                             f"{s} channels needs {s + 1}")
+        if not 1 <= k0 <= self.K:
+            raise ValueError(f"k0 must be in [1, {self.K}], got {k0}")
+        self.dist.values[:] = 0.0
+        self.dist.values[1 + np.arange(s), k0, np.arange(s)] = eps
+        result = self.loop.run(np.full(self.num, self.seed), (k0 + self.K) * self.dt_s,
+                               record=True)
+        self.dist.values[:] = 0.0
+        rec = result.trajectory
+        z = np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
+        dz = (z[1:1 + s] - z[0]) / eps  # (s, steps, q), row k - 1 is step k
+        t = np.zeros((self.K + 1, self.L.shape[0], s))
+        rows = dz[:, k0 - 1:k0 + self.K].transpose(1, 2, 0)  # l = 0..K
+        t[: len(rows)] = rows
+        if not np.all(np.isfinite(t)):
+            raise FloatingPointError("the loop's impulse response is not finite")
+        return t
+
 
 def population(dimensions: int) -> int:
     """Members of the refinement's population for ``dimensions`` coefficients (DE's
@@ -419,36 +451,23 @@ def scaled(w: np.ndarray, energy: float, dt_s: float) -> np.ndarray:
     return w * np.sqrt(energy) / norm
 
 
-def search(evaluator: LoopEvaluator, A: np.ndarray, G: np.ndarray, C: np.ndarray,
-           Hw: np.ndarray, output_matrix: np.ndarray, estimator_h: np.ndarray, *,
-           energy: float, random_draws: int, basis: int, generations: int,
-           rng: np.random.Generator) -> SearchResult:
+def search(evaluator: LoopEvaluator, t: np.ndarray, *, energy: float, random_draws: int,
+           basis: int, generations: int, rng: np.random.Generator) -> SearchResult:
     """The worst-case search on one closed loop (see the module docstring).
 
     Parameters
     ----------
     evaluator : LoopEvaluator
-    A : ndarray, shape (n, n)
-        Continuous linearization of the simulated rig.
-    G : ndarray, shape (n, s)
-        Disturbance channel.
-    C, Hw : ndarray, shapes (m, n), (m, s)
-        The sensors' linear model.
-    output_matrix : ndarray, shape (q, n)
-    estimator_h : ndarray, shape (lags, n, m)
-        :func:`estimator_markov`.
+    t : ndarray, shape (lags, q, s)
+        Impulse response of the error system (:meth:`LoopEvaluator.impulse_response`, or
+        :func:`error_response` of a model), zero beyond ``lags``.
     energy : float
     random_draws, basis, generations : int
     rng : numpy.random.Generator
         Start of the power iteration, the random disturbances, the refinement.
     """
     K, dt = evaluator.K, evaluator.dt_s
-    s = G.shape[1]
-    A_d, G_d = zoh(A, G, dt)
-    gx, gy = plant_markov(A_d, G_d, C, Hw, K + 1)
-    h = np.zeros((K + 1, *estimator_h.shape[1:]))
-    h[: min(len(estimator_h), K + 1)] = estimator_h[: K + 1]
-    t = error_response(gx, gy, h, output_matrix)
+    s = t.shape[2]
     op = ErrorOperator(t, K)
     gains, V, iterations = top_singular(op, basis, rng)
     notes: list[str] = []

@@ -165,7 +165,7 @@ def test_without_quantization_keeps_everything_but_the_rounding(rng):
 def test_worst_case_search_ranks_the_helicopter_filters_like_their_error_systems():
     """Without the quantization floor the measured gains follow the linearized error systems
     (with the encoders' rounding every filter measured about 1e-3: the change of the
-    quantization error). A short horizon and no refinement keep it fast."""
+    quantization error) and reach them. A short horizon and no refinement keep it fast."""
     from testbed.score.harness import score_pair
     from testbed.score.suite import WorstCaseSpec, get_suite
 
@@ -184,6 +184,8 @@ def test_worst_case_search_ranks_the_helicopter_filters_like_their_error_systems
     print({n: f"found {found[n]:.3g}, linear {linear[n]:.3g}" for n in found})
     assert sorted(found, key=found.get) == sorted(linear, key=linear.get)
     assert sorted(found, key=found.get) == ["kalman", "poly-hinf", "kalman-bucy"]
-    # the Kalman filter's gain is its error system's, no longer the quantization floor
-    assert found["kalman"] == pytest.approx(linear["kalman"], rel=0.15)
+    # each gain is its loop's error system's (measured impulse responses, the controller's
+    # reaction included), no longer the quantization floor
+    for name in found:
+        assert found[name] == pytest.approx(linear[name], rel=0.05)
     assert found["kalman"] < 1e-4
