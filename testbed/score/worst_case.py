@@ -13,15 +13,31 @@ measurement noise, process noise and the initial estimation error cancel; for a 
 measured ratio of two runs of the nonlinear rig; a larger one found later only raises it, so
 the result is a lower bound of the worst case, never a certificate.
 
+Every closed-loop run of the search measures **probe sensors**: the scenario's sensors with
+the rounding of every :class:`~testbed.sensors.Quantize` decorator removed
+(:func:`without_quantization`; noise, bias, delays, holds and the linear model kept, the
+estimator unchanged). With quantized sensors a disturbance also moves the truth across
+quantization steps, and ``dz`` then contains the change of the quantization error, a term of
+the order of the step whatever the disturbance: on the helicopter's encoders it floored every
+filter's gain at about 1e-3 rad per unit of ``w`` (Kalman 0.00111, Kalman-Bucy 0.00136,
+poly-hinf 0.00146 over the quick suite's 3 s) and ranked nothing. Without quantization
+``dz`` is the error system's response to ``w`` (plus the rig's and the estimator's own
+nonlinearity).
+
 The search (Tierno, Murray, Doyle & Gregory 1997 style):
 
-1. **Linearized error system.** The rig's linearization at the simulated parameters
-   (``Rig.linearize``) with the channel ``G`` is discretized with a zero-order hold; the
-   sensors' ``C`` and ``Hw`` give ``y``; the estimator's response to ``y`` is measured as
-   its Markov parameters ``h_a`` (impulses on each channel of the recorded measurement, one
-   batched run of the estimator itself, input transform included). The error system is the
-   causal convolution ``dz_k = sum_i t_(k-i) w_i`` with
-   ``t_l = L (g^x_l - sum_(a+b=l) h_a g^y_b)``.
+1. **The loop's error system, measured.** Impulses ``eps e_j`` on each channel of ``w`` at
+   step ``k0 = K / 4`` (past the gains' transient), one batched closed-loop run of ``k0 + K``
+   steps on the probe sensors (:meth:`LoopEvaluator.impulse_response`), give the impulse
+   response ``t_l`` of ``w -> dz``, so that ``dz_k = sum_i t_(k-i) w_i`` (the linearization
+   about run 0 at ``k0``, taken as time-invariant). It contains everything in the loop: the
+   controller's reaction to the disturbed truth, the estimator's response to measurements and
+   inputs (input transform included), the sensors' delays and holds. (The model-based
+   alternative, ``t_l = L (g^x_l - sum_(a+b=l) h_a g^y_b)`` from the rig's open-loop
+   linearization and the estimator's Markov parameters, :func:`plant_markov`,
+   :func:`estimator_markov`, :func:`error_response`, misses the controller: on the
+   helicopter the open-loop yaw integrates ``w`` while the LQR holds it, and its predictions
+   were 3 to 4 times the gains the loop has.)
 2. **Power iteration with the adjoint.** Subspace iteration on ``T^T T`` (forward: the
    convolution; adjoint: the correlation with ``t^T``, both by FFT) gives the top right
    singular vectors ``v_1..v_p`` over the horizon.
@@ -31,16 +47,6 @@ The search (Tierno, Murray, Doyle & Gregory 1997 style):
    [-1, 1]^(p-1)``, each candidate scaled to the energy.
 
 Random gain: the largest gain of white Gaussian disturbances of the same energy.
-
-Probe sensors without quantization (:func:`without_quantization`): the closed-loop runs of
-stages 3 and the random disturbances measure the same sensors with every
-:class:`~testbed.sensors.Quantize` decorator removed (the estimator, its gains and its noise
-model unchanged). With quantized sensors a disturbance also moves the truth across
-quantization steps, and ``dz`` then contains the change of the quantization error, a
-nonlinear term of the order of the step whatever the disturbance: on the helicopter's
-encoders it floored every filter's gain at about 1e-3 rad per unit of ``w`` and hid their
-differences (linearized predictions 1.6e-5 to 6.3e-4). Without quantization ``dz`` is the
-error system's response to ``w`` (plus the rig's and the estimator's own nonlinearity).
 """
 
 from __future__ import annotations
