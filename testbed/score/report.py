@@ -8,7 +8,9 @@ keys of :data:`RESULT_KEYS`. ``nees_test``/``nis_test`` are
 :func:`testbed.score.consistency.consistency_test` (with the per-step curve),
 ``whiteness`` :func:`~testbed.score.consistency.whiteness_test` and ``versus_reference``
 the paired comparison of each state's per-run MSE with the reference's
-(:mod:`testbed.score.paired`, Holm over the estimators compared). Gains are in the output's unit per
+(:mod:`testbed.score.paired`, Holm over the estimators compared). ``worst_case_search`` is
+:meth:`testbed.score.worst_case.SearchResult.describe` (the linear prediction, the probe
+sensors and the channels measured without quantization). Gains are in the output's unit per
 unit of the scenario's ``w``; RMSE in the states' units (SI; the leaderboard, the Markdown
 and the PNG show angles in degrees).
 """
@@ -113,6 +115,7 @@ def results(run: ScoreRun) -> dict[str, Any]:
     units.update({"rmse": "state units", "step_us": "us",
                   "worst_case_gain": "output unit per unit of w",
                   "random_gain": "output unit per unit of w",
+                  "linear_gain": "output unit per unit of w",
                   "certified_gamma": "as the estimator's design states it"})
     identity = suite_identity(run.suite)
     return {"suite": run.suite, "suite_version": identity["version"],
