@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from filters import FilterError, zoh
+from filters import FilterError
 from testbed.estimators import EstimatorWrapper, PerMember
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
@@ -40,15 +40,7 @@ from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import (
-    LoopEvaluator,
-    error_response,
-    estimator_markov,
-    plant_markov,
-    population,
-    search,
-    without_quantization,
-)
+from testbed.score.worst_case import LoopEvaluator, population, search, without_quantization
 from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
@@ -260,7 +252,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         if worst_case and entry.worst_case is not None:
             try:
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
-                                        rec, seeds[0])
+                                        seeds[0])
             except (ValueError, FilterError, FloatingPointError,
                     SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
@@ -270,7 +262,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
 
 
 def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, experiment: Any,
-                rec: dict[str, np.ndarray], seed: int):
+                seed: int):
     spec = entry.worst_case
     dt_s = experiment.loop.sim.dt_s
     K = int(round((spec.horizon_s or scenario.duration_s) / dt_s))
@@ -279,7 +271,7 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     if dist is None:
         raise ValueError("the entry has no disturbance channel")
     s = dist.values.shape[2]
-    num = max(5 + spec.random_draws, members + 1, s + 1, experiment.loop.sim.sensors.dim + 1)
+    num = max(3 + spec.random_draws, members + 1, s + 1)
     dist = _sampled(entry, scenario, num, K, nominal=False)
 
     def copy_factory(design, **options):
@@ -293,48 +285,18 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     wc = runner.build(sc, num, num_threads=1)
     wc.loop.truth_feedback = entry.feedback == "truth"
     try:
-        design, sim = wc.design, wc.loop.sim
-        evaluator = LoopEvaluator(wc, dist, seed, K, design.output_matrix)
-        k0 = max(1, K // 4)
+        evaluator = LoopEvaluator(wc, dist, seed, K, wc.design.output_matrix)
         # impulses of 1e-3 of the candidates' mean amplitude, after a quarter of the horizon
         eps = 1e-3 * np.sqrt(spec.energy / (K * dt_s * s))
-        t = evaluator.impulse_response(k0, eps)
-        # the open-loop model's direction as a second start: the rig's linearization and the
-        # estimator's Markov parameters on run 0's measurements and inputs
-        rig_cls = resolve_rig(scenario.rig)
-        truth = rig_cls(rig_cls.params_type().scaled(scenario.params),
-                        physics_dt_s=scenario.physics_dt_s)
-        A, _ = truth.linearize()
-        G = np.zeros((A.shape[0], s)) if dist.G is None else dist.G
-        m = sim.sensors.dim
-        model = sim.sensors.linear_model()
-        Hw = model.Hw if model.Hw.shape == (m, s) else np.zeros((m, s))
-        R = np.diag(model.R)
-        deltas = np.where(R > 0, 1e-3 * np.sqrt(np.abs(R)), 1e-6)
-        h = estimator_markov(wc.loop.stage.estimator, design.input_transform,
-                             wc.loop.stage.prior, _held(rec["measurement"][0], K + 1),
-                             _held(rec["action"][0, 1:], K), k0, deltas, num)
-        A_d, G_d = zoh(A, G, dt_s)
-        gx, gy = plant_markov(A_d, G_d, model.C, Hw, K + 1)
-        padded = np.zeros((K + 1, *h.shape[1:]))
-        padded[: min(len(h), K + 1)] = h[: K + 1]
-        model_t = error_response(gx, gy, padded, design.output_matrix)
+        t = evaluator.impulse_response(max(1, K // 4), eps)
         rng = np.random.default_rng([int(seed), 16])
         result = search(evaluator, t, energy=spec.energy, random_draws=spec.random_draws,
-                        basis=spec.basis, generations=spec.generations, rng=rng,
-                        model_t=model_t)
+                        basis=spec.basis, generations=spec.generations, rng=rng)
         result.probe_sensors = wc.loop.sim.sensors.describe()
         result.quantization_removed = removed
         return result
     finally:
         wc.close()
-
-
-def _held(values: np.ndarray, length: int) -> np.ndarray:
-    """The first ``length`` rows, the last one held if there are fewer."""
-    if len(values) >= length:
-        return values[:length]
-    return np.concatenate([values, np.repeat(values[-1:], length - len(values), axis=0)])
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,

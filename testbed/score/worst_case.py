@@ -337,11 +337,6 @@ class SearchResult:
     quantization_removed : list of str
         Channels measured without their quantization in the probe runs
         (:func:`without_quantization`).
-    start : str
-        The direction the refinement started from: ``"loop"`` (the measured error system's)
-        or ``"open-loop model"``.
-    model_gain : float or None
-        The open-loop model's prediction, when it was tried.
     """
 
     worst_case_gain: float
@@ -355,16 +350,13 @@ class SearchResult:
     notes: list[str] = field(default_factory=list)
     probe_sensors: str = ""
     quantization_removed: list[str] = field(default_factory=list)
-    start: str = "loop"
-    model_gain: float | None = None
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready: the search's settings and its linear prediction (the report's
         ``worst_case_search``)."""
         return {"linear_gain": self.linear_gain, "energy": self.energy,
                 "horizon_s": self.horizon_s, "evaluations": self.evaluations,
-                "iterations": self.iterations, "start": self.start,
-                "open_loop_model_gain": self.model_gain, "probe_sensors": self.probe_sensors,
+                "iterations": self.iterations, "probe_sensors": self.probe_sensors,
                 "quantization_removed": list(self.quantization_removed),
                 "quantization": "removed" if self.quantization_removed else "none"}
 
@@ -466,46 +458,33 @@ def scaled(w: np.ndarray, energy: float, dt_s: float) -> np.ndarray:
 
 
 def search(evaluator: LoopEvaluator, t: np.ndarray, *, energy: float, random_draws: int,
-           basis: int, generations: int, rng: np.random.Generator,
-           model_t: np.ndarray | None = None) -> SearchResult:
+           basis: int, generations: int, rng: np.random.Generator) -> SearchResult:
     """The worst-case search on one closed loop (see the module docstring).
 
     Parameters
     ----------
     evaluator : LoopEvaluator
     t : ndarray, shape (lags, q, s)
-        Impulse response of the loop's error system
-        (:meth:`LoopEvaluator.impulse_response`), zero beyond ``lags``; its top singular
-        value is the reported ``linear_gain``.
+        Impulse response of the error system (:meth:`LoopEvaluator.impulse_response`, or
+        :func:`error_response` of a model), zero beyond ``lags``.
     energy : float
     random_draws, basis, generations : int
     rng : numpy.random.Generator
-        Start of the power iterations, the random disturbances, the refinement.
-    model_t : ndarray, optional
-        A second impulse response (:func:`error_response` of the open-loop model): its
-        ``+-v_1`` are tried too, and the refinement continues from the better start.
+        Start of the power iteration, the random disturbances, the refinement.
     """
     K, dt = evaluator.K, evaluator.dt_s
     s = t.shape[2]
     op = ErrorOperator(t, K)
     gains, V, iterations = top_singular(op, basis, rng)
-    bases = {"loop": V}
-    model_gain = None
-    if model_t is not None:
-        model_gains, bases["open-loop model"], _ = top_singular(ErrorOperator(model_t, K),
-                                                                basis, rng)
-        model_gain = float(model_gains[0])
     notes: list[str] = []
 
     random_w = scaled(rng.standard_normal((random_draws, K, s)), energy, dt)
-    starts = [sign * scaled(B[0], energy, dt) for B in bases.values() for sign in (1.0, -1.0)]
-    first = evaluator.run(np.concatenate([np.stack(starts), random_w]))
-    random_gain = float(first[len(starts):].max())
-    best = int(np.argmax(first[:len(starts)]))
-    start = list(bases)[best // 2]
-    V = bases[start]
-    sign = 1.0 if best % 2 == 0 else -1.0
-    worst, worst_w = float(first[best]), starts[best]
+    v1 = scaled(V[0], energy, dt)
+    first = evaluator.run(np.concatenate([v1[None], -v1[None], random_w]))
+    random_gain = float(first[2:].max())
+    best = int(np.argmax(first[:2]))
+    sign = 1.0 if best == 0 else -1.0
+    worst, worst_w = float(first[best]), sign * v1
 
     d = len(V) - 1
     if generations > 0 and d > 0:
@@ -534,5 +513,4 @@ def search(evaluator: LoopEvaluator, t: np.ndarray, *, energy: float, random_dra
                      f"({random_gain:.4g})")
     return SearchResult(worst_case_gain=worst, worst_case_w=worst_w, random_gain=random_gain,
                         linear_gain=float(gains[0]), evaluations=evaluator.evaluations,
-                        iterations=iterations, energy=energy, horizon_s=K * dt, notes=notes,
-                        start=start, model_gain=model_gain)
+                        iterations=iterations, energy=energy, horizon_s=K * dt, notes=notes)
