@@ -15,7 +15,8 @@ factory
    (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
    :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
 4. the worst-case search (:mod:`testbed.score.worst_case`) on a second loop of a few members
-   whose estimator is a copy of the first.
+   whose estimator is a copy of the first and whose sensors are the entry's without
+   quantization (:func:`~testbed.score.worst_case.without_quantization`).
 
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
