@@ -15,7 +15,8 @@ factory
    (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
    :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
 4. the worst-case search (:mod:`testbed.score.worst_case`) on a second loop of a few members
-   whose estimator is a copy of the first.
+   whose estimator is a copy of the first and whose sensors are the entry's without
+   quantization (:func:`~testbed.score.worst_case.without_quantization`).
 
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
@@ -32,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from filters import FilterError
-from testbed.estimators import ChannelSelect, EstimatorWrapper, PerMember
+from testbed.estimators import EstimatorWrapper, PerMember
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
@@ -40,7 +41,7 @@ from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import LoopEvaluator, estimator_markov, population, search
+from testbed.score.worst_case import LoopEvaluator, population, search, without_quantization
 from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
@@ -256,7 +257,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         if worst_case and entry.worst_case is not None:
             try:
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
-                                        rec, seeds[0])
+                                        seeds[0])
             except (ValueError, FilterError, FloatingPointError,
                     SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
@@ -266,61 +267,43 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
 
 
 def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, experiment: Any,
-                rec: dict[str, np.ndarray], seed: int):
+                seed: int):
     spec = entry.worst_case
     dt_s = experiment.loop.sim.dt_s
     K = int(round((spec.horizon_s or scenario.duration_s) / dt_s))
-    m = experiment.loop.sim.sensors.dim
     members = population(spec.basis - 1) if spec.generations else 0
-    num = max(3 + spec.random_draws, members + 1, m + 1)
-    dist = _sampled(entry, scenario, num, K, nominal=False)
+    dist = _sampled(entry, scenario, 1, K, nominal=False)
     if dist is None:
         raise ValueError("the entry has no disturbance channel")
+    s = dist.values.shape[2]
+    num = max(3 + spec.random_draws, members + 1, s + 1)
+    dist = _sampled(entry, scenario, num, K, nominal=False)
 
     def copy_factory(design, **options):
         return copy.deepcopy(template)
 
     copy_factory.__name__ = _name(estimator)
+    probe_sensors, removed = without_quantization(experiment.loop.sim.sensors)
     sc = scenario.replace(estimator=copy_factory, disturbance=dist, process_noise=0.0)
+    if removed:
+        sc = sc.replace(sensors=probe_sensors, sensor_options={})
     wc = runner.build(sc, num, num_threads=1)
     wc.loop.truth_feedback = entry.feedback == "truth"
     try:
-        design = wc.design
-        sim = wc.loop.sim
-        rig_cls = resolve_rig(scenario.rig)
-        truth = rig_cls(rig_cls.params_type().scaled(scenario.params),
-                        physics_dt_s=scenario.physics_dt_s)
-        A, _ = truth.linearize()
-        n = A.shape[0]
-        s = dist.values.shape[2]
-        G = np.zeros((n, s)) if dist.G is None else dist.G
-        model = sim.sensors.linear_model()
-        Hw = model.Hw if model.Hw.shape == (m, s) else np.zeros((m, s))
-        y = _held(rec["measurement"][0], K + 1)
-        u = _held(rec["action"][0, 1:], K)
-        R = np.diag(model.R)
-        deltas = np.where(R > 0, 1e-3 * np.sqrt(np.abs(R)), 1e-6)
-        k0 = max(1, K // 4)
-        stage = wc.loop.stage
-        est = stage.estimator if stage.channels is None else \
-            ChannelSelect(stage.estimator, stage.channels, m)  # the channels the loop gives
-        h = estimator_markov(est, design.input_transform, stage.prior, y, u, k0, deltas, num)
-        h = h[:, design.physical]  # an augmented design's physical states
-        L = design.output_matrix[:, design.physical]
-        evaluator = LoopEvaluator(wc, dist, seed, K, L)
+        # an augmented (matched) design's physical states: the loop records those
+        evaluator = LoopEvaluator(wc, dist, seed, K,
+                                  wc.design.output_matrix[:, wc.design.physical])
+        # impulses of 1e-3 of the candidates' mean amplitude, after a quarter of the horizon
+        eps = 1e-3 * np.sqrt(spec.energy / (K * dt_s * s))
+        t = evaluator.impulse_response(max(1, K // 4), eps)
         rng = np.random.default_rng([int(seed), 16])
-        return search(evaluator, A, G, model.C, Hw, L, h,
-                      energy=spec.energy, random_draws=spec.random_draws, basis=spec.basis,
-                      generations=spec.generations, rng=rng)
+        result = search(evaluator, t, energy=spec.energy, random_draws=spec.random_draws,
+                        basis=spec.basis, generations=spec.generations, rng=rng)
+        result.probe_sensors = wc.loop.sim.sensors.describe()
+        result.quantization_removed = removed
+        return result
     finally:
         wc.close()
-
-
-def _held(values: np.ndarray, length: int) -> np.ndarray:
-    """The first ``length`` rows, the last one held if there are fewer."""
-    if len(values) >= length:
-        return values[:length]
-    return np.concatenate([values, np.repeat(values[-1:], length - len(values), axis=0)])
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,

@@ -112,3 +112,80 @@ def test_sampled_named_signal_equals_the_runner_bitwise():
     for state, per_run in ref["rmse_per_run"].items():
         assert np.array_equal(result.metrics.rmse()[state], per_run)
     assert float(np.mean(result.metrics.nees_mean())) == ref["nees_mean"]
+
+
+def _measure(sensor, x: np.ndarray, seed: int = 3) -> np.ndarray:
+    from testbed.sensors.base import NoiseStreams, Sample
+
+    streams = NoiseStreams(len(x))
+    for i in range(len(x)):
+        streams.seed(i, seed + i)
+    sensor.allocate(len(x))
+    sample = Sample(x, np.zeros(len(x)), np.zeros((len(x), 2)), np.full((len(x), 4), 0.3))
+    sensor.reset(sample, streams.view(slice(None)))
+    return sensor.measure(sample, streams.view(slice(None)))
+
+
+def test_without_quantization_keeps_everything_but_the_rounding(rng):
+    from testbed.rigs.helicopter import HelicopterRig
+    from testbed.score.worst_case import without_quantization
+    from testbed.sensors import Quantize, Suite, WhiteNoise
+    from testbed.sensors.decorators import Decorator
+
+    rig = HelicopterRig()
+    sensors = rig.sensors("encoders+gyros", noise_std_rad=1e-4, disturbance_channel=True)
+    probe, removed = without_quantization(sensors)
+    assert removed == ["pitch", "yaw"]
+
+    def nodes(s):
+        yield s
+        for child in (s.sensors if isinstance(s, Suite) else
+                      (s.inner,) if isinstance(s, Decorator) else ()):
+            yield from nodes(child)
+
+    assert not any(isinstance(n, Quantize) for n in nodes(probe))
+    assert any(isinstance(n, Quantize) for n in nodes(sensors))  # the original is untouched
+    assert {id(n) for n in nodes(probe)}.isdisjoint(id(n) for n in nodes(sensors))
+    assert sum(isinstance(n, WhiteNoise) for n in nodes(probe)) == 2  # the noise stays
+    assert probe.names == sensors.names and probe.units == sensors.units
+    before, after = sensors.linear_model(), probe.linear_model()
+    for key in ("C", "R", "Hw"):
+        assert np.array_equal(getattr(after, key), getattr(before, key))  # the design's model
+    x = rng.standard_normal((3, 4))
+    y_probe, y_orig = _measure(probe, x), _measure(sensors, x)
+    assert not np.allclose(y_probe[:, :2], y_orig[:, :2], atol=1e-12)
+    step = sensors.sensors[0].inner.step  # WhiteNoise(Quantize(pitch + yaw))
+    # the same noise draws: the quantized measurement is within half a step of the probe's
+    assert np.all(np.abs(y_probe[:, :2] - y_orig[:, :2]) <= step / 2 + 1e-12)
+    assert np.array_equal(y_probe[:, 2:], y_orig[:, 2:])
+    unquantized = rig.sensors("paper")
+    assert without_quantization(unquantized) == (unquantized, [])
+
+
+def test_worst_case_search_ranks_the_helicopter_filters_like_their_error_systems():
+    """Without the quantization floor the measured gains follow the linearized error systems
+    (with the encoders' rounding every filter measured about 1e-3: the change of the
+    quantization error) and reach them. A short horizon and no refinement keep it fast."""
+    from testbed.score.harness import score_pair
+    from testbed.score.suite import WorstCaseSpec, get_suite
+
+    entry = next(e for e in get_suite("quick") if e.name == "helicopter")
+    entry = entry.replace(runs=2, scenario=entry.scenario.replace(duration_s=1.5),
+                          worst_case=WorstCaseSpec(energy=1.0, horizon_s=1.5, random_draws=2,
+                                                   generations=0))
+    found, linear = {}, {}
+    for name in ("kalman", "kalman-bucy", "poly-hinf"):
+        pair = score_pair(entry, name, 0, num_threads=1)
+        assert pair.skipped is None and pair.worst is not None, pair.worst_skipped
+        assert pair.worst.quantization_removed == ["pitch", "yaw"]
+        assert pair.worst.describe()["quantization"] == "removed"
+        found[name], linear[name] = pair.worst.worst_case_gain, pair.worst.linear_gain
+        assert found[name] >= pair.worst.random_gain
+    print({n: f"found {found[n]:.3g}, linear {linear[n]:.3g}" for n in found})
+    assert sorted(found, key=found.get) == sorted(linear, key=linear.get)
+    assert sorted(found, key=found.get) == ["kalman", "poly-hinf", "kalman-bucy"]
+    # each gain is its loop's error system's (measured impulse responses, the controller's
+    # reaction included), no longer the quantization floor
+    for name in found:
+        assert found[name] == pytest.approx(linear[name], rel=0.05)
+    assert found["kalman"] < 1e-4
