@@ -28,10 +28,11 @@ def test_list_shows_every_entry_with_both_profiles(capsys):
         f"{suite_hash('standard')}" in out
 
 
-#: The definitions of each suite version. A change of an entry changes the hash: bump the
+#: The definitions of each suite version (2: the scenarios carry design_profile, the
+#: hardware entries design from the matched model). A change of an entry changes the hash: bump the
 #: suite's version in testbed.score.suite.SUITE_VERSIONS and record the new hash here.
-PINNED = {"quick": (1, "1acc8bc651893ba90ba761ebc0541eceb2c5afa8482a135101d44cb2fb97da04"),
-          "standard": (1, "4d3540eff12114f79f0f12ea7ea1fc8f56aa4d6c0bc55d80ba82cae49ce1d83c")}
+PINNED = {"quick": (2, "8f051e84817fd8d8285a33a19f21d4d45c8fe020d28aa67e3e1c4cc3403c6808"),
+          "standard": (2, "2aca0291fa8b600a7244e2cd52e307fb4283a2b7c45e06526ccddf00ff8cff9b")}
 
 
 def test_suite_versions_and_hashes_are_pinned():
