@@ -193,6 +193,65 @@ class _CallableModelFilter(_SampledFilter):
         return _swap(np.linalg.solve(S, _swap(PHT)))
 
 
+    def update(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
+        """Measurement update with ``y`` at the current time ``t_s`` (the EKF in Joseph form,
+        the UKF from its sigma points).
+
+        Parameters
+        ----------
+        y : array_like, shape (m,) or (N, m)
+            Measurement.
+        u : array_like, shape (k,) or (N, k), or None
+            Input (feedthrough of ``h``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+            The a-posteriori state.
+
+        Raises
+        ------
+        ValueError
+            Bad ``y`` or ``u``, or a model function returned the wrong shape.
+        LossOfDefinitenessError, FiniteEscapeError
+            ``quantity`` ``"innovation_cov"``, ``"P"``, ``"x"`` or ``"H"``; state unchanged.
+        """
+        y = self._vector("y", y, self._m)
+        u = self._input(u)
+        x, P = self._stack()
+        return self._update(x, P, y, u, self._steps)
+
+    def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
+        """One in-the-loop cycle: :meth:`predict` with ``u``, then :meth:`update` with ``y``.
+
+        Parameters
+        ----------
+        y : array_like, shape (m,) or (N, m)
+            Measurement at the end of the interval.
+        u : array_like, shape (k,) or (N, k), or None
+            Input applied over the interval (also the feedthrough of ``h``).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,) or (N, n)
+            The a-posteriori state (same object as :attr:`x`).
+
+        Raises
+        ------
+        ValueError
+            Bad ``y`` or ``u`` (shape, complex, non-finite) or a model function returned
+            the wrong shape; state unchanged.
+        LossOfDefinitenessError, FiniteEscapeError
+            As :meth:`predict` and :meth:`update`, with the time of the step; state
+            unchanged.
+        """
+        y = self._vector("y", y, self._m)
+        u = self._input(u)
+        steps = self._steps + 1
+        x, P = self._predict(u, steps)
+        return self._update(x, P, y, u, steps)
+
+
 class ExtendedKalmanFilter(_CallableModelFilter):
     """Discrete-time extended Kalman filter with Joseph-form covariance update.
 
@@ -291,63 +350,6 @@ class ExtendedKalmanFilter(_CallableModelFilter):
         x, P = self._unstack(x), self._unstack(P)
         self._commit(x, P, steps)
         return x
-
-    def update(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
-        """Measurement update (Joseph form) with ``y`` at the current time ``t_s``.
-
-        Parameters
-        ----------
-        y : array_like, shape (m,) or (N, m)
-            Measurement.
-        u : array_like, shape (k,) or (N, k), or None
-            Input (feedthrough of ``h``).
-
-        Returns
-        -------
-        numpy.ndarray, shape (n,) or (N, n)
-            The a-posteriori state.
-
-        Raises
-        ------
-        ValueError
-            Bad ``y`` or ``u``, or a model function returned the wrong shape.
-        LossOfDefinitenessError, FiniteEscapeError
-            ``quantity`` ``"innovation_cov"``, ``"P"``, ``"x"`` or ``"H"``; state unchanged.
-        """
-        y = self._vector("y", y, self._m)
-        u = self._input(u)
-        x, P = self._stack()
-        return self._update(x, P, y, u, self._steps)
-
-    def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
-        """One in-the-loop cycle: :meth:`predict` with ``u``, then :meth:`update` with ``y``.
-
-        Parameters
-        ----------
-        y : array_like, shape (m,) or (N, m)
-            Measurement at the end of the interval.
-        u : array_like, shape (k,) or (N, k), or None
-            Input applied over the interval (also the feedthrough of ``h``).
-
-        Returns
-        -------
-        numpy.ndarray, shape (n,) or (N, n)
-            The a-posteriori state (same object as :attr:`x`).
-
-        Raises
-        ------
-        ValueError
-            Bad ``y`` or ``u`` (shape, complex, non-finite) or a model function returned
-            the wrong shape; state unchanged.
-        LossOfDefinitenessError, FiniteEscapeError
-            As :meth:`predict` and :meth:`update`, with the time of the step; state
-            unchanged.
-        """
-        y = self._vector("y", y, self._m)
-        u = self._input(u)
-        steps = self._steps + 1
-        x, P = self._predict(u, steps)
-        return self._update(x, P, y, u, steps)
 
     # -------------------------------------------------------------- internals
     def _predict(self, u: FloatArray | None, steps: int) -> tuple[FloatArray, FloatArray]:

@@ -204,58 +204,6 @@ class UnscentedKalmanFilter(_CallableModelFilter):
         self._commit(x, P, steps)
         return x
 
-    def update(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
-        """Measurement update with ``y`` at the current time ``t_s``.
-
-        Parameters
-        ----------
-        y : array_like, shape (m,) or (N, m)
-        u : array_like, shape (k,) or (N, k), or None
-            Input (feedthrough of ``h``).
-
-        Returns
-        -------
-        numpy.ndarray, shape (n,) or (N, n)
-            The a-posteriori state.
-
-        Raises
-        ------
-        ValueError
-            Bad ``y`` or ``u``, or a wrong shape from ``h``.
-        LossOfDefinitenessError, FiniteEscapeError
-            ``quantity`` ``"innovation_cov"``, ``"P"``, ``"x"`` or ``"y"``; state unchanged.
-        """
-        y = self._vector("y", y, self._m)
-        u = self._input(u)
-        x, P = self._stack()
-        return self._update(x, P, y, u, self._steps)
-
-    def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
-        """One in-the-loop cycle: :meth:`predict` with ``u``, then :meth:`update` with ``y``.
-
-        Parameters
-        ----------
-        y : array_like, shape (m,) or (N, m)
-            Measurement at the end of the interval.
-        u : array_like, shape (k,) or (N, k), or None
-            Input applied over the interval (also the feedthrough of ``h``).
-
-        Returns
-        -------
-        numpy.ndarray, shape (n,) or (N, n)
-            The a-posteriori state (same object as :attr:`x`).
-
-        Raises
-        ------
-        ValueError, LossOfDefinitenessError, FiniteEscapeError
-            As :meth:`predict` and :meth:`update`; state unchanged.
-        """
-        y = self._vector("y", y, self._m)
-        u = self._input(u)
-        steps = self._steps + 1
-        x, P = self._predict(u, steps)
-        return self._update(x, P, y, u, steps)
-
     # -------------------------------------------------------------- internals
     def _points(self, x: FloatArray, P: FloatArray, steps: int) -> FloatArray:
         """Sigma points ``(N, 2n + 1, n)`` of ``(x (N, n), P (N, n, n))``."""
