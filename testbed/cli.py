@@ -238,6 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--doc", default="docs/reproductions.md",
                      help="with 'all': the Markdown table to regenerate")
     _add_score_parser(sub)
+    from testbed.outputs import view
+
+    view.add_parser(sub)
     return parser
 
 
@@ -668,6 +671,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
                 "score": cmd_score}
+    if args.command == "view":
+        from testbed.outputs.view import cmd_view
+
+        commands["view"] = cmd_view
     with _sigterm_raises(), _mujoco_warnings_logged():
         try:
             check_outputs(args)
