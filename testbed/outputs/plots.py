@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 
 from testbed.experiment.trajectory import Trajectory
 from testbed.io import atomic_path
-from testbed.outputs.axes import steady_state_limit
+from testbed.outputs.axes import held_setpoint, steady_state_limit
 from testbed.outputs.units import display, label
 
 _COLORS = [f"C{i}" for i in range(10)]
@@ -87,15 +87,6 @@ def mark_clipped(ax: Any, t: np.ndarray, values: np.ndarray, lim: float) -> int:
         ax.plot(t[below], np.full(below.sum(), -lim), "v", color=CLIP_COLOR, ms=4,
                 clip_on=False, zorder=6, label="beyond the axis")
     return int(above.sum() + below.sum())
-
-
-def held_setpoint(setpoint: np.ndarray) -> np.ndarray:
-    """The reference in force over each interval ``[t_k, t_k+1)``: row ``T-1`` (used by no
-    control step) replaced by row ``T-2``; draw with ``drawstyle="steps-post"``."""
-    held = np.array(setpoint, dtype=float, copy=True)
-    if len(held) >= 2:
-        held[-1] = held[-2]
-    return held
 
 
 def trajectory_metrics(traj: Trajectory) -> dict[str, Any]:
