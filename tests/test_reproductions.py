@@ -46,7 +46,7 @@ def test_ms_hinf_recording_shows_errors_not_the_gravity_free_model():
     traj = ms._trajectory(run, s, result)
     # the figure's and the paper's convention e = x - m, and the legend says so
     np.testing.assert_array_equal(traj.state, run["x"] - run["est"])
-    assert traj.meta["state_label"] == "error (truth - estimate)"
+    assert traj.meta["state_label"] == "error (truth - estimate, the paper's x - m)"
     assert traj.state_names[0] == "pitch_error" and traj.estimate is None
     np.testing.assert_array_equal(traj.measurement[:, 0], run["T"])
     assert "gravity-free" in traj.meta["note"]
@@ -89,7 +89,7 @@ def test_registry_and_doc_sections_from_claims(monkeypatch):
     # one table row per claim, the same content `testbed reproduce NAME` prints
     assert "| c\\|d | p | o | agrees |" in lines
     assert "| e | 1 | 2 | **differs** (1) |" in lines
-    assert "(1) because x" in text
+    assert "Notes: (1) because" in text and "x" * 300 in text
     printed = format_claims(claims).splitlines()
     assert printed[0] == "  [agrees] c|d: paper p | ours o"
     assert "![" in text and "(figures/h.png)" in text

@@ -45,7 +45,7 @@ def render_doc(results: dict[str, dict[str, Any]],
     """``docs/reproductions.md``: an index, then one section per reproduction
     (:func:`testbed.reproductions.outputs.section`) from each module's ``PAPER``,
     ``claims(result)`` and ``why(result)``."""
-    from testbed.reproductions.outputs import agree_text, section
+    from testbed.reproductions.outputs import section
 
     figures = figures or {}
     lines = [
@@ -64,8 +64,10 @@ def render_doc(results: dict[str, dict[str, Any]],
     modules = {name: load(name) for name in results}
     for name, module in modules.items():
         anchor = _anchor(module.PAPER.example)
+        claims = results[name]["claims"]
+        agree = sum(c["verdict"] == "agrees" for c in claims)
         lines.append(f"| [`{name}`](#{anchor}) | {module.PAPER.citation} | "
-                     f"{agree_text(results[name]['claims'])} |")
+                     f"{agree} of {len(claims)} claims agree |")
     lines.append("")
     for name, module in modules.items():
         result = results[name]

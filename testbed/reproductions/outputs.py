@@ -136,12 +136,23 @@ def section(name: str, paper: Paper, claims: Sequence[Claim | dict[str, str]], w
     width : int
         Prose is wrapped to this many characters (table rows are one line each).
     """
+    import re
     import textwrap
 
-    fill = lambda text: textwrap.fill(" ".join(text.split()), width)  # noqa: E731
-    lines = [f"## {paper.example}", "",
-             fill(f"`testbed reproduce {name}` checks {paper.citation}: "
-                  f"{agree_text(claims)}."), "", *claims_table(claims), ""]
+    def fill(text: str) -> str:  # no wrapped line may read as a list, quote or heading
+        out: list[str] = []
+        for line in textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
+                                  break_long_words=False):
+            if out and re.match(r"([-+*>#=|]|\d+[.)])(\s|$)", line):
+                out[-1] += " " + line
+            else:
+                out.append(line)
+        return "\n".join(out)
+
+    verdict = textwrap.wrap(f"- Verdict: {agree_text(claims)}.", width, subsequent_indent="  ",
+                            break_on_hyphens=False, break_long_words=False)
+    lines = [f"## {paper.example}", "", f"- Paper: {paper.citation}",
+             f"- Run: `testbed reproduce {name}`", *verdict, "", *claims_table(claims), ""]
     notes = [i for i, line in enumerate(lines) if line.startswith("Notes: ")]
     for i in notes:  # the notes are prose: wrapped
         lines[i] = fill(lines[i])
