@@ -2,9 +2,10 @@
 
 Layout: one row per state, left the state (truth wide and grey under the estimate in
 colour, measurements of that state as dots, the setpoint dashed), right the estimation
-error with a +-3 sigma band when a covariance exists; a last row with the actions. One
-legend, outside the axes, below them; the title names the rig, filter and sensors and
-gives the RMSE per state and the mean NEES.
+error (estimate - truth, as everywhere) with a +-3 sigma band when a covariance exists; a
+last row with the actions. One legend, outside the axes, below them; the title (short)
+names the rig, the filter and the sensor preset and gives the RMSE per state and the mean
+NEES (the sensor chain is in the run's JSON, ``config.sensors``).
 
 Error axes show the steady state (:func:`testbed.outputs.axes.steady_state_limit`); samples beyond
 the axis are marked with triangles at its edge. The setpoint is drawn as the reference in
@@ -110,9 +111,10 @@ def _title(traj: Trajectory, title: str | None, summary: dict[str, Any] | None
     meta = traj.meta if isinstance(traj.meta, dict) else {}
     if title is None:
         title = " / ".join(str(meta[k]) for k in ("rig", "filter") if meta.get(k)) or "run"
+    preset = (meta.get("scenario") or {}).get("sensors")
+    if isinstance(preset, str) and len(preset) <= 30:  # the chain itself is in the JSON
+        title += f", sensors {preset!r}"
     lines = [title]
-    if meta.get("sensors"):
-        lines.append(f"sensors: {meta['sensors']}")
     metrics = summary if summary is not None else trajectory_metrics(traj)
     parts = []
     for name, value in (metrics.get("rmse") or {}).items():
