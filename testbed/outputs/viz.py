@@ -1,8 +1,9 @@
 """Rerun ``.rrd`` export of runs: time series, estimation errors and the rig in 3D.
 
 One file per call, written atomically (:func:`testbed.io.atomic_path`) and never
-containing NaN. Open it with ``rerun FILE.rrd`` (a desktop) or ``rerun --web-viewer
-FILE.rrd`` (a headless machine: prints the URL to open in a browser). The same layout is
+containing NaN. Open it with ``testbed view FILE.rrd`` (a desktop) or ``testbed view
+FILE.rrd --web`` (a headless machine: prints the URL to open in a browser;
+:mod:`testbed.outputs.view`). The same layout is
 streamed live by :mod:`testbed.outputs.live`.
 
 Entity layout of one run (every temporal entity is on the ``time`` timeline, a duration in
@@ -31,9 +32,17 @@ lines show through), setpoint green, the error in the estimate's colour between 
 Layout (blueprint, stored in the file): the 3D rig on the left, framed by a camera
 computed from the MJCF geometry (:func:`testbed.outputs.viz_rig.rig_camera`), with the
 description below it; on the right a grid with, per state, a view of truth, estimate,
-its measurements and its setpoint, and a view of the error whose default range fits the steady state
-(:func:`testbed.outputs.axes.steady_state_limit`; zoom out for the transient); then other
-measurements and the actions. Every time axis spans exactly the data's time range.
+its measurements and its setpoint, and a view of the error (estimate - truth) whose default
+range fits the steady state and its 3-sigma band, rounded up to 1, 2, 2.5 or 5 x 10^k
+(:func:`testbed.outputs.axes.steady_state_limit`, :func:`~testbed.outputs.axes.nice_limit`;
+zoom out for the transient); then other measurements and the actions. Every view names
+its unit (``[-]``: none); every time axis spans exactly the data's time range. Each legend
+sits in the corner where it covers the fewest samples, and is hidden where every corner
+would cover more than 2 % of them (:func:`testbed.outputs.axes.legend_corner`).
+
+The setpoint is logged as the reference in force over each control interval: the last
+row, which holds the NEXT setpoint when the run ends on a switching time, repeats the one
+before (:func:`testbed.outputs.axes.held_setpoint`), so no sample lies past the run's end.
 
 Units: every series is logged in the unit the rig declares (``traj.meta["units"]``), with
 angles (rad, rad/s) converted to degrees unless ``degrees=False`` (:mod:`testbed.outputs.units`).
