@@ -425,7 +425,7 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
     ax[1, 1].set(title=f"estimation error, one {ENV_ID} episode: {sample['filter']}, "
                        f"F = {sample['F']:g}",
                  xlabel="k [samples]" if discrete else "t [s]",
-                 ylabel="e = x - xhat (dimensionless)")
+                 ylabel="e = x - xhat, dimensionless\n(the paper's: truth - estimate)")
     if extra is not None:
         extra(ax)
     for a_ in ax.ravel():
