@@ -37,8 +37,10 @@ range fits the steady state and its 3-sigma band, rounded up to 1, 2, 2.5 or 5 x
 (:func:`testbed.outputs.axes.steady_state_limit`, :func:`~testbed.outputs.axes.nice_limit`;
 zoom out for the transient); then other measurements and the actions. Every view names
 its unit (``[-]``: none); every time axis spans exactly the data's time range. Each legend
-sits in the corner where it covers the fewest samples, and is hidden where every corner
-would cover more than 2 % of them (:func:`testbed.outputs.axes.legend_corner`).
+sits in the corner where it covers the fewest samples (:func:`testbed.outputs.axes.legend_corner`);
+where every corner would cover more than 2 % of them, a view gets headroom above its data
+for a small legend (two entries, e.g. the actions), and hides a larger one or that of an
+error view (fixed range) (:func:`place_legend`).
 
 The setpoint is logged as the reference in force over each control interval: the last
 row, which holds the NEXT setpoint when the run ends on a switching time, repeats the one
@@ -75,6 +77,7 @@ from testbed.outputs.axes import (
     CORNERS,
     held_setpoint,
     legend_corner,
+    legend_height,
     nice_limit,
     steady_state_limit,
 )
@@ -138,6 +141,35 @@ def panel_name(name: str, units: Sequence[str]) -> str:
 
 
 # ------------------------------------------------------------------------ time series
+@dataclass(frozen=True)
+class Legend:
+    """Where a view's legend goes: a corner (None: hidden) and, when the view was given
+    headroom for it, the view's value range."""
+
+    corner: str | None
+    y_range: tuple[float, float] | None = None
+
+
+def place_legend(t_s: np.ndarray, values: Sequence[np.ndarray], entries: int,
+                 y_range: tuple[float, float] | None = None, *, fixed: bool = False) -> Legend:
+    """Where the legend of a view plotting ``values`` over ``t_s`` goes.
+
+    The corner covering the fewest samples (:func:`testbed.outputs.axes.legend_corner`);
+    when every corner covers data: at the top right of a value range with headroom above
+    the data if the legend is small (the data keep at least half of the view's height),
+    else hidden, and always hidden when the view's range is ``fixed`` (an error view).
+    """
+    corner = legend_corner(t_s, list(values), entries, y_range)
+    h = legend_height(entries) + 0.05
+    if corner is not None or fixed or not len(values) or h > 0.5:
+        return Legend(corner)
+    data = np.concatenate([np.asarray(v, dtype=float) for v in values])
+    data = data[np.isfinite(data)]
+    lo, hi = (float(data.min()), float(data.max())) if data.size else (0.0, 1.0)
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    return Legend("RightTop", (lo - 0.02 * span, hi + span * h / (1.0 - h)))
+
+
 @dataclass
 class Layout:
     """Entity paths, names and styles of one run's series (from its names and units).
@@ -327,19 +359,22 @@ class Layout:
         return out
 
     def legends(self, traj: Trajectory, error_limits: Sequence[float | None] | None = None
-                ) -> dict[str, str | None]:
-        """Per view name, the legend corner that hides the fewest samples of ``traj``, or
-        None where every corner would hide data (the legend is then hidden; the view's
-        name and the series' colours remain) (:func:`testbed.outputs.axes.legend_corner`)."""
+                ) -> dict[str, Legend]:
+        """Per view name, where its legend goes (:class:`Legend`), from the data of ``traj``.
+
+        The corner that hides the fewest samples; where every corner would hide data, room
+        above the data for a small legend, else none (:func:`place_legend`): an error
+        view's name says what it shows (grey lines: the 3-sigma band).
+        """
         columns = dict(self.columns(traj))
         t = np.asarray(traj.t_s, dtype=float)
-        out: dict[str, str | None] = {}
+        out: dict[str, Legend] = {}
         for name, _, series, state in self.panels():
             values = [columns[e] for e in series if e in columns]
             lim = None if (state is None or error_limits is None) else error_limits[state]
             entries = len({self._legend_name(e) for e in series})
-            out[name] = legend_corner(t, values, entries,
-                                      None if lim is None else (-lim, lim))
+            out[name] = place_legend(t, values, entries,
+                                     None if lim is None else (-lim, lim), fixed=state is not None)
         return out
 
     @staticmethod
@@ -348,9 +383,9 @@ class Layout:
 
     def views(self, time_range_s: tuple[float, float] | None,
               error_limits: Sequence[float | None] | None = None,
-              legends: dict[str, str | None] | None = None) -> list[rrb.View]:
-        """Time-series views (:meth:`panels`): axis ranges and legend corners (default:
-        bottom right, visible)."""
+              legends: dict[str, Legend] | None = None) -> list[rrb.View]:
+        """Time-series views (:meth:`panels`): axis ranges and legends (default: bottom
+        right, visible; :meth:`legends`)."""
         import rerun as rr
         import rerun.blueprint as rrb
 
@@ -362,12 +397,14 @@ class Layout:
         legends = legends or {}
         views = []
         for name, contents, _, state in self.panels():
-            corner = legends.get(name, CORNERS[0])
-            legend = rrb.PlotLegend(corner=corner or CORNERS[0], visible=corner is not None)
-            axis_y = None
+            place = legends.get(name, Legend(CORNERS[0]))
+            legend = rrb.PlotLegend(corner=place.corner or CORNERS[0],
+                                    visible=place.corner is not None)
+            y_range = place.y_range
             lim = None if (state is None or error_limits is None) else error_limits[state]
             if lim is not None:
-                axis_y = rrb.ScalarAxis(range=(-lim, lim), zoom_lock=False)
+                y_range = (-lim, lim)
+            axis_y = None if y_range is None else rrb.ScalarAxis(range=y_range, zoom_lock=False)
             views.append(rrb.TimeSeriesView(origin="/", contents=[f"/{c}" for c in contents],
                                             name=name, axis_x=axis_x, axis_y=axis_y,
                                             plot_legend=legend))
@@ -376,7 +413,7 @@ class Layout:
     def container(self, *, camera: tuple[np.ndarray, np.ndarray] | None, with_rig: bool,
                   with_about: bool, time_range_s: tuple[float, float] | None,
                   error_limits: Sequence[float | None] | None = None,
-                  legends: dict[str, str | None] | None = None,
+                  legends: dict[str, Legend] | None = None,
                   name: str | None = None) -> rrb.Container:
         """The run's layout: rig and description on the left, the series grid right."""
         import rerun.blueprint as rrb

@@ -347,8 +347,8 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from testbed.outputs.axes import CORNERS, legend_corner, nice_limit, steady_state_limit
-    from testbed.outputs.viz import TIMELINE, panel_name
+    from testbed.outputs.axes import CORNERS, nice_limit, steady_state_limit
+    from testbed.outputs.viz import TIMELINE, panel_name, place_legend
 
     rec = rr.RecordingStream("testbed-score")
     if not rec.is_enabled():
@@ -388,14 +388,16 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
             lim = nice_limit(max(steady_state_limit(t, e) for _, e, _ in errors))
             for contents, y_range, name in ((values, None, state),
                                             (errors, (-lim, lim), f"{state} error")):
-                corner = legend_corner(t, [v for _, v, _ in contents], len(contents), y_range)
+                place = place_legend(t, [v for _, v, _ in contents], len(contents), y_range,
+                                     fixed=y_range is not None)
+                y_range = y_range or place.y_range
                 views.append(rrb.TimeSeriesView(
                     origin=f"/{scen}", name=panel_name(name, [unit]),
                     contents=[f"/{e}" for e, _, _ in contents], axis_x=axis_x,
                     axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range,
                                                                        zoom_lock=False),
-                    plot_legend=rrb.PlotLegend(corner=corner or CORNERS[0],
-                                               visible=corner is not None)))
+                    plot_legend=rrb.PlotLegend(corner=place.corner or CORNERS[0],
+                                               visible=place.corner is not None)))
             payload += [(e, t, v, style) for e, v, style in values + errors]
         tabs.append(rrb.Grid(*views, grid_columns=2, name=entry.name))
     if not payload:
