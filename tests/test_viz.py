@@ -346,7 +346,7 @@ def test_roles_are_distinct_and_readable_on_light_and_dark(contents):
 
 
 def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
-    from testbed.outputs.axes import nice_limit, steady_state_limit
+    from testbed.outputs.axes import ERROR_AXIS_MARGIN, nice_limit, steady_state_limit
 
     c, traj = contents
     t0, t1 = float(traj.t_s[0]), float(traj.t_s[-1])
@@ -361,9 +361,11 @@ def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
     assert lo == -hi
     assert hi >= np.abs(error[late]).max() and hi >= bound[late].max()  # steady state in view
     assert hi < 0.1 * bound[0]  # the transient (zoom out for it) does not set the range
-    # a readable scale: the steady-state range rounded up to 1, 2, 2.5 or 5 x 10^k
-    assert hi == pytest.approx(nice_limit(steady_state_limit(traj.t_s, error, bound)))
-    mantissa = hi / 10.0 ** np.floor(np.log10(hi))
+    # a readable scale: the steady-state range rounded up to 1, 2, 2.5 or 5 x 10^k, a
+    # labelled tick inside the view
+    nice = nice_limit(steady_state_limit(traj.t_s, error, bound))
+    assert hi == pytest.approx(ERROR_AXIS_MARGIN * nice)
+    mantissa = nice / 10.0 ** np.floor(np.log10(nice))
     assert min(abs(mantissa - m) for m in (1.0, 2.0, 2.5, 5.0)) < 1e-9
     assert c.view("pitch [deg]").y_range is None  # values: auto range
 

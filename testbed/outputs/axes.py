@@ -66,6 +66,11 @@ def nice_limit(value: float) -> float:
     return float(10.0 * power)  # pragma: no cover - the loop ends at 10
 
 
+#: An error view spans ``+-ERROR_AXIS_MARGIN * nice_limit(...)``: its end ticks (the round
+#: limit) then sit inside the view, where the viewer prints their labels.
+ERROR_AXIS_MARGIN = 1.1
+
+
 def held_setpoint(setpoint: np.ndarray) -> np.ndarray:
     """The reference in force over each interval ``[t_k, t_k+1)``: row ``T-1`` (used by no
     control step: when the run ends on a switching time it is the NEXT setpoint) replaced

@@ -75,6 +75,7 @@ from testbed.experiment.trajectory import Trajectory
 from testbed.io import atomic_path
 from testbed.outputs.axes import (
     CORNERS,
+    ERROR_AXIS_MARGIN,
     held_setpoint,
     legend_corner,
     legend_height,
@@ -373,8 +374,8 @@ class Layout:
             values = [columns[e] for e in series if e in columns]
             lim = None if (state is None or error_limits is None) else error_limits[state]
             entries = len({self._legend_name(e) for e in series})
-            out[name] = place_legend(t, values, entries,
-                                     None if lim is None else (-lim, lim), fixed=state is not None)
+            y_range = None if lim is None else (-ERROR_AXIS_MARGIN * lim, ERROR_AXIS_MARGIN * lim)
+            out[name] = place_legend(t, values, entries, y_range, fixed=state is not None)
         return out
 
     @staticmethod
@@ -402,8 +403,8 @@ class Layout:
                                     visible=place.corner is not None)
             y_range = place.y_range
             lim = None if (state is None or error_limits is None) else error_limits[state]
-            if lim is not None:
-                y_range = (-lim, lim)
+            if lim is not None:  # the round limit is a labelled tick inside the view
+                y_range = (-ERROR_AXIS_MARGIN * lim, ERROR_AXIS_MARGIN * lim)
             axis_y = None if y_range is None else rrb.ScalarAxis(range=y_range, zoom_lock=False)
             views.append(rrb.TimeSeriesView(origin="/", contents=[f"/{c}" for c in contents],
                                             name=name, axis_x=axis_x, axis_y=axis_y,

@@ -347,7 +347,12 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from testbed.outputs.axes import CORNERS, nice_limit, steady_state_limit
+    from testbed.outputs.axes import (
+        CORNERS,
+        ERROR_AXIS_MARGIN,
+        nice_limit,
+        steady_state_limit,
+    )
     from testbed.outputs.viz import TIMELINE, panel_name, place_legend
 
     rec = rr.RecordingStream("testbed-score")
@@ -385,7 +390,8 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
                                est - factor * pair.trajectory["state"][:, i],
                                rr.SeriesLines(names=[_unit_name(f"{n}: estimate − truth", unit)],
                                               colors=[color], widths=[1.5])))
-            lim = nice_limit(max(steady_state_limit(t, e) for _, e, _ in errors))
+            lim = ERROR_AXIS_MARGIN * nice_limit(max(steady_state_limit(t, e)
+                                                     for _, e, _ in errors))
             for contents, y_range, name in ((values, None, state),
                                             (errors, (-lim, lim), f"{state} error")):
                 place = place_legend(t, [v for _, v, _ in contents], len(contents), y_range,
