@@ -281,8 +281,9 @@ def why(result: dict[str, Any]) -> str:
             "reconstructed (completion of squares of the cited construction, as in Wang & Fang "
             "(2006)); delta2 and H are not legible (delta2 = delta1 and H = 0 assumed). ")
     if thr is not None and not d["solved"]:
-        text += (f"At eps = {p['eps']:g}, (11) has a solution only for delta1 < {thr:.4f} "
-                 f"(monotone iteration), just below the printed {p['delta1']:g}. ")
+        text += (f"The threshold on delta1 at eps = {p['eps']:g} (third claim) comes from a "
+                 f"monotone iteration; it lies {p['delta1'] - thr:.4f} below the printed "
+                 f"{p['delta1']:g}, so a misread digit could explain it. ")
     return text + (f"Monte Carlo in {ENV_ID} confirms our Lyapunov covariances within "
                    f"{worst_z:.1f} standard errors, so the gap to the printed ones is in the "
                    "reading of the example or in the paper's numbers.")

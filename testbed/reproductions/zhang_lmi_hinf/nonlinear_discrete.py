@@ -301,8 +301,8 @@ def why(result: dict[str, Any]) -> str:
     """What the claims do not say (``docs/reproductions.md``), from ``result``."""
     hji, wide = result["hji_27"], result["hji_27_wide"]
     return (
-        f"The paper states neither x0 nor gamma; we use x0 = {result['x0']} and gamma = "
-        f"{result['gamma']:g}. The Monte-Carlo inequality holds, but neither corollary "
+        "The paper states neither x0 nor gamma (ours are in the first claim). The Monte-Carlo "
+        "inequality holds, but neither corollary "
         "certifies (50). Corollary 3: (36) is violated arbitrarily close to 0, and the printed "
         "(35)-(36) also miss the noise terms h2, f2 and have +xhat'Q2 xhat instead of "
         "-xhat'Q2 xhat. Corollary 2: the HJI (27) with V = |x|^2 + |xhat|^2 holds on "

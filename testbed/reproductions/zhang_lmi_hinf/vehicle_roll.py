@@ -503,13 +503,13 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
 
 def why(result: dict[str, Any]) -> str:
     """What the claims do not say (``docs/reproductions.md``), from ``result``."""
-    p, rig = result["paper_K_hat"], result["rig"]
+    rig = result["rig"]
     dec, mm = result["exact_decoupling"], rig["model_mismatch"]
     return (
         "(7) is proved for eta_0 = 0 (Lemma 2); with x0 = [0.1, 1] and xhat_0 = 0 the initial "
         "error adds V(eta_0) = eta_0' P eta_0 (proof, (13)), which dwarfs the disturbance "
-        f"energy: the printed Khat needs gamma >= {p['gamma_needed']['x0_paper']:.3g} for "
-        "Fig. 7. Our gamma_min is set by the bisection's margin: Khat can cancel v in "
+        "energy, so Fig. 7 cannot hold near a certified gamma. Our gamma_min is set by the "
+        "bisection's margin: Khat can cancel v in "
         f"ztilde = e1 exactly (error pole {dec['error_pole']:.3f}), so the infimum is 0. On "
         "the MuJoCo rig (ZOH of the physics) that cancellation is imperfect: its step differs "
         f"from the ZOH model by {mm['A_max_rel']:.2%} (A) / {mm['B_max_rel']:.2%} (B), so "
