@@ -115,7 +115,7 @@ def test_reproduction_short_run_writes_all_keys(tmp_path):
     assert (tmp_path / "o.png").stat().st_size > 20_000
     assert (tmp_path / "o.rrd").stat().st_size > 10_000
     assert f"{r['gamma_min']:.3g}" in r["claims"][0]["ours"]
-    assert "gamma >= " in rep.why(r) and rep.PAPER.year == "2018"
+    assert "V(eta_0)" in rep.why(r) and rep.PAPER.year == "2018"
     # claims as data: verdicts follow the numbers above
     claims = {c["claim"].split(":")[0]: c for c in r["claims"]}
     assert len(r["claims"]) == 7 and agree_text(r["claims"]).startswith("5 of 7 claims agree")

@@ -107,6 +107,10 @@ def test_committed_doc_is_for_readers():
     text = DOC.read_text()
     lines = text.splitlines()
     assert max(len(line) for line in lines) <= 400
+    # wrapped prose never starts a line that Markdown would read as a list or a quote
+    bullets = ("- Paper: ", "- Run: ", "- Verdict: ")
+    assert not [line for line in lines if re.match(r"([-+*>=]|\d+[.)])(\s|$)", line)
+                and not line.startswith(bullets)]
     sections = [line for line in lines if line.startswith("## ")]
     assert len(sections) == len(REPRODUCTIONS)
     for name in REPRODUCTIONS:

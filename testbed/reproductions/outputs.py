@@ -143,10 +143,10 @@ def section(name: str, paper: Paper, claims: Sequence[Claim | dict[str, str]], w
         out: list[str] = []
         for line in textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
                                   break_long_words=False):
-            if out and re.match(r"([-+*>#=|]|\d+[.)])(\s|$)", line):
-                out[-1] += " " + line
-            else:
-                out.append(line)
+            while out and re.match(r"([-+*>#=|]|\d+[.)])(\s|$)", line) and " " in out[-1]:
+                head, last = out[-1].rsplit(" ", 1)  # carry words down instead
+                out[-1], line = head, f"{last} {line}"
+            out.append(line)
         return "\n".join(out)
 
     verdict = textwrap.wrap(f"- Verdict: {agree_text(claims)}.", width, subsequent_indent="  ",
