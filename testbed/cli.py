@@ -264,6 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--doc", default="docs/reproductions.md",
                      help="with 'all': the Markdown table to regenerate")
     _add_score_parser(sub)
+    from testbed.outputs import view
+
+    view.add_parser(sub)
     return parser
 
 
@@ -681,28 +684,25 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """``testbed reproduce``: one paper example (or all, regenerating the docs table)."""
+    """``testbed reproduce``: one paper example (or all, regenerating the docs)."""
     from testbed import reproductions
 
     if args.horizon is not None and args.horizon > MAX_DURATION_S and not args.allow_long:
         raise ValueError(f"--horizon {args.horizon:g} s is above the limit of "
                          f"{MAX_DURATION_S:g} s; add --allow-long to run it anyway")
+    from testbed.reproductions.outputs import agree_text, format_claims
+
     if args.name == "all":
         results = reproductions.reproduce_all(args.out_dir, args.doc)
         for name, result in results.items():
-            print(f"{name}: {reproductions.load(name).row(result)['ours']}")
-        print(f"wrote {args.doc} and {args.out_dir}/")
+            print(f"{name}: {agree_text(result['claims'])}")
+        print(f"wrote {args.doc}, its figures and {args.out_dir}/")
         return 0
     module = reproductions.load(args.name)
     result = module.reproduce(horizon_s=args.horizon, seed=args.seed, json_path=args.json,
                               plot_path=args.plot, rrd_path=args.rrd)
-    row = module.row(result)
-    print(f"{args.name}\n  paper: {row['claim']}\n  ours:  {row['ours']}\n"
-          f"  agree: {row['agree']}")
-    if result.get("claims"):
-        from testbed.reproductions.outputs import format_claims
-
-        print("  claims (paper | ours):\n" + format_claims(result["claims"]))
+    print(f"{args.name}: {module.PAPER.citation}\n  {agree_text(result['claims'])}\n"
+          "  claims (paper | ours):\n" + format_claims(result["claims"]))
     for path in (args.json, args.plot, args.rrd):
         if path:
             print(f"wrote {path}")
@@ -803,6 +803,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
                 "score": cmd_score}
+    if args.command == "view":
+        from testbed.outputs.view import cmd_view
+
+        commands["view"] = cmd_view
     with _sigterm_raises(), _mujoco_warnings_logged():
         try:
             check_outputs(args)

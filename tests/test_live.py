@@ -216,3 +216,29 @@ def test_spawn_starts_this_environments_viewer(monkeypatch):
         open_recording("testbed/x", spawn=True, serve=True)
     with pytest.raises(ValueError, match="port"):
         open_recording("testbed/x", serve=True, web_port=70000)
+
+
+def test_live_run_ending_on_a_switching_time_logs_no_setpoint_past_its_end(grpc_sink):
+    """The last row's reference (yaw 30 deg from 5 s on) is used by no control step: the
+    stream logs the one in force, as the files do; the final blueprint places the legends."""
+    from testbed.outputs.axes import held_setpoint
+    from testbed.outputs.live import LiveView, open_recording, stop
+    from testbed.outputs.rrd_inspect import inspect_rrd, series
+
+    url, out, proc = grpc_sink
+    rec, _ = open_recording("testbed/helicopter", connect=url)
+    live = LiveView(rec, flush_s=0.5)
+    scenario = SCENARIO.replace(duration_s=5.0)
+    traj, _ = runner.run(scenario, progress=False, observe=live.attach)
+    live.close()
+    stop(rec)
+    time.sleep(1.0)
+    _stop(proc)
+    yaw = traj.setpoint_names().index("yaw")
+    assert np.degrees(traj.setpoint[-1, yaw]) > 20 > np.degrees(traj.setpoint[-2, yaw])
+    t, values = series(out, "setpoint/yaw")
+    np.testing.assert_allclose(t, traj.t_s, atol=1e-9)
+    np.testing.assert_allclose(values, np.degrees(held_setpoint(traj.setpoint)[:, yaw]))
+    assert np.abs(values).max() < 1.0
+    views = [v for v in inspect_rrd(out).views if v.name not in ("rig", "about")]
+    assert views and all(v.name.endswith("]") and v.legend_visible is not None for v in views)

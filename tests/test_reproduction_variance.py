@@ -13,6 +13,7 @@ from scipy.linalg import solve_continuous_lyapunov, solve_discrete_lyapunov
 
 from testbed.cli import main
 from testbed.reproductions import load
+from testbed.reproductions.outputs import agree_text
 from testbed.reproductions.variance_constrained import liu_discrete as vd
 from testbed.reproductions.variance_constrained import wang_parabolic as vc
 from testbed.reproductions.variance_constrained.scenario_liu import (
@@ -182,10 +183,10 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_check
     _check_searched(data, VarianceConstrainedDiscreteScenario().plant, discrete=True)
     assert (tmp_path / "d.png").stat().st_size > 10_000
     assert (tmp_path / "d.rrd").stat().st_size > 10_000
-    row = load("liu-variance-constrained-discrete").row(data)
-    assert set(row) == {"paper", "claim", "ours", "agree", "why"}
-    assert row["agree"] == ("2 of 4 claims agree; differs: printed covariances for F = 1, 0; "
-                            "design solvable at the printed eps, delta1")
+    why = load("liu-variance-constrained-discrete").why(data)
+    assert agree_text(data["claims"]) == (
+        "2 of 4 claims agree; differs: printed covariances for F = 1, 0; "
+        "design solvable at the printed eps, delta1")
     # verdicts follow the numbers: a printed covariance within the tolerance flips one
     changed = json.loads(json.dumps(data))
     for comp in changed["covariance_comparison"].values():
@@ -193,7 +194,9 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_check
     changed["findings"] = vd._findings(changed)
     assert vd.claims(changed)[1].verdict == "agrees"
     _check_outputs(tmp_path / "d.rrd", figures, figure_checks, data["claims"])
-    assert "0.3022" in row["why"] and "ours:" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "0.3022" in data["claims"][2]["ours"] and "0.3022" not in why
+    assert "| ours " in out and "Liu, Deng & Wang (n.d.)" in out
 
 
 def test_continuous_short_run_keys_and_findings(tmp_path, monkeypatch, figure_checks):
@@ -226,11 +229,12 @@ def test_continuous_short_run_keys_and_findings(tmp_path, monkeypatch, figure_ch
                      "a Theorem 1 design meeting the specification exists": True}
     s = VarianceConstrainedContinuousScenario()
     _check_searched(data, s.plant, discrete=False, a=s.a, b=s.b)
-    row = vc.row(r)
-    assert row["agree"] == ("2 of 4 claims agree; differs: (17) solvable with the printed eps, "
-                            "delta, H; printed Q1, Q2, gains follow from (16)-(18)")
+    assert agree_text(r["claims"]) == (
+        "2 of 4 claims agree; differs: (17) solvable with the printed eps, "
+        "delta, H; printed Q1, Q2, gains follow from (16)-(18)")
     _check_outputs(tmp_path / "c.rrd", figures, figure_checks, data["claims"])
-    assert f"{branch['gamma_reached']:.3g}" in row["ours"] and "196" not in row["ours"]
+    ours = " ".join(c["ours"] for c in r["claims"])
+    assert f"{branch['gamma_reached']:.3g}" in ours and "196" not in ours + vc.why(r)
 
 
 def test_reproduce_rejects_bad_search_settings():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
-from testbed.reproductions import REPRODUCTIONS, load, render_table
+from testbed.reproductions import REPRODUCTIONS, load, render_doc
 from testbed.reproductions.basin_ms_hinf import helicopter as ms
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
 
@@ -46,7 +46,7 @@ def test_ms_hinf_recording_shows_errors_not_the_gravity_free_model():
     traj = ms._trajectory(run, s, result)
     # the figure's and the paper's convention e = x - m, and the legend says so
     np.testing.assert_array_equal(traj.state, run["x"] - run["est"])
-    assert traj.meta["state_label"] == "error (truth - estimate)"
+    assert traj.meta["state_label"] == "error (truth - estimate, the paper's x - m)"
     assert traj.state_names[0] == "pitch_error" and traj.estimate is None
     np.testing.assert_array_equal(traj.measurement[:, 0], run["T"])
     assert "gravity-free" in traj.meta["note"]
@@ -71,13 +71,56 @@ def test_ms_hinf_full_horizon_numbers():
     assert r["model_pitch_final_rad"] > 200 and r["model_pitch_final_u_only_rad"] > 200
 
 
-def test_registry_and_table():
+def test_registry_and_doc_sections_from_claims(monkeypatch):
     assert "basin-ms-hinf-helicopter" in REPRODUCTIONS
     with pytest.raises(ValueError, match="unknown reproduction"):
         load("nope")
-    text = render_table({"x": {"paper": "p", "claim": "c|d", "ours": "o", "agree": "yes",
-                               "why": "w"}})
-    assert "| `x` | p | c\\|d | o | yes | w |" in text
+    from testbed.reproductions.outputs import Claim, claims_json, format_claims
+
+    claims = claims_json([Claim("c|d", "p", "o", "agrees"),
+                          Claim("e", "1", "2", "differs", "because " + "x" * 300)])
+    monkeypatch.setattr(ms, "why", lambda result: "a long cause " * 80)
+    text = render_doc({"basin-ms-hinf-helicopter": {"claims": claims}},
+                      {"basin-ms-hinf-helicopter": "figures/h.png"})
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= 400
+    assert "**Why.** a long cause" in text and max(len(li) for li in lines if "cause" in li) <= 100
+    assert lines.count("## " + ms.PAPER.example) == 1
+    # one table row per claim, the same content `testbed reproduce NAME` prints
+    assert "| c\\|d | p | o | agrees |" in lines
+    assert "| e | 1 | 2 | **differs** (1) |" in lines
+    assert "Notes: (1) because" in text and "x" * 300 in text
+    printed = format_claims(claims).splitlines()
+    assert printed[0] == "  [agrees] c|d: paper p | ours o"
+    assert "![" in text and "(figures/h.png)" in text
+    assert f"[`basin-ms-hinf-helicopter`](#{ms.PAPER.example.lower().replace(' ', '-')})" in text
+
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "reproductions.md"
+
+
+def test_committed_doc_is_for_readers():
+    """docs/reproductions.md: one section per reproduction with its paper, claims table, why
+    paragraph and a small figure; no line longer than 400 characters."""
+    import re
+
+    text = DOC.read_text()
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 400
+    # wrapped prose never starts a line that Markdown would read as a list or a quote
+    bullets = ("- Paper: ", "- Run: ", "- Verdict: ")
+    assert not [line for line in lines if re.match(r"([-+*>=]|\d+[.)])(\s|$)", line)
+                and not line.startswith(bullets)]
+    sections = [line for line in lines if line.startswith("## ")]
+    assert len(sections) == len(REPRODUCTIONS)
+    for name in REPRODUCTIONS:
+        module = load(name)
+        body = text.split("## " + module.PAPER.example + "\n", 1)[1].split("\n## ", 1)[0]
+        assert f"`testbed reproduce {name}`" in body and module.PAPER.citation in body
+        assert "| claim | paper | ours | verdict |" in body and "**Why.**" in body
+        (figure,) = re.findall(r"!\[[^]]*\]\(([^)]+)\)", body)
+        path = DOC.parent / figure
+        assert figure == f"figures/{name}.png" and path.stat().st_size < 150_000
 
 
 def test_names_follow_the_papers_and_are_documented():
@@ -165,7 +208,7 @@ def test_claims_follow_the_numbers_figure_and_runs(name, tmp_path, monkeypatch, 
     verdicts = [c["verdict"] for c in claims]
     assert verdicts == ["agrees" if ok else "differs" for ok in expected(r)]
     assert all(c["paper"] and c["ours"] for c in claims)
-    assert module.row(r)["agree"] == agree_text(claims)
+    assert 100 < len(module.why(r)) < 1200  # a short paragraph
     changed = json.loads(json.dumps(r))
     i = flip(changed)
     assert module.claims(changed)[i].verdict != verdicts[i]

@@ -66,9 +66,16 @@ def test_monte_carlo_figure(mc_with_npz, tmp_path, figure_checks):
     assert ("roll RMSE [deg]", "runs [count]") in labels
     assert ("time [s]", "roll_rate error (second half) [deg/s]") in labels
     handles = fig.legends[0].get_texts()
-    assert {"error, median", "error, 5-95 % of runs", "filter's ±3σ (mean over runs)"} <= {
-        h.get_text() for h in handles}
-    assert "11 runs" in fig._suptitle.get_text() and "sensors:" in fig._suptitle.get_text()
+    assert {"error (estimate − truth), median", "error (estimate − truth), 5-95 % of runs",
+            "filter's ±3σ (mean over runs)"} <= {h.get_text() for h in handles}
+    title = fig._suptitle.get_text()
+    assert "11 runs" in title and "sensors 'imu'" in title
+    assert all(len(line) <= 120 for line in title.splitlines())
+    fig.canvas.draw()
+    for ax in fig.axes:  # the histograms count runs: whole numbers on their y axis
+        if ax.get_ylabel() == "runs [count]":
+            ticks = ax.get_yticks()
+            assert len(ticks) >= 2 and np.allclose(ticks, np.round(ticks)), ticks
     path = plot_monte_carlo(result, tmp_path / "mc.png")
     assert path.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(ValueError, match="error_envelope"):

@@ -346,7 +346,7 @@ def test_roles_are_distinct_and_readable_on_light_and_dark(contents):
 
 
 def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
-    from testbed.outputs.axes import steady_state_limit
+    from testbed.outputs.axes import ERROR_AXIS_MARGIN, nice_limit, steady_state_limit
 
     c, traj = contents
     t0, t1 = float(traj.t_s[0]), float(traj.t_s[-1])
@@ -361,7 +361,12 @@ def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
     assert lo == -hi
     assert hi >= np.abs(error[late]).max() and hi >= bound[late].max()  # steady state in view
     assert hi < 0.1 * bound[0]  # the transient (zoom out for it) does not set the range
-    assert hi == pytest.approx(steady_state_limit(traj.t_s, error, bound))
+    # a readable scale: the steady-state range rounded up to 1, 2, 2.5 or 5 x 10^k, a
+    # labelled tick inside the view
+    nice = nice_limit(steady_state_limit(traj.t_s, error, bound))
+    assert hi == pytest.approx(ERROR_AXIS_MARGIN * nice)
+    mantissa = nice / 10.0 ** np.floor(np.log10(nice))
+    assert min(abs(mantissa - m) for m in (1.0, 2.0, 2.5, 5.0)) < 1e-9
     assert c.view("pitch [deg]").y_range is None  # values: auto range
 
 
@@ -414,3 +419,69 @@ def test_several_runs_each_under_its_prefix_with_a_text(tmp_path, model):
     with pytest.raises(ValueError, match="prefixes"):
         write_runs([runs[0], Run(make_trajectory(), "noise_free")], tmp_path / "bad.rrd")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["two.rrd"]
+
+
+def test_no_setpoint_past_the_run_end(tmp_path):
+    """A run ending on a switching time (helicopter, 5 s): its last row holds the NEXT
+    setpoint (yaw 30 deg); the recording logs the one in force, so the yaw view keeps the
+    scale of the run (yaw stays within about 1 deg)."""
+    from testbed.cli import main
+    from testbed.outputs.rrd_inspect import inspect_rrd, series
+
+    path = tmp_path / "run.rrd"
+    assert main(["run", "helicopter", "--duration", "5", "--no-progress", "--rrd",
+                 str(path)]) == 0
+    c = inspect_rrd(path)
+    assert c.time_range_s == pytest.approx((0.0, 5.0))
+    t, sp = series(path, "setpoint/yaw")
+    _, yaw = series(path, "state/yaw/actual")
+    assert t[-1] == pytest.approx(5.0) and np.abs(sp).max() < 1.0 and np.abs(yaw).max() < 2.0
+    assert all(v.time_range_s[1] == pytest.approx(5.0) for v in c.views if v.time_range_s)
+
+
+def test_panels_have_units_and_legends_hide_no_data(tmp_path, model):
+    """Every time-series view names its unit; a shown legend sits in a corner that covers
+    at most 2 % of the view's samples, read back from the file (else it is hidden)."""
+    from testbed.outputs import axes
+    from testbed.outputs.rrd_inspect import inspect_rrd, series
+
+    path = write_rrd(_with_transient(model), tmp_path / "run.rrd", model=model)
+    c = inspect_rrd(path)
+    views = [v for v in c.views if v.name not in ("rig", "about")]
+    assert views and all(v.name.endswith("]") for v in views)
+    assert {v.name for v in views} >= {"pitch [deg]", "pitch error [deg]", "actions [V]"}
+    assert all(v.legend_visible is not None and v.legend_corner in axes.CORNERS
+               for v in views)
+    shown = [v for v in views if v.legend_visible]
+    # a small legend gets room above the data when every corner is taken (the actions)
+    actions = c.view("actions [V]")
+    assert actions.legend_visible and actions.y_range is not None
+    for v in shown:
+        entities = [e for e, n in c.rows.items() if n and any(
+            e == q.strip("/").removesuffix("/**") or e.startswith(q.strip("/")[:-2])
+            for q in v.contents if q.strip("/"))]
+        data = [series(path, e) for e in entities]
+        t0, t1 = c.time_range_s
+        x = np.concatenate([(t - t0) / (t1 - t0) for t, _ in data])
+        y = np.concatenate([y for _, y in data])
+        lo, hi = v.y_range or (y.min(), y.max())
+        u = (y - lo) / (hi - lo)
+        names = {c.styles[e]["names"][0] for e in entities}
+        h = min(0.85, axes.LEGEND_BASE_HEIGHT + axes.LEGEND_ENTRY_HEIGHT * len(names))
+        w = axes.LEGEND_WIDTH
+        right = x >= 1 - w if v.legend_corner.startswith("Right") else x <= w
+        band = u <= h if v.legend_corner.endswith("Bottom") else u >= 1 - h
+        assert np.mean(right & band & (u >= 0) & (u <= 1)) <= 0.02, v.name
+
+
+def test_legend_corner_avoids_the_data():
+    from testbed.outputs.axes import legend_corner, nice_limit
+
+    t = np.linspace(0.0, 10.0, 1001)
+    rising = np.clip(t - 5.0, 0.0, None)  # 0 until 5 s, then up: bottom-left and top-right
+    assert legend_corner(t, [rising], 2) in ("RightBottom", "LeftTop")
+    assert legend_corner(t, [rising], 2) != "RightTop"
+    assert legend_corner(t, [np.full_like(t, 1.0)], 1, y_range=(-1, 1)) == "RightBottom"
+    noise = np.random.default_rng(0).uniform(-1, 1, t.size)  # fills the view: hidden
+    assert legend_corner(t, [noise], 2, y_range=(-1, 1)) is None
+    assert [nice_limit(x) for x in (0.0382, 0.07, 0.21, 4.6, 1.0)] == [0.05, 0.1, 0.25, 5.0, 1.0]

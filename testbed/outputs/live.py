@@ -13,7 +13,9 @@ Three ways to reach a viewer (:func:`open_recording`):
 it buffers the rows of member 0 as :meth:`testbed.experiment.loop.ClosedLoop.run` produces them and
 sends them every ``flush_s`` seconds of wall time (and at the end) with the entity
 layout, styles and blueprint of the ``.rrd`` files (:mod:`testbed.outputs.viz`). When the run
-ends, the blueprint is sent again with the error views fitted to the steady state.
+ends, the blueprint is sent again with the error views fitted to the steady state and the
+legends placed where they hide no data. The last row's setpoint (the reference after the
+run's end) is replaced by the one in force, as in the files.
 """
 
 from __future__ import annotations
@@ -128,8 +130,10 @@ class LiveView:
         self._model: Any = None
         self._duration_s = 0.0
         self._rows: list[dict[str, Any]] = []
-        self._history: dict[str, list[np.ndarray]] = {"t_s": [], "state": [], "estimate": [],
-                                                       "covariance": []}
+        self._history: dict[str, list[np.ndarray]] = {
+            "t_s": [], "state": [], "estimate": [], "covariance": [], "measurement": [],
+            "action": [], "setpoint": []}
+        self._dt_s = 0.0
         self._last_send = 0.0
 
     # -- the runner's hook
@@ -152,6 +156,7 @@ class LiveView:
             meta=dict(experiment.meta, setpoint_names=list(rig.tracked_states)))
         self._model = rig.model
         self._duration_s = float(experiment.scenario.duration_s)
+        self._dt_s = float(sim.dt_s)
         if self.description is None:
             from testbed.outputs.viz import run_description
 
@@ -169,7 +174,15 @@ class LiveView:
         one = {key: np.array(value[0]) for key, value in row.items()
                if key != "t_s" and value is not None}
         one["t_s"] = float(row["t_s"])
+        h = self._history
+        if (h["setpoint"] and "setpoint" in one
+                and one["t_s"] >= self._duration_s - 0.5 * self._dt_s):
+            # the last row's reference is the NEXT setpoint, used by no control step
+            one["setpoint"] = h["setpoint"][-1].copy()
         self._rows.append(one)
+        for key in ("measurement", "action", "setpoint"):
+            if key in one:
+                h[key].append(one[key])
         self._history["t_s"].append(one["t_s"])
         self._history["state"].append(one["state"])
         self._history["estimate"].append(one["estimate"])
@@ -225,10 +238,16 @@ class LiveView:
             var = np.asarray(h["covariance"])
             cov = np.zeros((len(t), n, n))
             cov[:, np.arange(n), np.arange(n)] = var
+        def rows(key: str, like: np.ndarray) -> np.ndarray:
+            return np.asarray(h[key]) if h[key] else np.zeros((len(t), like.shape[1]))
+
         return Trajectory(t_s=t, state=np.asarray(h["state"]), state_names=empty.state_names,
-                          measurement=np.zeros((len(t), 0)), measurement_names=[],
-                          action=np.zeros((len(t), 0)), action_names=[],
-                          estimate=np.asarray(h["estimate"]), covariance=cov, meta=empty.meta)
+                          measurement=rows("measurement", empty.measurement),
+                          measurement_names=empty.measurement_names,
+                          measured_state_index=empty.measured_state_index,
+                          action=rows("action", empty.action), action_names=empty.action_names,
+                          estimate=np.asarray(h["estimate"]), covariance=cov,
+                          setpoint=rows("setpoint", empty.setpoint), meta=empty.meta)
 
     def _blueprint(self, traj: Trajectory | None) -> Any:
         """The live layout: time axes over the scenario's duration; error views fitted
@@ -238,9 +257,10 @@ class LiveView:
         from testbed.outputs.viz_rig import rig_camera
 
         limits = None if traj is None else self.layout.error_limits(traj)
+        legends = None if traj is None else self.layout.legends(traj, limits)
         container = self.layout.container(
             camera=rig_camera(self._model), with_rig=True, with_about=bool(self.description),
-            time_range_s=(0.0, self._duration_s), error_limits=limits)
+            time_range_s=(0.0, self._duration_s), error_limits=limits, legends=legends)
         return rrb.Blueprint(container, rrb.TimePanel(timeline="time"), collapse_panels=False)
 
 

@@ -2,9 +2,10 @@
 
 Layout: one row per state, left the state (truth wide and grey under the estimate in
 colour, measurements of that state as dots, the setpoint dashed), right the estimation
-error with a +-3 sigma band when a covariance exists; a last row with the actions. One
-legend, outside the axes, below them; the title names the rig, filter and sensors and
-gives the RMSE per state and the mean NEES.
+error (estimate - truth, as everywhere) with a +-3 sigma band when a covariance exists; a
+last row with the actions. One legend, outside the axes, below them; the title (short)
+names the rig, the filter and the sensor preset and gives the RMSE per state and the mean
+NEES (the sensor chain is in the run's JSON, ``config.sensors``).
 
 Error axes show the steady state (:func:`testbed.outputs.axes.steady_state_limit`); samples beyond
 the axis are marked with triangles at its edge. The setpoint is drawn as the reference in
@@ -28,7 +29,7 @@ from matplotlib.figure import Figure
 
 from testbed.experiment.trajectory import Trajectory
 from testbed.io import atomic_path
-from testbed.outputs.axes import steady_state_limit
+from testbed.outputs.axes import held_setpoint, steady_state_limit
 from testbed.outputs.units import display, label
 
 _COLORS = [f"C{i}" for i in range(10)]
@@ -89,15 +90,6 @@ def mark_clipped(ax: Any, t: np.ndarray, values: np.ndarray, lim: float) -> int:
     return int(above.sum() + below.sum())
 
 
-def held_setpoint(setpoint: np.ndarray) -> np.ndarray:
-    """The reference in force over each interval ``[t_k, t_k+1)``: row ``T-1`` (used by no
-    control step) replaced by row ``T-2``; draw with ``drawstyle="steps-post"``."""
-    held = np.array(setpoint, dtype=float, copy=True)
-    if len(held) >= 2:
-        held[-1] = held[-2]
-    return held
-
-
 def trajectory_metrics(traj: Trajectory) -> dict[str, Any]:
     """RMSE per state and mean NEES of a trajectory, over rows ``1..T`` (as
     :class:`testbed.experiment.metrics.EpisodeMetrics`: row 0 is the prior)."""
@@ -119,9 +111,10 @@ def _title(traj: Trajectory, title: str | None, summary: dict[str, Any] | None
     meta = traj.meta if isinstance(traj.meta, dict) else {}
     if title is None:
         title = " / ".join(str(meta[k]) for k in ("rig", "filter") if meta.get(k)) or "run"
+    preset = (meta.get("scenario") or {}).get("sensors")
+    if isinstance(preset, str) and len(preset) <= 30:  # the chain itself is in the JSON
+        title += f", sensors {preset!r}"
     lines = [title]
-    if meta.get("sensors"):
-        lines.append(f"sensors: {meta['sensors']}")
     metrics = summary if summary is not None else trajectory_metrics(traj)
     parts = []
     for name, value in (metrics.get("rmse") or {}).items():

@@ -34,6 +34,9 @@ class View:
     eye_position: tuple[float, ...] | None = None
     eye_target: tuple[float, ...] | None = None
     contents: list[str] = field(default_factory=list)
+    #: ``"RightBottom"``, ``"LeftTop"``... and whether the legend is shown (None: not set).
+    legend_corner: str | None = None
+    legend_visible: bool | None = None
 
 
 @dataclass
@@ -181,6 +184,10 @@ def inspect_rrd(path: str | os.PathLike) -> RrdContents:
     return out
 
 
+#: Rerun's ``Corner2D`` values.
+_CORNERS = {1: "LeftTop", 2: "RightTop", 3: "LeftBottom", 4: "RightBottom"}
+
+
 def _views(reader: Any, store: Any) -> list[View]:
     """Views of a blueprint store, with their properties."""
     views: dict[str, View] = {}
@@ -208,6 +215,12 @@ def _views(reader: Any, store: Any) -> list[View]:
         y_range = _column(batch, "ScalarAxis:range")
         if y_range:
             v.y_range = tuple(float(x) for x in y_range[-1][0])
+        corner = _column(batch, "PlotLegend:corner")
+        if corner:
+            v.legend_corner = _CORNERS.get(int(corner[-1][0]))
+        visible = _column(batch, "PlotLegend:visible")
+        if visible:
+            v.legend_visible = bool(visible[-1][0])
         position = _column(batch, "EyeControls3D:position")
         if position:
             v.eye_position = tuple(float(x) for x in position[-1][0])

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from testbed.outputs.axes import TRANSIENT_FRACTION, steady_state_limit
 from testbed.outputs.plots import figure_legend, new_figure, save_figure, set_title
@@ -27,11 +28,14 @@ from testbed.outputs.units import display, label
 
 
 def _study_title(fig: Figure, result: dict[str, Any], what: str, *extra: str) -> None:
-    """Figure title: rig, filter, what; the sensors; extra lines; wrapped to the width."""
+    """Figure title, short: rig, filter, the sensor preset, what; extra lines. The sensor
+    chain itself is in the JSON (``meta["sensors"]``)."""
     meta = result.get("meta") or {}
     scenario = meta.get("scenario") or {}
+    preset = scenario.get("sensors")
+    sensors = f", sensors {preset!r}" if isinstance(preset, str) and len(preset) <= 30 else ""
     lines = [f"{meta.get('rig', '?')}: {result.get('filter', scenario.get('estimator', '?'))} "
-             f"filter, {what}", f"sensors: {meta.get('sensors', '?')}", *extra]
+             f"filter{sensors}, {what}", *extra]
     set_title(fig, lines)
 
 
@@ -76,6 +80,7 @@ def monte_carlo_figure(result: dict[str, Any]) -> Figure:
                        label="5 % / 95 % quantiles")
         ax.set_xlabel(label(f"{name} RMSE", unit))
         ax.set_ylabel("runs [count]")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts: whole runs
         ax.grid(True, alpha=0.3)
 
         env = envelope["states"][name]
@@ -87,8 +92,9 @@ def monte_carlo_figure(result: dict[str, Any]) -> Figure:
                                             (late, "second half"))):
             ax = fig.add_subplot(grid[1 + row, i])
             ax.fill_between(t[mask], q05[mask], q95[mask], color="C1", alpha=0.3, lw=0,
-                            label="error, 5-95 % of runs")
-            ax.plot(t[mask], q50[mask], color="C1", lw=1.2, label="error, median")
+                            label="error (estimate − truth), 5-95 % of runs")
+            ax.plot(t[mask], q50[mask], color="C1", lw=1.2,
+                    label="error (estimate − truth), median")
             if sigma is not None:
                 ax.plot(t[mask], sigma[mask], color="0.25", lw=1.0, ls="--",
                         label="filter's ±3σ (mean over runs)")

@@ -1,8 +1,9 @@
 """Rerun ``.rrd`` export of runs: time series, estimation errors and the rig in 3D.
 
 One file per call, written atomically (:func:`testbed.io.atomic_path`) and never
-containing NaN. Open it with ``rerun FILE.rrd`` (a desktop) or ``rerun --web-viewer
-FILE.rrd`` (a headless machine: prints the URL to open in a browser). The same layout is
+containing NaN. Open it with ``testbed view FILE.rrd`` (a desktop) or ``testbed view
+FILE.rrd --web`` (a headless machine: prints the URL to open in a browser;
+:mod:`testbed.outputs.view`). The same layout is
 streamed live by :mod:`testbed.outputs.live`.
 
 Entity layout of one run (every temporal entity is on the ``time`` timeline, a duration in
@@ -31,9 +32,19 @@ lines show through), setpoint green, the error in the estimate's colour between 
 Layout (blueprint, stored in the file): the 3D rig on the left, framed by a camera
 computed from the MJCF geometry (:func:`testbed.outputs.viz_rig.rig_camera`), with the
 description below it; on the right a grid with, per state, a view of truth, estimate,
-its measurements and its setpoint, and a view of the error whose default range fits the steady state
-(:func:`testbed.outputs.axes.steady_state_limit`; zoom out for the transient); then other
-measurements and the actions. Every time axis spans exactly the data's time range.
+its measurements and its setpoint, and a view of the error (estimate - truth) whose default
+range fits the steady state and its 3-sigma band, rounded up to 1, 2, 2.5 or 5 x 10^k
+(:func:`testbed.outputs.axes.steady_state_limit`, :func:`~testbed.outputs.axes.nice_limit`;
+zoom out for the transient); then other measurements and the actions. Every view names
+its unit (``[-]``: none); every time axis spans exactly the data's time range. Each legend
+sits in the corner where it covers the fewest samples (:func:`testbed.outputs.axes.legend_corner`);
+where every corner would cover more than 2 % of them, a view gets headroom above its data
+for a small legend (two entries, e.g. the actions), and hides a larger one or that of an
+error view (fixed range) (:func:`place_legend`).
+
+The setpoint is logged as the reference in force over each control interval: the last
+row, which holds the NEXT setpoint when the run ends on a switching time, repeats the one
+before (:func:`testbed.outputs.axes.held_setpoint`), so no sample lies past the run's end.
 
 Units: every series is logged in the unit the rig declares (``traj.meta["units"]``), with
 angles (rad, rad/s) converted to degrees unless ``degrees=False`` (:mod:`testbed.outputs.units`).
@@ -62,7 +73,15 @@ import numpy as np
 
 from testbed.experiment.trajectory import Trajectory
 from testbed.io import atomic_path
-from testbed.outputs.axes import steady_state_limit
+from testbed.outputs.axes import (
+    CORNERS,
+    ERROR_AXIS_MARGIN,
+    held_setpoint,
+    legend_corner,
+    legend_height,
+    nice_limit,
+    steady_state_limit,
+)
 from testbed.outputs.names import entity_parts
 from testbed.outputs.units import display
 from testbed.outputs.viz_rig import (
@@ -115,7 +134,43 @@ def _with_unit(text: str, unit: str) -> str:
     return f"{text} [{unit}]" if unit else text
 
 
+def panel_name(name: str, units: Sequence[str]) -> str:
+    """A view's name with the units of its series: ``"yaw [deg]"``, ``"actions [V, N]"``;
+    ``[-]`` when they have none (dimensionless, or ``"1"``)."""
+    shown = sorted({u for u in units if u and u != "1"})
+    return f"{name} [{', '.join(shown) or '-'}]"
+
+
 # ------------------------------------------------------------------------ time series
+@dataclass(frozen=True)
+class Legend:
+    """Where a view's legend goes: a corner (None: hidden) and, when the view was given
+    headroom for it, the view's value range."""
+
+    corner: str | None
+    y_range: tuple[float, float] | None = None
+
+
+def place_legend(t_s: np.ndarray, values: Sequence[np.ndarray], entries: int,
+                 y_range: tuple[float, float] | None = None, *, fixed: bool = False) -> Legend:
+    """Where the legend of a view plotting ``values`` over ``t_s`` goes.
+
+    The corner covering the fewest samples (:func:`testbed.outputs.axes.legend_corner`);
+    when every corner covers data: at the top right of a value range with headroom above
+    the data if the legend is small (the data keep at least half of the view's height),
+    else hidden, and always hidden when the view's range is ``fixed`` (an error view).
+    """
+    corner = legend_corner(t_s, list(values), entries, y_range)
+    h = legend_height(entries) + 0.05
+    if corner is not None or fixed or not len(values) or h > 0.5:
+        return Legend(corner)
+    data = np.concatenate([np.asarray(v, dtype=float) for v in values])
+    data = data[np.isfinite(data)]
+    lo, hi = (float(data.min()), float(data.max())) if data.size else (0.0, 1.0)
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    return Legend("RightTop", (lo - 0.02 * span, hi + span * h / (1.0 - h)))
+
+
 @dataclass
 class Layout:
     """Entity paths, names and styles of one run's series (from its names and units).
@@ -193,7 +248,8 @@ class Layout:
             out.append((f"{p}state/{part}/estimate",
                         lines(_with_unit("estimate", unit), ESTIMATE_COLOR, ESTIMATE_WIDTH)))
             out.append((f"{p}error/{part}/value",
-                        lines(_with_unit("error", unit), ESTIMATE_COLOR, ESTIMATE_WIDTH)))
+                        lines(_with_unit("error = estimate − truth", unit), ESTIMATE_COLOR,
+                              ESTIMATE_WIDTH)))
             if self.has_covariance:
                 for side in ("plus", "minus"):  # one legend entry: same name for both
                     out.append((f"{p}error/{part}/{side}_3sigma",
@@ -239,14 +295,17 @@ class Layout:
         for k, part in enumerate(self.action):
             out.append((f"{p}action/{part}", traj.action[:, k]))
         if self.has_setpoint and traj.setpoint is not None:
+            held = held_setpoint(traj.setpoint)  # no reference past the run's end
             for r, part in enumerate(self.setpoint):
                 i = self.setpoint_state[r]
                 factor = self.state_scale[i][0] if i is not None else 1.0
-                out.append((f"{p}setpoint/{part}", factor * traj.setpoint[:, r]))
+                out.append((f"{p}setpoint/{part}", factor * held[:, r]))
         return out
 
     def error_limits(self, traj: Trajectory) -> list[float | None]:
-        """Per state, the steady-state half-range of its error view (display units)."""
+        """Per state, the half-range of its error view (display units): the steady-state
+        error and 3-sigma band (:func:`testbed.outputs.axes.steady_state_limit`) rounded up
+        to 1, 2, 2.5 or 5 times a power of ten (:func:`testbed.outputs.axes.nice_limit`)."""
         if not self.has_estimate:
             return [None] * len(self.state)
         std = traj.std()
@@ -255,66 +314,112 @@ class Layout:
             factor = self.state_scale[i][0]
             bound = None if std is None else 3.0 * factor * std[:, i]
             error = factor * (traj.estimate[:, i] - traj.state[:, i])
-            out.append(steady_state_limit(traj.t_s, error, bound))
+            out.append(nice_limit(steady_state_limit(traj.t_s, error, bound)))
         return out
 
     # -- blueprint
+    def panels(self) -> list[tuple[str, list[str], list[str], int | None]]:
+        """The time-series views: (name with its unit, contents, the series entities in
+        it, the state of an error view or None), per state its values and its error, then
+        the other signals and the actions."""
+        p = self.prefix
+        out: list[tuple[str, list[str], list[str], int | None]] = []
+        for i, (name, part) in enumerate(zip(self.state_names, self.state, strict=True)):
+            unit = self.state_scale[i][1]
+            meas = [f"{p}measurement/{m}"
+                    for m, s in zip(self.measurement, self.meas_state, strict=True) if s == i]
+            sps = [f"{p}setpoint/{sp}"
+                   for sp, s in zip(self.setpoint, self.setpoint_state, strict=True)
+                   if s == i and self.has_setpoint]
+            series = [f"{p}state/{part}/actual"]
+            if self.has_estimate:
+                series.append(f"{p}state/{part}/estimate")
+            out.append((panel_name(name, [unit]), [f"{p}state/{part}/**", *meas, *sps],
+                        series + meas + sps, None))
+            if self.has_estimate:
+                errs = [f"{p}error/{part}/value"]
+                if self.has_covariance:
+                    errs += [f"{p}error/{part}/plus_3sigma", f"{p}error/{part}/minus_3sigma"]
+                out.append((panel_name(f"{name} error", [unit]),
+                            [f"{p}error/{part}/**"], errs, i))
+        other, units = [], []
+        for m, s, scale in zip(self.measurement, self.meas_state, self.meas_scale, strict=True):
+            if s is None:
+                other.append(f"{p}measurement/{m}")
+                units.append(scale[1])
+        if self.has_setpoint:
+            for sp, s in zip(self.setpoint, self.setpoint_state, strict=True):
+                if s is None:
+                    other.append(f"{p}setpoint/{sp}")
+                    units.append("")
+        if other:
+            out.append((panel_name("other signals", units), other, other, None))
+        if self.action:
+            out.append((panel_name("actions", self.action_units), [f"{p}action/**"],
+                        [f"{p}action/{a}" for a in self.action], None))
+        return out
+
+    def legends(self, traj: Trajectory, error_limits: Sequence[float | None] | None = None
+                ) -> dict[str, Legend]:
+        """Per view name, where its legend goes (:class:`Legend`), from the data of ``traj``.
+
+        The corner that hides the fewest samples; where every corner would hide data, room
+        above the data for a small legend, else none (:func:`place_legend`): an error
+        view's name says what it shows (grey lines: the 3-sigma band).
+        """
+        columns = dict(self.columns(traj))
+        t = np.asarray(traj.t_s, dtype=float)
+        out: dict[str, Legend] = {}
+        for name, _, series, state in self.panels():
+            values = [columns[e] for e in series if e in columns]
+            lim = None if (state is None or error_limits is None) else error_limits[state]
+            entries = len({self._legend_name(e) for e in series})
+            y_range = None if lim is None else (-ERROR_AXIS_MARGIN * lim, ERROR_AXIS_MARGIN * lim)
+            out[name] = place_legend(t, values, entries, y_range, fixed=state is not None)
+        return out
+
+    @staticmethod
+    def _legend_name(entity: str) -> str:
+        return entity.replace("plus_3sigma", "3sigma").replace("minus_3sigma", "3sigma")
+
     def views(self, time_range_s: tuple[float, float] | None,
-              error_limits: Sequence[float | None] | None = None) -> list[rrb.View]:
-        """Time-series views: per state its values and its error, then the others."""
+              error_limits: Sequence[float | None] | None = None,
+              legends: dict[str, Legend] | None = None) -> list[rrb.View]:
+        """Time-series views (:meth:`panels`): axis ranges and legends (default: bottom
+        right, visible; :meth:`legends`)."""
         import rerun as rr
         import rerun.blueprint as rrb
 
-        p = f"/{self.prefix}"
         axis_x = None
         if time_range_s is not None:
             axis_x = rrb.TimeAxis(link="Independent", zoom_lock=False, view_range=rr.TimeRange(
                 start=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[0])),
                 end=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[1]))))
-        legend = rrb.PlotLegend(corner="RightBottom", visible=True)
-
-        def series_view(contents: list[str], name: str, axis_y: Any = None) -> rrb.View:
-            return rrb.TimeSeriesView(origin="/", contents=contents, name=name,
-                                      axis_x=axis_x, axis_y=axis_y, plot_legend=legend)
-
+        legends = legends or {}
         views = []
-        for i, (name, part) in enumerate(zip(self.state_names, self.state, strict=True)):
-            unit = self.state_scale[i][1]
-            contents = [f"{p}state/{part}/**"]
-            contents += [f"{p}measurement/{m}"
-                         for m, s in zip(self.measurement, self.meas_state, strict=True)
-                         if s == i]
-            contents += [f"{p}setpoint/{sp}"
-                         for sp, s in zip(self.setpoint, self.setpoint_state, strict=True)
-                         if s == i and self.has_setpoint]
-            views.append(series_view(contents, _with_unit(name, unit)))
-            if self.has_estimate:
-                lim = None if error_limits is None else error_limits[i]
-                axis_y = None if lim is None else rrb.ScalarAxis(range=(-lim, lim),
-                                                                  zoom_lock=False)
-                views.append(series_view([f"{p}error/{part}/**"],
-                                         _with_unit(f"{name} error", unit), axis_y))
-        other = [f"{p}measurement/{m}"
-                 for m, s in zip(self.measurement, self.meas_state, strict=True) if s is None]
-        if self.has_setpoint:
-            other += [f"{p}setpoint/{sp}"
-                      for sp, s in zip(self.setpoint, self.setpoint_state, strict=True)
-                      if s is None]
-        if other:
-            views.append(series_view(other, "other signals"))
-        if self.action:
-            units = sorted({u for u in self.action_units if u})
-            views.append(series_view([f"{p}action/**"], _with_unit("actions", ", ".join(units))))
+        for name, contents, _, state in self.panels():
+            place = legends.get(name, Legend(CORNERS[0]))
+            legend = rrb.PlotLegend(corner=place.corner or CORNERS[0],
+                                    visible=place.corner is not None)
+            y_range = place.y_range
+            lim = None if (state is None or error_limits is None) else error_limits[state]
+            if lim is not None:  # the round limit is a labelled tick inside the view
+                y_range = (-ERROR_AXIS_MARGIN * lim, ERROR_AXIS_MARGIN * lim)
+            axis_y = None if y_range is None else rrb.ScalarAxis(range=y_range, zoom_lock=False)
+            views.append(rrb.TimeSeriesView(origin="/", contents=[f"/{c}" for c in contents],
+                                            name=name, axis_x=axis_x, axis_y=axis_y,
+                                            plot_legend=legend))
         return views
 
     def container(self, *, camera: tuple[np.ndarray, np.ndarray] | None, with_rig: bool,
                   with_about: bool, time_range_s: tuple[float, float] | None,
                   error_limits: Sequence[float | None] | None = None,
+                  legends: dict[str, Legend] | None = None,
                   name: str | None = None) -> rrb.Container:
         """The run's layout: rig and description on the left, the series grid right."""
         import rerun.blueprint as rrb
 
-        grid = rrb.Grid(*self.views(time_range_s, error_limits),
+        grid = rrb.Grid(*self.views(time_range_s, error_limits, legends),
                         grid_columns=2 if self.has_estimate else 1)
         left = []
         if with_rig:
@@ -409,10 +514,11 @@ def blueprint_for(runs: Sequence[Run], layouts: Sequence[Layout],
     containers = []
     for run, layout, rig in zip(runs, layouts, with_rig, strict=True):
         t = run.traj.t_s
+        limits = layout.error_limits(run.traj)
         containers.append(layout.container(
             camera=rig_camera(run.model) if rig else None, with_rig=rig,
             with_about=bool(run.description), time_range_s=(float(t[0]), float(t[-1])),
-            error_limits=layout.error_limits(run.traj),
+            error_limits=limits, legends=layout.legends(run.traj, limits),
             name=(run.prefix.strip("/") or None) if len(runs) > 1 else None))
     root = containers[0] if len(containers) == 1 else rrb.Tabs(*containers, active_tab=0)
     return rrb.Blueprint(root, rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)

@@ -7,7 +7,14 @@ the paper's value, ours and a verdict computed from our numbers (never typed in)
 - into the JSON result (``result["claims"]``, via :func:`claims_json`),
 - onto the figure (:func:`draw_claims`: a block under the panels, verdicts coloured),
 - into the printed summary (:func:`format_claims`, printed by ``testbed reproduce``),
-- into ``docs/reproductions.md`` (:func:`agree_text` for the "agree" column).
+- into ``docs/reproductions.md`` (:func:`claims_table`: one table row per claim, and
+  :func:`agree_text` in the index).
+
+**Sections.** Each reproduction module gives its paper (:class:`Paper`: authors, year,
+where in the paper, the example) and ``why(result)``: a short paragraph, computed from the
+result, on what the claims do not say (causes, corrections, what limits the check). No
+prose restates the claims' numbers; :func:`section` assembles the section of
+``docs/reproductions.md`` (heading, paper, claims table, why, figure).
 
 **Runs.** :func:`write_outputs` writes the JSON, the PNG and the ``.rrd``; the Rerun file
 holds every run the reproduction wants to show (e.g. noise-free and noisy), each under its
@@ -60,6 +67,99 @@ class Claim:
     def judge(agrees: bool) -> str:
         """``"agrees"`` or ``"differs"``."""
         return "agrees" if agrees else "differs"
+
+
+@dataclass(frozen=True)
+class Paper:
+    """The paper a reproduction checks.
+
+    Attributes
+    ----------
+    authors : str
+        ``"Basin, Elvira-Ceja & Sanchez"``.
+    year : str
+        ``"2018"`` or ``"n.d."``.
+    where : str
+        Where the example is in the paper (``"Section IV"``, ``"Example 5.2"``).
+    example : str
+        What the example is, short (the section's heading).
+    """
+
+    authors: str
+    year: str
+    where: str
+    example: str
+
+    @property
+    def citation(self) -> str:
+        """``authors (year), where``."""
+        return f"{self.authors} ({self.year}), {self.where}"
+
+
+def _cell(text: str) -> str:
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def claims_table(claims: Sequence[Claim | dict[str, str]]) -> list[str]:
+    """The claims as a Markdown table (claim, paper, ours, verdict), one row per claim,
+    then their notes (``why``) as a numbered list referenced from the verdict cell."""
+    claims = _as_claims(claims)
+    lines = ["| claim | paper | ours | verdict |", "|---|---|---|---|"]
+    notes = []
+    for c in claims:
+        verdict = f"**{c.verdict}**" if c.verdict == "differs" else c.verdict
+        if c.why:
+            notes.append(c.why)
+            verdict += f" ({len(notes)})"
+        lines.append("| " + " | ".join(_cell(x) for x in (c.claim, c.paper, c.ours, verdict))
+                     + " |")
+    if notes:
+        lines += ["", "Notes: " + " ".join(f"({i}) {_cell(n)}{'' if n.endswith('.') else '.'}"
+                                           for i, n in enumerate(notes, 1))]
+    return lines
+
+
+def section(name: str, paper: Paper, claims: Sequence[Claim | dict[str, str]], why: str,
+            figure: str | None = None, width: int = 100) -> str:
+    """The section of ``docs/reproductions.md`` for one reproduction (Markdown).
+
+    Parameters
+    ----------
+    name : str
+        The reproduction's name (``testbed reproduce NAME``).
+    paper : Paper
+    claims : sequence of Claim
+    why : str
+        The module's ``why(result)`` paragraph.
+    figure : str, optional
+        Path of its figure relative to the document.
+    width : int
+        Prose is wrapped to this many characters (table rows are one line each).
+    """
+    import re
+    import textwrap
+
+    def fill(text: str) -> str:  # no wrapped line may read as a list, quote or heading
+        out: list[str] = []
+        for line in textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
+                                  break_long_words=False):
+            while out and re.match(r"([-+*>#=|]|\d+[.)])(\s|$)", line) and " " in out[-1]:
+                head, last = out[-1].rsplit(" ", 1)  # carry words down instead
+                out[-1], line = head, f"{last} {line}"
+            out.append(line)
+        return "\n".join(out)
+
+    verdict = textwrap.wrap(f"- Verdict: {agree_text(claims)}.", width, subsequent_indent="  ",
+                            break_on_hyphens=False, break_long_words=False)
+    lines = [f"## {paper.example}", "", f"- Paper: {paper.citation}",
+             f"- Run: `testbed reproduce {name}`", *verdict, "", *claims_table(claims), ""]
+    notes = [i for i, line in enumerate(lines) if line.startswith("Notes: ")]
+    for i in notes:  # the notes are prose: wrapped
+        lines[i] = fill(lines[i])
+    lines += [fill(f"**Why.** {why}"), ""]
+    if figure:
+        lines += [f"![{paper.example}: figure of `{name}`]({figure})", ""]
+    return "\n".join(lines)
 
 
 def claims_json(claims: Sequence[Claim]) -> list[dict[str, str]]:

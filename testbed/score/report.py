@@ -686,6 +686,10 @@ def _part(name: str) -> str:
     return re.sub(r"[^\w.\-]+", "_", str(name)).strip("_") or "unnamed"
 
 
+def _unit_name(name: str, unit: str) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
 def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
     """Run 0 of every scenario: the truth once and every estimator under its own path.
 
@@ -696,12 +700,21 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
         <scenario>/error/<estimator>/<state>     estimate - truth
 
     The blueprint has one tab per scenario with, per state, a view overlaying the truth and
-    every estimate, and a view of every estimator's error.
+    every estimate, and a view of every estimator's error (estimate - truth) on a round
+    symmetric range fitted to the steady state; every view names its unit, spans the run's
+    time and puts its legend where it hides no data (else hides it), as the run recordings
+    do (:mod:`testbed.outputs.viz`).
     """
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from testbed.outputs.viz import TIMELINE
+    from testbed.outputs.axes import (
+        CORNERS,
+        ERROR_AXIS_MARGIN,
+        nice_limit,
+        steady_state_limit,
+    )
+    from testbed.outputs.viz import TIMELINE, panel_name, place_legend
 
     rec = rr.RecordingStream("testbed-score")
     if not rec.is_enabled():
@@ -716,30 +729,43 @@ def write_rrd(path: str | os.PathLike, run: ScoreRun) -> Path:
             continue
         scen = _part(entry.name)
         first = done[0][1]
+        t = np.asarray(first.trajectory["t_s"], dtype=float)
+        axis_x = rrb.TimeAxis(link="Independent", zoom_lock=False, view_range=rr.TimeRange(
+            start=rrb.TimeRangeBoundary.absolute(seconds=float(t[0])),
+            end=rrb.TimeRangeBoundary.absolute(seconds=float(t[-1]))))
         views = []
         for i, state in enumerate(first.state_names):
             factor, unit = display(first.units.get(state, ""))
-            views.append(rrb.TimeSeriesView(
-                origin=f"/{scen}", name=f"{state} [{unit}]" if unit else state,
-                contents=[f"/{scen}/truth/{_part(state)}",
-                          *(f"/{scen}/estimate/{_part(n)}/{_part(state)}" for n, _ in done)]))
-            views.append(rrb.TimeSeriesView(
-                origin=f"/{scen}/error", name=f"{state} error",
-                contents=[f"/{scen}/error/{_part(n)}/{_part(state)}" for n, _ in done]))
-            t = first.trajectory["t_s"]
-            payload.append((f"{scen}/truth/{_part(state)}", t,
-                            factor * first.trajectory["state"][:, i],
-                            rr.SeriesLines(names=[f"{state} truth"], colors=[(220, 220, 220)],
-                                           widths=[2.0])))
+            truth = factor * first.trajectory["state"][:, i]
+            values = [(f"{scen}/truth/{_part(state)}", truth,
+                       rr.SeriesLines(names=[_unit_name(f"{state} truth", unit)],
+                                      colors=[(128, 128, 128)], widths=[2.5]))]
+            errors = []
             for j, (n, pair) in enumerate(done):
                 color = palette[j % len(palette)]
-                est = pair.trajectory["estimate"][:, i]
-                payload.append((f"{scen}/estimate/{_part(n)}/{_part(state)}", t, factor * est,
-                                rr.SeriesLines(names=[f"{n}"], colors=[color], widths=[1.5])))
-                payload.append((f"{scen}/error/{_part(n)}/{_part(state)}", t,
-                                factor * (est - pair.trajectory["state"][:, i]),
-                                rr.SeriesLines(names=[f"{n} error"], colors=[color],
-                                               widths=[1.5])))
+                est = factor * pair.trajectory["estimate"][:, i]
+                values.append((f"{scen}/estimate/{_part(n)}/{_part(state)}", est,
+                               rr.SeriesLines(names=[_unit_name(n, unit)], colors=[color],
+                                              widths=[1.5])))
+                errors.append((f"{scen}/error/{_part(n)}/{_part(state)}",
+                               est - factor * pair.trajectory["state"][:, i],
+                               rr.SeriesLines(names=[_unit_name(f"{n}: estimate − truth", unit)],
+                                              colors=[color], widths=[1.5])))
+            lim = ERROR_AXIS_MARGIN * nice_limit(max(steady_state_limit(t, e)
+                                                     for _, e, _ in errors))
+            for contents, y_range, name in ((values, None, state),
+                                            (errors, (-lim, lim), f"{state} error")):
+                place = place_legend(t, [v for _, v, _ in contents], len(contents), y_range,
+                                     fixed=y_range is not None)
+                y_range = y_range or place.y_range
+                views.append(rrb.TimeSeriesView(
+                    origin=f"/{scen}", name=panel_name(name, [unit]),
+                    contents=[f"/{e}" for e, _, _ in contents], axis_x=axis_x,
+                    axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range,
+                                                                       zoom_lock=False),
+                    plot_legend=rrb.PlotLegend(corner=place.corner or CORNERS[0],
+                                               visible=place.corner is not None)))
+            payload += [(e, t, v, style) for e, v, style in values + errors]
         tabs.append(rrb.Grid(*views, grid_columns=2, name=entry.name))
     if not payload:
         raise ValueError("nothing to record: every estimator was skipped on every scenario")

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from testbed.cli import main
 from testbed.outputs.viz import rrd_summary
@@ -83,6 +84,17 @@ def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
     entities = rrd_summary(out / "s.rrd")
     assert any("calibration/truth/position" in k for k in entities)
     assert any("calibration/estimate/fixed_gain_make/velocity" in k for k in entities)
+    from testbed.outputs.rrd_inspect import inspect_rrd
+
+    c = inspect_rrd(out / "s.rrd")  # every panel names its unit; errors on a round range
+    assert c.views and all(v.name.endswith("]") for v in c.views)
+    assert {"position [m]", "position error [m]"} <= {v.name for v in c.views}
+    err = next(v for v in c.views if v.name == "position error [m]")
+    assert err.y_range[0] == -err.y_range[1] and err.y_range[1] > 0
+    assert err.time_range_s == pytest.approx(c.time_range_s)
+    assert all(v.legend_visible is not None for v in c.views)
+    assert c.styles["calibration/error/kalman/position"]["names"] == [
+        "kalman: estimate − truth [m]"]
     printed = capsys.readouterr().out
     assert "calibration (3 runs)" in printed and "worst-case search" in printed
 

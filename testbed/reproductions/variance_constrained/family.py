@@ -328,28 +328,6 @@ def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
     }
 
 
-def search_text(summary: dict[str, Any] | None, record: dict[str, Any], *,
-                names: tuple[str, str], region: str, margin: str) -> str:
-    """The sentence of ``row()`` on the design search."""
-    n_opt = len(record["candidates"]) - 1  # candidate 0: the printed parameters as they are
-    if summary is None:
-        return (f"Design search ({n_opt} Nelder-Mead starts, {record['evaluations']} "
-                "evaluations): no candidate passed the verification")
-    prm = summary["parameters"]
-    keys = [k for k in prm if k.startswith(("eps", "delta"))]
-    H = np.array(prm["H"]).ravel()
-    return (f"Design search ({n_opt} Nelder-Mead starts from the printed values and random "
-            f"points, {record['evaluations']} evaluations): {summary['n_certified']} of "
-            f"{n_opt} optima certified by the theorem (diag {names[1]} <= sigma^2) and "
-            f"{summary['n_verified']} verified; best "
-            + ", ".join(f"{k} = {prm[k]:.3g}" for k in keys)
-            + f", H = [{', '.join(f'{h:.3g}' for h in H)}]^T, U = {prm['U'][0][0]:g}: diag "
-            f"{names[1]} = {_fmt(summary['diag_Q2'])}, K = {_fmt(np.ravel(summary['K']))}; "
-            f"verified for all |F| <= 1: worst ||H||inf = {summary['hinf_worst']:.3g}, worst "
-            f"variances {_fmt(summary['variance_worst'])}, poles {region} with margin "
-            f"{summary['pole_margin_worst']:.3g} ({margin})")
-
-
 def _fmt(v: Any) -> str:
     return "[" + ", ".join(f"{float(x):.3g}" for x in v) + "]"
 
@@ -447,7 +425,7 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
     ax[1, 1].set(title=f"estimation error, one {ENV_ID} episode: {sample['filter']}, "
                        f"F = {sample['F']:g}",
                  xlabel="k [samples]" if discrete else "t [s]",
-                 ylabel="e = x - xhat (dimensionless)")
+                 ylabel="e = x - xhat, dimensionless\n(the paper's: truth - estimate)")
     if extra is not None:
         extra(ax)
     for a_ in ax.ravel():

@@ -65,7 +65,7 @@ from filters.variance_continuous import (
 )
 from testbed.reproductions.outputs import (
     Claim,
-    agree_text,
+    Paper,
     claims_json,
     write_outputs,
 )
@@ -85,13 +85,14 @@ from testbed.reproductions.variance_constrained.family import (
     monte_carlo_block,
     plot_figure,
     search_summary,
-    search_text,
 )
 from testbed.reproductions.variance_constrained.scenario_wang import (
     VarianceConstrainedContinuousScenario,
 )
 
 NAME = "wang-variance-constrained-parabolic"
+PAPER = Paper("Wang & Fang", "2006", "Section IV",
+              "Variance-constrained filter with parabolic pole region")
 #: Sample period of the Monte-Carlo runs, s.
 DT_S = 0.005
 #: Default simulated time per run, s, and Monte-Carlo runs per (filter, F).
@@ -318,8 +319,8 @@ def _plot(result: dict[str, Any], s: VarianceConstrainedContinuousScenario,
     branch = result["design_diagnostics"]["equation17_branch"]["gamma_reached"]
     found = result["searched"] is not None
     plot_figure(result, plant, s.region, s.gamma, s.sigma2, sample, discrete=False,
-                title=["Wang & Fang (2006), example: printed filters and the searched Theorem 1 "
-                       "design, checked for all |F| <= 1",
+                title=[f"{PAPER.authors} ({PAPER.year}): printed filters and the searched "
+                       "Theorem 1 design, checked for all |F| <= 1",
                        f"Printed eps: (17)'s branch ends at gamma = {branch:.3g} > "
                        f"{s.gamma:g}; design search: "
                        f"{'verified design found' if found else 'nothing verified'}"],
@@ -408,68 +409,18 @@ def claims(result: dict[str, Any]) -> list[Claim]:
     })
 
 
-def row(result: dict[str, Any]) -> dict[str, str]:
-    """The line of ``docs/reproductions.md`` for this reproduction."""
-    p = result["parameters"]
-    d = result["design"]["U=1"]
-    pubs = result["published"]
-    diag = result["design_diagnostics"]
-    search = result["design_search"]
+def why(result: dict[str, Any]) -> str:
+    """What the claims do not say (``docs/reproductions.md``), from ``result``."""
     mc = result["monte_carlo"]
     worst_rel = max(abs(v) for m in mc for v in m["relative_to_lyapunov"])
     worst_z = max(abs(v) for m in mc for v in m["z_vs_sampled"])
-    pub_txt = "; ".join(
-        f"{pub['name']}: max ||H||inf = {pub['hinf_worst']:.4f}, max var = "
-        f"{_fmt(pub['variance_worst'])}, poles in P: {pub['poles_in_region']}"
-        for pub in pubs)
-    branch = diag["equation17_branch"]["gamma_reached"]
-    if d["solved"]:
-        design_txt = (f"Printed parameters: (16), (17) solved, diag Q2 = "
-                      f"{_fmt(np.diag(np.array(d['Q2'])))}")
-    else:
-        q1 = _fmt(np.diag(np.array(d["Q1"]))) if d["Q1"] else "-"
-        design_txt = (f"Printed parameters: (16) solved (least Q1, diag {q1}, residual "
-                      f"{d['residual_16']:.1e}); (17) has no positive definite solution at "
-                      f"gamma = {p['gamma']:g}: its stabilizing branch, continued from "
-                      f"gamma = inf, ends at gamma = {branch:.3g}")
-        if diag["multistart_residual_17"] is not None:
-            design_txt += (f", and a multi-start local search finds none (smallest residual "
-                           f"{diag['multistart_residual_17']:.3f})")
-    search_txt = search_text(search["summary"], search, names=("Q1", "Q2"),
-                             region=f"in P({p['a']:g}, {p['b']:g})",
-                             margin="min over F of -(2/b)(Re + a) - Im^2")
-    mc_search = [m for m in mc if m["filter"] == SEARCHED]
-    if mc_search:
-        search_txt += ("; Monte Carlo of that filter: variances "
-                       + ", ".join(f"{_fmt(m['variance_mc'])} at F = {m['F']:g}"
-                                   for m in mc_search))
-    checks = result["paper_checks"]
-    best = (search["summary"] or {}).get("parameters")
-    why = (f"With the printed eps the stabilizing branch of (17) folds at gamma = "
-           f"{branch:.3g} (resolution about 1e-3); with H = 0 it folds at "
-           f"{diag['equation17_branch_H0']['gamma_reached']:.3g}, and H enters (17) only "
-           "through the positive term H H^T, so no H reaches the printed gamma at these eps. "
-           "That is a statement about the printed eps only: Theorem 1 does give designs for "
-           "the example's specification")
-    if best is not None:
-        why += (f" at much smaller eps (best: eps1 = {best['eps1']:.3g}, eps2 = "
-                f"{best['eps2']:.3g})")
-    why += (f". The printed Q1 does not satisfy (16) (residual "
-           f"{checks['residual_16_at_printed_Q1']:.3f}) nor Q2 (17) (residual "
-           f"{checks['residual_17_at_printed_Q1_Q2']:.3f}), and the printed pair is not (18) "
-           f"with one H (K1 - K2 is {checks['angle_K1_minus_K2_to_H_deg']:.1f} deg off "
-           "H = E); the printed filters nevertheless meet the three requirements (Theorem 1 "
-           f"is only sufficient). Monte Carlo (exact plant sampling in {ENV_ID}, dt = "
-           f"{result['dt_s']:g} s) agrees with the Lyapunov variances within {worst_rel:.1%} "
-           f"and with the sampled loop's steady state within {worst_z:.1f} standard errors. "
-           "Misprints corrected: (11) C_hat, (14)/(17) M1 M1^T.")
-    return {
-        "paper": "Wang & Fang (2006), Section IV",
-        "claim": (f"(16), (17) solved with eps1 = eps2 = {p['eps1']:g}, delta = "
-                  f"{p['delta1']:g}, H = [0.1 0.1]^T; (K1, G1), (K2, G2) give poles in "
-                  f"P({p['a']:g}, {p['b']:g}), ||H||inf <= {p['gamma']:g} and var <= "
-                  f"{p['sigma2']} for all |F| <= 1"),
-        "ours": f"{design_txt}. {search_txt}. Printed filters: {pub_txt}",
-        "agree": agree_text(result["claims"]),
-        "why": why,
-    }
+    return (
+        "The stabilizing branch of (17) is continued from gamma = inf at the printed eps (with "
+        "and without H, second claim), and H enters (17) only through the positive term "
+        "H H^T, so no H reaches the printed gamma "
+        "at these eps. That is a statement about the printed eps only: Theorem 1 does give "
+        "designs for the example's specification at much smaller eps (design search). Monte "
+        f"Carlo (exact plant sampling in {ENV_ID}, dt = {result['dt_s']:g} s) agrees with the "
+        f"Lyapunov variances within {worst_rel:.1%} and with the sampled loop's steady state "
+        f"within {worst_z:.1f} standard errors. Misprints corrected: (11) C_hat, (14)/(17) "
+        "M1 M1^T.")

@@ -39,6 +39,7 @@ from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.outputs import (
     Claim,
+    Paper,
     agree_text,
     claims_height_in,
     claims_json,
@@ -49,6 +50,8 @@ from testbed.reproductions.zhang_lmi_hinf import plant
 from testbed.reproductions.zhang_lmi_hinf.scenario import NonlinearDiscreteScenario
 
 NAME = "zhang-nonlinear-discrete"
+PAPER = Paper("Zhang, Deng & Zhang", "2018", "Example 5.1",
+              "H-infinity filter for a nonlinear discrete system")
 #: The HJI (27) must hold for every v: it is sampled on [-HJI_V_MAX, HJI_V_MAX] (the paper's
 #: v_k lie in (0, 2]), on the scenario's state box and on a wider one.
 HJI_V_MAX = 10.0
@@ -230,8 +233,8 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     legend(ax)
     ax = fig.add_subplot(grid[0, 1])
     ax.plot(loop["t"], loop["z_err"], label="ztilde_k, in-the-loop run")
-    ax.set(title="Fig. 2: estimation error ztilde_k = z_k - zhat_k", xlabel=k_label,
-           ylabel="ztilde_k (dimensionless)")
+    ax.set(title="Fig. 2: estimation error ztilde_k", xlabel=k_label,
+           ylabel="ztilde_k = z_k - zhat_k\n(the paper's: truth - estimate)")
     legend(ax)
     ax = fig.add_subplot(grid[1, 0])
     k = np.arange(len(sum_z))
@@ -255,8 +258,8 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     ax.set(title="Corollary 3 (36), Q1 = Q2 = I, slice x1 = xhat1 = 0 (black: 0 contour)",
            xlabel="x2 (dimensionless)", ylabel="xhat2 (dimensionless)")
     draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
-    set_title(fig, ["Zhang, Deng & Zhang (2018), Example 5.1: nonlinear system (49), filter "
-                    f"(50); x0 = {result['x0']} and gamma = {gamma:g} are ours (not stated)",
+    set_title(fig, [f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: filter (50) for (49); "
+                    f"x0, gamma ours",
                     agree_text(result["claims"])])
     save_figure(fig, path)
 
@@ -295,42 +298,16 @@ def claims(result: dict[str, Any]) -> list[Claim]:
     ]
 
 
-def row(result: dict[str, Any]) -> dict[str, str]:
-    """The line of ``docs/reproductions.md`` for this reproduction."""
-    cor, pr, hji = result["corollary3"], result["corollary3_printed"], result["hji_27"]
-    wide, c26 = result["hji_27_wide"], result["condition_26"]
-    v0, v1 = hji["v_range"]
-    held = "holds" if result["inequality_holds"] else "fails"
-    return {
-        "paper": "Zhang, Deng & Zhang (2018), Example 5.1",
-        "claim": "(35)-(36) 'easily' hold with Q1 = Q2 = I, so (50) is an H-infinity filter; "
-                 "1000 runs: sum E ztilde^2 < gamma^2 sum v^2 (Fig. 3); x0, gamma not stated",
-        "ours": (f"x0 = {result['x0']}, gamma = {result['gamma']:g}, {result['runs']} runs, "
-                 f"{result['steps']} steps: sum E ztilde^2 = {result['sum_E_z2']:.4g} vs "
-                 f"gamma^2 sum v^2 = {result['gamma2_sum_v2']:.4g} ({held} at every k; "
-                 f"smallest gamma that works: {result['smallest_gamma_mc']:.3g}). Corollary 3 "
-                 f"on [-{cor['halfwidth']:g}, {cor['halfwidth']:g}]^4: max violation "
-                 f"{cor['max_violation']:.3g} ((36): {cor['max_36']:.3g} on "
-                 f"{cor['fraction_violated_36']:.1%} of the grid; as printed "
-                 f"{pr['max_violation']:.3g}); HJI (27) itself, v in [{v0:g}, {v1:g}]: max "
-                 f"{hji['max_violation']:.3g} on [-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4,"
-                 f" {wide['max_violation']:.3g} on [-{wide['halfwidth']:g}, "
-                 f"{wide['halfwidth']:g}]^4 ({wide['fraction_violated']:.1%} of that grid "
-                 f"violated); (26): |ztilde(eta, 0)|^2 = 0 on a {c26['null_space_dim']}-"
-                 "dimensional subspace"),
-        "agree": agree_text(result["claims"]),
-        "why": ("The Monte-Carlo inequality holds, but Corollary 3 does not certify (50): (36) is "
-                "violated even arbitrarily close to 0 (Hessian eigenvalue "
-                f"{cor['hessian_36_max_eig_at_0']:.3g} > 0), and the printed (35)-(36) also miss "
-                "the noise terms h2, f2 and have +xhat'Q2 xhat instead of -xhat'Q2 xhat. "
-                "Corollary 2 does not certify it either: the HJI (27) with V = |x|^2 + "
-                f"|xhat|^2 holds on [-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4 for "
-                f"gamma = {result['gamma']:g} (a grid check, v in [{v0:g}, {v1:g}]; the "
-                "paper's v_k are in (0, 2]) but not globally (violated on "
-                f"[-{wide['halfwidth']:g}, {wide['halfwidth']:g}]^4), and its condition (26) "
-                "cannot hold: ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2) vanishes for "
-                "eta != 0 (e.g. eta = [1, -1, 0, 0] / sqrt 2), so no positive W is below "
-                "|ztilde|^2. The HJI alone does not imply (26). The sums are dominated by "
-                "k = 0 (ztilde_0 = z_0 with xhat_0 = 0): smallest gamma "
-                f"{result['smallest_gamma_mc_after_k0']:.3g} without it."),
-    }
+def why(result: dict[str, Any]) -> str:
+    """What the claims do not say (``docs/reproductions.md``), from ``result``."""
+    hji, wide = result["hji_27"], result["hji_27_wide"]
+    return (
+        "The paper states neither x0 nor gamma (ours are in the first claim). The Monte-Carlo "
+        "inequality holds, but neither corollary "
+        "certifies (50). Corollary 3: (36) is violated arbitrarily close to 0, and the printed "
+        "(35)-(36) also miss the noise terms h2, f2 and have +xhat'Q2 xhat instead of "
+        "-xhat'Q2 xhat. Corollary 2: the HJI (27) with V = |x|^2 + |xhat|^2 holds on "
+        f"[-{hji['halfwidth']:g}, {hji['halfwidth']:g}]^4 (a grid check) but not on "
+        f"[-{wide['halfwidth']:g}, {wide['halfwidth']:g}]^4, and its condition (26) cannot "
+        "hold: ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2) vanishes for eta != 0, so no "
+        "positive W is below |ztilde|^2. The HJI alone does not imply (26).")

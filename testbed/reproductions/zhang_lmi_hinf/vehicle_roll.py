@@ -47,6 +47,7 @@ from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.outputs import (
     Claim,
+    Paper,
     agree_text,
     claims_height_in,
     claims_json,
@@ -67,6 +68,8 @@ from testbed.reproductions.zhang_lmi_hinf.scenario import (
 )
 
 NAME = "zhang-lmi-hinf-vehicle-roll"
+PAPER = Paper("Zhang, Deng & Zhang", "2018", "Example 5.2",
+              "LMI H-infinity filter for vehicle roll")
 CASES = ("x0_zero", "x0_paper")
 
 
@@ -466,8 +469,9 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     for label, c in (("printed Khat", curves["paper_K_hat"]), ("ours", curves["ours"]),
                      ("ours on the MuJoCo rig", curves["rig"])):
         ax.plot(k[:-1], c["x0_paper"]["sim"]["z_err"].mean(axis=0), label=label)
-    ax.set(title="Fig. 6: ztilde_k = x_k(1) - xhat_k(1), x0 = [0.1, 1] (mean of runs)",
-           xlabel=k_label, ylabel="ztilde_k [rad]")
+    ax.set(title="Fig. 6: ztilde_k, x0 = [0.1, 1] (mean of runs)",
+           xlabel=k_label, ylabel="ztilde_k = x_k(1) - xhat_k(1) [rad]\n(the paper's: truth - "
+           "estimate)")
     legend(ax, 3)
     for case, cell in zip(CASES, (grid[1, 1], grid[2, 0]), strict=True):
         ax = fig.add_subplot(cell)
@@ -493,47 +497,22 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
            ylabel="x_k [rad; rad/s]")
     legend(ax)
     draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=150)
-    set_title(fig, ["Zhang, Deng & Zhang (2018), Example 5.2: Theorem-4 H-infinity filter, "
+    set_title(fig, [f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: Theorem-4 filter, "
                     f"vehicle roll ({result['runs']} runs)", agree_text(result["claims"])])
     save_figure(fig, path)
 
 
-def row(result: dict[str, Any]) -> dict[str, str]:
-    """The line of ``docs/reproductions.md`` for this reproduction."""
-    p, rig = result["paper_K_hat"], result["rig"]
-
-    def yn(b: bool) -> str:
-        return "holds" if b else "fails"
-
-    def sums(e: dict[str, Any]) -> str:
-        z, v, h = e["sum_E_z2"], e["gamma2_sum_v2"], e["inequality_holds"]
-        return (f"at gamma = {e['gamma_used']:.3g}: sum E|ztilde|^2 = {z['x0_zero']:.3g} "
-                f"(x0 = 0) / {z['x0_paper']:.3g} (paper x0) vs gamma^2 sum v^2 = "
-                f"{v['x0_zero']:.3g}: {yn(h['x0_zero'])} / {yn(h['x0_paper'])}")
-
-    dec = result["exact_decoupling"]
-    mm = rig["model_mismatch"]
-    return {
-        "paper": "Zhang, Deng & Zhang (2018), Example 5.2",
-        "claim": "Theorem 4 gives the filter (53) (printed Khat); with x0 = [0.1, 1], 100 runs, "
-                 "sum E|ztilde|^2 <= gamma^2 sum |v|^2 at every k (Fig. 7); gamma not stated",
-        "ours": (f"(52): gamma_min = {result['gamma_min']:.3g} (bisection, rtol "
-                 f"{result['rtol']:g}, relative margin {result['margin']:g}), "
-                 f"{sums(result)}. Printed Khat: certified from gamma = {p['gamma_min']:.3g}, "
-                 f"{sums(p)} (the paper's x0 needs gamma >= "
-                 f"{p['gamma_needed']['x0_paper']:.3g}). MuJoCo rig (ZOH of the physics): "
-                 f"gamma_min = {rig['gamma_min']:.3g}, {sums(rig)}"),
-        "agree": agree_text(result["claims"]),
-        "why": ("(7) is proved for eta_0 = 0 (Lemma 2); with x0 = [0.1, 1] and xhat_0 = 0 the "
-                "initial error adds V(eta_0) = eta_0' P eta_0 (proof, (13)), which dwarfs the "
-                f"disturbance energy, so Fig. 7 cannot hold near the certified gamma; the bound "
-                f"(13) holds on the model. gamma_min is set by the margin: Khat can cancel v in "
-                f"ztilde = e1 exactly (row 0 of Khat, error pole {dec['error_pole']:.3f}), so "
-                f"the infimum is 0. The printed P1, P2, P_K satisfy (48) only for gamma > "
-                f"{p['printed_solution_gamma']:.4g}, and P2^-1 P_K differs from the printed "
-                f"Khat (cond P2 = {p['P2_condition']:.2g}). On the rig that cancellation is "
-                f"imperfect: MuJoCo's step differs from the ZOH model by "
-                f"{mm['A_max_rel']:.2%} (A) / {mm['B_max_rel']:.2%} (B), so tiny certified "
-                f"gammas do not transfer (x0 = 0 needs gamma = "
-                f"{rig['gamma_needed']['x0_zero']:.2g})."),
-    }
+def why(result: dict[str, Any]) -> str:
+    """What the claims do not say (``docs/reproductions.md``), from ``result``."""
+    rig = result["rig"]
+    dec, mm = result["exact_decoupling"], rig["model_mismatch"]
+    return (
+        "(7) is proved for eta_0 = 0 (Lemma 2); with x0 = [0.1, 1] and xhat_0 = 0 the initial "
+        "error adds V(eta_0) = eta_0' P eta_0 (proof, (13)), which dwarfs the disturbance "
+        "energy, so Fig. 7 cannot hold near a certified gamma. Our gamma_min is set by the "
+        "bisection's margin: Khat can cancel v in "
+        f"ztilde = e1 exactly (error pole {dec['error_pole']:.3f}), so the infimum is 0. On "
+        "the MuJoCo rig (ZOH of the physics) that cancellation is imperfect: its step differs "
+        f"from the ZOH model by {mm['A_max_rel']:.2%} (A) / {mm['B_max_rel']:.2%} (B), so "
+        f"tiny certified gammas do not transfer (x0 = 0 needs gamma = "
+        f"{rig['gamma_needed']['x0_zero']:.2g} there).")

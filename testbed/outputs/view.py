@@ -1,0 +1,180 @@
+"""``testbed view FILE.rrd [--web]``: open a recording in Rerun's viewer, leave nothing behind.
+
+The ``rerun`` console script of this environment is a launcher that starts the real viewer
+binary as a child process. :func:`view` therefore starts it in a process group of its own
+(a new session) and, when it returns for any reason (the viewer closed, Ctrl-C, SIGTERM,
+an error), terminates the whole group: first SIGTERM, then SIGKILL for what is left after
+:data:`GRACE_S` seconds. No viewer, web server or gRPC server outlives the command.
+
+- native (default): the desktop viewer opens the file (needs a display);
+- ``web=True``: for a headless machine. Rerun hosts its web viewer and a gRPC server that
+  serves the file, both bound to ``127.0.0.1`` only (reach them from another machine
+  through an SSH tunnel, e.g. ``ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876 HOST``);
+  the URL to open in a browser is printed once the web server answers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from urllib.parse import quote
+
+#: Default ports of the gRPC server and the web viewer (as for live viewing).
+GRPC_PORT, WEB_PORT = 9876, 9090
+#: Loopback only: the web viewer and its gRPC server are never bound to other interfaces.
+BIND = "127.0.0.1"
+#: Seconds between SIGTERM and SIGKILL of the viewer's process group.
+GRACE_S = 3.0
+#: Seconds to wait for the web server to answer before giving up.
+START_TIMEOUT_S = 30.0
+
+
+def rerun_executable() -> str:
+    """The ``rerun`` launcher of this Python environment (else the one on ``PATH``)."""
+    exe = Path(sys.executable).with_name("rerun")
+    return str(exe) if exe.exists() else "rerun"
+
+
+def web_url(web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT) -> str:
+    """The address of the web viewer showing the served file."""
+    proxy = f"rerun+http://{BIND}:{grpc_port}/proxy"
+    return f"http://{BIND}:{web_port}/?url={quote(proxy, safe='')}"
+
+
+def viewer_command(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PORT,
+                   web_port: int = WEB_PORT) -> list[str]:
+    """The command line that shows ``path`` (the native viewer, or the web viewer)."""
+    cmd = [rerun_executable()]
+    if web:
+        cmd += ["--web-viewer", "--bind", BIND, "--port", str(grpc_port),
+                "--web-viewer-port", str(web_port)]
+    return [*cmd, str(Path(path).resolve())]
+
+
+def _check(path: str | os.PathLike, ports: tuple[int, ...]) -> Path:
+    p = Path(path)
+    if p.suffix != ".rrd":
+        raise ValueError(f"testbed view expects a .rrd file, got {str(path)!r}")
+    if not p.is_file():
+        raise ValueError(f"no such recording: {str(path)!r}")
+    for port in ports:
+        if not (isinstance(port, int) and 0 < port < 65536):
+            raise ValueError(f"ports must be numbers 1-65535, got {port!r}")
+    return p
+
+
+def _answers(port: int) -> bool:
+    try:
+        with socket.create_connection((BIND, port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+def _group_gone(proc: subprocess.Popen, wait_s: float) -> bool:
+    deadline = time.monotonic() + wait_s
+    while True:
+        proc.poll()  # reap the leader: a zombie still counts as a member of its group
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+
+
+def stop_group(proc: subprocess.Popen, grace_s: float = GRACE_S) -> None:
+    """Terminate the process group led by ``proc`` (SIGTERM, then SIGKILL) and reap it."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:  # the group is gone
+            break
+        if _group_gone(proc, grace_s):
+            break
+    try:
+        proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:  # pragma: no cover - SIGKILL not delivered
+        pass
+
+
+def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PORT,
+         web_port: int = WEB_PORT, timeout_s: float | None = None,
+         echo: Callable[[str], None] = print) -> int:
+    """Show a recording until the viewer closes (or ``timeout_s``, or an interrupt).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A ``.rrd`` file.
+    web : bool
+        Host the web viewer on ``127.0.0.1:web_port`` (and the file on
+        ``127.0.0.1:grpc_port``) and print its URL instead of opening a window.
+    grpc_port, web_port : int
+    timeout_s : float, optional
+        Stop after this many seconds (tests, demos); default: until the viewer ends.
+    echo : callable
+        Where the URL and the messages go.
+
+    Returns
+    -------
+    int
+        The viewer's exit code (0 when stopped by ``timeout_s``).
+
+    Raises
+    ------
+    ValueError
+        Not an existing ``.rrd`` file, or a bad port.
+    OSError
+        The viewer could not start, or a port is taken.
+    """
+    p = _check(path, (grpc_port, web_port))
+    if web:
+        for port in (grpc_port, web_port):
+            if _answers(port):
+                raise OSError(f"port {port} on {BIND} is in use (choose another with "
+                              "--grpc-port / --web-port)")
+    proc = subprocess.Popen(viewer_command(p, web=web, grpc_port=grpc_port, web_port=web_port),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        if web:
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while not _answers(web_port):
+                if proc.poll() is not None:
+                    raise OSError(f"the Rerun viewer exited with code {proc.returncode} "
+                                  "before serving")
+                if time.monotonic() > deadline:
+                    raise OSError(f"the Rerun web viewer did not answer on port {web_port} "
+                                  f"within {START_TIMEOUT_S:g} s")
+                time.sleep(0.1)
+            echo(f"open {web_url(web_port, grpc_port)} in a browser (Ctrl-C stops the viewer)")
+        try:
+            return proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return 0
+    finally:
+        stop_group(proc)
+
+
+# ------------------------------------------------------------------ the CLI's hook
+def add_parser(sub) -> None:  # noqa: ANN001 - argparse's private subparsers type
+    """``testbed view`` on the CLI's subparsers."""
+    v = sub.add_parser("view", help="open a .rrd recording in Rerun's viewer (native or web)")
+    v.add_argument("file", help="a .rrd file written by testbed (--rrd, reproduce, score)")
+    v.add_argument("--web", action="store_true",
+                   help=f"host the web viewer on {BIND} and print its URL (headless machines)")
+    v.add_argument("--web-port", type=int, default=WEB_PORT)
+    v.add_argument("--grpc-port", type=int, default=GRPC_PORT)
+
+
+def cmd_view(args) -> int:  # noqa: ANN001 - argparse.Namespace
+    """``testbed view``: the viewer's exit code."""
+    return view(args.file, web=args.web, grpc_port=args.grpc_port, web_port=args.web_port)
