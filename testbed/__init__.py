@@ -19,6 +19,31 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
         and "mujoco" not in sys.modules:
     # headless rendering (testbed.outputs.render): MuJoCo picks its OpenGL backend at import
     os.environ.setdefault("MUJOCO_GL", "egl")
+#: Why the ``MUJOCO_GL`` given cannot work, when ``import mujoco`` would fail on it (a typo;
+#: ``osmesa`` without libOSMesa): it is then replaced by ``disable`` so that simulating still
+#: works, and rendering (``--video``, ``render_mode="rgb_array"``) fails with one line saying
+#: this.
+BAD_MUJOCO_GL: str | None = None
+
+
+def _check_mujoco_gl() -> None:
+    global BAD_MUJOCO_GL
+    value = os.environ.get("MUJOCO_GL", "")
+    backend = value.lower().strip()
+    if backend not in ("", "disable", "disabled", "off", "false", "0", "enable", "enabled",
+                       "on", "true", "1", "glfw", "glx", "egl", "osmesa", "wgl", "cgl"):
+        BAD_MUJOCO_GL = f"MUJOCO_GL={value!r} is not an OpenGL backend MuJoCo knows"
+    elif backend == "osmesa" and sys.platform.startswith("linux"):
+        import ctypes.util
+
+        if ctypes.util.find_library("OSMesa") is None:
+            BAD_MUJOCO_GL = "MUJOCO_GL='osmesa' but the OSMesa library (libOSMesa) is missing"
+    if BAD_MUJOCO_GL is not None:
+        os.environ["MUJOCO_GL"] = "disable"
+
+
+if "mujoco" not in sys.modules:
+    _check_mujoco_gl()
 
 __version__ = "0.1.0"
 

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NoReturn
 
@@ -43,7 +45,7 @@ from testbed.sim.simulator import SimulationDiverged
 
 #: Longest ``--duration`` (simulated seconds) accepted without ``--allow-long``.
 MAX_DURATION_S = 3600.0
-EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4, 5
+EXIT_FAILURE, EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 1, 2, 3, 4, 5
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
 #: Command-line flag of each scenario field (error messages name the flag).
 FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-option",
@@ -233,10 +235,12 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json")
     rep.add_argument("--plot")
     rep.add_argument("--rrd")
-    rep.add_argument("--out-dir", default="runs/reproductions",
-                     help="with 'all': where the JSON/PNG/RRD files go")
-    rep.add_argument("--doc", default="docs/reproductions.md",
-                     help="with 'all': the Markdown table to regenerate")
+    rep.add_argument("--out-dir", default=None,
+                     help=f"with 'all' only: where the JSON/PNG/RRD files go (default "
+                     f"{REPRODUCE_OUT_DIR})")
+    rep.add_argument("--doc", default=None,
+                     help=f"with 'all' only: the Markdown table to regenerate (default "
+                     f"{REPRODUCE_DOC})")
     _add_score_parser(sub)
     return parser
 
@@ -307,18 +311,53 @@ def scenario_from_args(args: argparse.Namespace) -> Scenario:
 
 
 #: Output flags and the suffix of the file each writes.
-OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz"}
+OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz",
+           "video": ".mp4", "markdown": ".md"}
+#: Where ``testbed reproduce all`` writes by default.
+REPRODUCE_OUT_DIR, REPRODUCE_DOC = "runs/reproductions", "docs/reproductions.md"
+
+
+def worst_case_path(json_path: str | os.PathLike) -> str:
+    """The ``.worst_case.npz`` that ``testbed score --json X.json`` writes beside ``X.json``."""
+    return os.fspath(json_path).removesuffix(".json") + ".worst_case.npz"
+
+
+def output_paths(args: argparse.Namespace) -> dict[str, str]:
+    """Every file (or directory) the command will write, derived ones included, by the flag
+    that names it in messages."""
+    paths = {}
+    for attr in OUTPUTS:
+        path = getattr(args, attr, None)
+        if path is not None:
+            paths["--" + attr.replace("_", "-")] = path
+    if args.command == "score" and args.json is not None:
+        paths["--json (its .worst_case.npz)"] = worst_case_path(args.json)
+    if args.command == "reproduce" and args.name == "all":
+        paths["--out-dir"] = args.out_dir or REPRODUCE_OUT_DIR
+        paths["--doc"] = args.doc or REPRODUCE_DOC
+    return paths
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """Check every output path of the command before anything runs (``ValueError``)."""
-    for attr, suffix in OUTPUTS.items():
-        path = getattr(args, attr, None)
-        if path is not None:
-            check_output_path(path, "--" + attr.replace("_", "-"), suffix)
-    if args.command == "reproduce" and args.name == "all":
-        check_output_path(args.out_dir, "--out-dir", None)
-        check_output_path(args.doc, "--doc", ".md")
+    """Check every output path of the command, derived ones included, before anything runs
+    (``ValueError`` naming the flag)."""
+    if args.command == "reproduce" and args.name != "all":
+        for flag, value in (("--out-dir", args.out_dir), ("--doc", args.doc)):
+            if value is not None:
+                raise ValueError(f"{flag} applies to 'reproduce all' only; for one example "
+                                 "use --json, --plot and --rrd")
+    suffixes = {**{"--" + a.replace("_", "-"): s for a, s in OUTPUTS.items()},
+                "--json (its .worst_case.npz)": ".npz", "--out-dir": None, "--doc": ".md"}
+    for flag, path in output_paths(args).items():
+        check_output_path(path, flag, suffixes[flag])
+    if getattr(args, "video", None) is not None:
+        from testbed.outputs.render import check_rendering, check_video_path
+
+        try:
+            check_video_path(args.video)
+            check_rendering()
+        except ValueError as exc:
+            raise ValueError(f"--video: {exc}") from None
 
 
 def _format_table(summary: dict, units: dict[str, str]) -> str:
@@ -343,10 +382,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     scenario = scenario_from_args(args)
     if args.realtime:
         return _cmd_run_realtime(args, scenario)
-    if args.video:
-        from testbed.outputs.render import check_video_path
-
-        check_video_path(args.video)
     live = _open_live(args, scenario)
     start = time.perf_counter()
     try:
@@ -556,10 +591,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise ValueError(f"--horizon {args.horizon:g} s is above the limit of "
                          f"{MAX_DURATION_S:g} s; add --allow-long to run it anyway")
     if args.name == "all":
-        results = reproductions.reproduce_all(args.out_dir, args.doc)
+        out_dir, doc = args.out_dir or REPRODUCE_OUT_DIR, args.doc or REPRODUCE_DOC
+        results = reproductions.reproduce_all(out_dir, doc)
         for name, result in results.items():
             print(f"{name}: {reproductions.load(name).row(result)['ours']}")
-        print(f"wrote {args.doc} and {args.out_dir}/")
+        print(f"wrote {doc} and {out_dir}/")
         return 0
     module = reproductions.load(args.name)
     result = module.reproduce(horizon_s=args.horizon, seed=args.seed, json_path=args.json,
@@ -591,10 +627,6 @@ def cmd_score(args: argparse.Namespace) -> int:
         return 0
     if not args.estimator:
         raise ValueError("give --estimator NAME (repeatable), or --list")
-    for flag in ("json", "markdown", "plot", "rrd"):
-        path = getattr(args, flag)
-        if path is not None and not str(path).strip():
-            raise ValueError(f"--{flag} needs a file path")
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
                         worst_case=not args.no_worst_case,
@@ -606,8 +638,7 @@ def cmd_score(args: argparse.Namespace) -> int:
         print(f"note: {remark}")
     if args.json:
         print(f"wrote {report.write_results(args.json, summary)}")
-        npz = report.write_worst_cases(str(args.json).removesuffix(".json")
-                                       + ".worst_case.npz", run)
+        npz = report.write_worst_cases(worst_case_path(args.json), run)
         if npz is not None:
             print(f"wrote {npz}")
     if args.markdown:
@@ -663,29 +694,87 @@ def _fail(code: int, message: str) -> int:
     return code
 
 
+def _debug(args: argparse.Namespace | None) -> bool:
+    """``--debug`` or ``TESTBED_DEBUG=1``: show the traceback of a failure."""
+    return bool(getattr(args, "debug", False)) or os.environ.get("TESTBED_DEBUG", "") not in (
+        "", "0")
+
+
+def _plugin_flag(args: argparse.Namespace) -> str:
+    """How messages name the estimator of the command (``--filter 'x'``, ``--estimator``)."""
+    if args.command == "score":
+        return "--estimator"
+    return f"--filter {getattr(args, 'filter', '')!r}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``testbed`` command (exit codes in the module docstring)."""
-    args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
-                "score": cmd_score}
-    with _sigterm_raises(), _mujoco_warnings_logged():
-        try:
-            check_outputs(args)
-            return commands[args.command](args)
-        except ScenarioError as exc:
-            return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
-        except ValueError as exc:
-            return _fail(EXIT_USAGE, f"testbed: error: {exc}")
-        except (FilterError, FloatingPointError) as exc:  # typed, or a user's filter's NaN
-            return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
-        except SimulationDiverged as exc:
-            return _fail(EXIT_DIVERGED, f"testbed: {exc}")
-        except OSError as exc:
-            return _fail(EXIT_OUTPUT, f"testbed: {exc}")
-        except KeyboardInterrupt:
-            return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT); partial outputs removed")
-        except _Terminated:
-            return _fail(EXIT_SIGTERM, "testbed: terminated (SIGTERM); partial outputs removed")
+    args = None
+    try:
+        args = build_parser().parse_args(argv)
+        commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep,
+                    "reproduce": cmd_reproduce, "score": cmd_score}
+        with _sigterm_raises(), _mujoco_warnings_logged():
+            return _run_command(commands[args.command], args)
+    except KeyboardInterrupt:  # during start-up or parsing
+        if _debug(args):
+            traceback.print_exc()
+        return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT)")
+
+
+def _run_command(command: Callable[[argparse.Namespace], int],
+                 args: argparse.Namespace) -> int:
+    """``command(args)`` with its failures as one line and an exit code."""
+    try:
+        check_outputs(args)
+        return command(args)
+    except BaseException as exc:
+        if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated):
+            traceback.print_exc()
+        return _failure_code(exc, args)
+
+
+def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
+    """The exit code of a failure (printed as one line); re-raises what is not a failure."""
+    from testbed.io import OutputError
+    from testbed.plugins import EstimatorFailed, describe
+
+    if isinstance(exc, ScenarioError):
+        return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
+    if isinstance(exc, ValueError):
+        return _fail(EXIT_USAGE, f"testbed: error: {exc}")
+    if isinstance(exc, EstimatorFailed):
+        return _fail(EXIT_FILTER, f"testbed: {_plugin_flag(args)} failed while running: {exc}")
+    if isinstance(exc, FilterError | FloatingPointError):  # typed, or a user's filter's NaN
+        return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
+    if isinstance(exc, SimulationDiverged):
+        return _fail(EXIT_DIVERGED, f"testbed: {exc}")
+    if isinstance(exc, OutputError):
+        return _fail(EXIT_OUTPUT, f"testbed: {_output_flag(args, exc.path)}{exc}")
+    if isinstance(exc, OSError):
+        return _fail(EXIT_OUTPUT, f"testbed: {exc}")
+    if isinstance(exc, KeyboardInterrupt):
+        return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT); partial outputs removed")
+    if isinstance(exc, _Terminated):
+        return _fail(EXIT_SIGTERM, "testbed: terminated (SIGTERM); partial outputs removed")
+    if isinstance(exc, SystemExit):  # only plug-in code calls sys.exit inside a command
+        return _fail(EXIT_FAILURE, f"testbed: a plug-in ({_plugin_flag(args)} or the rig) "
+                     f"called sys.exit({exc.code!r}) while the command ran")
+    if isinstance(exc, Exception):
+        hint = "" if _debug(args) else " (--debug or TESTBED_DEBUG=1 shows the traceback)"
+        return _fail(EXIT_FAILURE, f"testbed: unexpected failure: {describe(exc)}{hint}")
+    raise exc
+
+
+def _output_flag(args: argparse.Namespace, path: Any) -> str:
+    """``--json `` when ``path`` is (or derives from) the file of an output flag."""
+    if path is None:
+        return ""
+    target = os.path.abspath(os.fspath(path))
+    for flag, value in output_paths(args).items():
+        if os.path.abspath(os.fspath(value)) == target:
+            return f"{flag}: "
+    return ""
 
 
 if __name__ == "__main__":
