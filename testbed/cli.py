@@ -57,6 +57,9 @@ FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-o
          "ambient_noise": "--ambient-noise", "reset_noise_scale": "--reset-noise-scale"}
 
 
+DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
+
+
 class _Parser(argparse.ArgumentParser):
     """``parser.error`` as one line ``testbed: error: --NAME ...`` and exit code 2."""
 
@@ -176,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
                      epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
                      "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
                      "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
+    parser.add_argument("--debug", action="store_true", default=False, help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     _add_scenario_options(run, 20.0)
@@ -242,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"with 'all' only: the Markdown table to regenerate (default "
                      f"{REPRODUCE_DOC})")
     _add_score_parser(sub)
+    for command in sub.choices.values():  # also after the command: testbed run ... --debug
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                             help=DEBUG_HELP)
     return parser
 
 
@@ -265,6 +272,8 @@ def _add_score_parser(sub: Any) -> None:
     sc.add_argument("--markdown", help="write the leaderboard as Markdown here")
     sc.add_argument("--plot", help="write a PNG here")
     sc.add_argument("--rrd", help="write the comparison Rerun recording here")
+    sc.add_argument("--no-progress", action="store_true",
+                    help="do not report each scored entry on stderr")
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
@@ -432,6 +441,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         frames = iter_frames(rig, traj.state, stride)
         print(f"wrote {write_video(args.video, frames, 1.0 / (dt_s * stride))}")
     if live is not None:
+        from testbed.io import commit_outputs
+
+        commit_outputs()  # the files are complete: they appear before serving goes on
         _finish_live(args, live)
     return 0
 
@@ -552,6 +564,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     scenario = scenario_from_args(args)
     grid = check_grid(scenario, args.grid)
+    from testbed.experiment.runner import check_study_size
+
+    check_study_size(scenario, args.runs)
     if args.address is not None:
         if args.backend != "ray":
             raise ValueError("--address is only used with --backend ray")
@@ -630,7 +645,8 @@ def cmd_score(args: argparse.Namespace) -> int:
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
                         worst_case=not args.no_worst_case,
-                        progress=lambda name: print(f"  scored {name}", file=sys.stderr))
+                        progress=None if args.no_progress else
+                        lambda name: print(f"  scored {name}", file=sys.stderr))
     summary = report.results(run)
     remarks = report.notes(run)
     print(report.leaderboard(summary))
@@ -725,9 +741,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run_command(command: Callable[[argparse.Namespace], int],
                  args: argparse.Namespace) -> int:
     """``command(args)`` with its failures as one line and an exit code."""
+    from testbed.io import outputs_together
+
     try:
-        check_outputs(args)
-        return command(args)
+        with outputs_together():  # all of the command's outputs, or none of them
+            check_outputs(args)
+            return command(args)
     except BaseException as exc:
         if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated):
             traceback.print_exc()
@@ -736,9 +755,12 @@ def _run_command(command: Callable[[argparse.Namespace], int],
 
 def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
     """The exit code of a failure (printed as one line); re-raises what is not a failure."""
+    from testbed.experiment.runner import StudyTooLarge
     from testbed.io import OutputError
     from testbed.plugins import EstimatorFailed, describe
 
+    if isinstance(exc, StudyTooLarge):
+        return _fail(EXIT_USAGE, f"testbed: error: --{exc}")
     if isinstance(exc, ScenarioError):
         return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
     if isinstance(exc, ValueError):

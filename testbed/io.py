@@ -160,6 +160,9 @@ def remove_own_temporaries(path: str | os.PathLike, keep: tuple[Path, ...] = ())
     final = Path(path)
     if not final.parent.is_dir():
         return
+    transaction = _TRANSACTION.get()
+    if transaction is not None:  # written, waiting for the end of outputs_together
+        keep = (*keep, *(tmp for tmp, _ in transaction.pending))
     for entry in final.parent.glob(f"{glob.escape(_own_prefix(final))}*"):
         if entry in keep or not entry.name.endswith((".tmp", ".tmpdir")):
             continue
@@ -199,23 +202,23 @@ class _Transaction:
                 done.append(final)
                 self.pending.pop(0)
         except BaseException as exc:  # all or nothing: take back what was renamed
+            failed = self.pending[0][1] if self.pending else Path("output")
             for final in done:
                 with contextlib.suppress(OSError):
                     final.unlink()
             self.rollback()
             if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-                raise OutputError(self.pending[0][1] if self.pending else "output",
-                                  exc) from exc
+                raise OutputError(failed, exc) from exc
             raise
         self.created.clear()
         return done
 
     def rollback(self) -> None:
-        for tmp, final in self.pending:
+        pending, self.pending = self.pending, []
+        for tmp, final in pending:
             with contextlib.suppress(OSError):
                 tmp.unlink()
             remove_own_temporaries(final)
-        self.pending.clear()
         for directory in reversed(self.created):
             with contextlib.suppress(OSError):
                 directory.rmdir()  # only when empty
@@ -329,8 +332,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             os.replace(tmp, final)
     except BaseException as exc:
         if not handed_over:
-            keep = tuple(t for t, _ in transaction.pending) if transaction is not None else ()
-            remove_own_temporaries(final, keep)
+            remove_own_temporaries(final)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(final, exc) from exc
         raise
