@@ -92,7 +92,7 @@ class EstimatorStage:
             u = self.input_transform(u, np.asarray(est.x))
         try:
             x_hat = np.asarray(est.step(y, u))
-        except FilterError:
+        except (FilterError, FloatingPointError):  # typed numerical failures, as they are
             raise
         except PLUGIN_FAILURES as exc:  # LinAlgError, a plug-in's SystemExit...: exit 3, not 2
             time_s = (self.metrics.count + 1) * self.metrics.dt_s

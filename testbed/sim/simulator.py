@@ -166,13 +166,22 @@ class Physics:
                    else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
-        #: Views of each worker's warning counters, by ``id`` of its ``MjData``.
-        self._warnings = {id(d): d.warning.number for d in self._datas}
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
         self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
                       if self.num_threads > 1 else None)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copies (``copy.deepcopy``, pickle) are independent: without the thread pool."""
+        state = dict(self.__dict__)
+        state["_pool"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self.num_threads > 1:
+            self._pool = ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
 
     def _check_layout(self) -> None:
         """Verify the computed state offsets against MuJoCo (fails loudly if it changes)."""
@@ -292,7 +301,7 @@ class Physics:
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         perturb, constants = self.rig.apply_step_noise, self.constants
-        warnings = self._warnings[id(data)]  # MuJoCo's counters (zero unless it warned)
+        warnings = data.warning.number  # a view of MuJoCo's counters (zero unless it warned)
         w1, w2, w3 = _BAD_WARNINGS
         unstable = self.unstable
         for start, stop in chunks:

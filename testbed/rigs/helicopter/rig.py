@@ -600,14 +600,18 @@ class HelicopterRig(Rig):
             G = disturbance.G
         nominal = HelicopterParams()  # what the designer knows: never the scaled truth
 
-        def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-            return u - gravity_voltage(nominal, x_hat[:, 0])
-
+        unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
         return build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                             np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                             input_transform=unbalanced_input,
                             extras={"paper_model": model, "gamma": PAPER_GAMMA,
                                     "initial_weight": PAPER_INITIAL_WEIGHT})
+
+
+def _unbalanced_input(nominal: HelicopterParams, u: np.ndarray,
+                      x_hat: np.ndarray) -> np.ndarray:
+    """The design's input transform: the applied voltages minus the gravity voltage."""
+    return u - gravity_voltage(nominal, x_hat[:, 0])
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):
