@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import re
 import signal
 import sys
 import threading
@@ -69,14 +70,22 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"testbed: error: {message}\n")
 
 
+#: A plain decimal number in ASCII (no ``1_0``, no ``0x10``, no other scripts' digits).
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?", re.ASCII)
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+
+
+def _plain_float(text: str) -> float:
+    """``float(text)`` of a plain ASCII decimal number; NaN for anything else."""
+    text = text.strip()
+    return float(text) if _DECIMAL.fullmatch(text) else float("nan")
+
+
 def _name_value(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    try:
-        number = float(value)
-    except ValueError:
-        number = float("nan")
+    number = _plain_float(value)
     if not np.isfinite(number):
         raise argparse.ArgumentTypeError(f"{name}: value must be a finite number, got "
                                          f"{value!r}")
@@ -84,10 +93,7 @@ def _name_value(text: str) -> tuple[str, float]:
 
 
 def _number(text: str, ok: Callable[[float], bool], what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
+    value = _plain_float(text)
     if not (np.isfinite(value) and ok(value)):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
@@ -102,13 +108,21 @@ def _non_negative(text: str) -> float:
 
 
 def _integer(text: str, low: int, high: int | None, what: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not _INTEGER.fullmatch(text.strip()):
+        raise argparse.ArgumentTypeError(f"expected {what} (plain decimal digits), got "
+                                         f"{text!r}")
+    value = int(text)
     if value < low or (high is not None and value > high):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
+
+
+def _finite(text: str) -> float:
+    return _number(text, lambda v: True, "a finite number")
+
+
+def _port(text: str) -> int:
+    return _integer(text, 1, 65535, "a port number in 1-65535")
 
 
 def _seed(text: str) -> int:
@@ -158,10 +172,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
     p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
                    help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
                    "(measured; auto = when the sensors have them) or exact (oracle)")
-    p.add_argument("--ambient-noise", type=float, default=1.0,
+    p.add_argument("--ambient-noise", type=_finite, default=1.0,
                    help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
                    "default 1, 0: none)")
-    p.add_argument("--reset-noise-scale", type=float, default=1.0,
+    p.add_argument("--reset-noise-scale", type=_finite, default=1.0,
                    help="scale of the rig's initial-state distribution (default 1; 0: the "
                    "fixed initial state of the papers)")
     p.add_argument("--design-option", type=_name_value, action="append", default=[],
@@ -193,9 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
                       "e.g. rerun+http://127.0.0.1:9876/proxy")
     live.add_argument("--serve", action="store_true", help="serve the run to Rerun's web "
                       "viewer (headless machines): prints the URL, serves until Ctrl-C")
-    run.add_argument("--grpc-port", type=int, default=9876,
+    run.add_argument("--grpc-port", type=_port, default=9876,
                      help="with --spawn/--serve: the viewer's gRPC port")
-    run.add_argument("--web-port", type=int, default=9090, help="with --serve: the web port")
+    run.add_argument("--web-port", type=_port, default=9090, help="with --serve: the web port")
     run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
                      "extra: imageio-ffmpeg)")
     run.add_argument("--realtime", action="store_true", help="pace the run to the wall clock "

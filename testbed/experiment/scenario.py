@@ -295,8 +295,14 @@ class Scenario:
             factory = estimators.resolve(self.estimator)
         with blame("estimator_options"):
             estimators.check_options(factory, self.estimator, self.estimator_options)
-        with blame("params"):
+        try:
             rig_cls.params_type().scaled(self.params)
+        except ValueError as exc:
+            message = str(exc)
+            if isinstance(self.params, dict) and self.params:  # what the user typed first
+                given = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+                message = f"{given}: {message}"
+            raise ScenarioError("params", message) from None
         unknown = set(self.design_options) - set(rig_cls.scenario_options)
         if unknown:
             raise ScenarioError("design_options", f"design option(s) {sorted(unknown)} do not "

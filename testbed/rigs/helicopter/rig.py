@@ -103,7 +103,8 @@ class HelicopterParams(Params):
         pitch_com = self.pitch_inertia - self.mass_kg * self.com_m**2
         if pitch_com <= 0:
             raise ValueError("HelicopterParams.pitch_inertia must exceed mass_kg * com_m**2 "
-                             f"({self.mass_kg * self.com_m ** 2:.6f}), got {self.pitch_inertia}")
+                             f"({self.mass_kg * self.com_m ** 2:.6g}), got "
+                             f"{self.pitch_inertia:.6g}")
         yaw_com = self.yaw_inertia - self.mass_kg * self.com_m**2 - self.stage_inertia
         if yaw_com <= 0:
             raise ValueError("HelicopterParams.yaw_inertia must exceed mass_kg * com_m**2 + "
