@@ -210,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--grpc-port", type=_port, default=9876,
                      help="with --spawn/--serve: the viewer's gRPC port")
     run.add_argument("--web-port", type=_port, default=9090, help="with --serve: the web port")
+    run.add_argument("--bind", metavar="ADDRESS", default=None,
+                     help="with --spawn/--serve: the IP address the viewer or server listens "
+                     "on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
     run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
                      "extra: imageio-ffmpeg)")
     run.add_argument("--realtime", action="store_true", help="pace the run to the wall clock "
@@ -403,6 +406,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed.experiment import runner
 
     scenario = scenario_from_args(args)
+    _check_live_options(args)
     if args.realtime:
         return _cmd_run_realtime(args, scenario)
     live = _open_live(args, scenario)
@@ -488,15 +492,34 @@ def _cmd_run_realtime(args: argparse.Namespace, scenario: Scenario) -> int:
     return 0
 
 
+def _check_live_options(args: argparse.Namespace) -> None:
+    """``--bind`` (an IP address, with --spawn/--serve only; a warning when other machines
+    can reach it) and the live options that do not go with --realtime."""
+    if args.realtime and (args.spawn or args.connect or args.serve):
+        raise ValueError("--spawn/--connect/--serve are not available with --realtime")
+    if args.bind is None:
+        return
+    if not (args.spawn or args.serve):
+        raise ValueError("--bind applies to --spawn and --serve (what listens)")
+    from testbed.outputs.live import check_bind
+
+    address, loopback = check_bind(args.bind)
+    if not loopback:
+        print(f"testbed: warning: --bind {address}: the viewer is reachable from other "
+              "machines (anyone who can reach this one can watch the run)", file=sys.stderr,
+              flush=True)
+
+
 def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
     """The live view asked for by --spawn / --connect / --serve, or None."""
+    from testbed.outputs.live import DEFAULT_BIND, LiveView, open_recording
+
+    bind = DEFAULT_BIND if args.bind is None else args.bind
     if not (args.spawn or args.connect or args.serve):
         return None
-    from testbed.outputs.live import LiveView, open_recording
-
     rec, url = open_recording(f"testbed/{resolve_rig(scenario.rig).name}", spawn=args.spawn,
                               connect=args.connect, serve=args.serve,
-                              grpc_port=args.grpc_port, web_port=args.web_port)
+                              grpc_port=args.grpc_port, web_port=args.web_port, bind=bind)
     if url is not None:
         print(f"Rerun web viewer: open {url}", flush=True)
     return LiveView(rec)
