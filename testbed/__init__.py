@@ -13,7 +13,29 @@ from __future__ import annotations
 import os
 import sys
 
-import gymnasium as gym
+
+def _quiet_interrupt_at_startup() -> None:
+    """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
+    own handling is in place) ends it with exit code 130 and one line, not a traceback."""
+    command = os.path.basename(sys.argv[0]) == "testbed" or \
+        list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
+    if not command:
+        return
+    previous = sys.excepthook
+
+    def hook(kind: type, value: BaseException, tb: object) -> None:
+        if issubclass(kind, KeyboardInterrupt) and not os.environ.get("TESTBED_DEBUG"):
+            sys.stderr.write("testbed: interrupted (SIGINT)\n")
+            sys.stderr.flush()
+            os._exit(130)
+        previous(kind, value, tb)
+
+    sys.excepthook = hook
+
+
+_quiet_interrupt_at_startup()
+
+import gymnasium as gym  # noqa: E402 - after the start-up interrupt handling
 
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
         and "mujoco" not in sys.modules:
@@ -46,6 +68,8 @@ if "mujoco" not in sys.modules:
     _check_mujoco_gl()
 
 __version__ = "0.1.0"
+
+
 
 #: Environment id -> (entry point, max_episode_steps[, vector entry point]). Entry points
 #: import lazily; a vector entry point serves ``gym.make_vec(...,

@@ -185,6 +185,13 @@ def _make_parents(final: Path) -> list[Path]:
     return missing[::-1]
 
 
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the directories of ``created`` (outermost first) that are empty."""
+    for directory in reversed(created):
+        with contextlib.suppress(OSError):
+            directory.rmdir()  # only when empty
+
+
 class _Transaction:
     """Outputs held back until :func:`outputs_together` ends: temporaries and their
     destinations, and the directories created for them."""
@@ -219,9 +226,7 @@ class _Transaction:
             with contextlib.suppress(OSError):
                 tmp.unlink()
             remove_own_temporaries(final)
-        for directory in reversed(self.created):
-            with contextlib.suppress(OSError):
-                directory.rmdir()  # only when empty
+        _remove_empty(self.created)
         self.created.clear()
 
 
@@ -277,13 +282,19 @@ def temporary_directory(path: str | os.PathLike) -> Path:
     An interrupt while it is being created leaves nothing.
     """
     final = Path(path)
+    transaction = _TRANSACTION.get()
+    created: list[Path] = []
     try:
-        _make_parents(final)
+        created = _make_parents(final)
+        if transaction is not None:
+            transaction.created.extend(created)
         remove_stale_temporaries(final)
         return Path(tempfile.mkdtemp(prefix=_own_prefix(final), suffix=".tmpdir",
                                      dir=final.parent))
     except BaseException as exc:
         remove_own_temporaries(final)
+        if transaction is None:
+            _remove_empty(created)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(final, exc) from None
         raise
@@ -312,6 +323,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     transaction = _TRANSACTION.get()
     tmp: Path | None = None
     handed_over = False
+    created: list[Path] = []
     try:
         created = _make_parents(final)
         if transaction is not None:
@@ -333,6 +345,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException as exc:
         if not handed_over:
             remove_own_temporaries(final)
+            if transaction is None:
+                if tmp is not None:
+                    with contextlib.suppress(OSError):
+                        tmp.unlink()
+                _remove_empty(created)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(final, exc) from exc
         raise

@@ -474,10 +474,23 @@ class Simulator:
         for key, width in widths.items():
             self._info_columns[key] = slice(start, start + width)
             start += width
-        self.info: dict[str, np.ndarray] = {
-            key: self._info_rows[:, cols] for key, cols in self._info_columns.items()}
+        self.info: dict[str, np.ndarray] = {}
+        self._info_views(np.zeros((n, self._nu), dtype=bool))
+
+    def _info_views(self, action_clipped: np.ndarray) -> None:
+        """``info``: views of the column blocks of ``_info_rows`` (rebuilt in copies)."""
+        self.info.clear()
+        self.info.update({key: self._info_rows[:, cols]
+                          for key, cols in self._info_columns.items()})
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
-        self.info["action_clipped"] = np.zeros((n, self._nu), dtype=bool)
+        self.info["action_clipped"] = action_clipped
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Copies (``copy.deepcopy``, pickle) step on their own arrays: ``info`` is views of
+        the copy's ``_info_rows`` again (a copied view would be a detached array)."""
+        self.__dict__.update(state)
+        self.info = {}
+        self._info_views(np.array(state["info"]["action_clipped"], copy=True))
 
     # ------------------------------------------------------------------ declarations
     @property
