@@ -70,7 +70,10 @@ def _build_sensors(rig: Rig, preset: str | None, dt_s: float, options: dict[str,
                                 f"{sorted(known) or 'none'}")
     try:
         return method(preset, dt_s=dt_s, **options)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ValueError) and not any(repr(k) in str(exc) or f"{k}=" in str(exc)
+                                                   for k in options):
+            raise  # about the preset, not the options
         raise ScenarioError("sensor_options", f"bad sensor_options {sorted(options)} for rig "
                             f"{rig.name!r} ({exc})") from None
 
