@@ -10,13 +10,21 @@ line ``testbed: error: --NAME ...``. Exit codes:
 
 ====  =====================================================================================
 0     success
-2     bad command line or input (nothing was simulated, nothing written)
-3     numerical failure of the filter (``filters.FilterError``: time and quantity named;
-      or a user's estimator returned a non-finite estimate)
+1     an unexpected failure (a plug-in called ``sys.exit``, or a bug): one line; ``--debug``
+      or ``TESTBED_DEBUG=1`` also prints the traceback (of any failure)
+2     bad command line or input (nothing was simulated, nothing written), including a
+      plug-in (``--filter``, ``--estimator``, the rig) that fails while loading or building
+3     failure of the filter while running (``filters.FilterError``: time and quantity
+      named; a user's estimator returned a non-finite estimate; or its ``step`` raised
+      anything, e.g. a ``LinAlgError``: ``testbed.plugins.EstimatorFailed``)
 4     the simulation diverged (``testbed.sim.simulator.SimulationDiverged``: time and state)
-5     an output could not be written, or the Ray cluster could not be reached
-130   interrupted by SIGINT (Ctrl-C); 143: terminated by SIGTERM (temporaries removed)
+5     an output could not be written (``testbed.io.OutputError``, the output named; none of
+      the command's outputs is kept), or the Ray cluster could not be reached
+130   interrupted by SIGINT (Ctrl-C), also during start-up; 143: terminated by SIGTERM
+      (temporaries removed)
 ====  =====================================================================================
+
+What ``--spawn``/``--serve`` start listens on 127.0.0.1 unless ``--bind ADDRESS``.
 """
 
 from __future__ import annotations
@@ -190,9 +198,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used by the docs and tests)."""
     parser = _Parser(prog="testbed", description=__doc__.splitlines()[0],
-                     epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
-                     "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
-                     "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
+                     epilog="exit codes: 0 success, 1 unexpected failure (--debug shows it), "
+                     "2 bad input (nothing ran), 3 failure of the filter, 4 diverged "
+                     "simulation, 5 output or Ray cluster unreachable, 130/143 interrupted "
+                     "by SIGINT/SIGTERM")
     parser.add_argument("--debug", action="store_true", default=False, help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")

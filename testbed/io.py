@@ -1,7 +1,8 @@
 """Output files: validated before any work, written atomically, temporaries never left behind.
 
 :func:`check_output_path` checks a destination before a run starts (suffix, not a directory,
-parent creatable and writable). :func:`atomic_path` writes to a temporary name in the target
+the nearest existing parent a writable directory; it creates nothing: missing parents are
+created when the output is written, after the work, and removed again if writing fails). :func:`atomic_path` writes to a temporary name in the target
 directory, then renames: an interrupted run never leaves a truncated ``.json``, ``.npz``,
 ``.png`` or ``.rrd`` behind, only the old file (or none) or the complete new one.
 
