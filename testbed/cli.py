@@ -688,6 +688,13 @@ def cmd_score(args: argparse.Namespace) -> int:
         return 0
     if not args.estimator:
         raise ValueError("give --estimator NAME (repeatable), or --list")
+    from testbed import estimators
+
+    for name in args.estimator:  # loaded (and a plug-in's failure named) before any work
+        try:
+            estimators.resolve(name)
+        except ValueError as exc:
+            raise ValueError(f"--estimator: {exc}") from None
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
                         worst_case=not args.no_worst_case,
