@@ -2,9 +2,11 @@
 
 :func:`check_output_path` checks a destination before a run starts (suffix, not a directory,
 the nearest existing parent a writable directory; it creates nothing: missing parents are
-created when the output is written, after the work, and removed again if writing fails). :func:`atomic_path` writes to a temporary name in the target
-directory, then renames: an interrupted run never leaves a truncated ``.json``, ``.npz``,
-``.png`` or ``.rrd`` behind, only the old file (or none) or the complete new one.
+created when the output is written, after the work, and removed again if writing fails).
+:func:`atomic_path` writes to a temporary name in the target directory, then renames: an
+interrupted run never leaves a truncated ``.json``, ``.npz``, ``.png`` or ``.rrd`` behind,
+only the old file (or none) or the complete new one. :func:`outputs_together` holds a
+command's outputs back until all are written: all of them appear, or none.
 
 Temporary names are ``.<name>.<pid>.<random><suffix>.tmp`` (directories: ``...tmpdir``):
 hidden, ending in ``.tmp``/``.tmpdir`` (never matched by ``*.json`` or ``*.rrd``), and

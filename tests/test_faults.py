@@ -603,6 +603,7 @@ CLI_LINES = [  # plain ASCII decimal numbers only, every option named as typed
     ("reproduce zhang-nonlinear-discrete --out-dir x", "--out-dir applies to 'reproduce all'"),
     ("reproduce zhang-nonlinear-discrete --doc x.md", "--doc applies to 'reproduce all'"),
     ("mc helicopter --runs 100000000000", "--runs 100,000,000,000 would need"),
+    ("score --estimator kalman --runs 10000000", "--runs 10,000,000 of scenario"),
 ]
 
 
