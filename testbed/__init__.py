@@ -24,7 +24,8 @@ def _quiet_interrupt_at_startup() -> None:
     previous = sys.excepthook
 
     def hook(kind: type, value: BaseException, tb: object) -> None:
-        if issubclass(kind, KeyboardInterrupt) and not os.environ.get("TESTBED_DEBUG"):
+        if issubclass(kind, KeyboardInterrupt) and \
+                os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
             sys.stderr.write("testbed: interrupted (SIGINT)\n")
             sys.stderr.flush()
             os._exit(130)

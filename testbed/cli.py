@@ -521,11 +521,11 @@ def _check_live_options(args: argparse.Namespace) -> None:
 
 def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
     """The live view asked for by --spawn / --connect / --serve, or None."""
+    if not (args.spawn or args.connect or args.serve):
+        return None
     from testbed.outputs.live import DEFAULT_BIND, LiveView, open_recording
 
     bind = DEFAULT_BIND if args.bind is None else args.bind
-    if not (args.spawn or args.connect or args.serve):
-        return None
     rec, url = open_recording(f"testbed/{resolve_rig(scenario.rig).name}", spawn=args.spawn,
                               connect=args.connect, serve=args.serve,
                               grpc_port=args.grpc_port, web_port=args.web_port, bind=bind)
