@@ -373,6 +373,32 @@ def test_sigint_during_start_up_exits_130_without_a_traceback(delay_s, tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 
+def test_sigint_at_many_points_of_a_study_leaves_all_outputs_or_none(tmp_path):
+    """A real Ctrl-C at many moments of ``mc`` (start-up, building, the runs with the .npz
+    temporaries, writing): exit 130 and nothing left, or exit 0 and every output."""
+    outcomes = set()
+    for i, delay_s in enumerate([0.3, 0.8, 1.3, 1.8, 2.3, 2.8, 3.5, 4.5, 6.0]):
+        out = tmp_path / str(i)
+        out.mkdir()
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "testbed.cli", "mc", "helicopter", "--runs", "6",
+             "--batch-size", "2", "--duration", "2", "--no-progress", "--save-npz",
+             str(out / "m.npz"), "--json", str(out / "m.json"), "--plot", str(out / "m.png")],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        time.sleep(delay_s)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        names = sorted(p.name for p in out.iterdir())
+        assert "Traceback" not in err, err
+        if proc.returncode == 130:
+            assert names == [], (delay_s, names)
+        else:
+            assert proc.returncode == 0 and names == ["m.json", "m.npz", "m.png"], (delay_s, err)
+        outcomes.add(proc.returncode)
+    assert 130 in outcomes
+
+
 class _InterruptAt:
     """A trace function raising KeyboardInterrupt (once) at the n-th line executed: a Ctrl-C
     arriving at that point (Python runs signal handlers between bytecodes)."""
