@@ -123,6 +123,24 @@ def test_bind_elsewhere_is_honoured_with_a_warning(tmp_path):
     assert _listening(ports) == set()
 
 
+def test_a_viewer_that_went_away_does_not_hang_the_end_of_a_run(capsys):
+    """A native viewer without a display may listen, then exit: the final flush waits a
+    bounded time and warns instead of blocking forever."""
+    import rerun as rr
+
+    from testbed.outputs.live import flush, stop
+    from testbed.outputs.viz import new_recording
+
+    rec = new_recording("testbed/gone")
+    rec.connect_grpc(f"rerun+http://127.0.0.1:{_free_port()}/proxy")  # nothing listens
+    rec.log("a", rr.Scalars([1.0]))
+    start = time.monotonic()
+    assert flush(rec, 1.0) is False
+    assert time.monotonic() - start < 10
+    assert "warning: the live viewer did not take the data" in capsys.readouterr().err
+    stop(rec)
+
+
 def test_a_busy_port_is_one_line_before_anything_runs(tmp_path):
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))

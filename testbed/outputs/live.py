@@ -58,6 +58,8 @@ GRPC_PORT, WEB_PORT = 9876, 9090
 DEFAULT_BIND = "127.0.0.1"
 #: Seconds to wait for a started viewer or server to listen.
 START_TIMEOUT_S = 30.0
+#: Seconds to wait for a viewer to take the buffered data (at the end of a run).
+FLUSH_TIMEOUT_S = 15.0
 #: The viewer or server processes this process started, by recording.
 _CHILDREN: dict[int, subprocess.Popen] = {}
 
@@ -342,7 +344,7 @@ class LiveView:
         if self.layout is not None and self._history["t_s"]:
             self.rec.send_blueprint(self._blueprint(self._final_trajectory()),
                                     make_active=True, make_default=True)
-        self.rec.flush()
+        flush(self.rec)
 
     # -- helpers
     def _final_trajectory(self) -> Trajectory:
@@ -373,12 +375,26 @@ class LiveView:
         return rrb.Blueprint(container, rrb.TimePanel(timeline="time"), collapse_panels=False)
 
 
+def flush(rec: rr.RecordingStream, timeout_s: float = FLUSH_TIMEOUT_S) -> bool:
+    """Send what the recording buffers, waiting at most ``timeout_s`` (a viewer that went
+    away, e.g. a native viewer without a display, would block forever); False, with a
+    warning on stderr, when it did not go through."""
+    try:
+        rec.flush(timeout_sec=timeout_s)
+    except Exception as exc:  # noqa: BLE001 - rerun raises its own on a timeout
+        print(f"testbed: warning: the live viewer did not take the data within {timeout_s:g} "
+              f"s ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}); is it still "
+              "running?", file=sys.stderr, flush=True)
+        return False
+    return True
+
+
 def stop(rec: rr.RecordingStream) -> None:
     """Flush and disconnect a live recording; stop the server :func:`open_recording` started
     for it with ``serve`` (its whole process group)."""
     proc = _CHILDREN.pop(id(rec), None)
     try:
-        rec.flush()
+        flush(rec)
         rec.disconnect()
     finally:
         try:
