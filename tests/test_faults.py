@@ -639,6 +639,8 @@ CLI_LINES = [  # plain ASCII decimal numbers only, every option named as typed
     ("run helicopter --param mass_kg=1_0", "--param"),
     ("sweep helicopter --grid process_noise=0x1", "--grid"),
     ("run helicopter --ambient-noise inf", "--ambient-noise"),
+    ("sweep helicopter --grid process_noise=1 --backend ray --address 127.0.0.1:\u0666\u0663"
+     "\u0667\u0669", "--address"),
     ("run helicopter --serve --grpc-port 0", "--grpc-port"),
     ("run helicopter --serve --web-port 70000", "--web-port"),
     ("run helicopter --serve --bind nonsense", "--bind expects an IP address"),
