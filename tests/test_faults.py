@@ -111,6 +111,18 @@ def test_serve_listens_on_loopback_only_and_sigint_stops_it(tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
+def test_the_server_does_not_outlive_a_killed_run(tmp_path):
+    proc, _, ports = _serve(tmp_path)
+    assert len(_listening(ports)) == 2
+    proc.kill()  # SIGKILL: no clean-up code runs
+    proc.wait(10)
+    deadline = time.monotonic() + 15
+    while _listening(ports) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _listening(ports) == set()
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
 def test_bind_elsewhere_is_honoured_with_a_warning(tmp_path):
     proc, _, ports = _serve(tmp_path, "--bind", "0.0.0.0")
     try:

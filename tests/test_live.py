@@ -211,7 +211,7 @@ def test_spawn_starts_this_environments_viewer(monkeypatch):
         def poll(self):
             return None
 
-    monkeypatch.setattr(live, "_launch", lambda argv: calls.append(argv) or FakeProc())
+    monkeypatch.setattr(live, "_launch", lambda argv, **kw: calls.append(argv) or FakeProc())
     monkeypatch.setattr(live, "_wait_listening", lambda *a: None)
     import rerun as rr
 

@@ -108,13 +108,33 @@ def rerun_executable() -> str:
     return found
 
 
-def _launch(argv: list[str]) -> subprocess.Popen:
+def _parent_death_signal() -> Any:
+    """On Linux, a ``preexec_fn`` making the child get SIGTERM when this process dies (even
+    by SIGKILL): a served viewer never outlives the run. None elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+    except (OSError, AttributeError):
+        return None
+
+    def preexec() -> None:
+        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+    return preexec
+
+
+def _launch(argv: list[str], *, outlive: bool = False) -> subprocess.Popen:
     """Start a Rerun process in its own process group (stopped as a whole by :func:`stop`;
-    a Ctrl-C in the terminal reaches this process, which stops it)."""
+    a Ctrl-C in the terminal reaches this process, which stops it). Unless ``outlive`` (a
+    native viewer), it also ends when this process dies."""
     env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "off")}
     return subprocess.Popen([rerun_executable(), *argv], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
-                            start_new_session=True)
+                            start_new_session=True,
+                            preexec_fn=None if outlive else _parent_death_signal())
 
 
 def _wait_listening(proc: subprocess.Popen, host: str, ports: list[int], what: str) -> None:
@@ -206,7 +226,7 @@ def open_recording(application_id: str, *, spawn: bool = False, connect: str | N
         return rec, url
     host = _host(address)
     if spawn:
-        proc = _launch(["--bind", address, "--port", str(grpc_port)])
+        proc = _launch(["--bind", address, "--port", str(grpc_port)], outlive=True)
         what = f"the Rerun viewer (--grpc-port {grpc_port})"
         ports = [grpc_port]
     else:
