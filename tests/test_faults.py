@@ -600,6 +600,24 @@ def test_copies_of_rig_envs_are_independent_and_step_identically(env_id, how):
     env.close()
 
 
+def test_copies_of_a_threaded_vector_env_step_identically():
+    from testbed.envs.rig_env import RigVectorEnv
+
+    env = RigVectorEnv(4, rig="helicopter", num_threads=2)
+    env.reset(seed=1)
+    action = np.full((4, 2), 0.2)
+    for _ in range(5):
+        env.step(action)
+    copies = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
+    assert all(c.sim.physics._pool is not env.sim.physics._pool for c in copies)
+    for _ in range(10):
+        obs = env.step(action)[0]
+        for c in copies:
+            np.testing.assert_array_equal(c.step(action)[0], obs)
+    for e in (env, *copies):
+        e.close()
+
+
 def test_filter_in_loop_is_recreatable_picklable_and_passes_check_env():
     from gymnasium.utils.env_checker import check_env
 
