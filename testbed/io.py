@@ -77,13 +77,19 @@ def check_output_path(path: str | os.PathLike, name: str, suffix: str | None) ->
         ancestor = ancestor.parent
     if not ancestor.is_dir():
         raise ValueError(f"{name} {text!r}: {ancestor} is a file, not a directory")
+    prefix = f".testbed-write-test.{os.getpid()}."
     try:  # the only reliable test (permissions, read-only or pseudo file systems, quotas)
-        fd, probe = tempfile.mkstemp(prefix=".testbed-write-test.", dir=ancestor)
+        fd, probe = tempfile.mkstemp(prefix=prefix, dir=ancestor)
         os.close(fd)
         os.unlink(probe)
-    except OSError as exc:
-        raise ValueError(f"{name} {text!r}: cannot write in {ancestor} "
-                         f"({exc.strerror or exc})") from None
+    except BaseException as exc:  # an interrupt included: no probe file left behind
+        for entry in ancestor.glob(f"{glob.escape(prefix)}*"):
+            with contextlib.suppress(OSError):
+                entry.unlink()
+        if isinstance(exc, OSError):
+            raise ValueError(f"{name} {text!r}: cannot write in {ancestor} "
+                             f"({exc.strerror or exc})") from None
+        raise
     return final
 
 

@@ -453,6 +453,7 @@ def _interrupted_writes(tmp_path: Path, n: int, together: bool) -> bool:
     tracer = _InterruptAt(n)
     sys.settrace(tracer)
     try:
+        tio.check_output_path(tmp_path / "d" / "a.json", "--json", ".json")
         if together:
             with tio.outputs_together():
                 tio.write_json(tmp_path / "d" / "a.json", {"a": 1})
@@ -474,10 +475,13 @@ def test_an_interrupt_at_any_point_leaves_no_temporary(tmp_path, together):
         target.mkdir()
         fired = _interrupted_writes(target, n, together)
         names = sorted(p.relative_to(target).as_posix() for p in target.rglob("*"))
-        leftovers = [name for name in names if name.endswith((".tmp", ".tmpdir"))]
+        leftovers = [name for name in names if name.endswith((".tmp", ".tmpdir"))
+                     or ".testbed-write-test" in name]
         assert leftovers == [], (n, names)
         if together:  # all or nothing
             assert names in ([], ["d"], ["d", "d/a.json", "d/b.json"]), (n, names)
+        else:
+            assert names in ([], ["d"], ["d", "d/a.json"]), (n, names)
         if not fired:  # the write finished before the n-th line: every point was tried
             break
         points += 1
