@@ -13,13 +13,16 @@ from __future__ import annotations
 import os
 import sys
 
+#: Whether this process is the ``testbed`` command (not a library user, not a test calling
+#: :func:`testbed.cli.main`).
+CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
+    list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
+
 
 def _quiet_interrupt_at_startup() -> None:
     """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
     own handling is in place) ends it with exit code 130 and one line, not a traceback."""
-    command = os.path.basename(sys.argv[0]) == "testbed" or \
-        list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
-    if not command:
+    if not CLI_PROCESS:
         return
     previous = sys.excepthook
 

@@ -737,7 +737,8 @@ def _sigterm_raises() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if signal.getsignal(signal.SIGTERM) is handler:  # not ignored at the end of the work
+            signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -799,11 +800,25 @@ def _run_command(command: Callable[[argparse.Namespace], int],
     try:
         with outputs_together():  # all of the command's outputs, or none of them
             check_outputs(args)
-            return command(args)
+            code = command(args)
+            _done_with_signals()
+        return code
     except BaseException as exc:
         if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated):
             traceback.print_exc()
         return _failure_code(exc, args)
+
+
+def _done_with_signals() -> None:
+    """The ``testbed`` process whose command has done its work: SIGINT/SIGTERM are ignored
+    from here to the exit, so that the outputs being renamed into place all appear and a
+    late Ctrl-C cannot turn a complete command into exit 130 (or kill the interpreter while
+    it shuts down). Only in the command's own process, not for callers of :func:`main`."""
+    import testbed
+
+    if testbed.CLI_PROCESS and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
