@@ -13,14 +13,67 @@ from __future__ import annotations
 import os
 import sys
 
-import gymnasium as gym
+#: Whether this process is the ``testbed`` command (not a library user, not a test calling
+#: :func:`testbed.cli.main`).
+CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
+    list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
+
+
+def _quiet_interrupt_at_startup() -> None:
+    """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
+    own handling is in place) ends it with exit code 130 and one line, not a traceback."""
+    if not CLI_PROCESS:
+        return
+    previous = sys.excepthook
+
+    def hook(kind: type, value: BaseException, tb: object) -> None:
+        if issubclass(kind, KeyboardInterrupt) and \
+                os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
+            sys.stderr.write("testbed: interrupted (SIGINT)\n")
+            sys.stderr.flush()
+            os._exit(130)
+        previous(kind, value, tb)
+
+    sys.excepthook = hook
+
+
+_quiet_interrupt_at_startup()
+
+import gymnasium as gym  # noqa: E402 - after the start-up interrupt handling
 
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
         and "mujoco" not in sys.modules:
     # headless rendering (testbed.outputs.render): MuJoCo picks its OpenGL backend at import
     os.environ.setdefault("MUJOCO_GL", "egl")
+#: Why the ``MUJOCO_GL`` given cannot work, when ``import mujoco`` would fail on it (a typo;
+#: ``osmesa`` without libOSMesa): it is then replaced by ``disable`` so that simulating still
+#: works, and rendering (``--video``, ``render_mode="rgb_array"``) fails with one line saying
+#: this.
+BAD_MUJOCO_GL: str | None = None
+
+
+def _check_mujoco_gl() -> None:
+    global BAD_MUJOCO_GL
+    value = os.environ.get("MUJOCO_GL", "")
+    backend = value.lower().strip()
+    if backend not in ("", "disable", "disabled", "off", "false", "0", "enable", "enabled",
+                       "on", "true", "1", "glfw", "glx", "egl", "osmesa", "wgl", "cgl"):
+        BAD_MUJOCO_GL = f"MUJOCO_GL={value!r} is not an OpenGL backend MuJoCo knows"
+    elif backend == "osmesa" and sys.platform.startswith("linux"):
+        import ctypes.util
+
+        if ctypes.util.find_library("OSMesa") is None:
+            BAD_MUJOCO_GL = "MUJOCO_GL='osmesa' but the OSMesa library (libOSMesa) is missing"
+    if BAD_MUJOCO_GL is not None:
+        os.environ["MUJOCO_GL"] = "disable"
+
+
+if "mujoco" not in sys.modules:
+    _check_mujoco_gl()
 
 __version__ = "0.1.0"
+
+
 
 #: Environment id -> (entry point, max_episode_steps[, vector entry point]). Entry points
 #: import lazily; a vector entry point serves ``gym.make_vec(...,

@@ -10,23 +10,34 @@ line ``testbed: error: --NAME ...``. Exit codes:
 
 ====  =====================================================================================
 0     success
-2     bad command line or input (nothing was simulated, nothing written)
-3     numerical failure of the filter (``filters.FilterError``: time and quantity named;
-      or a user's estimator returned a non-finite estimate)
+1     an unexpected failure (a plug-in called ``sys.exit``, or a bug): one line; ``--debug``
+      or ``TESTBED_DEBUG=1`` also prints the traceback (of any failure)
+2     bad command line or input (nothing was simulated, nothing written), including a
+      plug-in (``--filter``, ``--estimator``, the rig) that fails while loading or building
+3     failure of the filter while running (``filters.FilterError``: time and quantity
+      named; a user's estimator returned a non-finite estimate; or its ``step`` raised
+      anything, e.g. a ``LinAlgError``: ``testbed.plugins.EstimatorFailed``)
 4     the simulation diverged (``testbed.sim.simulator.SimulationDiverged``: time and state)
-5     an output could not be written, or the Ray cluster could not be reached
-130   interrupted by SIGINT (Ctrl-C); 143: terminated by SIGTERM (temporaries removed)
+5     an output could not be written (``testbed.io.OutputError``, the output named; none of
+      the command's outputs is kept), or the Ray cluster could not be reached
+130   interrupted by SIGINT (Ctrl-C), also during start-up; 143: terminated by SIGTERM
+      (temporaries removed)
 ====  =====================================================================================
+
+What ``--spawn``/``--serve`` start listens on 127.0.0.1 unless ``--bind ADDRESS``.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
+import re
 import signal
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NoReturn
 
@@ -46,7 +57,7 @@ from testbed.sim.simulator import SimulationDiverged
 
 #: Longest ``--duration`` (simulated seconds) accepted without ``--allow-long``.
 MAX_DURATION_S = 3600.0
-EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 2, 3, 4, 5
+EXIT_FAILURE, EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 1, 2, 3, 4, 5
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
 #: Command-line flag of each scenario field (error messages name the flag).
 FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-option",
@@ -57,6 +68,9 @@ FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-o
          "design_options": "--design-option", "params": "--param", "profile": "--profile",
          "design_profile": "--design-profile",
          "ambient_noise": "--ambient-noise", "reset_noise_scale": "--reset-noise-scale"}
+
+
+DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -74,14 +88,22 @@ class _Parser(argparse.ArgumentParser):
         return scenario_file.fill_deferred(self, namespace), extras
 
 
+#: A plain decimal number in ASCII (no ``1_0``, no ``0x10``, no other scripts' digits).
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?", re.ASCII)
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+
+
+def _plain_float(text: str) -> float:
+    """``float(text)`` of a plain ASCII decimal number; NaN for anything else."""
+    text = text.strip()
+    return float(text) if _DECIMAL.fullmatch(text) else float("nan")
+
+
 def _name_value(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    try:
-        number = float(value)
-    except ValueError:
-        number = float("nan")
+    number = _plain_float(value)
     if not np.isfinite(number):
         raise argparse.ArgumentTypeError(f"{name}: value must be a finite number, got "
                                          f"{value!r}")
@@ -89,10 +111,7 @@ def _name_value(text: str) -> tuple[str, float]:
 
 
 def _number(text: str, ok: Callable[[float], bool], what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
+    value = _plain_float(text)
     if not (np.isfinite(value) and ok(value)):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
@@ -107,13 +126,21 @@ def _non_negative(text: str) -> float:
 
 
 def _integer(text: str, low: int, high: int | None, what: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not _INTEGER.fullmatch(text.strip()):
+        raise argparse.ArgumentTypeError(f"expected {what} (plain decimal digits), got "
+                                         f"{text!r}")
+    value = int(text)
     if value < low or (high is not None and value > high):
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return value
+
+
+def _finite(text: str) -> float:
+    return _number(text, lambda v: True, "a finite number")
+
+
+def _port(text: str) -> int:
+    return _integer(text, 1, 65535, "a port number in 1-65535")
 
 
 def _seed(text: str) -> int:
@@ -174,10 +201,10 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
     p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
                    help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
                    "(measured; auto = when the sensors have them) or exact (oracle)")
-    p.add_argument("--ambient-noise", type=float, default=1.0,
+    p.add_argument("--ambient-noise", type=_finite, default=1.0,
                    help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
                    "default 1, 0: none)")
-    p.add_argument("--reset-noise-scale", type=float, default=1.0,
+    p.add_argument("--reset-noise-scale", type=_finite, default=1.0,
                    help="scale of the rig's initial-state distribution (default 1; 0: the "
                    "fixed initial state of the papers)")
     p.add_argument("--design-option", type=_name_value, action="append", default=[],
@@ -192,11 +219,13 @@ def _add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used by the docs and tests)."""
     parser = _Parser(prog="testbed", description=__doc__.splitlines()[0],
-                     epilog="exit codes: 0 success, 2 bad input (nothing ran), 3 numerical "
-                     "failure of the filter, 4 diverged simulation, 5 output or Ray cluster "
-                     "unreachable, 130/143 interrupted by SIGINT/SIGTERM")
+                     epilog="exit codes: 0 success, 1 unexpected failure (--debug shows it), "
+                     "2 bad input (nothing ran), 3 failure of the filter, 4 diverged "
+                     "simulation, 5 output or Ray cluster unreachable, 130/143 interrupted "
+                     "by SIGINT/SIGTERM")
     parser.add_argument("--version", action="version", version=f"testbed {__version__}")
     add_completion(parser)
+    parser.add_argument("--debug", action="store_true", default=False, help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
     _add_scenario_options(run, 20.0)
@@ -210,9 +239,12 @@ def build_parser() -> argparse.ArgumentParser:
                       "e.g. rerun+http://127.0.0.1:9876/proxy")
     live.add_argument("--serve", action="store_true", help="serve the run to Rerun's web "
                       "viewer (headless machines): prints the URL, serves until Ctrl-C")
-    run.add_argument("--grpc-port", type=int, default=9876,
+    run.add_argument("--grpc-port", type=_port, default=9876,
                      help="with --spawn/--serve: the viewer's gRPC port")
-    run.add_argument("--web-port", type=int, default=9090, help="with --serve: the web port")
+    run.add_argument("--web-port", type=_port, default=9090, help="with --serve: the web port")
+    run.add_argument("--bind", metavar="ADDRESS", default=None,
+                     help="with --spawn/--serve: the IP address the viewer or server listens "
+                     "on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
     run.add_argument("--video", help="write an MP4 video of the run here (needs the 'video' "
                      "extra: imageio-ffmpeg)")
     run.add_argument("--realtime", action="store_true", help="pace the run to the wall clock "
@@ -259,14 +291,19 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json")
     rep.add_argument("--plot")
     rep.add_argument("--rrd")
-    rep.add_argument("--out-dir", default="runs/reproductions",
-                     help="with 'all': where the JSON/PNG/RRD files go")
-    rep.add_argument("--doc", default="docs/reproductions.md",
-                     help="with 'all': the Markdown table to regenerate")
+    rep.add_argument("--out-dir", default=None,
+                     help=f"with 'all' only: where the JSON/PNG/RRD files go (default "
+                     f"{REPRODUCE_OUT_DIR})")
+    rep.add_argument("--doc", default=None,
+                     help=f"with 'all' only: the Markdown table to regenerate (default "
+                     f"{REPRODUCE_DOC})")
     _add_score_parser(sub)
     from testbed.outputs import view
 
     view.add_parser(sub)
+    for command in sub.choices.values():  # also after the command: testbed run ... --debug
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                             help=DEBUG_HELP)
     return parser
 
 
@@ -292,6 +329,8 @@ def _add_score_parser(sub: Any) -> None:
     sc.add_argument("--markdown", help="write the leaderboard as Markdown here")
     sc.add_argument("--plot", help="write a PNG here")
     sc.add_argument("--rrd", help="write the comparison Rerun recording here")
+    sc.add_argument("--no-progress", action="store_true",
+                    help="do not report each scored entry on stderr")
 
 
 #: ``run``/``mc``/``sweep`` options that set one scenario field (others: _cli_fields).
@@ -397,20 +436,55 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 #: Output flags and the suffix of the file each writes.
-OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz"}
+OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz",
+           "video": ".mp4", "markdown": ".md"}
+#: Where ``testbed reproduce all`` writes by default.
+REPRODUCE_OUT_DIR, REPRODUCE_DOC = "runs/reproductions", "docs/reproductions.md"
+
+
+def worst_case_path(json_path: str | os.PathLike) -> str:
+    """The ``.worst_case.npz`` that ``testbed score --json X.json`` writes beside ``X.json``."""
+    return os.fspath(json_path).removesuffix(".json") + ".worst_case.npz"
+
+
+def output_paths(args: argparse.Namespace) -> dict[str, str]:
+    """Every file (or directory) the command will write, derived ones included, by the flag
+    that names it in messages."""
+    paths = {}
+    for attr in OUTPUTS:
+        path = getattr(args, attr, None)
+        if path is not None:
+            paths["--" + attr.replace("_", "-")] = path
+    if args.command == "score" and args.json is not None:
+        paths["--json (its .worst_case.npz)"] = worst_case_path(args.json)
+    if args.command == "reproduce" and args.name == "all":
+        paths["--out-dir"] = args.out_dir or REPRODUCE_OUT_DIR
+        paths["--doc"] = args.doc or REPRODUCE_DOC
+    return paths
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """Check every output path of the command before anything runs (``ValueError``)."""
-    for attr, suffix in OUTPUTS.items():
-        path = getattr(args, attr, None)
-        if path is not None:
-            check_output_path(path, "--" + attr.replace("_", "-"), suffix)
+    """Check every output path of the command, derived ones included, before anything runs
+    (``ValueError`` naming the flag)."""
+    if args.command == "reproduce" and args.name != "all":
+        for flag, value in (("--out-dir", args.out_dir), ("--doc", args.doc)):
+            if value is not None:
+                raise ValueError(f"{flag} applies to 'reproduce all' only; for one example "
+                                 "use --json, --plot and --rrd")
+    suffixes = {**{"--" + a.replace("_", "-"): s for a, s in OUTPUTS.items()},
+                "--json (its .worst_case.npz)": ".npz", "--out-dir": None, "--doc": ".md"}
+    for flag, path in output_paths(args).items():
+        check_output_path(path, flag, suffixes[flag])
+    if getattr(args, "video", None) is not None:
+        from testbed.outputs.render import check_rendering, check_video_path
+
+        try:
+            check_video_path(args.video)
+            check_rendering()
+        except ValueError as exc:
+            raise ValueError(f"--video: {exc}") from None
     if getattr(args, "save_scenario", None) is not None:
         scenario_file.check_destination(args.save_scenario)
-    if args.command == "reproduce" and args.name == "all":
-        check_output_path(args.out_dir, "--out-dir", None)
-        check_output_path(args.doc, "--doc", ".md")
 
 
 def _units_note(units: dict[str, str]) -> str | None:
@@ -443,14 +517,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     from testbed.experiment import runner
 
     scenario = scenario_from_args(args)
+    _check_live_options(args)
     if args.save_scenario:
         return _save_scenario(args, scenario)
     if args.realtime:
         return _cmd_run_realtime(args, scenario)
-    if args.video:
-        from testbed.outputs.render import check_video_path
-
-        check_video_path(args.video)
     live = _open_live(args, scenario)
     start = time.perf_counter()
     try:
@@ -501,6 +572,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         frames = iter_frames(rig, traj.state, stride)
         print(f"wrote {write_video(args.video, frames, 1.0 / (dt_s * stride))}")
     if live is not None:
+        from testbed.io import commit_outputs
+
+        commit_outputs()  # the files are complete: they appear before serving goes on
         _finish_live(args, live)
     return 0
 
@@ -538,15 +612,34 @@ def _scenario_and_meta(meta: dict[str, Any]) -> dict[str, Any]:
                                                    if k != "scenario"}}
 
 
+def _check_live_options(args: argparse.Namespace) -> None:
+    """``--bind`` (an IP address, with --spawn/--serve only; a warning when other machines
+    can reach it) and the live options that do not go with --realtime."""
+    if args.realtime and (args.spawn or args.connect or args.serve):
+        raise ValueError("--spawn/--connect/--serve are not available with --realtime")
+    if args.bind is None:
+        return
+    if not (args.spawn or args.serve):
+        raise ValueError("--bind applies to --spawn and --serve (what listens)")
+    from testbed.outputs.live import check_bind
+
+    address, loopback = check_bind(args.bind)
+    if not loopback:
+        print(f"testbed: warning: --bind {address}: the viewer is reachable from other "
+              "machines (anyone who can reach this one can watch the run)", file=sys.stderr,
+              flush=True)
+
+
 def _open_live(args: argparse.Namespace, scenario: Scenario) -> Any:
     """The live view asked for by --spawn / --connect / --serve, or None."""
     if not (args.spawn or args.connect or args.serve):
         return None
-    from testbed.outputs.live import LiveView, open_recording
+    from testbed.outputs.live import DEFAULT_BIND, LiveView, open_recording
 
+    bind = DEFAULT_BIND if args.bind is None else args.bind
     rec, url = open_recording(f"testbed/{resolve_rig(scenario.rig).name}", spawn=args.spawn,
                               connect=args.connect, serve=args.serve,
-                              grpc_port=args.grpc_port, web_port=args.web_port)
+                              grpc_port=args.grpc_port, web_port=args.web_port, bind=bind)
     if url is not None:
         print(f"Rerun web viewer: open {url}", flush=True)
     return LiveView(rec)
@@ -647,6 +740,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         detail = str(exc).removeprefix("--grid").lstrip(": ")
         raise ValueError(f"{source.path}: study.grid: {detail}") from None
     runs = _study(args, source, "runs")
+    from testbed.experiment.runner import check_study_size
+
+    check_study_size(scenario, runs)
     if args.save_scenario:
         return _save_scenario(args, scenario, runs=runs, grid=grid)
     if args.address is not None:
@@ -693,10 +789,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from testbed.reproductions.outputs import agree_text, format_claims
 
     if args.name == "all":
-        results = reproductions.reproduce_all(args.out_dir, args.doc)
+        out_dir, doc = args.out_dir or REPRODUCE_OUT_DIR, args.doc or REPRODUCE_DOC
+        results = reproductions.reproduce_all(out_dir, doc)
         for name, result in results.items():
             print(f"{name}: {agree_text(result['claims'])}")
-        print(f"wrote {args.doc}, its figures and {args.out_dir}/")
+        print(f"wrote {doc}, its figures and {out_dir}/")
         return 0
     module = reproductions.load(args.name)
     result = module.reproduce(horizon_s=args.horizon, seed=args.seed, json_path=args.json,
@@ -726,14 +823,18 @@ def cmd_score(args: argparse.Namespace) -> int:
         return 0
     if not args.estimator:
         raise ValueError("give --estimator NAME (repeatable), or --list")
-    for flag in ("json", "markdown", "plot", "rrd"):
-        path = getattr(args, flag)
-        if path is not None and not str(path).strip():
-            raise ValueError(f"--{flag} needs a file path")
+    from testbed import estimators
+
+    for name in args.estimator:  # loaded (and a plug-in's failure named) before any work
+        try:
+            estimators.resolve(name)
+        except ValueError as exc:
+            raise ValueError(f"--estimator: {exc}") from None
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
                         worst_case=not args.no_worst_case, reference=args.reference,
-                        progress=lambda name: print(f"  scored {name}", file=sys.stderr))
+                        progress=None if args.no_progress else
+                        lambda name: print(f"  scored {name}", file=sys.stderr))
     summary = report.results(run)
     remarks = report.notes(run)
     print(report.leaderboard(summary))
@@ -741,8 +842,7 @@ def cmd_score(args: argparse.Namespace) -> int:
         print(f"note: {remark}")
     if args.json:
         print(f"wrote {report.write_results(args.json, summary)}")
-        npz = report.write_worst_cases(str(args.json).removesuffix(".json")
-                                       + ".worst_case.npz", run)
+        npz = report.write_worst_cases(worst_case_path(args.json), run)
         if npz is not None:
             print(f"wrote {npz}")
     if args.markdown:
@@ -772,7 +872,8 @@ def _sigterm_raises() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if signal.getsignal(signal.SIGTERM) is handler:  # not ignored at the end of the work
+            signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager
@@ -798,33 +899,111 @@ def _fail(code: int, message: str) -> int:
     return code
 
 
+def _debug(args: argparse.Namespace | None) -> bool:
+    """``--debug`` or ``TESTBED_DEBUG=1``: show the traceback of a failure."""
+    return bool(getattr(args, "debug", False)) or os.environ.get("TESTBED_DEBUG", "") not in (
+        "", "0")
+
+
+def _plugin_flag(args: argparse.Namespace) -> str:
+    """How messages name the estimator of the command (``--filter 'x'``, ``--estimator``)."""
+    if args.command == "score":
+        return "--estimator"
+    return f"--filter {getattr(args, 'filter', '')!r}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``testbed`` command (exit codes in the module docstring)."""
-    args = build_parser().parse_args(argv)
-    commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep, "reproduce": cmd_reproduce,
-                "score": cmd_score}
-    if args.command == "view":
-        from testbed.outputs.view import cmd_view
+    args = None
+    try:
+        args = build_parser().parse_args(argv)
+        commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep,
+                    "reproduce": cmd_reproduce, "score": cmd_score}
+        if args.command == "view":
+            from testbed.outputs.view import cmd_view
 
-        commands["view"] = cmd_view
-    with _sigterm_raises(), _mujoco_warnings_logged():
-        try:
+            commands["view"] = cmd_view
+        with _sigterm_raises(), _mujoco_warnings_logged():
+            return _run_command(commands[args.command], args)
+    except KeyboardInterrupt:  # during start-up or parsing
+        if _debug(args):
+            traceback.print_exc()
+        return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT)")
+
+
+def _run_command(command: Callable[[argparse.Namespace], int],
+                 args: argparse.Namespace) -> int:
+    """``command(args)`` with its failures as one line and an exit code."""
+    from testbed.io import outputs_together
+
+    try:
+        with outputs_together():  # all of the command's outputs, or none of them
             check_outputs(args)
-            return commands[args.command](args)
-        except ScenarioError as exc:
-            return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
-        except ValueError as exc:
-            return _fail(EXIT_USAGE, f"testbed: error: {exc}")
-        except (FilterError, FloatingPointError) as exc:  # typed, or a user's filter's NaN
-            return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
-        except SimulationDiverged as exc:
-            return _fail(EXIT_DIVERGED, f"testbed: {exc}")
-        except OSError as exc:
-            return _fail(EXIT_OUTPUT, f"testbed: {exc}")
-        except KeyboardInterrupt:
-            return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT); partial outputs removed")
-        except _Terminated:
-            return _fail(EXIT_SIGTERM, "testbed: terminated (SIGTERM); partial outputs removed")
+            code = command(args)
+            _done_with_signals()
+        return code
+    except BaseException as exc:
+        if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated):
+            traceback.print_exc()
+        return _failure_code(exc, args)
+
+
+def _done_with_signals() -> None:
+    """The ``testbed`` process whose command has done its work: SIGINT/SIGTERM are ignored
+    from here to the exit, so that the outputs being renamed into place all appear and a
+    late Ctrl-C cannot turn a complete command into exit 130 (or kill the interpreter while
+    it shuts down). Only in the command's own process, not for callers of :func:`main`."""
+    import testbed
+
+    if testbed.CLI_PROCESS and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
+    """The exit code of a failure (printed as one line); re-raises what is not a failure."""
+    from testbed.experiment.runner import StudyTooLarge
+    from testbed.io import OutputError
+    from testbed.plugins import EstimatorFailed, describe
+
+    if isinstance(exc, StudyTooLarge):
+        return _fail(EXIT_USAGE, f"testbed: error: --{exc}")
+    if isinstance(exc, ScenarioError):
+        return _fail(EXIT_USAGE, f"testbed: error: {FLAGS.get(exc.field, exc.field)}: {exc}")
+    if isinstance(exc, ValueError):
+        return _fail(EXIT_USAGE, f"testbed: error: {exc}")
+    if isinstance(exc, EstimatorFailed):
+        return _fail(EXIT_FILTER, f"testbed: {_plugin_flag(args)} failed while running: {exc}")
+    if isinstance(exc, FilterError | FloatingPointError):  # typed, or a user's filter's NaN
+        return _fail(EXIT_FILTER, f"testbed: numerical failure of the filter: {exc}")
+    if isinstance(exc, SimulationDiverged):
+        return _fail(EXIT_DIVERGED, f"testbed: {exc}")
+    if isinstance(exc, OutputError):
+        return _fail(EXIT_OUTPUT, f"testbed: {_output_flag(args, exc.path)}{exc}")
+    if isinstance(exc, OSError):
+        return _fail(EXIT_OUTPUT, f"testbed: {exc}")
+    if isinstance(exc, KeyboardInterrupt):
+        return _fail(EXIT_SIGINT, "testbed: interrupted (SIGINT); partial outputs removed")
+    if isinstance(exc, _Terminated):
+        return _fail(EXIT_SIGTERM, "testbed: terminated (SIGTERM); partial outputs removed")
+    if isinstance(exc, SystemExit):  # only plug-in code calls sys.exit inside a command
+        return _fail(EXIT_FAILURE, f"testbed: a plug-in ({_plugin_flag(args)} or the rig) "
+                     f"called sys.exit({exc.code!r}) while the command ran")
+    if isinstance(exc, Exception):
+        hint = "" if _debug(args) else " (--debug or TESTBED_DEBUG=1 shows the traceback)"
+        return _fail(EXIT_FAILURE, f"testbed: unexpected failure: {describe(exc)}{hint}")
+    raise exc
+
+
+def _output_flag(args: argparse.Namespace, path: Any) -> str:
+    """``--json `` when ``path`` is (or derives from) the file of an output flag."""
+    if path is None:
+        return ""
+    target = os.path.abspath(os.fspath(path))
+    for flag, value in output_paths(args).items():
+        if os.path.abspath(os.fspath(value)) == target:
+            return f"{flag}: "
+    return ""
 
 
 if __name__ == "__main__":

@@ -197,19 +197,32 @@ def test_cli_run_serve_prints_a_url_and_serves_the_run(tmp_path):
 
 
 def test_spawn_starts_this_environments_viewer(monkeypatch):
-    """``--spawn`` needs a display, so only the call is checked: Rerun's ``spawn`` with the
-    ``rerun`` next to this Python, on the requested port, connected to our recording."""
-    import rerun as rr
-
+    """``--spawn`` needs a display, so only the call is checked: this environment's
+    ``rerun`` binary in its own process group, listening on 127.0.0.1 and the requested
+    port, our recording connected to it."""
+    from testbed.outputs import live
     from testbed.outputs.live import open_recording, stop
 
-    calls = []
-    monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
-    rec, url = open_recording("testbed/x", spawn=True, grpc_port=_free_port())
+    calls, connected = [], []
+
+    class FakeProc:
+        pid, stderr, returncode = -1, None, None
+
+        def poll(self):
+            return None
+
+    monkeypatch.setattr(live, "_launch", lambda argv, **kw: calls.append(argv) or FakeProc())
+    monkeypatch.setattr(live, "_wait_listening", lambda *a: None)
+    import rerun as rr
+
+    monkeypatch.setattr(rr.RecordingStream, "connect_grpc",
+                        lambda self, url=None, **kw: connected.append(url))
+    port = _free_port()
+    rec, url = open_recording("testbed/x", spawn=True, grpc_port=port)
     try:
-        assert url is None and len(calls) == 1
-        assert calls[0]["recording"] is rec and calls[0]["connect"] is True
-        assert calls[0]["executable_path"] in (str(RERUN), None)
+        assert url is None and calls == [["--bind", "127.0.0.1", "--port", str(port)]]
+        assert connected == [f"rerun+http://127.0.0.1:{port}/proxy"]
+        assert Path(live.rerun_executable()).name == "rerun"
     finally:
         stop(rec)
     with pytest.raises(ValueError, match="exactly one"):

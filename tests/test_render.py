@@ -80,5 +80,5 @@ def test_cli_video(tmp_path, capsys):
     assert frames == 11  # 31 states, every third
     assert main(["run", "vehicle-roll", "--duration", "1", "--video",
                  str(tmp_path / "v.gif")]) == 2
-    assert "must end in .mp4" in capsys.readouterr().err
+    assert "--video must be a .mp4 file" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]

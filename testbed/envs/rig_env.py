@@ -67,6 +67,13 @@ class RigEnv(gym.Env):
     def __init__(self, rig: Any = "helicopter", render_mode: str | None = None, **kwargs: Any):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if render_mode == "rgb_array":  # no OpenGL here: one line now, not a deep traceback
+            from testbed.outputs.render import check_rendering
+
+            try:
+                check_rendering()
+            except ValueError as exc:
+                raise ValueError(f"render_mode='rgb_array': {exc}") from None
         self.render_mode = render_mode
         self._renderer = None
         self.sim = build_simulator(rig, 1, num_threads=1, **kwargs)

@@ -14,7 +14,7 @@ from testbed.experiment.loop import EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 
 
-class FilterInLoop(gym.Wrapper):
+class FilterInLoop(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Feed every measurement and applied action to an estimator; observe the estimate.
 
     A policy acting on this wrapper's observations is an output-feedback controller: it sees
@@ -48,8 +48,19 @@ class FilterInLoop(gym.Wrapper):
     output_matrix, ratio_weight : ndarray, optional
         ``L`` and ``R`` of the noise-output ratio (see :class:`EpisodeMetrics`).
 
+    design : DesignModel, optional
+        With ``estimator`` given as a name or factory: the design model to build it from
+        (default: the environment's, as :meth:`from_design`).
+    estimator_options : dict, optional
+        With ``estimator`` given as a name or factory: the factory's options.
+
     Notes
     -----
+    ``estimator`` may also be a registered name, ``"module:factory"`` or a factory: the
+    wrapper is then built like :meth:`from_design` and its spec (``env.spec``) recreates it
+    (``gymnasium.make(env.spec)``). Wrappers pickle and deep-copy into independent working
+    copies.
+
     ``reset(options={"estimator": {"x0": ..., "P0": ...}, ...})`` restarts the estimator
     from the given prior (default: the prior it had when wrapped); the other option keys go
     to the environment. Both are checked before anything is reset. A ``FilterError`` raised
@@ -57,13 +68,33 @@ class FilterInLoop(gym.Wrapper):
     environment has advanced, the estimate has not); a further ``step`` says so.
     """
 
-    def __init__(self, env: gym.Env, estimator: Estimator, *,
+    def __init__(self, env: gym.Env, estimator: Estimator | str | Callable = "kalman", *,
                  input_transform: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
                  measurement_index: Sequence[int] | None = None,
                  physical_index: Sequence[int] | None = None,
                  output_matrix: np.ndarray | None = None,
-                 ratio_weight: np.ndarray | None = None):
-        super().__init__(env)
+                 ratio_weight: np.ndarray | None = None, design: Any = None,
+                 estimator_options: dict[str, Any] | None = None):
+        gym.utils.RecordConstructorArgs.__init__(
+            self, estimator=estimator, input_transform=input_transform,
+            measurement_index=measurement_index, physical_index=physical_index,
+            output_matrix=output_matrix, ratio_weight=ratio_weight, design=design,
+            estimator_options=estimator_options)
+        if isinstance(estimator, str) or (callable(estimator)
+                                          and not hasattr(estimator, "step")):
+            if input_transform is not None or output_matrix is not None:
+                raise ValueError("input_transform and output_matrix come from the design "
+                                 "when the estimator is given by name or factory")
+            if measurement_index is not None or physical_index is not None:
+                raise ValueError("measurement_index and physical_index come from the design "
+                                 "when the estimator is given by name or factory")
+            (estimator, input_transform, output_matrix, measurement_index,
+             physical_index) = _from_design(env, estimator, design,
+                                            dict(estimator_options or {}))
+        elif design is not None or estimator_options:
+            raise ValueError("design and estimator_options apply to an estimator given by "
+                             "name or factory, not to an estimator object")
+        gym.Wrapper.__init__(self, env)
         self.estimator = estimator
         P = estimator.P  # None for estimators without a covariance
         x0 = np.array(estimator.x, dtype=float, copy=True)
@@ -98,31 +129,7 @@ class FilterInLoop(gym.Wrapper):
         **options
             Passed to the estimator factory.
         """
-        from testbed import estimators
-
-        inner = env.unwrapped
-        if design is None:
-            design = inner.rig.design_model(inner.sensors, inner.dt_s,
-                                            inner.sim.known_disturbance)
-            # the designer's rig, as testbed.experiment.runner.build names it
-            design.extras.setdefault("rig_type", type(inner.rig))
-            design.extras.setdefault("physics_dt_s", float(inner.rig.model.opt.timestep))
-        design, _ = estimators.design_for(estimator, design)
-        est = estimators.build(estimator, design, **options)
-        name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
-                                                                    repr(estimator))
-        check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
-        channels = estimators.channels_for(est, design)
-        if getattr(est, "batched", False):
-            est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results
-        batched_transform = design.input_transform
-        transform = None
-        if batched_transform is not None:
-            def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-                return batched_transform(u[None], np.asarray(x_hat)[None])[0]
-        return cls(env, est, input_transform=transform, measurement_index=channels,
-                   physical_index=design.physical,
-                   output_matrix=design.output_matrix[:, design.physical])
+        return cls(env, estimator, design=design, estimator_options=options)
 
     @property
     def input_transform(self) -> Callable | None:
@@ -179,6 +186,53 @@ class FilterInLoop(gym.Wrapper):
             raise
         info = self._augment(info, y)
         return info["estimate"].copy(), reward, terminated, truncated, info
+
+
+def _from_design(env: gym.Env, estimator: Any, design: Any,
+                 options: dict[str, Any]) -> tuple[Any, Any, Any, Any, Any]:
+    """The estimator built from the design model the runner's way (the design for its
+    profile, the checks after the factory), its input transform, output matrix, the
+    channels it takes and the physical states of its design."""
+    from testbed import estimators
+
+    inner = env.unwrapped
+    if design is None:
+        missing = [a for a in ("rig", "sensors", "dt_s", "sim") if not hasattr(inner, a)]
+        if missing:
+            raise ValueError(f"FilterInLoop.from_design needs a testbed rig environment "
+                             f"(RigEnv: with {', '.join(missing)}); "
+                             f"{type(inner).__name__} has no {', '.join(missing)}: pass "
+                             "design=DesignModel(...) or wrap an estimator object with "
+                             "FilterInLoop(env, estimator)")
+        design = inner.rig.design_model(inner.sensors, inner.dt_s,
+                                        inner.sim.known_disturbance)
+        # the designer's rig, as testbed.experiment.runner.build names it
+        design.extras.setdefault("rig_type", type(inner.rig))
+        design.extras.setdefault("physics_dt_s", float(inner.rig.model.opt.timestep))
+    design, _ = estimators.design_for(estimator, design)
+    est = estimators.build(estimator, design, **options)
+    name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
+                                                                repr(estimator))
+    check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
+    channels = estimators.channels_for(est, design)
+    if getattr(est, "batched", False):
+        est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results
+    transform = None
+    if design.input_transform is not None:
+        transform = _RowTransform(design.input_transform)
+    return (est, transform, design.output_matrix[:, design.physical], channels,
+            design.physical)
+
+
+class _RowTransform:
+    """A batched input transform ``(u (N, nu), x_hat (N, n))`` applied to one row (a class,
+    not a closure: wrappers pickle)."""
+
+    def __init__(self, batched: Callable[[np.ndarray, np.ndarray], np.ndarray]):
+        self.batched = batched
+
+    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+        return self.batched(u[None], np.asarray(x_hat)[None])[0]
 
 
 class _BatchOfOne:

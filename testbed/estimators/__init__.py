@@ -64,14 +64,15 @@ A user's estimator is named ``package.module:factory`` anywhere a filter name is
 from __future__ import annotations
 
 import copy
-import importlib
 import inspect
+import sys
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from filters import KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
+from testbed import plugins
 from testbed.estimators.design import DesignModel
 
 Factory = Callable[..., Any]
@@ -369,16 +370,11 @@ def resolve(name: str | Factory) -> Factory:
         raise ValueError(f"filter must be a name or 'module:factory', got {name!r}")
     if name in ESTIMATORS:
         return ESTIMATORS[name]
-    module, sep, attr = name.partition(":")
+    module, sep, attr = name.rpartition(":")
     if not sep or not module or not attr:
-        raise ValueError(f"unknown filter {name!r}; expected one of {sorted(ESTIMATORS)} or "
-                         "'package.module:factory'")
-    try:
-        factory = getattr(importlib.import_module(module), attr)
-    except ImportError as err:
-        raise ValueError(f"filter {name!r}: cannot import {module!r} ({err})") from None
-    except AttributeError:
-        raise ValueError(f"filter {name!r}: module {module!r} has no {attr!r}") from None
+        raise ValueError(f"unknown filter {name!r}; expected one of {sorted(ESTIMATORS)}, "
+                         "'package.module:factory' or 'path/to/file.py:factory'")
+    factory = plugins.load(name, f"filter {name!r}")
     if not callable(factory):
         raise ValueError(f"filter {name!r}: {attr!r} is not callable")
     return factory
@@ -409,10 +405,19 @@ def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
 def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
     """``resolve(name)(design, **options)``, checked against the protocol."""
     factory = resolve(name)
+    label = name if isinstance(name, str) else getattr(name, "__name__", repr(name))
     try:
         est = factory(design, **options)
     except TypeError as err:
-        raise ValueError(f"filter {name!r}: bad options {sorted(options)} ({err})") from None
+        if name in ESTIMATORS:
+            raise ValueError(f"filter {name!r}: bad options {sorted(options)} ({err})") from None
+        raise plugins.PluginError(f"filter {label!r}", "build", err) from None
+    except ValueError:
+        if name in ESTIMATORS:  # a bad option value, named by the built-in factory
+            raise
+        raise plugins.PluginError(f"filter {label!r}", "build", sys.exc_info()[1]) from None
+    except plugins.PLUGIN_FAILURES as err:
+        raise plugins.PluginError(f"filter {label!r}", "build", err) from None
     for attr in ("x", "reset", "step"):
         if not hasattr(est, attr):
             raise ValueError(f"filter {name!r}: the factory returned {type(est).__name__}, "

@@ -66,7 +66,7 @@ def check_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) ->
         return
     target = address.split("://", 1)[1] if address.startswith("ray://") else address
     host, sep, port = target.rpartition(":")
-    if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
+    if not (sep and host and port.isascii() and port.isdigit() and 0 < int(port) < 65536):
         raise ValueError(f"address must be 'host:port', 'ray://host:port' or 'auto', got "
                          f"{address!r}")
     try:

@@ -16,8 +16,9 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from filters import real_array
-from filters.errors import FiniteEscapeError
+from filters.errors import FilterError, FiniteEscapeError
 from testbed.experiment.metrics import EpisodeMetrics
+from testbed.plugins import PLUGIN_FAILURES, EstimatorFailed, describe
 from testbed.sim.simulator import Simulator
 
 
@@ -153,10 +154,21 @@ class EstimatorStage:
     def reset(self, y: np.ndarray, x_true: np.ndarray, x0: np.ndarray, P0: Any) -> np.ndarray:
         """Restart from the priors, prime on the first sample, restart the metrics; returns
         the physical estimate."""
-        self.estimator.reset(x0, P0)
-        prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
-        if prime is not None:
-            prime(self.select(y))
+        try:
+            self.estimator.reset(x0, P0)
+            prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
+            if prime is not None:
+                prime(self.select(y))
+        except FilterError:
+            raise
+        except ValueError as exc:
+            if not isinstance(exc, np.linalg.LinAlgError):
+                raise  # a bad prior, named by the estimator
+            raise EstimatorFailed(f"the estimator's reset raised {describe(exc)} at t = 0 s",
+                                  0.0) from exc
+        except PLUGIN_FAILURES as exc:
+            raise EstimatorFailed(f"the estimator's reset raised {describe(exc)} at t = 0 s",
+                                  0.0) from exc
         self.metrics.reset(x_true)
         self._checked = False
         return self.x
@@ -169,7 +181,14 @@ class EstimatorStage:
         u = u_applied
         if self.input_transform is not None:
             u = self.input_transform(u, np.asarray(est.x))
-        x_hat = np.asarray(est.step(self.select(y), u))
+        try:
+            x_hat = np.asarray(est.step(self.select(y), u))
+        except (FilterError, FloatingPointError):  # typed numerical failures, as they are
+            raise
+        except PLUGIN_FAILURES as exc:  # LinAlgError, a plug-in's SystemExit...: exit 3, not 2
+            time_s = (self.metrics.count + 1) * self.metrics.dt_s
+            raise EstimatorFailed(f"the estimator's step raised {describe(exc)} at "
+                                  f"t = {time_s:g} s", time_s) from exc
         if not np.all(np.isfinite(x_hat)):
             raise FiniteEscapeError("the estimator returned a non-finite estimate",
                                     time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",

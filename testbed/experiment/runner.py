@@ -10,8 +10,11 @@ batch size, prefix-stable, no overlap between nearby base seeds) and equals, bit
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import itertools
+import os
 import shutil
 import time
 import zipfile
@@ -31,7 +34,13 @@ from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
 from testbed.experiment.trajectory import Trajectory
-from testbed.io import atomic_path, temporary_directory
+from testbed.io import (
+    OutputError,
+    atomic_path,
+    remove_own_temporaries,
+    reserve,
+    temporary_directory,
+)
 from testbed.outputs.envelope import ErrorEnvelope
 from testbed.rigs import resolve_rig
 from testbed.sim import build_simulator
@@ -293,50 +302,214 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = Fals
     return traj, summary
 
 
-class _NpzStream:
-    """Trajectories written batch by batch into ``.npy`` memory maps, zipped into one ``.npz``.
+class _FileRows:
+    """Runs ``start:start+size`` of one array of a ``.npy`` file being written, as the loop
+    records them (``rows[:, k] = value``): a few steps are buffered, then written with
+    ``os.pwrite`` at their place. No memory map (a full disk is an ``OSError``, never a
+    SIGBUS); RAM bounded by ``size x chunk`` rows."""
 
-    RAM stays bounded by one batch; the ``.npz`` appears atomically.
+    #: Bytes of a buffer (the chunk of steps is chosen from it).
+    BUFFER_BYTES = 8 << 20
+
+    def __init__(self, stream: _NpzStream, key: str, start: int, size: int):
+        self.stream, self.key, self.start = stream, key, start
+        total = stream.shapes[key]
+        self.shape = (size, *total[1:])
+        self._row_items = int(np.prod(total[2:], dtype=np.int64))
+        steps = total[1]
+        per_step = max(1, size * self._row_items * 8)
+        self.chunk = int(max(1, min(steps, self.BUFFER_BYTES // per_step)))
+        self._buf = np.zeros((size, self.chunk, *total[2:]))
+        self._c0, self._top = 0, -1
+
+    def __setitem__(self, key: Any, value: Any) -> None:
+        rows, k = key
+        if rows != slice(None) or not isinstance(k, int | np.integer):
+            raise IndexError(f"a streamed recording supports [:, k] only, got {key!r}")
+        k = int(k)
+        if not self._c0 <= k < self._c0 + self.chunk:
+            self.flush()
+            self._c0 = k - k % self.chunk
+        self._buf[:, k - self._c0] = value
+        self._top = max(self._top, k)
+
+    def __getitem__(self, key: Any) -> Any:
+        if isinstance(key, tuple) and isinstance(key[1], slice):
+            return self  # truncation at an early end: the rows not written stay zero
+        raise IndexError("a streamed recording is write-only")
+
+    def flush(self) -> None:
+        """Write the buffered steps to the file."""
+        if self._top < self._c0:
+            return
+        n = self._top - self._c0 + 1
+        steps = self.stream.shapes[self.key][1]
+        item = self._row_items * 8
+        fd, base = self.stream.files[self.key]
+        try:
+            for i in range(self.shape[0]):
+                data = np.ascontiguousarray(self._buf[i, :n]).tobytes()
+                offset = base + ((self.start + i) * steps + self._c0) * item
+                while data:
+                    written = os.pwrite(fd, data, offset)
+                    data, offset = data[written:], offset + written
+        except OSError as exc:
+            raise OutputError(self.stream.path, exc) from None
+        self._buf[:, :n] = 0.0
+        self._top = self._c0 - 1
+
+
+class _NpzStream:
+    """Trajectories written batch by batch into ``.npy`` files, zipped into one ``.npz``.
+
+    The space is reserved up front (``posix_fallocate``): a full disk fails before the
+    simulation starts, as :class:`testbed.io.OutputError` naming the ``.npz``, and every
+    temporary is removed. RAM stays bounded by one batch times a few steps; the ``.npz``
+    appears atomically.
     """
 
     def __init__(self, path: str | Path, shapes: dict[str, tuple[int, ...]]):
         self.path = Path(path)
-        self.arrays: dict[str, np.memmap] = {}
-        self._dir = temporary_directory(self.path)
+        self.shapes = dict(shapes)
+        self.files: dict[str, tuple[int, int]] = {}  # key -> (fd, header bytes)
+        self._open: list[_FileRows] = []
+        self._dir: Path | None = None
         try:
-            for k, s in shapes.items():
-                self.arrays[k] = np.lib.format.open_memmap(self._dir / f"{k}.npy", mode="w+",
-                                                           dtype=np.float64, shape=s)
-        except BaseException:
+            self._dir = temporary_directory(self.path)
+            for key, shape in shapes.items():
+                header = io.BytesIO()
+                np.lib.format.write_array_header_1_0(header, {
+                    "descr": "<f8", "fortran_order": False, "shape": tuple(shape)})
+                fd = os.open(self._dir / f"{key}.npy", os.O_RDWR | os.O_CREAT | os.O_EXCL,
+                             0o600)
+                self.files[key] = (fd, header.tell())
+                size = header.tell() + 8 * int(np.prod(shape, dtype=np.int64))
+                reserve(fd, size, self.path)
+                os.ftruncate(fd, size)
+                os.pwrite(fd, header.getvalue(), 0)
+        except BaseException as exc:
             self.abort()
+            if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+                raise OutputError(self.path, exc) from None
             raise
 
-    def rows(self, start: int, stop: int) -> dict[str, np.ndarray]:
-        """Views of runs ``start:stop`` of every array."""
-        return {k: a[start:stop] for k, a in self.arrays.items()}
+    def rows(self, start: int, stop: int) -> dict[str, _FileRows]:
+        """Writable rows of runs ``start:stop`` of every array (write them with
+        :meth:`flush` after the batch)."""
+        self.flush()
+        self._open = [_FileRows(self, k, start, stop - start) for k in self.shapes]
+        return {r.key: r for r in self._open}
+
+    def flush(self) -> None:
+        """Write what the rows of the last batch still buffer."""
+        for rows in self._open:
+            rows.flush()
+        self._open = []
 
     def finish(self, extra: dict[str, np.ndarray]) -> Path:
         """Write the ``.npz`` with the trajectories and the ``extra`` arrays."""
         try:
-            for array in self.arrays.values():
-                array.flush()
-            names = list(self.arrays)
-            self.arrays.clear()
-            with atomic_path(self.path) as tmp, zipfile.ZipFile(
-                    tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
-                for key in names:
-                    zf.write(self._dir / f"{key}.npy", arcname=f"{key}.npy")
-                for key, value in extra.items():
-                    with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
-                        np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
+            self.flush()
+            arrays = {k: np.asanyarray(v) for k, v in extra.items()}
+            size = sum(os.fstat(fd).st_size for fd, _ in self.files.values())
+            size += sum(a.nbytes + 256 for a in arrays.values())
+            size += 512 * (len(self.files) + len(arrays)) + 4096  # zip headers
+            with atomic_path(self.path) as tmp, open(tmp, "r+b") as f:
+                reserve(f, size, self.path)
+                with zipfile.ZipFile(f, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+                    for key, (fd, _) in self.files.items():
+                        with zf.open(f"{key}.npy", "w", force_zip64=True) as out:
+                            os.lseek(fd, 0, os.SEEK_SET)
+                            while block := os.read(fd, 1 << 22):
+                                out.write(block)
+                    for key, value in arrays.items():
+                        with zf.open(f"{key}.npy", "w", force_zip64=True) as out:
+                            np.lib.format.write_array(out, value, allow_pickle=False)
+                f.truncate(f.tell())  # the reserved space beyond the zip's end
+        except OutputError:
+            raise
+        except OSError as exc:
+            raise OutputError(self.path, exc) from None
         finally:
             self.abort()
         return self.path
 
     def abort(self) -> None:
-        """Remove the temporary files."""
-        self.arrays.clear()
-        shutil.rmtree(self._dir, ignore_errors=True)
+        """Close and remove the temporary files."""
+        self._open = []
+        for fd, _ in self.files.values():
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.files.clear()
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+        remove_own_temporaries(self.path)
+
+
+class StudyTooLarge(ValueError):
+    """A Monte-Carlo study whose per-run results would not fit in memory (refused before
+    anything is allocated); ``needed`` and ``available`` in bytes."""
+
+    def __init__(self, message: str, needed: int = 0, available: int = 0):
+        super().__init__(message)
+        self.needed, self.available = needed, available
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (str(self), self.needed, self.available))
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``; otherwise the
+    physical memory)."""
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    with contextlib.suppress(ValueError, OSError, AttributeError):
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    return 1 << 62
+
+
+def _size_text(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} PB"  # pragma: no cover
+
+
+def study_bytes(n_states: int, n_measured: int, runs: int,
+                envelope_points: int | None = None) -> int:
+    """Estimated memory of the per-run results of a study of ``runs`` runs: seeds, per-run
+    metrics (arrays, the JSON lists and text) and, with an envelope, its errors."""
+    per_run = 3 * 8 + 2 * 8 * (n_states + n_measured + 3)  # seeds, metric arrays (+ joins)
+    per_run += 64 * (n_states + 1) + 32 * (n_states + 1)    # Python floats in lists, JSON
+    if envelope_points is not None:
+        per_run += 8 * n_states * int(envelope_points)
+    return int(runs) * per_run
+
+
+def check_study_size(scenario: Scenario, runs: int,
+                     envelope_points: int | None = None) -> None:
+    """Refuse a study whose per-run results cannot fit in the available memory.
+
+    Raises
+    ------
+    StudyTooLarge
+        With the estimate and what is available (nothing allocated yet).
+    """
+    resolved = scenario.check()
+    n = resolved.rig.n_states
+    m = len(getattr(resolved.sensors, "measured_state", None) or []) or n
+    needed = study_bytes(n, m, runs, envelope_points)
+    available = available_memory()
+    if needed > available // 2:
+        raise StudyTooLarge(
+            f"runs {runs:,} would need about {_size_text(needed)} of memory for the per-run "
+            f"results ({_size_text(needed / runs)} per run), more than half of the "
+            f"{_size_text(available)} available; use fewer runs (at most about "
+            f"{max(1, available // 2 // max(1, needed // runs)):,})", needed, available)
 
 
 def _stats(values: np.ndarray) -> dict[str, float]:
@@ -389,6 +562,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     runs = int(runs)
     batch_size = min(runs, int(batch_size or DEFAULT_BATCH_SIZE))
     start_time = time.perf_counter()
+    check_study_size(scenario, runs, envelope_points)
     seeds = run_seeds(scenario.seed, runs)
     starts = list(range(0, runs, batch_size))
     experiments: dict[int, Experiment] = {}
@@ -425,6 +599,8 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
                 result = loop.run(seeds[start:start + size], scenario.duration_s,
                                   record=record, bar=bar,
                                   on_step=None if envelope is None else envelope.observer(start))
+                if stream is not None:
+                    stream.flush()
                 gathered.add(result)
     except BaseException:
         if stream is not None:

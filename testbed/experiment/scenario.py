@@ -38,6 +38,46 @@ class ScenarioError(ValueError):
         return (type(self), (self.field, str(self)))
 
 
+def _build_rig(rig_cls: type, spec: Any, dt_s: float, profile: str) -> Rig:
+    """``rig_cls(physics_dt_s, profile)``; whatever a rig's code raises is a
+    :class:`ScenarioError` of ``rig`` (one line, the exception named)."""
+    from testbed.plugins import PLUGIN_FAILURES, PluginError
+
+    try:
+        return rig_cls(physics_dt_s=dt_s, profile=profile)
+    except PLUGIN_FAILURES as exc:
+        label = spec if isinstance(spec, str) else getattr(rig_cls, "name", rig_cls.__name__)
+        raise ScenarioError("rig", str(PluginError(f"rig {label!r}", "build", exc))) from None
+
+
+def _build_sensors(rig: Rig, preset: str | None, dt_s: float, options: dict[str, Any]) -> Any:
+    """The rig's sensor preset; options it does not take are a :class:`ScenarioError` of
+    ``sensor_options``."""
+    import inspect
+
+    method = rig.sensors
+    try:
+        params = inspect.signature(method).parameters.values()
+    except (TypeError, ValueError):
+        params = None
+    if params is not None and not any(p.kind is p.VAR_KEYWORD for p in params):
+        known = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        known -= {"preset", "dt_s"}
+        unknown = set(options) - known
+        if unknown:
+            raise ScenarioError("sensor_options", f"sensor_options {sorted(unknown)} do not "
+                                f"apply to the sensors of rig {rig.name!r}; they take "
+                                f"{sorted(known) or 'none'}")
+    try:
+        return method(preset, dt_s=dt_s, **options)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ValueError) and not any(repr(k) in str(exc) or f"{k}=" in str(exc)
+                                                   for k in options):
+            raise  # about the preset, not the options
+        raise ScenarioError("sensor_options", f"bad sensor_options {sorted(options)} for rig "
+                            f"{rig.name!r} ({exc})") from None
+
+
 @contextlib.contextmanager
 def blame(field: str) -> Iterator[None]:
     """Re-raise a ``ValueError`` of the block as :class:`ScenarioError` of ``field``."""
@@ -268,8 +308,14 @@ class Scenario:
             factory = estimators.resolve(self.estimator)
         with blame("estimator_options"):
             estimators.check_options(factory, self.estimator, self.estimator_options)
-        with blame("params"):
+        try:
             rig_cls.params_type().scaled(self.params)
+        except ValueError as exc:
+            message = str(exc)
+            if isinstance(self.params, dict) and self.params:  # what the user typed first
+                given = ", ".join(f"{k}={v!r}" for k, v in self.params.items())
+                message = f"{given}: {message}"
+            raise ScenarioError("params", message) from None
         unknown = set(self.design_options) - set(rig_cls.scenario_options)
         if unknown:
             raise ScenarioError("design_options", f"design option(s) {sorted(unknown)} do not "
@@ -284,11 +330,11 @@ class Scenario:
             raise ScenarioError("disturbance", f"unknown disturbance {self.disturbance!r} for "
                                 f"rig {rig_cls.name!r}; expected one of "
                                 f"{sorted(rig_cls.disturbance_signals) or ['none']}")
-        rig = rig_cls(physics_dt_s=dt_s, profile=self.profile)
+        rig = _build_rig(rig_cls, self.rig, dt_s, self.profile)
         sensors = self.sensors
         if self.sensors is None or isinstance(self.sensors, str):
             with blame("sensors"):
-                sensors = rig.sensors(self.sensors, dt_s=control_dt_s, **self.sensor_options)
+                sensors = _build_sensors(rig, self.sensors, control_dt_s, self.sensor_options)
         elif self.sensor_options:
             raise ScenarioError("sensor_options", "sensor_options apply to a sensor preset "
                                 "name, not to a sensor object")

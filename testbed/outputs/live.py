@@ -5,9 +5,14 @@ Three ways to reach a viewer (:func:`open_recording`):
 - ``spawn``: start the native viewer on this machine (needs a display);
 - ``connect``: a viewer (or ``rerun --serve-grpc``) already listening, e.g.
   ``rerun+http://127.0.0.1:9876/proxy``;
-- ``serve``: this process hosts a gRPC server and Rerun's web viewer; open the printed
-  URL in a browser (the way to watch from a headless machine). Data logged before the
-  browser connects is buffered by the server.
+- ``serve``: start Rerun's gRPC server and web viewer (``rerun --serve-web``, a child
+  process in its own process group, stopped with the run's end of serving); open the
+  printed URL in a browser (the way to watch from a headless machine). Data logged before
+  the browser connects is buffered by the server.
+
+What is started listens on ``127.0.0.1`` only (``bind``; the CLI's ``--bind ADDRESS``): to
+be reached from other machines, bind another address (``0.0.0.0``: every interface; the CLI
+warns), or forward the ports (``ssh -L 9090:localhost:9090 -L 9876:localhost:9876``).
 
 :class:`LiveView` is the runner's per-step observer (``runner.run(observe=live.attach)``):
 it buffers the rows of member 0 as :meth:`testbed.experiment.loop.ClosedLoop.run` produces them and
@@ -20,7 +25,13 @@ run's end) is replaced by the one in force, as in the files.
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
 import os
+import shutil
+import signal
+import socket
+import subprocess
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -45,23 +56,147 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 #: Default ports of Rerun's gRPC server and web viewer.
 GRPC_PORT, WEB_PORT = 9876, 9090
+#: Address the servers listen on unless told otherwise (``--bind``): this machine only.
+DEFAULT_BIND = "127.0.0.1"
+#: Seconds to wait for a started viewer or server to listen.
+START_TIMEOUT_S = 30.0
+#: Seconds to wait for a viewer to take the buffered data (at the end of a run).
+FLUSH_TIMEOUT_S = 15.0
+#: The viewer or server processes this process started, by recording.
+_CHILDREN: dict[int, subprocess.Popen] = {}
+
+
+def check_bind(address: str) -> tuple[str, bool]:
+    """``(address, loopback)`` of a ``--bind`` address (an IPv4 or IPv6 address).
+
+    Raises
+    ------
+    ValueError
+        Not an IP address (names are refused: a name may resolve to another interface).
+    """
+    try:
+        ip = ipaddress.ip_address(str(address).strip().strip("[]"))
+    except ValueError:
+        raise ValueError(f"--bind expects an IP address such as 127.0.0.1, ::1 or 0.0.0.0, "
+                         f"got {address!r}") from None
+    return str(ip), ip.is_loopback
+
+
+def _host(address: str) -> str:
+    """The host to reach a server bound to ``address`` from this machine (for URLs)."""
+    ip = ipaddress.ip_address(address)
+    if ip.is_unspecified:
+        return "127.0.0.1" if ip.version == 4 else "[::1]"
+    return str(ip) if ip.version == 4 else f"[{ip}]"
+
+
+def rerun_executable() -> str:
+    """The Rerun viewer binary of this Python environment (the binary itself, not the
+    ``rerun`` launcher script, so that stopping it stops the server)."""
+    try:
+        import rerun_cli
+
+        binary = os.path.join(os.path.dirname(rerun_cli.__file__), "rerun")
+        if os.path.isfile(binary) and os.access(binary, os.X_OK):
+            return binary
+    except ImportError:
+        pass
+    script = os.path.join(os.path.dirname(sys.executable), "rerun")
+    if os.path.exists(script):
+        return script
+    found = shutil.which("rerun")
+    if found is None:
+        raise ValueError("the Rerun viewer ('rerun', from rerun-sdk) is not installed")
+    return found
+
+
+def _parent_death_signal() -> Any:
+    """On Linux, a ``preexec_fn`` making the child get SIGTERM when this process dies (even
+    by SIGKILL): a served viewer never outlives the run. None elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+    except (OSError, AttributeError):
+        return None
+
+    def preexec() -> None:
+        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+    return preexec
+
+
+def _launch(argv: list[str], *, outlive: bool = False) -> subprocess.Popen:
+    """Start a Rerun process in its own process group (stopped as a whole by :func:`stop`;
+    a Ctrl-C in the terminal reaches this process, which stops it). Unless ``outlive`` (a
+    native viewer), it also ends when this process dies."""
+    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "off")}
+    return subprocess.Popen([rerun_executable(), *argv], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+                            start_new_session=True,
+                            preexec_fn=None if outlive else _parent_death_signal())
+
+
+def _wait_listening(proc: subprocess.Popen, host: str, ports: list[int], what: str) -> None:
+    """Wait until something accepts connections on every port (or the process ends)."""
+    deadline = time.monotonic() + START_TIMEOUT_S
+    pending = list(ports)
+    while pending:
+        if proc.poll() is not None:
+            err = (proc.stderr.read() if proc.stderr else b"").decode(errors="replace")
+            last = [line for line in err.splitlines() if line.strip()][-1:] or ["no output"]
+            raise ValueError(f"{what} did not start (exit code {proc.returncode}): "
+                             f"{last[0].strip()[:300]}")
+        with socket.socket(socket.AF_INET6 if host.startswith("[") else socket.AF_INET) as s:
+            s.settimeout(0.5)
+            if s.connect_ex((host.strip("[]"), pending[0])) == 0:
+                pending.pop(0)
+                continue
+        if time.monotonic() > deadline:
+            _terminate(proc)
+            raise ValueError(f"{what} does not listen on port {pending[0]} after "
+                             f"{START_TIMEOUT_S:g} s")
+        time.sleep(0.05)
+
+
+def _terminate(proc: subprocess.Popen) -> None:
+    """Stop the process group of ``proc`` (SIGTERM, then SIGKILL after 5 s)."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(5)
+    if proc.stderr is not None:
+        proc.stderr.close()
 
 
 def open_recording(application_id: str, *, spawn: bool = False, connect: str | None = None,
                    serve: bool = False, grpc_port: int = GRPC_PORT,
-                   web_port: int = WEB_PORT) -> tuple[rr.RecordingStream, str | None]:
+                   web_port: int = WEB_PORT,
+                   bind: str = DEFAULT_BIND) -> tuple[rr.RecordingStream, str | None]:
     """A recording stream sending to a live viewer.
 
     Parameters
     ----------
     application_id : str
     spawn : bool
-        Start the native viewer (``rerun`` of this Python environment) on ``grpc_port``.
+        Start the native viewer (``rerun`` of this Python environment) listening on
+        ``bind:grpc_port``.
     connect : str, optional
         URL of a running viewer or gRPC server (``rerun+http://HOST:PORT/proxy``).
     serve : bool
-        Host a gRPC server on ``grpc_port`` and the web viewer on ``web_port``.
+        Start Rerun's gRPC server on ``bind:grpc_port`` and its web viewer on
+        ``bind:web_port`` (a child process, stopped by :func:`stop`).
     grpc_port, web_port : int
+    bind : str
+        The IP address the started viewer or server listens on: ``127.0.0.1`` (this machine
+        only) unless another is given (``0.0.0.0``: every interface).
 
     Returns
     -------
@@ -72,8 +207,9 @@ def open_recording(application_id: str, *, spawn: bool = False, connect: str | N
     Raises
     ------
     ValueError
-        Not exactly one of ``spawn``, ``connect``, ``serve``, or a ``connect`` URL that is
-        not ``rerun://``, ``rerun+http://`` or ``rerun+https://`` ending in ``/proxy``.
+        Not exactly one of ``spawn``, ``connect``, ``serve``, a ``connect`` URL that is
+        not ``rerun://``, ``rerun+http://`` or ``rerun+https://`` ending in ``/proxy``, a bad
+        port or address, or a viewer that did not start (a port in use).
     """
     if sum([bool(spawn), connect is not None, bool(serve)]) != 1:
         raise ValueError("choose exactly one of --spawn, --connect URL, --serve")
@@ -81,23 +217,38 @@ def open_recording(application_id: str, *, spawn: bool = False, connect: str | N
                                                         "rerun+https://"))
                                 or not connect.rstrip("/").endswith("/proxy")):
         raise ValueError(f"--connect expects rerun+http://HOST:PORT/proxy, got {connect!r}")
-    for name, port in (("grpc_port", grpc_port), ("web_port", web_port)):
+    for name, port in (("--grpc-port", grpc_port), ("--web-port", web_port)):
         if not (isinstance(port, int) and 0 < port < 65536):
             raise ValueError(f"{name} must be a port number (1-65535), got {port!r}")
-    import rerun as rr
-
-    rec = new_recording(application_id)
+    address, _ = check_bind(bind)
     url = None
-    if spawn:
-        exe = os.path.join(os.path.dirname(sys.executable), "rerun")
-        rr.spawn(port=grpc_port, connect=True, recording=rec,
-                 executable_path=exe if os.path.exists(exe) else None)
-    elif connect is not None:
+    if connect is not None:
+        rec = new_recording(application_id)
         rec.connect_grpc(connect)
+        return rec, url
+    host = _host(address)
+    if spawn:
+        proc = _launch(["--bind", address, "--port", str(grpc_port)], outlive=True)
+        what = f"the Rerun viewer (--grpc-port {grpc_port})"
+        ports = [grpc_port]
     else:
-        server = rec.serve_grpc(grpc_port=grpc_port)
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server)
-        url = f"http://127.0.0.1:{web_port}/?url={quote(server, safe='')}"
+        proc = _launch(["--serve-web", "--bind", address, "--port", str(grpc_port),
+                        "--web-viewer-port", str(web_port)])
+        what = f"the Rerun server (--grpc-port {grpc_port}, --web-port {web_port})"
+        ports = [grpc_port, web_port]
+    try:
+        _wait_listening(proc, host, ports, what)
+        rec = new_recording(application_id)
+        server = f"rerun+http://{host}:{grpc_port}/proxy"
+        rec.connect_grpc(server)
+    except BaseException:
+        _terminate(proc)
+        raise
+    if serve:
+        _CHILDREN[id(rec)] = proc
+        url = f"http://{host}:{web_port}/?url={quote(server, safe='')}"
+    elif proc.stderr is not None:  # the native viewer outlives the run: let it be
+        proc.stderr.close()
     return rec, url
 
 
@@ -226,7 +377,7 @@ class LiveView:
         if self.layout is not None and self._history["t_s"]:
             self.rec.send_blueprint(self._blueprint(self._final_trajectory()),
                                     make_active=True, make_default=True)
-        self.rec.flush()
+        flush(self.rec)
 
     # -- helpers
     def _final_trajectory(self) -> Trajectory:
@@ -264,10 +415,30 @@ class LiveView:
         return rrb.Blueprint(container, rrb.TimePanel(timeline="time"), collapse_panels=False)
 
 
-def stop(rec: rr.RecordingStream) -> None:
-    """Flush and disconnect a live recording (ends a ``serve`` server too)."""
+def flush(rec: rr.RecordingStream, timeout_s: float = FLUSH_TIMEOUT_S) -> bool:
+    """Send what the recording buffers, waiting at most ``timeout_s`` (a viewer that went
+    away, e.g. a native viewer without a display, would block forever); False, with a
+    warning on stderr, when it did not go through."""
     try:
-        rec.flush()
+        rec.flush(timeout_sec=timeout_s)
+    except Exception as exc:  # noqa: BLE001 - rerun raises its own on a timeout
+        print(f"testbed: warning: the live viewer did not take the data within {timeout_s:g} "
+              f"s ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}); is it still "
+              "running?", file=sys.stderr, flush=True)
+        return False
+    return True
+
+
+def stop(rec: rr.RecordingStream) -> None:
+    """Flush and disconnect a live recording; stop the server :func:`open_recording` started
+    for it with ``serve`` (its whole process group)."""
+    proc = _CHILDREN.pop(id(rec), None)
+    try:
+        flush(rec)
         rec.disconnect()
     finally:
-        release_recordings()
+        try:
+            if proc is not None:
+                _terminate(proc)
+        finally:
+            release_recordings()

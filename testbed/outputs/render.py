@@ -49,11 +49,10 @@ class RigRenderer:
         self.width = int(rig.model.vis.global_.offwidth)
         self.height = int(rig.model.vis.global_.offheight)
         try:
+            check_rendering()
             self._renderer = mujoco.Renderer(rig.model, self.height, self.width)
         except Exception as err:  # GL context creation fails in many ways
-            raise RuntimeError(f"cannot create an OpenGL context for rendering ({err}); on a "
-                               "headless machine set MUJOCO_GL=egl or MUJOCO_GL=osmesa before "
-                               "importing mujoco") from err
+            raise RuntimeError(f"cannot create an OpenGL context for rendering: {err}") from None
         self._data = mujoco.MjData(rig.model)
 
     def render(self, x: np.ndarray) -> np.ndarray:
@@ -65,6 +64,39 @@ class RigRenderer:
     def close(self) -> None:
         """Free the OpenGL context."""
         self._renderer.close()
+
+
+def check_rendering() -> None:
+    """Check that an offscreen image can be rendered here (an OpenGL context is created and
+    freed), before any work.
+
+    Raises
+    ------
+    ValueError
+        One line naming ``MUJOCO_GL`` and the cause (an unknown backend, OSMesa or GLFW not
+        available, no display...).
+    """
+    import os
+    import warnings
+
+    import testbed
+
+    hint = ("set MUJOCO_GL=egl (a GPU or Mesa's EGL) or MUJOCO_GL=osmesa (software; needs "
+            "libOSMesa)")
+    if testbed.BAD_MUJOCO_GL is not None:
+        raise ValueError(f"{testbed.BAD_MUJOCO_GL}; {hint}")
+    current = os.environ.get("MUJOCO_GL", "")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # GLFW's own warnings: the error says it
+            model = mujoco.MjModel.from_xml_string("<mujoco/>")
+            renderer = mujoco.Renderer(model, 8, 8)
+            renderer.close()
+    except Exception as err:  # GL context creation fails in many ways
+        from testbed.plugins import describe
+
+        raise ValueError(f"cannot render offscreen with MUJOCO_GL={current!r} "
+                         f"({describe(err)}); {hint}") from None
 
 
 def frame_stride(dt_s: float, fps: float = VIDEO_FPS) -> int:

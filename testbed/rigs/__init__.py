@@ -6,7 +6,6 @@ Register a rig with one line, ``register_rig(MyRig)`` (``MyRig.name`` becomes us
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
 #: Rig name -> "module:Class" (imported on first use).
@@ -34,14 +33,12 @@ def resolve_rig(rig: Any) -> type:
         raise ValueError(f"rig must be a name, 'module:Class' or a Rig subclass, got {rig!r}")
     target = RIGS.get(rig, rig)
     if isinstance(target, str):
-        module, sep, attr = target.partition(":")
-        if not sep:
-            raise ValueError(f"unknown rig {rig!r}; expected one of {sorted(RIGS)} or "
-                             "'package.module:RigClass'")
-        try:
-            target = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError) as err:
-            raise ValueError(f"cannot load rig {rig!r}: {err}") from None
+        from testbed import plugins
+
+        if ":" not in target:
+            raise ValueError(f"unknown rig {rig!r}; expected one of {sorted(RIGS)}, "
+                             "'package.module:RigClass' or 'path/to/file.py:RigClass'")
+        target = plugins.load(target, f"rig {rig!r}")
         if rig in RIGS:
             RIGS[rig] = target
     if not (isinstance(target, type) and issubclass(target, Rig)):

@@ -370,6 +370,30 @@ class ScoreRun:
     reference: str = REFERENCE
 
 
+def _check_memory(entries: list[SuiteEntry]) -> None:
+    """Refuse entries whose recorded runs (every run's trajectory is kept) cannot fit in the
+    available memory, before anything is allocated (``runner.StudyTooLarge``)."""
+    from testbed.experiment.runner import StudyTooLarge, _size_text, available_memory
+
+    available = available_memory()
+    for entry in entries:
+        if entry.unavailable():
+            continue
+        resolved = entry.resolved_scenario().check()
+        rig, sensors = resolved.rig, resolved.sensors
+        n, m, nu = rig.n_states, sensors.dim, rig.n_actions
+        scenario = entry.resolved_scenario()
+        steps = int(round(scenario.duration_s / (scenario.physics_dt_s * scenario.frame_skip)))
+        per_run = 8 * (steps + 1) * (2 * n + n * n + m + nu + len(rig.tracked_states))
+        needed = per_run * int(entry.runs)
+        if needed > available // 2:
+            raise StudyTooLarge(
+                f"runs {entry.runs:,} of scenario {entry.name!r} would need about "
+                f"{_size_text(needed)} of memory (every run's trajectory is kept: "
+                f"{_size_text(per_run)} per run), more than half of the "
+                f"{_size_text(available)} available; use fewer runs", needed, available)
+
+
 def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
           runs: int | None = None, scenarios: list[str] | None = None,
           backend: str = "local", workers: int | None = None, worst_case: bool = True,
@@ -426,6 +450,7 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
         if isinstance(runs, bool) or int(runs) != runs or runs < 2:
             raise ValueError(f"runs must be an integer >= 2, got {runs!r}")
         entries = [e.replace(runs=int(runs)) for e in entries]
+    _check_memory(entries)
     start = time.perf_counter()
     pairs = run_entries(entries, list(estimators), int(seed), backend=backend,
                         workers=workers, worst_case=worst_case, progress=progress,

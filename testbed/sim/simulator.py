@@ -166,13 +166,22 @@ class Physics:
                    else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
-        #: Views of each worker's warning counters, by ``id`` of its ``MjData``.
-        self._warnings = {id(d): d.warning.number for d in self._datas}
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
         self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
                       if self.num_threads > 1 else None)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copies (``copy.deepcopy``, pickle) are independent: without the thread pool."""
+        state = dict(self.__dict__)
+        state["_pool"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self.num_threads > 1:
+            self._pool = ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
 
     def _check_layout(self) -> None:
         """Verify the computed state offsets against MuJoCo (fails loudly if it changes)."""
@@ -292,7 +301,7 @@ class Physics:
         set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
         substep = self.rig.substep_ctrl if self.rig.needs_substep else None
         perturb, constants = self.rig.apply_step_noise, self.constants
-        warnings = self._warnings[id(data)]  # MuJoCo's counters (zero unless it warned)
+        warnings = data.warning.number  # a view of MuJoCo's counters (zero unless it warned)
         w1, w2, w3 = _BAD_WARNINGS
         unstable = self.unstable
         for start, stop in chunks:
@@ -465,10 +474,23 @@ class Simulator:
         for key, width in widths.items():
             self._info_columns[key] = slice(start, start + width)
             start += width
-        self.info: dict[str, np.ndarray] = {
-            key: self._info_rows[:, cols] for key, cols in self._info_columns.items()}
+        self.info: dict[str, np.ndarray] = {}
+        self._info_views(np.zeros((n, self._nu), dtype=bool))
+
+    def _info_views(self, action_clipped: np.ndarray) -> None:
+        """``info``: views of the column blocks of ``_info_rows`` (rebuilt in copies)."""
+        self.info.clear()
+        self.info.update({key: self._info_rows[:, cols]
+                          for key, cols in self._info_columns.items()})
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
-        self.info["action_clipped"] = np.zeros((n, self._nu), dtype=bool)
+        self.info["action_clipped"] = action_clipped
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Copies (``copy.deepcopy``, pickle) step on their own arrays: ``info`` is views of
+        the copy's ``_info_rows`` again (a copied view would be a detached array)."""
+        self.__dict__.update(state)
+        self.info = {}
+        self._info_views(np.array(state["info"]["action_clipped"], copy=True))
 
     # ------------------------------------------------------------------ declarations
     @property

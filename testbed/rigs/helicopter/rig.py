@@ -103,7 +103,8 @@ class HelicopterParams(Params):
         pitch_com = self.pitch_inertia - self.mass_kg * self.com_m**2
         if pitch_com <= 0:
             raise ValueError("HelicopterParams.pitch_inertia must exceed mass_kg * com_m**2 "
-                             f"({self.mass_kg * self.com_m ** 2:.6f}), got {self.pitch_inertia}")
+                             f"({self.mass_kg * self.com_m ** 2:.6g}), got "
+                             f"{self.pitch_inertia:.6g}")
         yaw_com = self.yaw_inertia - self.mass_kg * self.com_m**2 - self.stage_inertia
         if yaw_com <= 0:
             raise ValueError("HelicopterParams.yaw_inertia must exceed mass_kg * com_m**2 + "
@@ -617,9 +618,7 @@ class HelicopterRig(Rig):
             G = disturbance.G
         nominal = HelicopterParams()  # what the designer knows: never the scaled truth
 
-        def unbalanced_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-            return u - gravity_voltage(nominal, x_hat[:, 0])
-
+        unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                              np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                              input_transform=unbalanced_input,
@@ -697,6 +696,12 @@ class HelicopterRig(Rig):
             input_transform=matched_input, disturbance_matrix=G,
             extra_inputs=(("stop_reaction", "rad/s^2"),),
             extras={"paper_model": paper.extras["paper_model"]})
+
+
+def _unbalanced_input(nominal: HelicopterParams, u: np.ndarray,
+                      x_hat: np.ndarray) -> np.ndarray:
+    """The design's input transform: the applied voltages minus the gravity voltage."""
+    return u - gravity_voltage(nominal, x_hat[:, 0])
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):

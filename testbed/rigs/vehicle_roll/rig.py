@@ -6,6 +6,8 @@ Parameters, Zhang et al.'s model and the physical one are in :mod:`.model`, the 
 
 from __future__ import annotations
 
+import functools
+
 import mujoco
 import numpy as np
 
@@ -231,7 +233,7 @@ class VehicleRollRig(Rig):
             have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
         """
         from testbed.estimators.design import build_design
-        from testbed.rigs.vehicle_roll.sensors import find_tap, measured_lateral_acceleration
+        from testbed.rigs.vehicle_roll.sensors import find_tap
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
             if not (np.isfinite(value) and value >= 0):
@@ -247,13 +249,7 @@ class VehicleRollRig(Rig):
         from testbed.rigs.vehicle_roll.sensors import measured_a_y_variance
         transform = None
         if source == "measured":
-            def transform(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-                a_y = measured_lateral_acceleration(tap)
-                if len(a_y) != len(u):
-                    raise ValueError(f"the measured a_y has {len(a_y)} members, the input "
-                                     f"{len(u)}: build the design from the simulator's own "
-                                     "sensors (env.unwrapped.sensors)")
-                return a_y
+            transform = functools.partial(_measured_a_y_input, tap)  # pickles
         nominal = VehicleRollParams()
         A, B = physical_model(nominal)
         Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
@@ -335,3 +331,15 @@ class VehicleRollRig(Rig):
             input_transform=paper.input_transform, output_matrix=paper.output_matrix,
             input_noise_cov=(paper.extras.get("input_noise_cov")),
             extras={k: paper.extras[k] for k in ("paper_model", "a_y_std", "a_y_source")})
+
+
+def _measured_a_y_input(tap: object, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+    """The design's input transform with a measured a_y: speed x yaw rate of the sensors."""
+    from testbed.rigs.vehicle_roll.sensors import measured_lateral_acceleration
+
+    a_y = measured_lateral_acceleration(tap)
+    if len(a_y) != len(u):
+        raise ValueError(f"the measured a_y has {len(a_y)} members, the input "
+                         f"{len(u)}: build the design from the simulator's own "
+                         "sensors (env.unwrapped.sensors)")
+    return a_y
