@@ -29,9 +29,10 @@ from testbed.outputs.units import display, label
 
 def _study_title(fig: Figure, result: dict[str, Any], what: str, *extra: str) -> None:
     """Figure title, short: rig, filter, the sensor preset, what; extra lines. The sensor
-    chain itself is in the JSON (``meta["sensors"]``)."""
+    chain itself is in the JSON (``meta["sensors"]``); the preset is the study's
+    ``scenario["sensors"]``."""
     meta = result.get("meta") or {}
-    scenario = meta.get("scenario") or {}
+    scenario = result.get("scenario") or meta.get("scenario") or {}
     preset = scenario.get("sensors")
     sensors = f", sensors {preset!r}" if isinstance(preset, str) and len(preset) <= 30 else ""
     lines = [f"{meta.get('rig', '?')}: {result.get('filter', scenario.get('estimator', '?'))} "
