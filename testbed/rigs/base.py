@@ -423,22 +423,40 @@ class Rig:
     def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
                      constants: np.ndarray) -> np.ndarray:
         """MuJoCo ``ctrl`` for the next physics step from the held command (with
-        :attr:`needs_substep`).
+        :attr:`needs_substep`), for one member or (leading axis) k members at once.
 
         Parameters
         ----------
-        command : ndarray, shape (nu,)
+        command : ndarray, shape (nu,) or (k, nu)
             The control step's ``ctrl`` from :meth:`actuation` (held).
-        act : ndarray, shape (na,)
+        act : ndarray, shape (na,) or (k, na)
             MuJoCo's actuator states now.
-        constants : ndarray, shape (d,)
-            :meth:`member_constants` of the member.
+        constants : ndarray, shape (d,) or (k, d)
+            :meth:`member_constants` of the member(s).
         """
         return command
 
+    def step_noise_model(self, constants: np.ndarray,
+                         xi: np.ndarray) -> dict[str, tuple[Any, np.ndarray]]:
+        """The model fields the step noise ``xi`` (k, step_noise_dim) sets for the next step
+        of k members (with :attr:`step_noise_dim` > 0).
+
+        Returns
+        -------
+        dict
+            ``{field: (index, values)}``: ``model.<field>[index] = values[j]`` for member
+            ``j`` (``index`` an int or a tuple of ints into the field; ``values`` (k,)). The
+            simulator writes them into its members' per-simulation model fields at once.
+        """
+        return {}
+
     def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
                          xi: np.ndarray) -> None:
-        """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)."""
+        """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)
+        (:meth:`step_noise_model` for one member)."""
+        for name, (index, values) in self.step_noise_model(constants[None],
+                                                            np.asarray(xi)[None]).items():
+            getattr(model, name)[index] = values[0]
 
     def operating_input(self, params: Params, x: np.ndarray) -> np.ndarray:
         """Input that holds the rig at state ``x`` (e.g. gravity compensation), (k, nu).

@@ -402,7 +402,7 @@ class HelicopterRig(Rig):
     def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
                      constants: np.ndarray) -> np.ndarray:
         """The voltage within the amplifier's current limit (:func:`current_limited`)."""
-        return current_limited(command, act, constants[2:4], constants[4:6])
+        return current_limited(command, act, constants[..., 2:4], constants[..., 4:6])
 
     def process_noise_matrix(self) -> np.ndarray:
         """Basin et al.'s white-noise matrix ``b`` (4, 2) (velocity rows)."""
