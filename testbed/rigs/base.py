@@ -436,6 +436,13 @@ class Rig:
         """
         return command
 
+    def act_window(self, constants: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """When :meth:`substep_ctrl` is ``clip(command, c act - r, c act + r)`` per actuator
+        (``act`` its first actuator state), ``(c, r)`` of k members, each (k, nu): the
+        simulator then runs it in C (:mod:`testbed.sim.native`; the model needs
+        ``nuserdata == 1 + 3 nu``). None (default): :meth:`substep_ctrl` in Python."""
+        return None
+
     def step_noise_model(self, constants: np.ndarray,
                          xi: np.ndarray) -> dict[str, tuple[Any, np.ndarray]]:
         """The model fields the step noise ``xi`` (k, step_noise_dim) sets for the next step

@@ -43,11 +43,13 @@ from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import NoiseStreams, Sample, Sensor
+from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
 _QFRC = int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)
 _XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+_USERDATA = int(mujoco.mjtState.mjSTATE_USERDATA)
 _QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
 _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
@@ -194,6 +196,14 @@ class Physics:
         self._poses_bound: tuple[np.ndarray, np.ndarray] | None = None
         self._warning = self.batch.warning  # (N, mjNWARNING, (lastinfo, number))
         self._act = self.batch.bind("act") if rig.needs_substep else None
+        #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
+        #: columns of the state rows holding [flag, command, c, r].
+        self._native: tuple[int, slice, slice] | None = None
+        window = rig.act_window(self.constants[:1]) if rig.needs_substep else None
+        if window is not None and model.nuserdata == 1 + 3 * self.nu and native.install():
+            u = _state_offset(model, _INTEGRATION, _USERDATA)
+            self._native = (u, slice(u + 1, u + 1 + self.nu), slice(u + 1 + self.nu,
+                                                                  u + 1 + 3 * self.nu))
         self.models = _MemberModels(self)
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
@@ -287,6 +297,11 @@ class Physics:
             self._mass_bound = batch.bind("M")
         batch.forward(index)
         self._store_mass(index)
+        if self._native is not None:  # the C current limit's flag and constants
+            flag, _, consts = self._native
+            self.state[index, flag] = native.MAGIC
+            self.state[index, consts] = np.concatenate(
+                self.rig.act_window(self.constants[index]), axis=1)
         self._warning[index] = 0
         self.unstable[index] = False
 
@@ -349,6 +364,12 @@ class Physics:
             self._apply_step_noise(sel, step_noise)
         if self._act is None:
             batch.step(ids, self.frame_skip)
+        elif self._native is not None:  # the held command in userdata, ctrl set in C
+            state, cols, held = self.state, self._ctrl, self._native[1]
+            command = state[sel, cols]
+            state[sel, held] = command
+            batch.step(ids, self.frame_skip)
+            state[sel, cols] = state[sel, held]
         else:  # ctrl from the held command and the actuator state, every physics step
             state, cols = self.state, self._ctrl
             command = state[sel, cols].copy()
