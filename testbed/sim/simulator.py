@@ -195,6 +195,10 @@ class Physics:
         self._mass_bound: np.ndarray | None = None
         self._poses_bound: tuple[np.ndarray, np.ndarray] | None = None
         self._warning = self.batch.warning  # (N, mjNWARNING, (lastinfo, number))
+        lo, hi = min(_BAD_WARNINGS), max(_BAD_WARNINGS) + 1
+        assert hi - lo == len(_BAD_WARNINGS)  # contiguous: a view, one count per step
+        #: The counters of MuJoCo's instability warnings, (N, 3), a view.
+        self._bad = self._warning[:, lo:hi, 1]
         self._act = self.batch.bind("act") if rig.needs_substep else None
         #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
         #: columns of the state rows holding [flag, command, c, r].
@@ -340,8 +344,9 @@ class Physics:
             field[(sel, *np.atleast_1d(where).tolist())] = values
 
     def step(self, members: np.ndarray, need_mass: bool = False,
-             need_poses: bool = False, step_noise: np.ndarray | None = None) -> None:
-        """``mj_step`` ``frame_skip`` times for the members (sorted int array).
+             need_poses: bool = False, step_noise: np.ndarray | None = None) -> bool:
+        """``mj_step`` ``frame_skip`` times for the members (sorted int array); whether any
+        of them reported an instability warning (:attr:`unstable`).
 
         ``step_noise`` (k, d), one row per member, perturbs each member's model (the rig's
         :meth:`~testbed.rigs.base.Rig.step_noise_model`) before its step. With
@@ -351,7 +356,7 @@ class Physics:
         """
         k = len(members)
         if not k:
-            return
+            return False
         whole = k == self.num
         sel: Any = slice(None) if whole else members
         ids = None if whole else members
@@ -379,15 +384,19 @@ class Physics:
                 state[sel, cols] = substep(command, act[sel], constants)
                 batch.step(ids, 1)
             state[sel, cols] = command
-        counts = self._warning[sel][:, _BAD_WARNINGS, 1]
-        unstable = np.any(counts, axis=1)
-        self.unstable[sel] = unstable
-        if unstable.any():
-            self._warning[np.arange(self.num)[sel][unstable]] = 0
+        bad = self._bad[sel]
+        warned = bool(np.count_nonzero(bad))
+        if warned:  # rare: mark the members and clear their counters
+            unstable = np.any(bad, axis=1)
+            self.unstable[sel] = unstable
+            self._warning[self._all_ids[sel][unstable]] = 0
+        else:
+            self.unstable[sel] = False
         if need_mass:
             self._store_mass(sel)
         if need_poses:
             self._store_poses(sel)
+        return warned
 
     def _store_poses(self, sel: Any) -> None:
         if self.poses is None or len(self.poses[0]) != self.num:
@@ -533,6 +542,8 @@ class Simulator:
         self._noise_all = self.noise.view(slice(None))
         self.steps = np.zeros(n, dtype=np.int64)
         self._ready = np.zeros(n, dtype=bool)
+        self._all_ready = False
+        self._terminates = type(rig).terminated is not Rig.terminated
         self.x0 = np.zeros((n, self._nx))
         self.obs = np.zeros((n, self.sensors.dim))
         self.reward = np.zeros(n)
@@ -770,6 +781,7 @@ class Simulator:
         self._table_of[index] = tables
         self._schedule_of[index] = schedules
         self._ready[index] = True
+        self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
         self.x0[index] = x0
         t = np.zeros(k)
@@ -815,14 +827,16 @@ class Simulator:
         # copies); sensors, noise streams and physics keep the member indices
         sel: Any = slice(None) if members is None else index
         k = len(index)
-        if np.count_nonzero(self._ready[sel]) != k:
+        if not (self._all_ready if members is None
+                else np.count_nonzero(self._ready[sel]) == k):
             raise RuntimeError("reset() every member before stepping it")
         u = actions if checked else self.check_actions(actions, k)
         low, high = self._low, self._high
         rig, physics, dist = self.rig, self.physics, self.disturbance
         no_manoeuvre = self._no_manoeuvre
         t = self.steps[sel] * self.dt_s if dist.has_signal or not no_manoeuvre else None
-        clipped_u = u.clip(low, high)
+        # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
+        clipped_u = np.minimum(np.maximum(u, low), high)
         if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
             profile = self._zero_input[:k]
             applied = clipped_u + profile
@@ -830,7 +844,7 @@ class Simulator:
         else:
             profile = self._manoeuvre(t, sel)
             total = clipped_u + profile
-            applied = total.clip(low, high)
+            applied = np.minimum(np.maximum(total, low), high)
             clipped = (clipped_u != u) | (applied != total)
         noise = self._noise_all if members is None else self.noise.view(index)
         info = self.info
@@ -851,20 +865,20 @@ class Simulator:
             a[:, rig.dof_adr] = accel
             qfrc = np.matvec(physics.mass[sel], a)
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
-        physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
-                     step_noise=step_noise)
+        warned = physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
+                              step_noise=step_noise)
         steps = self.steps[sel] + 1
         self.steps[sel] = steps
         t = steps * self.dt_s
         x = physics.states(sel)
         inside = np.less_equal(np.abs(x), self._envelope)  # NaN compares False
-        unstable = physics.unstable[sel]
-        if np.count_nonzero(inside) != inside.size or np.count_nonzero(unstable):
-            self._diverged(index, unstable, ~inside.all(axis=1), x, t)
+        if warned or np.count_nonzero(inside) != inside.size:
+            self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel)
         e = x[:, self._tracked_cols] - ref
         self.reward[sel] = -np.add.reduce(e * e, axis=1)
-        self.terminated[sel] = rig.terminated(x)
+        if self._terminates:  # the base Rig.terminated never ends an episode
+            self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index) if dist.has_signal else self._zero_w[:k]
         sample = Sample(x, t, applied, w_now, index)
         self.obs[sel] = self.sensors.measure(sample, noise)
@@ -886,6 +900,7 @@ class Simulator:
         """Mark the diverged members unready and raise :class:`SimulationDiverged`."""
         bad = unstable | outside
         self._ready[index[bad]] = False
+        self._all_ready = False
         j = int(np.flatnonzero(bad)[0])
         names, units = self.rig.state_names, self.rig.state_units
         if unstable[j]:
