@@ -151,7 +151,7 @@ class Rig:
     #: States a reference tracks (reward, LQR integrators, output of the T ratio).
     tracked_states: ClassVar[tuple[str, ...]] = ()
     #: Standard normals per member and control step that perturb the model
-    #: (:meth:`apply_step_noise`); 0 for none.
+    #: (:meth:`step_noise_model`); 0 for none.
     step_noise_dim: ClassVar[int] = 0
     #: Standard normals per member that :meth:`random_x0` turns into an initial state.
     x0_draws: ClassVar[int] = 0
@@ -336,7 +336,7 @@ class Rig:
         """
 
     def member_constants(self, params: Params) -> np.ndarray:
-        """Per-member numbers :meth:`actuation` and :meth:`apply_step_noise` need, shape (d,)."""
+        """Per-member numbers :meth:`actuation` and :meth:`step_noise_model` need, shape (d,)."""
         return np.zeros(0)
 
     # ------------------------------------------------------------------ state

@@ -121,3 +121,9 @@ def install() -> bool:
         if _callback is False:
             return False
         return mujoco.get_mjcb_control() is _callback[1]
+
+
+def installed() -> bool:
+    """Whether the callback is MuJoCo's ``mjcb_control`` now (another one may have replaced
+    it since :func:`install`)."""
+    return bool(_callback) and mujoco.get_mjcb_control() is _callback[1]

@@ -12,7 +12,8 @@ Step semantics (per member, one control period ``dt_s = physics_dt_s * frame_ski
 2. the rig's step noise perturbs its model (e.g. the vehicle's damping noise), then the
    disturbance ``G w(t) + b dW`` becomes joint accelerations and, through the mass matrix
    ``M(q)``, generalized forces (Euler-Maruyama: ``b xi / sqrt(dt)`` held over the step);
-3. MuJoCo steps ``frame_skip`` times (a pool of threads; ``mj_step`` releases the GIL);
+3. MuJoCo steps ``frame_skip`` times (``mujoco.batch`` on C threads, without the GIL; a
+   rig's per-physics-step input limit runs in C, :mod:`testbed.sim.native`);
 4. divergence check: a MuJoCo instability warning, a non-finite state or a state past the
    rig's ``state_envelope`` raises :class:`SimulationDiverged` (time, members, state);
 5. the sensors sample the new state.
@@ -21,10 +22,13 @@ Randomness: member ``i`` owns one stream (:class:`testbed.sensors.NoiseStreams`,
 a Gymnasium env's ``np_random``); per step it gives, in order, the rig's step noise, the
 disturbance noise, then the sensors' noise.
 
-Physics: each member's complete MuJoCo integration state (``mjSTATE_INTEGRATION``: time,
-qpos, qvel, warm start, ctrl, applied forces) is a row of one array; a worker thread loads a
-row into its own ``MjData``, steps and stores it back, which is bitwise identical to stepping
-a dedicated ``MjData`` without one ``MjData`` (13.6 MB arena) per member.
+Physics: the members are the simulations of one :class:`mujoco.batch.Batch`: each member's
+complete MuJoCo integration state (``mjSTATE_INTEGRATION``: time, qpos, qvel, warm start,
+ctrl, applied forces, userdata) is a row of one array, which the batch's C threads load into
+an ``MjData``, step and store back: bitwise identical to stepping a dedicated ``MjData``,
+without one ``MjData`` per member and without Python per member. A member's parameters and
+the rig's step noise are per-simulation model fields (``Batch.expand``), written for all
+members with one numpy assignment per field.
 """
 
 from __future__ import annotations
@@ -171,13 +175,10 @@ class Physics:
                    else positive_int(num_threads, "num_threads"))
         self.num_threads = min(threads, max(self.num, 1))
         self._base = rig.model_with(rig.params, self._scratch)
-        self.batch = mujoco.batch.Batch(self._base, self.num, nthread=self.num_threads)
-        #: The members' integration states, one row each (the batch's own rows: live).
-        self.state = self.batch.state
+        self._attach()
         self.params: list[Params] = [rig.params] * self.num
         #: Model fields that differ from the nominal model for some parameters, by params.
         self._diffs: dict[Params, dict[str, np.ndarray]] = {rig.params: {}}
-        self._fields: dict[str, np.ndarray] = {}  # expanded fields: their (N, ...) values
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
         self.mass = np.zeros((self.num, self.nv, self.nv))
         c = _state_offset(model, _INTEGRATION, _CTRL)
@@ -192,14 +193,6 @@ class Physics:
         # the dense mass matrix from MuJoCo's sparse lower triangle (rows, columns)
         rows = np.repeat(np.arange(self.nv), model.M_rownnz)
         self._m_rows, self._m_cols = rows, np.asarray(model.M_colind)
-        self._mass_bound: np.ndarray | None = None
-        self._poses_bound: tuple[np.ndarray, np.ndarray] | None = None
-        self._warning = self.batch.warning  # (N, mjNWARNING, (lastinfo, number))
-        lo, hi = min(_BAD_WARNINGS), max(_BAD_WARNINGS) + 1
-        assert hi - lo == len(_BAD_WARNINGS)  # contiguous: a view, one count per step
-        #: The counters of MuJoCo's instability warnings, (N, 3), a view.
-        self._bad = self._warning[:, lo:hi, 1]
-        self._act = self.batch.bind("act") if rig.needs_substep else None
         #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
         #: columns of the state rows holding [flag, command, c, r].
         self._native: tuple[int, slice, slice] | None = None
@@ -208,11 +201,49 @@ class Physics:
             u = _state_offset(model, _INTEGRATION, _USERDATA)
             self._native = (u, slice(u + 1, u + 1 + self.nu), slice(u + 1 + self.nu,
                                                                   u + 1 + 3 * self.nu))
-        self.models = _MemberModels(self)
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
         self._all_ids = np.arange(self.num)
+
+    def _attach(self) -> None:
+        """A new batch of the members (all at the nominal model's defaults) and its views."""
+        self.batch = mujoco.batch.Batch(self._base, self.num, nthread=self.num_threads)
+        #: The members' integration states, one row each (the batch's own rows: live).
+        self.state = self.batch.state
+        self._fields: dict[str, np.ndarray] = {}  # expanded fields: their (N, ...) values
+        self._mass_bound: np.ndarray | None = None
+        self._poses_bound: tuple[np.ndarray, np.ndarray] | None = None
+        self._warning = self.batch.warning  # (N, mjNWARNING, (lastinfo, number))
+        lo, hi = min(_BAD_WARNINGS), max(_BAD_WARNINGS) + 1
+        assert hi - lo == len(_BAD_WARNINGS)  # contiguous: a view, one count per step
+        #: The counters of MuJoCo's instability warnings, (N, 3), a view.
+        self._bad = self._warning[:, lo:hi, 1]
+        self._act = self.batch.bind("act") if self.rig.needs_substep else None
+        self.models = _MemberModels(self)
+
+    _UNPICKLED = ("batch", "state", "_fields", "_mass_bound", "_poses_bound", "_warning", "_bad",
+                  "_act", "models")
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Picklable (and deep-copyable): the batch's rows, warning counters and
+        per-simulation fields, without the batch."""
+        out = {k: v for k, v in self.__dict__.items() if k not in self._UNPICKLED}
+        out["_saved"] = (self.state.copy(), self._warning.copy(),
+                         {name: values.copy() for name, values in self._fields.items()})
+        return out
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        rows, warnings, fields = state.pop("_saved")
+        self.__dict__.update(state)
+        self._attach()
+        for name, values in fields.items():
+            self._fields[name] = self.batch.expand(name)
+            self._fields[name][...] = values
+        self.state[...] = rows
+        self._warning[...] = warnings
+        if self._native is not None and not native.install():
+            self._native = None  # no C callback here: the rig's Python hook (same numbers)
 
     def _check_layout(self) -> None:
         """Verify the computed state offsets against MuJoCo and the batch's rows (fails
@@ -369,7 +400,8 @@ class Physics:
             self._apply_step_noise(sel, step_noise)
         if self._act is None:
             batch.step(ids, self.frame_skip)
-        elif self._native is not None:  # the held command in userdata, ctrl set in C
+        elif self._native is not None and native.installed():  # ctrl set in C, from the
+            # command held in userdata
             state, cols, held = self.state, self._ctrl, self._native[1]
             command = state[sel, cols]
             state[sel, held] = command
