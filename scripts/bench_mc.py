@@ -16,6 +16,11 @@ Usage::
   vehicle roll: the double-lane-change manoeuvre open loop, with its per-step damping noise),
   same trajectories and steps, set-up included (``traj_steps_per_s`` of the result);
   ``mc_vs_raw`` / ``mc_vehicle_vs_raw`` their ratios (target >= 0.7 each);
+- ``raw_batch_traj_steps_per_s`` / ``raw_batch_vehicle_traj_steps_per_s``: bare
+  ``mujoco.batch`` stepping of the same MJCF (what the simulator runs its members on), and
+  ``mc_vs_raw_batch`` / ``mc_vehicle_vs_raw_batch`` the Monte Carlo against it;
+- ``mc_hardware_traj_steps_per_s``: the helicopter's Monte Carlo in the ``hardware`` profile
+  and ``mc_hardware_vs_paper`` its ratio to the ``paper`` profile's (interleaved);
 - ``mc_vs_raw_1thread`` / ``mc_vehicle_vs_raw_1thread``: the same ratios with one physics
   thread for both (a quarter of the steps), which a busy second core does not distort: the
   testbed's own cost per step without the threading;
@@ -44,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import mujoco
+import mujoco.batch
 import numpy as np
 from mujoco import rollout
 from threadpoolctl import threadpool_limits
@@ -137,6 +143,34 @@ def raw_rollout_traj_steps_per_s(rig_name: str, runs: int, steps: int, num_threa
     return runs * (steps // chunk) * chunk / elapsed
 
 
+def raw_batch_traj_steps_per_s(rig_name: str, runs: int, steps: int, num_threads: int,
+                               frame_skip: int = 10, profile: str = "paper") -> float:
+    """Trajectory control steps per second of bare ``mujoco.batch`` stepping of a rig's MJCF.
+
+    ``Batch(model, runs, nthread).step(nstep=frame_skip)`` once per control step, from the
+    state 0 with the rig's operating input held (as :func:`raw_rollout_traj_steps_per_s`):
+    the physics the simulator runs, without anything else.
+    """
+    rig = resolve_rig(rig_name)(profile=profile)
+    model = rig.model
+    x0 = np.zeros(rig.n_states)
+    inputs = rig.actuation(rig.operating_input(rig.params, x0[None]),
+                           rig.member_constants(rig.params)[None])
+    batch = mujoco.batch.Batch(model, runs, nthread=num_threads)
+    batch.reset()
+    if "ctrl" in inputs:
+        batch.bind("ctrl")[:] = inputs["ctrl"][0]
+    if "xfrc" in inputs:
+        batch.bind("xfrc_applied")[:] = inputs["xfrc"][0]
+    with threadpool_limits(1):
+        batch.step(None, frame_skip)
+        start = time.perf_counter()
+        for _ in range(steps):
+            batch.step(None, frame_skip)
+        elapsed = time.perf_counter() - start
+    return runs * steps / elapsed
+
+
 def mc_traj_steps_per_s(scenario: Scenario, runs: int, steps: int, num_threads: int) -> float:
     """``traj_steps_per_s`` of ``monte_carlo(scenario, runs)`` over ``steps`` control steps
     (10 ms each; set-up included)."""
@@ -166,16 +200,34 @@ def bench_rig(rig_name: str, runs: int, steps: int, threads: int,
         ratio), with ``<p>`` empty for the helicopter and ``vehicle_`` for the vehicle roll.
     """
     prefix, scenario = RIG_SCENARIOS[rig_name]
-    raws, mcs = [], []
+    raws, batches, mcs = [], [], []
     for _ in range(repeats):
         raws.append(raw_rollout_traj_steps_per_s(rig_name, runs, steps, threads))
+        batches.append(raw_batch_traj_steps_per_s(rig_name, runs, steps, threads))
         mcs.append(mc_traj_steps_per_s(scenario, runs, steps, threads))
     return {
         f"raw_rollout_{prefix}traj_steps_per_s": max(raws),
+        f"raw_batch_{prefix}traj_steps_per_s": max(batches),
         f"mc_{prefix}traj_steps_per_s": max(mcs),
         f"mc_{prefix}vs_raw": max(mcs) / max(raws),
+        f"mc_{prefix}vs_raw_batch": max(mcs) / max(batches),
         f"mc_{prefix}vs_raw_pairs": [m / r for m, r in zip(mcs, raws, strict=True)],
     }
+
+
+def bench_hardware(runs: int, steps: int, threads: int, repeats: int) -> dict[str, Any]:
+    """The helicopter's Monte Carlo under the ``hardware`` profile (rotor lag, current limit
+    every physics step, deadband, IMU) against the ``paper`` profile, interleaved."""
+    scenario = RIG_SCENARIOS["helicopter"][1]
+    papers, hardwares = [], []
+    for _ in range(repeats):
+        papers.append(mc_traj_steps_per_s(scenario, runs, steps, threads))
+        hardwares.append(mc_traj_steps_per_s(scenario.replace(profile="hardware"), runs, steps,
+                                             threads))
+    return {"mc_hardware_traj_steps_per_s": max(hardwares),
+            "mc_hardware_vs_paper": max(hardwares) / max(papers),
+            "mc_hardware_vs_paper_pairs": [h / p for h, p in zip(hardwares, papers,
+                                                                 strict=True)]}
 
 
 def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
@@ -209,11 +261,12 @@ def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
     out: dict[str, Any] = {}
     for rig_name in RIG_SCENARIOS:
         out.update(bench_rig(rig_name, runs, steps, threads, repeats))
+    out.update(bench_hardware(runs, steps, threads, repeats))
     if threads > 1:  # diagnostic: the same without threads (insensitive to a busy core)
         for rig_name in RIG_SCENARIOS:
             single = bench_rig(rig_name, runs, max(steps // 4, 1), 1, repeats)
             out.update({f"{k}_1thread": v for k, v in single.items()
-                        if k.startswith("mc_") and k.endswith("vs_raw")})
+                        if k.startswith("mc_") and k.endswith(("vs_raw", "vs_raw_batch"))})
     mshinf = Scenario(rig="helicopter", estimator="ms-hinf", disturbance="basin-helicopter")
     out["mc_mshinf_traj_steps_per_s"] = mc_traj_steps_per_s(mshinf, runs, steps, threads)
     scenario = RIG_SCENARIOS["helicopter"][1]

@@ -259,6 +259,14 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--json", help="write the results here")
     mc.add_argument("--save-npz", help="also write every trajectory to this .npz")
     mc.add_argument("--plot", help="write the RMSE distribution and error envelope (PNG) here")
+    mc.add_argument("--backend", default=None, choices=("local", "ray"),
+                    help="shard the runs over local processes or Ray tasks (each run keeps "
+                    "its seed: the same results as in one process); default: one process")
+    mc.add_argument("--workers", type=_positive_int, default=None,
+                    help="shards / worker processes with --backend (default: the CPUs)")
+    mc.add_argument("--address", default=None,
+                    help="Ray cluster address host:port (with --backend ray; default: a local "
+                    "Ray instance)")
 
     sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
     _add_scenario_options(sw, 10.0)
@@ -686,9 +694,23 @@ def cmd_mc(args: argparse.Namespace) -> int:
     runs = _study(args, source, "runs")
     if args.save_scenario:
         return _save_scenario(args, scenario, runs=runs)
+    if args.backend is None and (args.workers is not None or args.address is not None):
+        raise ValueError("--workers and --address need --backend")
+    if args.backend is not None and (args.save_npz or args.plot):
+        raise ValueError("--backend shards the runs: without --save-npz and --plot")
+    if args.address is not None:
+        from testbed.experiment.backend import check_ray_address
+
+        if args.backend != "ray":
+            raise ValueError("--address is only used with --backend ray")
+        try:
+            check_ray_address(args.address)  # unreachable: ConnectionError, exit code 5
+        except ValueError as exc:
+            raise ValueError(f"--address: {exc}") from None
     result = monte_carlo(scenario, runs, batch_size=args.batch_size,
                          progress=_progress(args), save_npz=args.save_npz,
-                         envelope_points=200 if args.plot else None)
+                         envelope_points=200 if args.plot else None, backend=args.backend,
+                         workers=args.workers, address=args.address)
     _print_mc(result)
     if args.json:
         print(f"wrote {write_json(args.json, result)}")

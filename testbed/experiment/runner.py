@@ -520,7 +520,8 @@ def _stats(values: np.ndarray) -> dict[str, float]:
 def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None = None,
                 progress: bool = False, save_npz: str | Path | None = None,
                 num_threads: int | None = None,
-                envelope_points: int | None = None) -> dict[str, Any]:
+                envelope_points: int | None = None, backend: str | None = None,
+                workers: int | None = None, address: str | None = None) -> dict[str, Any]:
     """``runs`` episodes of ``scenario``, stepped in batches.
 
     Parameters
@@ -540,6 +541,14 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         Also gather the error envelope over runs on this many time points
         (:class:`testbed.outputs.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
         result then has ``error_envelope``.
+    backend : {None, "local", "ray"}, optional
+        None (default): every batch in this process. ``"local"`` / ``"ray"``: the runs in
+        ``workers`` contiguous shards, each a job of :func:`~testbed.experiment.backend.
+        map_jobs` (local processes, or Ray tasks on the cluster at ``address`` or a local
+        instance); each run keeps its seed, so every per-run result equals the in-process
+        study's bitwise. Without ``save_npz`` and ``envelope_points``.
+    workers, address : optional
+        Shards (default the CPUs, at most ``runs``) and the Ray cluster address.
 
     Returns
     -------
@@ -560,6 +569,11 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
                                         or envelope_points < 2):
         raise ValueError(f"envelope_points must be an integer >= 2, got {envelope_points}")
     runs = int(runs)
+    if backend is not None:
+        if save_npz is not None or envelope_points is not None:
+            raise ValueError("a sharded Monte Carlo (backend) writes no npz and no envelope")
+        return _sharded_monte_carlo(scenario, runs, batch_size, progress, num_threads,
+                                    backend, workers, address)
     batch_size = min(runs, int(batch_size or DEFAULT_BATCH_SIZE))
     start_time = time.perf_counter()
     check_study_size(scenario, runs, envelope_points)
@@ -640,6 +654,84 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     if envelope is not None:
         result["error_envelope"] = envelope.result()
     return result
+
+
+def _mc_shard(scenario: Scenario, seeds: np.ndarray, batch_size: int | None,
+              num_threads: int | None) -> dict[str, Any]:
+    """The runs of one shard (their own seeds): per-run arrays and what the study reports."""
+    batch_size = min(len(seeds), int(batch_size or DEFAULT_BATCH_SIZE))
+    experiments: dict[int, Experiment] = {}
+    gathered: RunMetrics | None = None
+    try:
+        for start in range(0, len(seeds), batch_size):
+            size = min(batch_size, len(seeds) - start)
+            if size not in experiments:
+                experiments[size] = build(scenario, size, num_threads=num_threads)
+            loop = experiments[size].loop
+            if gathered is None:
+                gathered = RunMetrics(list(loop.sim.rig.state_names))
+                first = experiments[size]
+            result = loop.run(seeds[start:start + size], scenario.duration_s, record=False)
+            gathered.add(result)
+    finally:
+        for experiment in experiments.values():
+            experiment.close()
+    dt_s = first.loop.sim.dt_s
+    return {"per_run": gathered.arrays(), "steps": int(round(scenario.duration_s / dt_s)),
+            "dt_s": dt_s, "threads": first.loop.sim.physics.num_threads,
+            "units": first.meta["units"], "meta": first.meta}
+
+
+def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
+                         progress: bool, num_threads: int | None, backend: str,
+                         workers: int | None, address: str | None) -> dict[str, Any]:
+    """:func:`monte_carlo` in contiguous shards of the runs on :func:`map_jobs`."""
+    workers = check_backend(backend, workers, address)
+    scenario.check()
+    start_time = time.perf_counter()
+    seeds = run_seeds(scenario.seed, runs)
+    shards = [part for part in np.array_split(seeds, min(workers, runs)) if len(part)]
+    bar = tqdm(total=len(shards), desc=f"monte carlo ({backend})", unit="shard",
+               disable=not progress)
+    with bar:
+        parts = map_jobs(_mc_shard, [(scenario, part, batch_size, num_threads)
+                                     for part in shards], backend=backend, workers=workers,
+                         address=address, on_done=lambda _: bar.update())
+
+    def joined(values: list) -> np.ndarray | None:
+        return None if values[0] is None else np.concatenate(values)
+
+    arrays = [p["per_run"] for p in parts]
+    per_run = {"rmse": {k: np.concatenate([a["rmse"][k] for a in arrays])
+                        for k in arrays[0]["rmse"]},
+               "measurement_rmse": {k: np.concatenate([a["measurement_rmse"][k]
+                                                       for a in arrays])
+                                    for k in arrays[0]["measurement_rmse"]},
+               "nees": joined([a["nees"] for a in arrays]),
+               "T": joined([a["T"] for a in arrays]),
+               "clipped": np.concatenate([a["clipped"] for a in arrays])}
+    first = parts[0]
+    wall_s = time.perf_counter() - start_time
+    n_steps = first["steps"]
+    return {
+        "filter": scenario.describe()["estimator"],
+        "runs": runs,
+        "duration_s": n_steps * first["dt_s"],
+        "steps_per_run": n_steps,
+        "seed": scenario.seed,
+        "seeds": seeds.tolist(),
+        "seed_rule": "numpy.random.SeedSequence(seed).generate_state(runs)",
+        "batch_size": min(len(shards[0]), int(batch_size or DEFAULT_BATCH_SIZE)),
+        "threads": first["threads"],
+        "backend": backend,
+        "workers": workers,
+        "wall_s": wall_s,
+        "traj_steps_per_s": runs * n_steps / wall_s,
+        **per_run_summary(per_run),
+        "npz": None,
+        "units": first["units"],
+        "meta": first["meta"],
+    }
 
 
 class RunMetrics:

@@ -151,7 +151,7 @@ class Rig:
     #: States a reference tracks (reward, LQR integrators, output of the T ratio).
     tracked_states: ClassVar[tuple[str, ...]] = ()
     #: Standard normals per member and control step that perturb the model
-    #: (:meth:`apply_step_noise`); 0 for none.
+    #: (:meth:`step_noise_model`); 0 for none.
     step_noise_dim: ClassVar[int] = 0
     #: Standard normals per member that :meth:`random_x0` turns into an initial state.
     x0_draws: ClassVar[int] = 0
@@ -336,7 +336,7 @@ class Rig:
         """
 
     def member_constants(self, params: Params) -> np.ndarray:
-        """Per-member numbers :meth:`actuation` and :meth:`apply_step_noise` need, shape (d,)."""
+        """Per-member numbers :meth:`actuation` and :meth:`step_noise_model` need, shape (d,)."""
         return np.zeros(0)
 
     # ------------------------------------------------------------------ state
@@ -423,22 +423,47 @@ class Rig:
     def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
                      constants: np.ndarray) -> np.ndarray:
         """MuJoCo ``ctrl`` for the next physics step from the held command (with
-        :attr:`needs_substep`).
+        :attr:`needs_substep`), for one member or (leading axis) k members at once.
 
         Parameters
         ----------
-        command : ndarray, shape (nu,)
+        command : ndarray, shape (nu,) or (k, nu)
             The control step's ``ctrl`` from :meth:`actuation` (held).
-        act : ndarray, shape (na,)
+        act : ndarray, shape (na,) or (k, na)
             MuJoCo's actuator states now.
-        constants : ndarray, shape (d,)
-            :meth:`member_constants` of the member.
+        constants : ndarray, shape (d,) or (k, d)
+            :meth:`member_constants` of the member(s).
         """
         return command
 
+    def act_window(self, constants: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """When :meth:`substep_ctrl` is ``clip(command, c act - r, c act + r)`` per actuator
+        (``act`` its first actuator state), ``(c, r)`` of k members, each (k, nu): the
+        simulator then runs it in C (:mod:`testbed.sim.native`; the model needs
+        ``nuserdata == 1 + 3 nu``). None (default): :meth:`substep_ctrl` in Python."""
+        return None
+
+    def step_noise_model(self, constants: np.ndarray,
+                         xi: np.ndarray) -> dict[str, tuple[Any, np.ndarray]]:
+        """The model fields the step noise ``xi`` (k, step_noise_dim) sets for the next step
+        of k members (with :attr:`step_noise_dim` > 0).
+
+        Returns
+        -------
+        dict
+            ``{field: (index, values)}``: ``model.<field>[index] = values[j]`` for member
+            ``j`` (``index`` an int or a tuple of ints into the field; ``values`` (k,)). The
+            simulator writes them into its members' per-simulation model fields at once.
+        """
+        return {}
+
     def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
                          xi: np.ndarray) -> None:
-        """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)."""
+        """Perturb one member's ``model`` for the next step from ``xi`` (step_noise_dim,)
+        (:meth:`step_noise_model` for one member)."""
+        for name, (index, values) in self.step_noise_model(constants[None],
+                                                            np.asarray(xi)[None]).items():
+            getattr(model, name)[index] = values[0]
 
     def operating_input(self, params: Params, x: np.ndarray) -> np.ndarray:
         """Input that holds the rig at state ``x`` (e.g. gravity compensation), (k, nu).

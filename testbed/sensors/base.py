@@ -79,7 +79,21 @@ class NoiseStreams:
         self.block = max(int(block), 1)
         self.generators: list[np.random.Generator | None] = [None] * num
         self._buf = np.empty((num, self.block))
-        self._pos = np.full(num, self.block)
+        self._positions = np.full(num, self.block)
+        #: The position of every stream when they are all at the same one (the common case
+        #: of a batch drawing together): kept as an int instead of in ``_positions``.
+        self._common: int | None = None
+
+    @property
+    def _pos(self) -> np.ndarray:
+        """Each stream's position in its block, shape (num,)."""
+        self._sync()
+        return self._positions
+
+    def _sync(self) -> None:
+        if self._common is not None:
+            self._positions[:] = self._common
+            self._common = None
 
     def seed(self, i: int, seed: int | None) -> None:
         """Restart member ``i``'s stream like ``gym.Env.reset(seed=seed)``.
@@ -87,34 +101,59 @@ class NoiseStreams:
         A None seed keeps an existing generator (and creates a random one otherwise).
         """
         if seed is not None or self.generators[i] is None:
+            self._sync()
             self.generators[i] = seeding.np_random(seed)[0]
-            self._pos[i] = self.block
+            self._positions[i] = self.block
 
     def _refill(self, i: int) -> None:
-        pos, buf = self._pos[i], self._buf[i]
+        pos, buf = self._positions[i], self._buf[i]
         left = self.block - pos
         buf[:left] = buf[pos:]
         self.generators[i].standard_normal(out=buf[left:])
-        self._pos[i] = 0
+        self._positions[i] = 0
 
     def draw(self, d: int, members: Members = slice(None)) -> np.ndarray:
         """The next ``d`` values of each selected stream, shape (k, d)."""
-        index = np.arange(len(self._pos))[members]
+        if isinstance(members, slice) and members == slice(None):
+            return self._draw_all(d)
+        self._sync()
+        index = np.arange(len(self._positions))[members]
         if d == 0:
             return np.zeros((len(index), 0))
         if d > self.block:
             raise ValueError(f"cannot draw {d} values at once (block {self.block})")
-        pos = self._pos[index]
+        pos = self._positions[index]
         for i in index[pos + d > self.block]:
             self._refill(i)
-        pos = self._pos[index]
+        pos = self._positions[index]
         if len(pos) and pos.min() == pos.max():
             start = int(pos[0])
             out = self._buf[index, start:start + d]
         else:
             out = self._buf[index[:, None], pos[:, None] + np.arange(d)]
-        self._pos[index] = pos + d
+        self._positions[index] = pos + d
         return out
+
+    def _draw_all(self, d: int) -> np.ndarray:
+        """:meth:`draw` for every stream (the same values, without per-call gathers when
+        the streams are at one position)."""
+        c = self._common
+        if c is None:
+            pos = self._positions
+            if not len(pos) or pos.min() != pos.max():
+                return self.draw(d, np.arange(len(pos)))
+            c = int(pos[0])
+        if d == 0:
+            return np.zeros((len(self._positions), 0))
+        if d > self.block:
+            raise ValueError(f"cannot draw {d} values at once (block {self.block})")
+        if c + d > self.block:
+            self._positions[:] = c
+            for i in range(len(self._positions)):
+                self._refill(i)
+            c = 0
+        self._common = c + d
+        return self._buf[:, c:c + d].copy()
 
     def view(self, members: Members) -> Noise:
         """The streams of ``members`` as a :class:`Noise` source."""

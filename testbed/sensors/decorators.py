@@ -213,6 +213,8 @@ class BiasRandomWalk(Decorator):
         self.initial_std = as_array(initial_std, inner.dim, "initial_std")
         self.dt_s = float(dt_s)
         self.bias = np.zeros((0, inner.dim))
+        self._walk_of: np.ndarray | None = None  # the walk _walk_step was computed from
+        self._walk_step: np.ndarray | None = None
 
     def allocate(self, num: int) -> None:
         """One bias per member and channel."""
@@ -231,9 +233,12 @@ class BiasRandomWalk(Decorator):
         """``y + b_k``; then the walk advances."""
         bias = self.bias[sample.members]
         out = y + bias
-        if np.any(self.walk > 0):
-            self.bias[sample.members] = (bias + self.walk * np.sqrt(self.dt_s)
-                                         * noise.normal(self.dim))
+        walk = self.walk
+        if walk is not self._walk_of:  # (walk * sqrt(dt)) xi, as written before
+            self._walk_of, self._walk_step = walk, (walk * np.sqrt(self.dt_s)
+                                                    if np.any(walk > 0) else None)
+        if self._walk_step is not None:
+            self.bias[sample.members] = bias + self._walk_step * noise.normal(self.dim)
         return out
 
 

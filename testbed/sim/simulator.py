@@ -12,7 +12,8 @@ Step semantics (per member, one control period ``dt_s = physics_dt_s * frame_ski
 2. the rig's step noise perturbs its model (e.g. the vehicle's damping noise), then the
    disturbance ``G w(t) + b dW`` becomes joint accelerations and, through the mass matrix
    ``M(q)``, generalized forces (Euler-Maruyama: ``b xi / sqrt(dt)`` held over the step);
-3. MuJoCo steps ``frame_skip`` times (a pool of threads; ``mj_step`` releases the GIL);
+3. MuJoCo steps ``frame_skip`` times (``mujoco.batch`` on C threads, without the GIL; a
+   rig's per-physics-step input limit runs in C, :mod:`testbed.sim.native`);
 4. divergence check: a MuJoCo instability warning, a non-finite state or a state past the
    rig's ``state_envelope`` raises :class:`SimulationDiverged` (time, members, state);
 5. the sensors sample the new state.
@@ -21,10 +22,13 @@ Randomness: member ``i`` owns one stream (:class:`testbed.sensors.NoiseStreams`,
 a Gymnasium env's ``np_random``); per step it gives, in order, the rig's step noise, the
 disturbance noise, then the sensors' noise.
 
-Physics: each member's complete MuJoCo integration state (``mjSTATE_INTEGRATION``: time,
-qpos, qvel, warm start, ctrl, applied forces) is a row of one array; a worker thread loads a
-row into its own ``MjData``, steps and stores it back, which is bitwise identical to stepping
-a dedicated ``MjData`` without one ``MjData`` (13.6 MB arena) per member.
+Physics: the members are the simulations of one :class:`mujoco.batch.Batch`: each member's
+complete MuJoCo integration state (``mjSTATE_INTEGRATION``: time, qpos, qvel, warm start,
+ctrl, applied forces, userdata) is a row of one array, which the batch's C threads load into
+an ``MjData``, step and store back: bitwise identical to stepping a dedicated ``MjData``,
+without one ``MjData`` per member and without Python per member. A member's parameters and
+the rig's step noise are per-simulation model fields (``Batch.expand``), written for all
+members with one numpy assignment per field.
 """
 
 from __future__ import annotations
@@ -32,27 +36,26 @@ from __future__ import annotations
 import bisect
 import copy
 import os
-import threading
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import mujoco
+import mujoco.batch
 import numpy as np
 
 from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import NoiseStreams, Sample, Sensor
+from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
 _QFRC = int(mujoco.mjtState.mjSTATE_QFRC_APPLIED)
 _XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+_USERDATA = int(mujoco.mjtState.mjSTATE_USERDATA)
 _QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
 _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
-#: Chunks per physics thread a step is split into (the threads take them from a queue).
-_CHUNKS_PER_THREAD = 8
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
 
 
@@ -125,34 +128,58 @@ def _state_offset(model: mujoco.MjModel, spec: int, component: int) -> int:
                if spec & (1 << k))
 
 
+class _MemberModels(Sequence):
+    """``physics.models[i]``: a copy of the model member ``i`` runs on now (its parameters
+    and its last step noise included), made on access (``Batch.get_model``)."""
+
+    def __init__(self, physics: Physics):
+        self._physics = physics
+
+    def __len__(self) -> int:
+        return self._physics.num
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = int(i)
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"member {i} out of range for {len(self)} members")
+        return self._physics.batch.get_model(i % len(self))
+
+
 class Physics:
-    """MuJoCo integration states of N members, stepped by a pool of threads.
+    """MuJoCo integration states of N members, stepped by ``mujoco.batch`` on C threads.
+
+    Each member is one simulation of a :class:`mujoco.batch.Batch` of the rig's model (its
+    ``mjSTATE_INTEGRATION`` row is a row of :attr:`state`); per-member parameters and the
+    rig's step noise are per-simulation model fields (``Batch.expand``), written for all
+    members at once. The batch loads a row into an ``MjData``, steps and stores it back, on
+    its threads without the GIL: bitwise identical to stepping a dedicated ``MjData``.
 
     Parameters
     ----------
     rig : Rig
-        Model factory (its own model is modified to make per-parameter copies).
+        Model factory (its own model is not changed).
     num : int
     frame_skip : int
     num_threads : int, optional
-        Worker threads (default :func:`default_num_threads`, at most ``num``).
+        Batch threads (default :func:`default_num_threads`, at most ``num``).
     """
 
     def __init__(self, rig: Rig, num: int, frame_skip: int, num_threads: int | None = None):
         self.rig, self.num, self.frame_skip = rig, int(num), int(frame_skip)
         model = rig.model
         self.nu, self.nv, self.nbody = model.nu, model.nv, model.nbody
-        self._own_models = rig.step_noise_dim > 0  # each member perturbs its model per step
-        self._cache: dict[Params, mujoco.MjModel] = {}
         self._scratch = mujoco.MjData(model)
-        self.models = [self.model_for(rig.params)] * self.num
-        #: Members still on their parameters' shared model that perturb it in their next
-        #: step: they get their own copy first (:meth:`_own_copies`); ``_any_shared``: any.
-        self._shared = np.full(self.num, self._own_models)
-        self._any_shared = self._own_models
+        threads = (default_num_threads() if num_threads is None
+                   else positive_int(num_threads, "num_threads"))
+        self.num_threads = min(threads, max(self.num, 1))
+        self._base = rig.model_with(rig.params, self._scratch)
+        self._attach()
+        self.params: list[Params] = [rig.params] * self.num
+        #: Model fields that differ from the nominal model for some parameters, by params.
+        self._diffs: dict[Params, dict[str, np.ndarray]] = {rig.params: {}}
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
-        nstate = mujoco.mj_stateSize(model, _INTEGRATION)
-        self.state = np.zeros((self.num, nstate))
         self.mass = np.zeros((self.num, self.nv, self.nv))
         c = _state_offset(model, _INTEGRATION, _CTRL)
         f = _state_offset(model, _INTEGRATION, _QFRC)
@@ -160,32 +187,68 @@ class Physics:
         self._ctrl, self._qfrc = slice(c, c + self.nu), slice(f, f + self.nv)
         self._xfrc = slice(x, x + 6 * self.nbody)
         qpos, qvel = (_state_offset(model, _INTEGRATION, b) for b in (_QPOS, _QVEL))
-        self._gather = np.concatenate([qpos + rig.qpos_adr, qvel + rig.dof_adr])
+        self._qpos_cols, self._qvel_cols = qpos + rig.qpos_adr, qvel + rig.dof_adr
+        self._gather = np.concatenate([self._qpos_cols, self._qvel_cols])
         self._check_layout()
-        threads = (default_num_threads() if num_threads is None
-                   else positive_int(num_threads, "num_threads"))
-        self.num_threads = min(threads, max(self.num, 1))
-        self._datas = [mujoco.MjData(model) for _ in range(self.num_threads)]
+        # the dense mass matrix from MuJoCo's sparse lower triangle (rows, columns)
+        rows = np.repeat(np.arange(self.nv), model.M_rownnz)
+        self._m_rows, self._m_cols = rows, np.asarray(model.M_colind)
+        #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
+        #: columns of the state rows holding [flag, command, c, r].
+        self._native: tuple[int, slice, slice] | None = None
+        window = rig.act_window(self.constants[:1]) if rig.needs_substep else None
+        if window is not None and model.nuserdata == 1 + 3 * self.nu and native.install():
+            u = _state_offset(model, _INTEGRATION, _USERDATA)
+            self._native = (u, slice(u + 1, u + 1 + self.nu), slice(u + 1 + self.nu,
+                                                                  u + 1 + 3 * self.nu))
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
-        self._pool = (ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
-                      if self.num_threads > 1 else None)
+        self._all_ids = np.arange(self.num)
+
+    def _attach(self) -> None:
+        """A new batch of the members (all at the nominal model's defaults) and its views."""
+        self.batch = mujoco.batch.Batch(self._base, self.num, nthread=self.num_threads)
+        #: The members' integration states, one row each (the batch's own rows: live).
+        self.state = self.batch.state
+        self._fields: dict[str, np.ndarray] = {}  # expanded fields: their (N, ...) values
+        self._mass_bound: np.ndarray | None = None
+        self._poses_bound: tuple[np.ndarray, np.ndarray] | None = None
+        self._warning = self.batch.warning  # (N, mjNWARNING, (lastinfo, number))
+        lo, hi = min(_BAD_WARNINGS), max(_BAD_WARNINGS) + 1
+        assert hi - lo == len(_BAD_WARNINGS)  # contiguous: a view, one count per step
+        #: The counters of MuJoCo's instability warnings, (N, 3), a view.
+        self._bad = self._warning[:, lo:hi, 1]
+        self._act = self.batch.bind("act") if self.rig.needs_substep else None
+        self.models = _MemberModels(self)
+
+    _UNPICKLED = ("batch", "state", "_fields", "_mass_bound", "_poses_bound", "_warning", "_bad",
+                  "_act", "models")
 
     def __getstate__(self) -> dict[str, Any]:
-        """Copies (``copy.deepcopy``, pickle) are independent: without the thread pool."""
-        state = dict(self.__dict__)
-        state["_pool"] = None
-        return state
+        """Picklable (and deep-copyable): the batch's rows, warning counters and
+        per-simulation fields, without the batch."""
+        out = {k: v for k, v in self.__dict__.items() if k not in self._UNPICKLED}
+        out["_saved"] = (self.state.copy(), self._warning.copy(),
+                         {name: values.copy() for name, values in self._fields.items()})
+        return out
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        rows, warnings, fields = state.pop("_saved")
         self.__dict__.update(state)
-        if self.num_threads > 1:
-            self._pool = ThreadPoolExecutor(self.num_threads - 1, "testbed-physics")
+        self._attach()
+        for name, values in fields.items():
+            self._fields[name] = self.batch.expand(name)
+            self._fields[name][...] = values
+        self.state[...] = rows
+        self._warning[...] = warnings
+        if self._native is not None and not native.install():
+            self._native = None  # no C callback here: the rig's Python hook (same numbers)
 
     def _check_layout(self) -> None:
-        """Verify the computed state offsets against MuJoCo (fails loudly if it changes)."""
-        model = self.rig.model
+        """Verify the computed state offsets against MuJoCo and the batch's rows (fails
+        loudly if either changes)."""
+        model = self._base
         data = mujoco.MjData(model)
         data.ctrl[:] = np.arange(1, self.nu + 1)
         data.qfrc_applied[:] = -np.arange(1, self.nv + 1)
@@ -195,44 +258,98 @@ class Physics:
         row = np.zeros(self.state.shape[1])
         mujoco.mj_getState(model, data, row, _INTEGRATION)
         expected = np.concatenate([data.qpos[self.rig.qpos_adr], data.qvel[self.rig.dof_adr]])
-        if not (np.array_equal(row[self._ctrl], data.ctrl)
-                and np.array_equal(row[self._qfrc], data.qfrc_applied)
-                and np.array_equal(row[self._xfrc], data.xfrc_applied.ravel())
-                and np.array_equal(row[self._gather], expected)):
+        ok = (self.state.shape[1] == mujoco.mj_stateSize(model, _INTEGRATION)
+              and np.array_equal(row[self._ctrl], data.ctrl)
+              and np.array_equal(row[self._qfrc], data.qfrc_applied)
+              and np.array_equal(row[self._xfrc], data.xfrc_applied.ravel())
+              and np.array_equal(row[self._gather], expected))
+        if ok:
+            saved = self.state[0].copy()
+            self.state[0] = row
+            back = self.batch.get_data(0)
+            self.state[0] = saved
+            ok = (np.array_equal(back.qpos, data.qpos) and np.array_equal(back.qvel, data.qvel)
+                  and np.array_equal(back.ctrl, data.ctrl)
+                  and np.array_equal(back.xfrc_applied, data.xfrc_applied))
+        if not ok:
             raise RuntimeError("unexpected mjSTATE_INTEGRATION layout in this MuJoCo version")
 
-    def model_for(self, params: Params) -> mujoco.MjModel:
-        """A copy of the rig's model with these parameters (cached: shared by the members
-        with these parameters, never perturbed); the rig is not changed."""
-        model = self._cache.get(params)
-        if model is None:
-            model = self._cache[params] = self.rig.model_with(params, self._scratch)
-        return model
+    # ------------------------------------------------------------------ parameters
+    def _diff(self, params: Params) -> dict[str, np.ndarray]:
+        """The model fields in which the rig's model with ``params`` differs from the
+        nominal one (bitwise), with their values: what makes a member's model exactly
+        ``rig.model_with(params)``."""
+        diff = self._diffs.get(params)
+        if diff is None:
+            model, base = self.rig.model_with(params, self._scratch), self._base
+            diff = {}
+            for name in _model_fields():
+                mine, nominal = _model_field(model, name), _model_field(base, name)
+                if mine.tobytes() != nominal.tobytes():
+                    diff[name] = mine.copy()
+            self._diffs[params] = diff
+        return diff
 
-    def _own_copies(self, members: np.ndarray) -> None:
-        """Give the members still on a shared model their own copy of it (their step noise
-        perturbs it). Copy on the first step, not at the reset: a reset only reads the
-        model, and a second reset before a step (the runner's) copies nothing."""
-        for i in members[self._shared[members]].tolist():
-            self.models[i] = copy.copy(self.models[i])  # mj_copyModel: bitwise equal
-        self._shared[members] = False
-        self._any_shared = bool(self._shared.any())
+    def _write_params(self, members: np.ndarray, params: Sequence[Params]) -> None:
+        """Per-simulation model fields of the members from their parameters."""
+        groups: dict[Params, list[int]] = {}
+        for i, p in zip(members.tolist(), params, strict=True):
+            groups.setdefault(p, []).append(i)
+        diffs = {p: self._diff(p) for p in groups}
+        for diff in diffs.values():
+            for name in diff:
+                if name not in self._fields:
+                    self._fields[name] = self.batch.expand(name)
+        if not self._fields:
+            return
+        for p, ids in groups.items():
+            diff = diffs[p]
+            rows = np.asarray(ids)
+            for name, values in self._fields.items():
+                values[rows] = diff.get(name, _model_field(self._base, name))
+        in_use = set(self.params)
+        self._diffs = {p: d for p, d in self._diffs.items() if p in in_use
+                       or p == self.rig.params}
 
     def reset(self, members: Sequence[int], params: Sequence[Params], x0: np.ndarray) -> None:
         """``mj_resetData``, ``x0`` into qpos/qvel, ``mj_forward`` for each member (k,)."""
-        data = self._datas[0]
-        for j, i in enumerate(members):
-            model = self.models[i] = self.model_for(params[j])
-            self.constants[i] = self.rig.member_constants(params[j])
-            mujoco.mj_resetData(model, data)
-            self.rig.set_state(x0[j], data, model)
-            mujoco.mj_getState(model, data, self.state[i], _INTEGRATION)
-            mujoco.mj_fullM(model, data, self.mass[i])
-        self.unstable[list(members)] = False
-        self._shared[list(members)] = self._own_models
-        self._any_shared = bool(self._shared.any())
-        in_use = {id(m) for m in self.models}
-        self._cache = {p: m for p, m in self._cache.items() if id(m) in in_use}
+        index = np.asarray(members, dtype=int).reshape(-1)
+        if not len(index):
+            return
+        order = np.argsort(index, kind="stable")
+        index, x0 = index[order], np.asarray(x0, float)[order]
+        params = [params[j] for j in order.tolist()]
+        for i, p in zip(index.tolist(), params, strict=True):
+            self.params[i] = p
+            self.constants[i] = self.rig.member_constants(p)
+        self._write_params(index, params)
+        batch = self.batch
+        batch.reset(index, stage=int(mujoco.mjtStage.mjSTAGE_NONE))
+        j = len(self.rig.joints)
+        self.state[index[:, None], self._qpos_cols] = x0[:, :j]
+        self.state[index[:, None], self._qvel_cols] = x0[:, j:]
+        if self._mass_bound is None:
+            self._mass_bound = batch.bind("M")
+        batch.forward(index)
+        self._store_mass(index)
+        if self._native is not None:  # the C current limit's flag and constants
+            flag, _, consts = self._native
+            self.state[index, flag] = native.MAGIC
+            self.state[index, consts] = np.concatenate(
+                self.rig.act_window(self.constants[index]), axis=1)
+        self._warning[index] = 0
+        self.unstable[index] = False
+
+    def _store_mass(self, sel: Any) -> None:
+        """Dense mass matrices of the members from MuJoCo's sparse ``M`` (a copy of the
+        values, as ``mj_fullM``)."""
+        m = self._mass_bound[sel]
+        if isinstance(sel, slice):
+            self.mass[:, self._m_rows, self._m_cols] = m
+            self.mass[:, self._m_cols, self._m_rows] = m
+        else:
+            self.mass[sel[:, None], self._m_rows, self._m_cols] = m
+            self.mass[sel[:, None], self._m_cols, self._m_rows] = m
 
     def states(self, members: Any = slice(None)) -> np.ndarray:
         """Rig states of the members, shape (k, n)."""
@@ -248,103 +365,107 @@ class Physics:
         if qfrc is not None:
             self.state[members, self._qfrc] = qfrc
 
+    def _apply_step_noise(self, sel: Any, step_noise: np.ndarray) -> None:
+        """The rig's step noise into the members' per-simulation model fields."""
+        for name, (where, values) in self.rig.step_noise_model(self.constants[sel],
+                                                               step_noise).items():
+            field = self._fields.get(name)
+            if field is None:
+                field = self._fields[name] = self.batch.expand(name)
+            field[(sel, *np.atleast_1d(where).tolist())] = values
+
     def step(self, members: np.ndarray, need_mass: bool = False,
-             need_poses: bool = False, step_noise: np.ndarray | None = None) -> None:
-        """``mj_step`` ``frame_skip`` times for the members (sorted int array).
+             need_poses: bool = False, step_noise: np.ndarray | None = None) -> bool:
+        """``mj_step`` ``frame_skip`` times for the members (sorted int array); whether any
+        of them reported an instability warning (:attr:`unstable`).
 
-        ``step_noise`` (k, d), one row per member, is applied to each member's model
-        (``rig.apply_step_noise``) right before its step, by the thread that steps it (so
-        this Python work overlaps the other threads' physics).
-
-        The threads (the calling one included) take chunks of about ``k / (8 threads)``
-        members from a shared queue until none is left, so a thread slowed down by another
-        process (a shared machine) or a late start does fewer. Which thread steps a member
-        does not change its result (each loads its whole state into the thread's data).
+        ``step_noise`` (k, d), one row per member, perturbs each member's model (the rig's
+        :meth:`~testbed.rigs.base.Rig.step_noise_model`) before its step. With
+        ``rig.needs_substep`` the rig's ``substep_ctrl`` sets every member's ``ctrl`` before
+        each physics step (vectorized over the members), else MuJoCo takes the
+        ``frame_skip`` steps in one call.
         """
-        if need_poses and (self.poses is None or len(self.poses[0]) != self.num):
-            self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
         k = len(members)
         if not k:
-            return
-        if step_noise is not None and self._any_shared:
-            self._own_copies(members)
-        rows = members.tolist()
-        if self._pool is None or k < 2:
-            self._work(self._datas[0], ((0, k),), rows, need_mass, need_poses, step_noise)
-            return
-        size = -(-k // (_CHUNKS_PER_THREAD * self.num_threads))
-        queue = iter([(s, min(s + size, k)) for s in range(0, k, size)])
-        lock = threading.Lock()
+            return False
+        whole = k == self.num
+        sel: Any = slice(None) if whole else members
+        ids = None if whole else members
+        batch = self.batch
+        if need_poses and self._poses_bound is None:
+            self._poses_bound = (batch.bind("xpos"), batch.bind("xquat"))
+        if need_mass and self._mass_bound is None:
+            self._mass_bound = batch.bind("M")
+        if step_noise is not None:
+            self._apply_step_noise(sel, step_noise)
+        if self._act is None:
+            batch.step(ids, self.frame_skip)
+        elif self._native is not None and native.installed():  # ctrl set in C, from the
+            # command held in userdata
+            state, cols, held = self.state, self._ctrl, self._native[1]
+            command = state[sel, cols]
+            state[sel, held] = command
+            batch.step(ids, self.frame_skip)
+            state[sel, cols] = state[sel, held]
+        else:  # ctrl from the held command and the actuator state, every physics step
+            state, cols = self.state, self._ctrl
+            command = state[sel, cols].copy()
+            constants, substep = self.constants[sel], self.rig.substep_ctrl
+            act = self._act
+            for _ in range(self.frame_skip):
+                state[sel, cols] = substep(command, act[sel], constants)
+                batch.step(ids, 1)
+            state[sel, cols] = command
+        bad = self._bad[sel]
+        warned = bool(np.count_nonzero(bad))
+        if warned:  # rare: mark the members and clear their counters
+            unstable = np.any(bad, axis=1)
+            self.unstable[sel] = unstable
+            self._warning[self._all_ids[sel][unstable]] = 0
+        else:
+            self.unstable[sel] = False
+        if need_mass:
+            self._store_mass(sel)
+        if need_poses:
+            self._store_poses(sel)
+        return warned
 
-        def chunks() -> Iterator[tuple[int, int]]:  # one per thread, all from the queue
-            while True:
-                with lock:
-                    chunk = next(queue, None)
-                if chunk is None:
-                    return
-                yield chunk
-
-        args = (rows, need_mass, need_poses, step_noise)
-        futures = [self._pool.submit(self._work, data, chunks(), *args)
-                   for data in self._datas[1:min(self.num_threads, k)]]
-        try:
-            self._work(self._datas[0], chunks(), *args)
-        finally:
-            for future in futures:
-                future.result()
-
-    def _work(self, data: mujoco.MjData, chunks: Iterable[tuple[int, int]], rows: list[int],
-              need_mass: bool, need_poses: bool, step_noise: np.ndarray | None) -> None:
-        """Step the members ``rows[start:stop]`` of each chunk ``(start, stop)`` in ``data``
-        (``step_noise`` rows are indexed like ``rows``)."""
-        models, state, mass, nstep = self.models, self.state, self.mass, self.frame_skip
-        set_state, get_state, step = mujoco.mj_setState, mujoco.mj_getState, mujoco.mj_step
-        substep = self.rig.substep_ctrl if self.rig.needs_substep else None
-        perturb, constants = self.rig.apply_step_noise, self.constants
-        warnings = data.warning.number  # a view of MuJoCo's counters (zero unless it warned)
-        w1, w2, w3 = _BAD_WARNINGS
-        unstable = self.unstable
-        for start, stop in chunks:
-            for j in range(start, stop):
-                i = rows[j]
-                model, row = models[i], state[i]
-                if step_noise is not None:
-                    perturb(model, constants[i], step_noise[j])
-                set_state(model, data, row, _INTEGRATION)
-                if substep is None:
-                    step(model, data, nstep)
-                else:  # ctrl from the held command and the actuator state, every physics step
-                    command = data.ctrl.copy()
-                    for _ in range(nstep):
-                        data.ctrl[:] = substep(command, data.act, constants[i])
-                        step(model, data)
-                    data.ctrl[:] = command
-                get_state(model, data, row, _INTEGRATION)
-                unstable[i] = bool(warnings[w1] or warnings[w2] or warnings[w3])
-                if unstable[i]:
-                    warnings[:] = 0
-                if need_mass:
-                    mujoco.mj_fullM(model, data, mass[i])
-                if need_poses:
-                    self.poses[0][i] = data.xpos
-                    self.poses[1][i] = data.xquat
+    def _store_poses(self, sel: Any) -> None:
+        if self.poses is None or len(self.poses[0]) != self.num:
+            self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
+        self.poses[0][sel] = self._poses_bound[0][sel]
+        self.poses[1][sel] = self._poses_bound[1][sel]
 
     def forward_poses(self, members: np.ndarray) -> None:
         """Body poses of the members from their current states (``mj_kinematics``)."""
-        if self.poses is None or len(self.poses[0]) != self.num:
-            self.poses = (np.zeros((self.num, self.nbody, 3)), np.zeros((self.num, self.nbody, 4)))
-        data = self._datas[0]
-        for i in members:
-            mujoco.mj_setState(self.models[i], data, self.state[i], _INTEGRATION)
-            mujoco.mj_kinematics(self.models[i], data)
-            self.poses[0][i] = data.xpos
-            self.poses[1][i] = data.xquat
+        if self._poses_bound is None:
+            self._poses_bound = (self.batch.bind("xpos"), self.batch.bind("xquat"))
+        index = np.unique(np.asarray(members, dtype=int))
+        self.batch.forward(index, stage=int(mujoco.mjtStage.mjSTAGE_POS))
+        self._store_poses(index)
 
     def close(self) -> None:
-        """Stop the worker threads."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        """Nothing to stop (the batch's threads end with it)."""
+
+
+_MODEL_FIELDS: tuple[str, ...] | None = None
+
+
+def _model_fields() -> tuple[str, ...]:
+    """The model fields a batch can hold per simulation, but for structure (addresses,
+    counts, ids, types) and names."""
+    global _MODEL_FIELDS
+    if _MODEL_FIELDS is None:
+        _MODEL_FIELDS = tuple(sorted(
+            n for n in mujoco.batch.MODEL_FIELDS
+            if not n.startswith(("name_", "names_")) and n not in ("bvh_aabb",)))
+    return _MODEL_FIELDS
+
+
+def _model_field(model: mujoco.MjModel, name: str) -> np.ndarray:
+    if name.startswith("opt."):
+        return np.asarray(getattr(model.opt, name[4:]))
+    return np.asarray(getattr(model, name))
 
 
 def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int) -> np.ndarray:
@@ -453,6 +574,8 @@ class Simulator:
         self._noise_all = self.noise.view(slice(None))
         self.steps = np.zeros(n, dtype=np.int64)
         self._ready = np.zeros(n, dtype=bool)
+        self._all_ready = False
+        self._terminates = type(rig).terminated is not Rig.terminated
         self.x0 = np.zeros((n, self._nx))
         self.obs = np.zeros((n, self.sensors.dim))
         self.reward = np.zeros(n)
@@ -703,6 +826,7 @@ class Simulator:
         self._table_of[index] = tables
         self._schedule_of[index] = schedules
         self._ready[index] = True
+        self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
         self.x0[index] = x0
         t = np.zeros(k)
@@ -748,14 +872,16 @@ class Simulator:
         # copies); sensors, noise streams and physics keep the member indices
         sel: Any = slice(None) if members is None else index
         k = len(index)
-        if np.count_nonzero(self._ready[sel]) != k:
+        if not (self._all_ready if members is None
+                else np.count_nonzero(self._ready[sel]) == k):
             raise RuntimeError("reset() every member before stepping it")
         u = actions if checked else self.check_actions(actions, k)
         low, high = self._low, self._high
         rig, physics, dist = self.rig, self.physics, self.disturbance
         no_manoeuvre = self._no_manoeuvre
         t = self.steps[sel] * self.dt_s if dist.has_signal or not no_manoeuvre else None
-        clipped_u = u.clip(low, high)
+        # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
+        clipped_u = np.minimum(np.maximum(u, low), high)
         if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
             profile = self._zero_input[:k]
             applied = clipped_u + profile
@@ -763,7 +889,7 @@ class Simulator:
         else:
             profile = self._manoeuvre(t, sel)
             total = clipped_u + profile
-            applied = total.clip(low, high)
+            applied = np.minimum(np.maximum(total, low), high)
             clipped = (clipped_u != u) | (applied != total)
         noise = self._noise_all if members is None else self.noise.view(index)
         info = self.info
@@ -784,20 +910,20 @@ class Simulator:
             a[:, rig.dof_adr] = accel
             qfrc = np.matvec(physics.mass[sel], a)
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
-        physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
-                     step_noise=step_noise)
+        warned = physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
+                              step_noise=step_noise)
         steps = self.steps[sel] + 1
         self.steps[sel] = steps
         t = steps * self.dt_s
         x = physics.states(sel)
         inside = np.less_equal(np.abs(x), self._envelope)  # NaN compares False
-        unstable = physics.unstable[sel]
-        if np.count_nonzero(inside) != inside.size or np.count_nonzero(unstable):
-            self._diverged(index, unstable, ~inside.all(axis=1), x, t)
+        if warned or np.count_nonzero(inside) != inside.size:
+            self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel)
         e = x[:, self._tracked_cols] - ref
         self.reward[sel] = -np.add.reduce(e * e, axis=1)
-        self.terminated[sel] = rig.terminated(x)
+        if self._terminates:  # the base Rig.terminated never ends an episode
+            self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index) if dist.has_signal else self._zero_w[:k]
         sample = Sample(x, t, applied, w_now, index)
         self.obs[sel] = self.sensors.measure(sample, noise)
@@ -819,6 +945,7 @@ class Simulator:
         """Mark the diverged members unready and raise :class:`SimulationDiverged`."""
         bad = unstable | outside
         self._ready[index[bad]] = False
+        self._all_ready = False
         j = int(np.flatnonzero(bad)[0])
         names, units = self.rig.state_names, self.rig.state_units
         if unstable[j]:

@@ -399,6 +399,9 @@ class HelicopterRig(Rig):
             act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
             act.dynprm[0] = hw.motor_time_constant_s[i]
             act.ctrlrange = [-hw.voltage_limit_v[i], hw.voltage_limit_v[i]]
+        # the simulator's C current limit keeps its command and constants here
+        # (testbed.sim.native: [flag, command, back-EMF share, R I_max])
+        spec.nuserdata = 1 + 3 * len(spec.actuators)
 
     def member_constants(self, params: HelicopterParams) -> np.ndarray:
         """``hardware``: :meth:`HelicopterHardware.constants` (deadband, back-EMF share,
@@ -419,7 +422,13 @@ class HelicopterRig(Rig):
     def substep_ctrl(self, command: np.ndarray, act: np.ndarray,
                      constants: np.ndarray) -> np.ndarray:
         """The voltage within the amplifier's current limit (:func:`current_limited`)."""
-        return current_limited(command, act, constants[2:4], constants[4:6])
+        return current_limited(command, act, constants[..., 2:4], constants[..., 4:6])
+
+    def act_window(self, constants: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``hardware``: the current limit is ``c act +- R I_max``: run in C by the simulator."""
+        if self.hardware is None:
+            return None
+        return constants[..., 2:4], constants[..., 4:6]
 
     def process_noise_matrix(self) -> np.ndarray:
         """Basin et al.'s white-noise matrix ``b`` (4, 2) (velocity rows)."""

@@ -136,10 +136,10 @@ class VehicleRollRig(Rig):
         xfrc[:, self._body_id, 1] = -constants[:, 0] * u[:, 0]
         return {"xfrc": xfrc}
 
-    def apply_step_noise(self, model: mujoco.MjModel, constants: np.ndarray,
-                         xi: np.ndarray) -> None:
-        """Damping ``C_R + D_n w_k`` for the next step."""
-        model.dof_damping[self.dof_adr[0]] = constants[1] + constants[2] * xi[0]
+    def step_noise_model(self, constants: np.ndarray,
+                         xi: np.ndarray) -> dict[str, tuple[int, np.ndarray]]:
+        """Damping ``C_R + D_n w_k`` for the next step, shape (k,)."""
+        return {"dof_damping": (int(self.dof_adr[0]), constants[:, 1] + constants[:, 2] * xi[:, 0])}
 
     x0_draws = 2
 

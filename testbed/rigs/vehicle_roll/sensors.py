@@ -89,8 +89,10 @@ class SpeedYawRate(Sensor):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``[v, a_y / v]`` with the ``a_y`` applied over the step, shape (k, 2)."""
-        v = np.full(sample.k, self.speed_m_s)
-        return np.stack([v, sample.u[:, 0] / self.speed_m_s], axis=1)
+        out = np.empty((sample.k, 2))
+        out[:, 0] = self.speed_m_s
+        np.divide(sample.u[:, 0], self.speed_m_s, out=out[:, 1])
+        return out
 
     def linear_model(self) -> SensorModel:
         """``yaw_rate = a_y / v`` (``D``); ``speed`` is constant; both are input channels."""
@@ -107,7 +109,7 @@ class SpeedChannel(SpeedYawRate):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``v``, shape (k, 1)."""
-        return super().measure(sample, noise)[:, self._rows]
+        return np.full((sample.k, 1), self.speed_m_s)
 
     def linear_model(self) -> SensorModel:
         """This channel's row of :meth:`SpeedYawRate.linear_model`."""
@@ -121,6 +123,10 @@ class YawRateChannel(SpeedChannel):
 
     names, units, measured_state = ("yaw_rate",), ("rad/s",), (None,)
     _rows = slice(1, 2)
+
+    def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
+        """``a_y / v``, shape (k, 1)."""
+        return sample.u[:, :1] / self.speed_m_s
 
 
 def measured_lateral_acceleration(tap: Tap) -> np.ndarray:
