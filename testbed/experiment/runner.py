@@ -730,7 +730,8 @@ def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
         **per_run_summary(per_run),
         "npz": None,
         "units": first["units"],
-        "meta": first["meta"],
+        "scenario": first["meta"]["scenario"],
+        "meta": {k: v for k, v in first["meta"].items() if k != "scenario"},
     }
 
 
