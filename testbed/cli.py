@@ -882,20 +882,36 @@ class _Terminated(BaseException):
 
 @contextlib.contextmanager
 def _sigterm_raises() -> Iterator[None]:
-    """Within the block, SIGTERM raises :class:`_Terminated` (main thread only)."""
+    """Within the block, SIGTERM raises :class:`_Terminated` and SIGINT
+    ``KeyboardInterrupt``, both remembered in :data:`_SIGNALLED` (main thread only): an
+    interrupt that lands inside a library (matplotlib's drawing, say) and comes out as
+    another exception is still reported as the interrupt it was."""
+    _SIGNALLED.clear()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def handler(signum: int, frame: Any) -> None:
+    def on_term(signum: int, frame: Any) -> None:
+        _SIGNALLED.append(signum)
         raise _Terminated
 
-    previous = signal.signal(signal.SIGTERM, handler)
+    def on_int(signum: int, frame: Any) -> None:
+        _SIGNALLED.append(signum)
+        raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, handler)
+                for sig, handler in ((signal.SIGTERM, on_term), (signal.SIGINT, on_int))
+                if signal.getsignal(sig) is not signal.SIG_IGN or sig == signal.SIGTERM}
     try:
         yield
     finally:
-        if signal.getsignal(signal.SIGTERM) is handler:  # not ignored at the end of the work
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in ((signal.SIGTERM, on_term), (signal.SIGINT, on_int)):
+            if sig in previous and signal.getsignal(sig) is handler:  # not ignored at the end
+                signal.signal(sig, previous[sig])
+
+
+#: The signals received while the command ran (see :func:`_sigterm_raises`).
+_SIGNALLED: list[int] = []
 
 
 @contextlib.contextmanager
@@ -988,6 +1004,9 @@ def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
     from testbed.io import OutputError
     from testbed.plugins import EstimatorFailed, describe
 
+    if _SIGNALLED and not isinstance(exc, KeyboardInterrupt | _Terminated):
+        # the signal landed in a library, which turned it into another exception
+        exc = _Terminated() if _SIGNALLED[-1] == signal.SIGTERM else KeyboardInterrupt()
     if isinstance(exc, StudyTooLarge):
         return _fail(EXIT_USAGE, f"testbed: error: --{exc}")
     if isinstance(exc, ScenarioError):

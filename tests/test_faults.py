@@ -623,7 +623,7 @@ def test_copies_of_a_threaded_vector_env_step_identically():
     for _ in range(5):
         env.step(action)
     copies = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
-    assert all(c.sim.physics._pool is not env.sim.physics._pool for c in copies)
+    assert all(c.sim.physics.batch is not env.sim.physics.batch for c in copies)
     for _ in range(10):
         obs = env.step(action)[0]
         for c in copies:
