@@ -53,3 +53,27 @@ def test_every_module_or_attribute_imports(doc, name):
 def test_every_local_link_resolves(doc, target):
     base = ROOT if doc == "README.md" else ROOT / "docs"
     assert (base / target).exists(), f"{doc} links to {target}, which is missing"
+
+
+#: Every ``python`` block of the README and the docs, run alone in a fresh interpreter from
+#: ``docs/examples`` on ``PYTHONPATH`` (where docs/extending.md says its modules live).
+SNIPPETS = [(doc.name, i, block) for doc in DOCS
+            for i, block in enumerate(re.findall(r"```python\n(.*?)```", doc.read_text(), re.S))]
+
+
+def test_the_docs_have_snippets():
+    assert len(SNIPPETS) >= 4
+
+
+@pytest.mark.parametrize("doc, index, code", SNIPPETS,
+                         ids=[f"{d}-{i}" for d, i, _ in SNIPPETS])
+def test_every_snippet_runs_when_pasted_alone(doc, index, code, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(ROOT / "docs" / "examples"), str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    result = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, f"{doc} snippet {index}:\n{result.stderr[-2000:]}"
