@@ -206,9 +206,6 @@ def _from_design(env: gym.Env, estimator: Any, design: Any,
                              "FilterInLoop(env, estimator)")
         design = inner.rig.design_model(inner.sensors, inner.dt_s,
                                         inner.sim.known_disturbance)
-        # the designer's rig, as testbed.experiment.runner.build names it
-        design.extras.setdefault("rig_type", type(inner.rig))
-        design.extras.setdefault("physics_dt_s", float(inner.rig.model.opt.timestep))
     design, _ = estimators.design_for(estimator, design)
     est = estimators.build(estimator, design, **options)
     name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",

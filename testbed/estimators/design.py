@@ -151,7 +151,15 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         measurement_index=index, sensors=model, output_matrix=np.asarray(output_matrix, float),
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
         extras={"cubic_model": getattr(type(rig), "cubic_model", None),
-                "parameter_mismatch": _mismatch(rig), **(extras or {})})
+                "parameter_mismatch": _mismatch(rig), **_designer(rig), **(extras or {})})
+
+
+def _designer(rig) -> dict[str, Any]:
+    """The designer's rig as the nonlinear filters rebuild it: its class and physics step
+    (``extras["rig_type"]``, ``extras["physics_dt_s"]``)."""
+    model = getattr(rig, "model", None)
+    return {"rig_type": type(rig),
+            "physics_dt_s": None if model is None else float(model.opt.timestep)}
 
 
 def _mismatch(rig) -> Any:
@@ -424,7 +432,7 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     if disturbance_matrix is not None:
         G = np.zeros((n, np.shape(disturbance_matrix)[1]))
         G[:nr] = np.asarray(disturbance_matrix, float)[:nr]
-    all_extras = {"cubic_model": None, "parameter_mismatch": None,
+    all_extras = {"cubic_model": None, "parameter_mismatch": None, **_designer(rig),
                   "paper_design": paper_design, "design_profile": "matched",
                   "augmentation": {"extra": [nm for nm, _ in extra_states],
                                    "biases": [sensors.names[ch] for _, ch in biased],

@@ -335,26 +335,19 @@ def nominal_rig(design: DesignModel) -> Rig:
     """The designer's rig: the design's rig class at nominal parameters, first profile.
 
     The class and physics step come from ``design.extras["rig_type"]`` and
-    ``["physics_dt_s"]`` (set by :func:`testbed.experiment.runner.build`), else from
-    ``extras["parameter_mismatch"]``, else from the class of ``extras["cubic_model"]`` with
-    the rig's default physics step.
+    ``["physics_dt_s"]`` (set by the design builders of :mod:`testbed.estimators.design`
+    from the rig that designed).
 
     Raises
     ------
     ValueError
         The design names no MuJoCo rig.
     """
-    extras = design.extras
-    rig_type, physics_dt_s = extras.get("rig_type"), extras.get("physics_dt_s")
-    mismatch = extras.get("parameter_mismatch")
-    if rig_type is None and mismatch is not None:
-        rig_type, physics_dt_s = mismatch.rig_type, mismatch.physics_dt_s
-    if rig_type is None:
-        rig_type = getattr(extras.get("cubic_model"), "__self__", None)
+    rig_type, physics_dt_s = design.extras.get("rig_type"), design.extras.get("physics_dt_s")
     if not (isinstance(rig_type, type) and issubclass(rig_type, Rig)):
         raise ValueError("the nonlinear filters need the rig's MuJoCo model: the design names "
                          "no rig (design.extras['rig_type'], set by "
-                         "testbed.experiment.runner.build)")
+                         "testbed.estimators.design.build_design)")
     if physics_dt_s is None:
         return rig_type()
     return rig_type(physics_dt_s=float(physics_dt_s))

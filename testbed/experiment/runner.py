@@ -143,9 +143,6 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
         getattr(scenario.estimator, "__name__", repr(scenario.estimator))
     with blame("estimator"):
         design, fallback = estimators.design_for(scenario.estimator, design)
-        # the designer's MuJoCo rig, for the nonlinear filters (testbed.estimators.nonlinear)
-        design.extras.setdefault("rig_type", type(control_rig))
-        design.extras.setdefault("physics_dt_s", float(control_rig.model.opt.timestep))
         est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
         check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
         if not getattr(est, "batched", False):
