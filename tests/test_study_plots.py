@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from testbed.cli import main
+from testbed.experiment.envelope import ErrorEnvelope
 from testbed.experiment.runner import monte_carlo, sweep
 from testbed.experiment.scenario import Scenario
-from testbed.outputs.envelope import ErrorEnvelope
 from testbed.outputs.study_plots import monte_carlo_figure, plot_monte_carlo, sweep_figure
 
 VEHICLE = Scenario(rig="vehicle-roll", sensors="imu", manoeuvre="double-lane-change",

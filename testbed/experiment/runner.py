@@ -30,6 +30,7 @@ from testbed import estimators
 from testbed.estimators.design import DesignModel
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.control import make_controller
+from testbed.experiment.envelope import ErrorEnvelope
 from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
@@ -41,7 +42,6 @@ from testbed.io import (
     reserve,
     temporary_directory,
 )
-from testbed.outputs.envelope import ErrorEnvelope
 from testbed.rigs import resolve_rig
 from testbed.sim import build_simulator
 
@@ -536,7 +536,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         Physics threads.
     envelope_points : int, optional
         Also gather the error envelope over runs on this many time points
-        (:class:`testbed.outputs.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
+        (:class:`testbed.experiment.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
         result then has ``error_envelope``.
     backend : {None, "local", "ray"}, optional
         None (default): every batch in this process. ``"local"`` / ``"ray"``: the runs in

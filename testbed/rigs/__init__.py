@@ -1,4 +1,4 @@
-"""Rigs: one folder per rig (MJCF beside its Python) and this registry.
+"""Rigs: one folder per rig (the built-in MJCF in the top-level ``models/``) and this registry.
 
 Register a rig with one line, ``register_rig(MyRig)`` (``MyRig.name`` becomes usable in
 ``testbed run NAME``, scenarios and :func:`testbed.envs.RigEnv`), or pass the class itself.
