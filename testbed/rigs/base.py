@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
@@ -27,6 +28,21 @@ from testbed.rigs.params import scaled_copy
 
 #: Standard gravity used by every rig, m/s^2.
 GRAVITY_M_S2 = 9.81
+
+
+@functools.lru_cache(maxsize=16)
+def _read_mjcf(path: str, modified_ns: int, first_profile: bool) -> Any:
+    """The MJCF file read once per process (and again when it changes on disk).
+
+    A run builds several rigs of one class (the simulated rig, the designer's, the
+    controller's); each gets a copy: ``first_profile`` the compiled model (deep-copied: the
+    same bits as :meth:`mujoco.MjModel.from_xml_path`), otherwise the parsed spec, which the
+    profile edits (:meth:`Rig.edit_spec`) before compiling.
+    """
+    del modified_ns  # part of the cache key only
+    if first_profile:
+        return mujoco.MjModel.from_xml_path(path)
+    return mujoco.MjSpec.from_file(path)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -192,10 +208,12 @@ class Rig:
                              f"of {self.profiles}")
         #: The simulation profile (one of :attr:`profiles`).
         self.profile = profile
+        path = self.resolved_xml_path()
+        read = _read_mjcf(str(path), path.stat().st_mtime_ns, profile == self.profiles[0])
         if profile == self.profiles[0]:
-            self.model = mujoco.MjModel.from_xml_path(str(self.resolved_xml_path()))
+            self.model = copy.deepcopy(read)
         else:
-            spec = mujoco.MjSpec.from_file(str(self.resolved_xml_path()))
+            spec = read.copy()
             self.edit_spec(spec)
             self.model = spec.compile()
         self.model.opt.timestep = physics_dt_s
