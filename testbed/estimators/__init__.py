@@ -53,8 +53,9 @@ estimator and the expected shape.
 Design profiles: a factory whose theory needs the paper's model sets
 ``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
 instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
-``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``, ``lmi-hinf``, ``poly-hinf`` and
-``vc-discrete`` fall back to the paper design (the reasons are their attributes).
+``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``,
+``lmi-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design (the reasons
+are their attributes).
 
 A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
 (``testbed run RIG --filter mymodule:make``); the factory receives the

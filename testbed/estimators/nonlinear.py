@@ -599,7 +599,7 @@ class AugmentedProcessModel:
 
     def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The ``[p, e]`` part of ``f`` (M, d) and the first physical input ``w_0``."""
-        nr, ne, inp = self.nr, self.ne, self.input
+        nr, inp = self.nr, self.input
         p, e = x[:, :nr], x[:, nr:self.d]
         if inp.plain:
             w0 = u[:, :inp.kr]
