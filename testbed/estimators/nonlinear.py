@@ -541,6 +541,8 @@ class AugmentedProcessModel:
       of a channel of :data:`NONLINEAR_CHANNELS`, which takes the channel's nonlinear value
       ``h(p_k, w_0)`` (``w`` of the input memory when the design keeps one).
 
+    Rows of ``x`` that share ``[p, e]`` and ``u`` bitwise are rolled out once.
+
     Jacobian ``F(x, u)``: the ``[p, e]`` columns of the ``[p, e]`` rows and of the
     nonlinear delay rows by finite differences (step ``eps``, forward or ``centered``) over
     one rollout of every perturbed state of every row; the other entries exactly from
@@ -616,8 +618,21 @@ class AugmentedProcessModel:
             e_next = e_next + (off - inp.offset(p_next)) @ inp.spec.relative.T
         return np.concatenate([p_next, e_next], axis=1), W[:, 0]
 
+    def _pe_unique(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_pe` with each bitwise-distinct ``([p, e], u)`` row rolled out once (the
+        UKF's sigma points along the bias and delay states share the mean's)."""
+        if len(x) < 2:
+            return self._pe(x, u)
+        key = np.ascontiguousarray(np.concatenate([x[:, :self.d], u], axis=1))
+        rows = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1])))[:, 0]
+        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+        if len(first) == len(x):
+            return self._pe(x, u)
+        pe, w0 = self._pe(x[first], u[first])
+        return pe[inverse], w0[inverse]
+
     def _full(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        pe, w0 = self._pe(x, u)
+        pe, w0 = self._pe_unique(x, u)
         rest = x @ self._F_rest.T + u @ self._B_rest.T
         if self._rows:
             p = x[:, :self.nr]
