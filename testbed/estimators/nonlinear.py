@@ -174,7 +174,8 @@ class MujocoProcessModel:
             raise ValueError(f"eps must be positive and finite, got {eps!r}")
         if jacobian not in JACOBIAN_METHODS:
             raise ValueError(f"jacobian must be one of {JACOBIAN_METHODS}, got {jacobian!r}")
-        if isinstance(nthread, bool) or not isinstance(nthread, int | np.integer) or nthread < 0:
+        if (isinstance(nthread, bool) or not isinstance(nthread, int | float | np.integer)
+                or not float(nthread).is_integer() or nthread < 0):
             raise ValueError(f"nthread must be an integer >= 0, got {nthread!r}")
         self.rig, self.model, self.frame_skip, self.eps = rig, model, frame_skip, float(eps)
         self.centered, self.method, self.nthread = bool(centered), jacobian, int(nthread)
