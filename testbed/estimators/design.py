@@ -108,7 +108,7 @@ class DesignModel:
         return np.flatnonzero(~self.sensors.stochastic & ~self.sensors.inputs)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class InputStates:
     """How a matched design's extra states reach the rig's physical input (for the
     nonlinear filters; :class:`testbed.estimators.nonlinear.PhysicalInput`).
