@@ -5,24 +5,32 @@ The extended and the unscented Kalman filter (:class:`filters.ExtendedKalmanFilt
 :mod:`testbed.estimators`) need the rig's nonlinear model where the linear filters use
 ``design.discrete``. What the designer knows is the same as for the linear design model
 (:mod:`testbed.estimators.design`): the rig's MJCF with NOMINAL parameters (a fresh rig of the
-design's
-class in its first profile, never the simulated, possibly mismatched or ``hardware`` truth),
-the sensors' model and the noise covariances ``Q``, ``R`` of ``design.discrete``.
+design's class in its first profile, never the simulated, possibly mismatched or
+``hardware`` truth), the sensors' model and the noise covariances ``Q``, ``R`` of
+``design.discrete``.
 
-Process model :class:`MujocoProcessModel`
+Process model :class:`MujocoProcessModel` (a design whose state is the rig's)
     ``f(x, u)``: the nominal model stepped over one control period (``frame_skip`` physics
     steps of the designer's copy, the input held: zero-order hold), all rows of ``x`` in one
     :func:`mujoco.rollout.rollout` call (the UKF's sigma points of every member at once).
-    ``F(x, u)``: the Jacobian ``df/dx``, the product of MuJoCo's finite-difference
-    transition derivatives (:func:`mujoco.mjd_transitionFD`, forward or central differences)
-    of the physics steps along the step's own trajectory; it also yields ``f(x, u)``, which
+    ``F(x, u)``: the Jacobian ``df/dx`` by finite differences of the whole period, every
+    perturbed initial state of every row in the same single rollout call (forward or central
+    differences); ``jacobian="transition"`` takes the product of MuJoCo's per-physics-step
+    transition derivatives (:func:`mujoco.mjd_transitionFD`) along each row's trajectory
+    instead (the reference the tests compare with). Either also yields ``f(x, u)``, which
     ``f`` then returns from a cache (the EKF evaluates ``F`` before ``f``).
+Process model :class:`AugmentedProcessModel` (a matched, augmented design)
+    The rig's states through the MuJoCo model, composed with the design's extra (actuator)
+    states, which drive the MuJoCo input per physics step (:class:`PhysicalInput`,
+    ``design.extras["input_states"]``), its bias random walks and delay states (the design's
+    own rows: one source of truth for their dynamics, ``Q`` and ``R``); the first delay state
+    of a nonlinear channel takes the channel's nonlinear value.
 Measurement model :class:`MeasurementModel`
-    ``h(x, u) = C x + D u`` with the sensors' linear model at ``design.measurement_index``
-    (``design.sensors``), except channels whose nonlinear form is known
-    (:data:`NONLINEAR_CHANNELS`: the helicopter IMU's ``gyro_yaw = yaw_rate cos(pitch)`` and
-    ``accel_x = g sin(pitch)``, the vehicle's ``lateral_accel = a_y cos(roll) + g sin(roll)``),
-    which are used as they are, with their analytic Jacobians.
+    ``h(x, u) = H x + D u`` with ``design.discrete``'s rows, except channels whose nonlinear
+    form is known (:data:`NONLINEAR_CHANNELS`: the helicopter IMU's ``gyro_yaw = yaw_rate
+    cos(pitch)`` and ``accel_x = g sin(pitch)``, the vehicle's ``lateral_accel = a_y
+    cos(roll) + g sin(roll)``) and read the rig's states directly, which are used as they
+    are, with their analytic Jacobians (``g`` is the model's ``opt.gravity``).
 Input
     The loop gives an estimator ``u`` in the design model's coordinates
     (``design.input_transform(u_applied, x_hat)`` with ``x_hat`` the estimate before the
@@ -34,11 +42,15 @@ Input
     ``a_y`` replaces ``u`` by the measurement: its operating input is zero, so ``f`` gets the
     measured ``a_y``.)
 
-State mapping: ``x = [positions of rig.joints, their velocities]`` (the design's state
-names), written into ``qpos``/``qvel`` of a reset ``MjData`` (time 0, zero warm start); the
-model must have no other degrees of freedom and no actuator states (``na = 0``: the
-``hardware`` profile's motor lag is not in the nominal model). The gravity and the joint
-limits of the MJCF are in ``f`` (the helicopter's pitch stop included).
+State mapping: ``x = [positions of rig.joints, their velocities, extra states...]`` (the
+design's state names), the rig's part written into ``qpos``/``qvel`` of a reset ``MjData``
+(time 0, zero warm start); the MuJoCo model must have no other degrees of freedom and no
+actuator states (``na = 0``: a ``hardware`` profile's motor lag is the design's extra states,
+not the nominal model's). The gravity and the joint limits of the MJCF are in ``f`` (the
+helicopter's pitch stop included).
+
+This module imports no rig module: the designer's rig class comes with the design
+(``design.extras["rig_type"]``).
 """
 
 from __future__ import annotations
