@@ -214,10 +214,11 @@ class MujocoProcessModel:
         self._A = np.zeros((2 * model.nv + model.na, 2 * model.nv + model.na))
         self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._pool: Any = None  # mujoco.rollout.Rollout with nthread threads, made on use
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_buffers"] = {}
+        state["_buffers"], state["_pool"] = {}, None  # scratch and threads: not copied
         return state
 
     # ------------------------------------------------------------------ inputs
@@ -269,11 +270,16 @@ class MujocoProcessModel:
             self._buffers[M] = (np.zeros((M, nstep, len(self._template))),
                                 np.zeros((M, nstep, self.model.nsensordata)))
         state, sensordata = self._buffers[M]
-        data = self._datas if self.nthread > 1 else [self._data]
-        mujoco.rollout.rollout([self.model] * M, data, state0, control,
+        if self.nthread > 1:  # this model's own pool (not the module-wide persistent one)
+            if self._pool is None:
+                self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
+            self._pool.rollout([self.model] * M, self._datas, state0, control,
                                control_spec=self._spec, skip_checks=True, nstep=nstep,
-                               state=state, sensordata=sensordata,
-                               persistent_pool=self.nthread > 1)
+                               state=state, sensordata=sensordata)
+        else:
+            mujoco.rollout.rollout([self.model] * M, [self._data], state0, control,
+                                   control_spec=self._spec, skip_checks=True, nstep=nstep,
+                                   state=state, sensordata=sensordata)
         return state[:, -1][:, self._gather]
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
