@@ -617,6 +617,7 @@ class AugmentedProcessModel:
                                    *NONLINEAR_CHANNELS[(rig.name, ch)]))
         self.nonlinear = tuple(ch for ch, d in delays.items()
                                if d and (rig.name, ch) in NONLINEAR_CHANNELS)
+        self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The ``[p, e]`` part of ``f`` (M, d) and the first physical input ``w_0``."""
@@ -665,7 +666,7 @@ class AugmentedProcessModel:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``f(x, u)``, shape (M, n), for ``x`` (M, n) and absolute ``u`` (M, k)."""
-        cache = getattr(self, "_cache", None)
+        cache = self._cache
         if cache is not None and np.array_equal(cache[0], x) and np.array_equal(cache[1], u):
             return cache[2].copy()
         return self._full(np.asarray(x, float), np.asarray(u, float))
