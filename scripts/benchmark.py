@@ -29,6 +29,13 @@ shared):
   term, dt 0.1 ms, restarted every 0.5 s of filter time because (26) escapes at 1.02 s;
   target <= 50 us) and ``poly_batch64_member_step_us``: one ``step`` of a batch of 64
   filters (leading batch axis) divided by 64;
+- ``kalman_hw_step_us``, ``ekf_hw_step_us``, ``ukf_hw_step_us``: one ``step`` of a single
+  filter (as :func:`testbed.estimators.build` makes it, with its input and channel
+  wrappers) on the hardware helicopter's matched design (10 states: rig, rotors, gyro
+  biases, IMU delay), hovering at level pitch; ``ekf_vs_kalman`` (target <= 20) and
+  ``ukf_vs_kalman`` (target <= 40) their ratios; ``*_batch32_vs_kalman`` the same ratios
+  for one batched filter of 32 members (diagnostic: the MuJoCo rollouts of the nonlinear
+  filters grow with the batch, the Kalman filter's matrix products hardly);
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
 - Monte Carlo (``scripts/bench_mc.py``, both rigs): ``raw_rollout_traj_steps_per_s``,
   ``mc_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.9), their ``vehicle`` counterparts
@@ -92,6 +99,13 @@ METRICS: dict[str, tuple[str, str]] = {
     "mshinf_vs_kf": ("", "mshinf_step_us / kf_step_us"),
     "poly_step_us": ("us", "polynomial H-infinity step, one filter (2 states)"),
     "poly_batch64_member_step_us": ("us", "polynomial H-infinity step of a batch of 64, / 64"),
+    "kalman_hw_step_us": ("us", "kalman step, hardware helicopter (matched design, 10 states)"),
+    "ekf_hw_step_us": ("us", "ekf step, same design, nominal MuJoCo model"),
+    "ukf_hw_step_us": ("us", "ukf step, same design, nominal MuJoCo model"),
+    "ekf_vs_kalman": ("", "ekf_hw_step_us / kalman_hw_step_us"),
+    "ukf_vs_kalman": ("", "ukf_hw_step_us / kalman_hw_step_us"),
+    "ekf_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters (diagnostic)"),
+    "ukf_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters (diagnostic)"),
     "inverted_pendulum_v5_steps_per_s": ("1/s", "Gymnasium InvertedPendulum-v5 (reference)"),
     "raw_rollout_traj_steps_per_s": ("1/s", "bare mujoco.rollout, helicopter (N x steps)"),
     "mc_traj_steps_per_s": ("1/s", "monte_carlo helicopter, Kalman + LQR, same size"),
@@ -125,6 +139,8 @@ TARGETS: dict[str, tuple[str, float]] = {
     "env_vehicle_overhead_ratio": ("<=", 3.0),
     "kf_vs_filterpy": ("<=", 1.0),
     "mshinf_vs_kf": ("<=", 2.0),
+    "ekf_vs_kalman": ("<=", 20.0),
+    "ukf_vs_kalman": ("<=", 40.0),
     "poly_step_us": ("<=", 50.0),
     "mc_vs_raw": (">=", 0.9),
     "mc_vehicle_vs_raw": (">=", 0.9),
@@ -279,6 +295,49 @@ def bench_filters(calls: int, repeats: int) -> dict[str, float]:
             "kf_vs_filterpy": t["kf"] / t["filterpy"], "mshinf_step_us": t["mshinf"] * 1e6,
             "mshinf_vs_kf": t["mshinf"] / t["kf"], "poly_step_us": t["poly"] * 1e6,
             "poly_batch64_member_step_us": t["poly_batch"] / batch * 1e6}
+
+
+def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
+    """``kalman``, ``ekf`` and ``ukf`` steps on the hardware helicopter's matched design."""
+    from testbed.rigs.helicopter.rig import HelicopterRig
+
+    rig = HelicopterRig(profile="hardware")
+    design = rig.design_model(rig.sensors(dt_s=0.01), 0.01)
+    x_hover = np.array(design.x0, float)
+    x_hover[:4] = 0.0   # level pitch, at rest
+    x_hover[4:6] = 0.0  # rotors at the gravity-compensating voltage
+    x_hover[6:] = 0.0   # no gyro bias, delayed rates zero
+    rng = np.random.default_rng(0)
+    m = len(design.measurement_index)
+    u = np.zeros(len(design.input_names))
+    out: dict[str, float] = {}
+    for batch in (1, 32):
+        ys = (design.discrete.H @ x_hover + 1e-3 * rng.standard_normal((1024, batch, m)))
+        filters = {}
+        for name in ("kalman", "ekf", "ukf"):
+            est = estimators.build(name, design)
+            est.reset(np.tile(x_hover, (batch, 1)), design.P0)
+            filters[name] = est
+        counter = {"i": 0}
+        u_batch = np.tile(u, (batch, 1))
+
+        def stepper(est, ys=ys, ub=u_batch, counter=counter):
+            def step() -> None:
+                counter["i"] = (counter["i"] + 1) & 1023
+                est.step(ys[counter["i"]], ub)
+            return step
+
+        n_calls = max(calls // (10 if batch > 1 else 4), 1)
+        t = time_interleaved({k: stepper(e) for k, e in filters.items()}, n_calls, repeats)
+        if batch == 1:
+            out.update({"kalman_hw_step_us": t["kalman"] * 1e6,
+                        "ekf_hw_step_us": t["ekf"] * 1e6, "ukf_hw_step_us": t["ukf"] * 1e6,
+                        "ekf_vs_kalman": t["ekf"] / t["kalman"],
+                        "ukf_vs_kalman": t["ukf"] / t["kalman"]})
+        else:
+            out.update({"ekf_batch32_vs_kalman": t["ekf"] / t["kalman"],
+                        "ukf_batch32_vs_kalman": t["ukf"] / t["kalman"]})
+    return out
 
 
 def bench_reference_env(calls: int, repeats: int) -> dict[str, Any]:
@@ -457,6 +516,7 @@ def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
     values: dict[str, Any] = {}
     values.update(bench_physics(calls, repeats))
     values.update(bench_filters(calls, repeats))
+    values.update(bench_nonlinear(calls, repeats))
     values.update(bench_reference_env(calls, repeats))
     values.update(bench_lmi(**({"repeats": 1, "bisections": 1} if mode == "smoke" else {})))
     settings: dict[str, Any] = {"calls": calls, "repeats": repeats, "mode": mode}

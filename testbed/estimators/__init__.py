@@ -52,9 +52,10 @@ estimator and the expected shape.
 
 Design profiles: a factory whose theory needs the paper's model sets
 ``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
-instead of an augmented design (:func:`design_for`). Built in: ``kalman`` and
-``kalman-bucy`` design from the matched model; ``ms-hinf``, ``lmi-hinf``, ``poly-hinf`` and
-``vc-discrete`` fall back to the paper design (the reasons are their attributes).
+instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
+``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``,
+``lmi-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design (the reasons
+are their attributes).
 
 A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
 (``testbed run RIG --filter mymodule:make``); the factory receives the
@@ -308,24 +309,28 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
     return _select(est, design)
 
 
-def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False) -> Any:
-    """Extended Kalman filter on the rig's nominal MuJoCo model (Jacobians by
-    ``mjd_transitionFD``: step ``eps``, forward or ``centered`` differences), ``Q``/``R`` of
-    ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
-    from testbed.estimators.nonlinear import nonlinear_estimator
-
-    return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered), design)
-
-
-def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
-        kappa: float = 0.0) -> Any:
-    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``) on the rig's
-    nominal MuJoCo model, ``Q``/``R`` of ``design.discrete``
+def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False,
+        nthread: int = 0) -> Any:
+    """Extended Kalman filter on the rig's nominal MuJoCo model, composed with a matched
+    design's actuator, bias and delay states (Jacobians by finite differences of the
+    control-period map over one batched rollout: step ``eps``, forward or ``centered``;
+    ``nthread`` rollout threads), ``Q``/``R`` of ``design.discrete``
     (:mod:`testbed.estimators.nonlinear`)."""
     from testbed.estimators.nonlinear import nonlinear_estimator
 
-    return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa),
-                   design)
+    return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered,
+                                       nthread=nthread), design)
+
+
+def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
+        kappa: float = 0.0, nthread: int = 0) -> Any:
+    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``) on the rig's
+    nominal MuJoCo model (with a matched design's extra states, as :func:`ekf`), ``Q``/``R``
+    of ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
+    from testbed.estimators.nonlinear import nonlinear_estimator
+
+    return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa,
+                                       nthread=nthread), design)
 
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
@@ -335,9 +340,6 @@ lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias r
 poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
 vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
                                  "model's A; bias random walks are not Schur-stable")
-ekf.paper_design_only = ukf.paper_design_only = (
-    "the MuJoCo process model covers the rig's physical states; the matched design's motor, "
-    "bias and delay states have no MuJoCo counterpart yet")
 
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {

@@ -108,6 +108,40 @@ class DesignModel:
         return np.flatnonzero(~self.sensors.stochastic & ~self.sensors.inputs)
 
 
+@dataclass(frozen=True, eq=False)
+class InputStates:
+    """How a matched design's extra states reach the rig's physical input (for the
+    nonlinear filters; :class:`testbed.estimators.nonlinear.PhysicalInput`).
+
+    The rig's input over a control period is ``w = o(x) + from_input (u - [o(x), 0]) +
+    from_states e`` with ``o`` the rig's operating input (zero for a design without an input
+    transform) and ``e`` the extra states (after the rig's in the design state). Extra states
+    that are inputs relative to the operating input (a motor's lagged voltage above the
+    gravity-compensating one) have ``relative = I`` on those rows: ``e + relative o(x)`` is
+    absolute.
+
+    Attributes
+    ----------
+    from_input : ndarray, shape (k_rig, k)
+    from_states : ndarray, shape (k_rig, n_e)
+    relative : ndarray, shape (n_e, k_rig)
+    """
+
+    from_input: np.ndarray
+    from_states: np.ndarray
+    relative: np.ndarray
+
+    def check(self, k_rig: int, k: int, n_e: int) -> None:
+        """Raise ``ValueError`` unless the shapes are ``(k_rig, k)``, ``(k_rig, n_e)`` and
+        ``(n_e, k_rig)`` and the entries finite."""
+        for name, shape in (("from_input", (k_rig, k)), ("from_states", (k_rig, n_e)),
+                            ("relative", (n_e, k_rig))):
+            value = np.asarray(getattr(self, name), float)
+            if value.shape != shape or not np.all(np.isfinite(value)):
+                raise ValueError(f"InputStates.{name} must be finite with shape {shape}, got "
+                                 f"shape {value.shape}")
+
+
 def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray,
                  Q: np.ndarray, x0: np.ndarray, P0: np.ndarray, *,
                  disturbance_matrix: np.ndarray | None = None,

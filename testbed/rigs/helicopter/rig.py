@@ -660,7 +660,7 @@ class HelicopterRig(Rig):
           of pitch, 12 times the encoder's resolution noise) is left out;
         - encoders: quantization ``q^2 / 12`` in ``R`` (the sensors' linear model).
         """
-        from testbed.estimators.design import build_matched_design, channel_effects
+        from testbed.estimators.design import InputStates, build_matched_design, channel_effects
 
         hw = self.hardware
         nominal = HelicopterParams()
@@ -704,7 +704,11 @@ class HelicopterRig(Rig):
             rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
             input_transform=matched_input, disturbance_matrix=G,
             extra_inputs=(("stop_reaction", "rad/s^2"),),
-            extras={"paper_model": paper.extras["paper_model"]})
+            extras={"paper_model": paper.extras["paper_model"],
+                    # the nonlinear filters: the rotor states drive the motors in place of the
+                    # voltages, relative to the gravity voltage like the input
+                    "input_states": InputStates(from_input=np.zeros((2, 3)),
+                                                from_states=np.eye(2), relative=np.eye(2))})
 
 
 def _unbalanced_input(nominal: HelicopterParams, u: np.ndarray,

@@ -293,7 +293,7 @@ class VehicleRollRig(Rig):
         """
         from scipy.linalg import block_diag
 
-        from testbed.estimators.design import build_matched_design, channel_effects
+        from testbed.estimators.design import InputStates, build_matched_design, channel_effects
 
         names = tuple(sensors.names)
         effects = channel_effects(sensors)
@@ -330,7 +330,11 @@ class VehicleRollRig(Rig):
             input_memory_std=None if tap is not None else np.array([a_y_std]),
             input_transform=paper.input_transform, output_matrix=paper.output_matrix,
             input_noise_cov=(paper.extras.get("input_noise_cov")),
-            extras={k: paper.extras[k] for k in ("paper_model", "a_y_std", "a_y_source")})
+            extras={**{k: paper.extras[k] for k in ("paper_model", "a_y_std", "a_y_source")},
+                    # the nonlinear filters: the roll dynamics see a_y - bias_a_y
+                    "input_states": InputStates(from_input=np.eye(1),
+                                                from_states=-np.ones((1, len(extra))),
+                                                relative=np.zeros((len(extra), 1)))})
 
 
 def _measured_a_y_input(tap: object, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
