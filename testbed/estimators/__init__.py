@@ -262,14 +262,21 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
 
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
-             objective: str = "h2-unique") -> Any:
+             objective: str = "h2-unique", plant_block: bool | None = None) -> Any:
     """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
     (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
-    from the discrete design model (:mod:`testbed.estimators.lmi`; needs a stable plant)."""
+    from the discrete design model (:mod:`testbed.estimators.lmi`: the full LMI (48) on a
+    stable plant, its error block on a plant with free integrators; ``plant_block`` forces
+    either)."""
     build = design.extras.get("lmi_system")
     if build is None:
         from testbed.estimators.lmi import lmi_estimator as build
-    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective)
+    elif plant_block is not None:
+        raise ValueError("filter 'lmi-hinf': option plant_block applies to the generic design "
+                         "(testbed.estimators.lmi), not to this rig's own LMI system")
+    extra = {} if plant_block is None else {"plant_block": bool(plant_block)}
+    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective,
+                      **extra)
     est.design_meta = meta
     est.batched = True
     return _select(est, design)
