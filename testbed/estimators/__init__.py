@@ -301,17 +301,20 @@ def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: flo
 
 
 def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,
-                sigma_factor: float | None = None, max_evaluations: int = 120) -> Any:
+                sigma_factor: float | None = None, max_evaluations: int = 120,
+                output_injection: bool | None = None) -> Any:
     """The discrete variance-constrained H2/H-infinity predictor (Liu, Deng & Wang) on the
     discrete design model with the rig's parameter-mismatch range as norm-bounded
-    uncertainty ``M F N`` (:mod:`testbed.estimators.vc`; needs a Schur-stable design model).
+    uncertainty ``M F N`` (:mod:`testbed.estimators.vc`; a design model with free integrators
+    is designed in its output-injection loop ``F - L0 H``, or as ``output_injection`` says).
     ``gamma`` defaults to ``gamma_factor`` times the smallest solvable level, the variance
     bounds to the smallest power of two (or ``sigma_factor``) times the nominal Kalman
     predictor's variances that the design meets."""
     from testbed.estimators.vc import vc_discrete_estimator
 
     est, _ = vc_discrete_estimator(design, gamma=gamma, gamma_factor=gamma_factor,
-                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations)
+                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations,
+                                   output_injection=output_injection)
     return _select(est, design)
 
 
