@@ -766,8 +766,8 @@ def balancing(system: StochasticLinearSystem, gamma: float | None = None, *,
 
     Error-block problems (``plant_block=False``, :func:`error_block_matrix`): ``S =
     diag(s2^-1/2 I, gamma^-1 I, s2^-1/2 I, I)`` in the block order ``e, v, At-rows e, z``;
-    ``s1 = 1`` (unused). When ``A`` is not Schur stable, ``s2`` is the output Gramian's mean
-    eigenvalue of ``A - K0 C_y`` instead, with ``K0`` the steady-state Kalman predictor gain
+    ``s1 = 1`` (unused); ``s2`` is the output Gramian's mean eigenvalue of the error system
+    ``A - K0 C_y`` (whatever ``A``'s stability), ``K0`` the steady-state Kalman predictor gain
     for the noise ``[B; D_y] v`` (regularized by ``1e-9`` of its scale; 1 if that fails).
 
     Parameters
@@ -817,19 +817,19 @@ def _error_scale(system: StochasticLinearSystem) -> float:
 
     s = system
     A = s.A
+    Q, R, S = s.B @ s.B.T, s.D_y @ s.D_y.T, s.B @ s.D_y.T
+    qs = max(float(np.trace(Q)) / s.n, 1e-300)
+    rs = max(float(np.trace(R)) / s.n_y, qs)
+    Qr, Rr = Q + 1e-9 * qs * np.eye(s.n), R + 1e-9 * rs * np.eye(s.n_y)
     try:
-        if not np.max(np.abs(np.linalg.eigvals(A))) < 1.0:
-            Q = s.B @ s.B.T
-            R = s.D_y @ s.D_y.T
-            S = s.B @ s.D_y.T
-            qs = max(float(np.trace(Q)) / s.n, 1e-300)
-            rs = max(float(np.trace(R)) / s.n_y, qs)
-            X = solve_discrete_are(A.T, s.C_y.T, Q + 1e-9 * qs * np.eye(s.n),
-                                   R + 1e-9 * rs * np.eye(s.n_y), s=S)
-            K0 = np.linalg.solve(s.C_y @ X @ s.C_y.T + R + 1e-9 * rs * np.eye(s.n_y),
-                                 (A @ X @ s.C_y.T + S).T).T
-            A = A - K0 @ s.C_y
-        G = solve_discrete_lyapunov(A.T, s.C_z.T @ s.C_z)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # scipy's LinAlgWarning on marginal A
+            X = solve_discrete_are(A.T, s.C_y.T, Qr, Rr, s=S)
+        K0 = np.linalg.solve(s.C_y @ X @ s.C_y.T + Rr, (A @ X @ s.C_y.T + S).T).T
+        Ae = A - K0 @ s.C_y
+        if not np.max(np.abs(np.linalg.eigvals(Ae))) < 1.0 - 1e-9:
+            return 1.0
+        G = solve_discrete_lyapunov(Ae.T, s.C_z.T @ s.C_z)
         t2 = float(np.trace(G)) / s.n
     except (np.linalg.LinAlgError, ValueError):
         return 1.0
