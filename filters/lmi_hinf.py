@@ -66,6 +66,13 @@ What this module adds to the paper
   directly, not from (48)), ``P1, P2 > 0``, and the mean-square spectral radius
   ``rho(At (x) At + Ct (x) Ct) < 1`` (``E[eta eta']`` evolves by
   ``X -> At X At' + Ct X Ct'``). A solution the check rejects is not reported as feasible.
+* Without multiplicative noise (``A_w = B_w = 0``) the plant block of (48) certifies only
+  the plant's own stability; ``plant_block=False`` solves the error block alone
+  (:func:`error_block_matrix`: the discrete bounded-real lemma of the error system, exact),
+  which designs filters for plants that are not Schur stable (free integrators under a
+  feedback controller) and gives the same infimum of gamma on stable ones. Its a-posteriori
+  check adds the error system's H-infinity norm computed without the LMI
+  (:func:`error_hinf_norm`). The argument is in :func:`design_lmi_hinf`'s Notes.
 * Infeasibility is a result (:class:`LMIHInfDesign` with ``status`` and the solver's status
   string), never an exception.
 * :func:`minimal_gamma` bisects on ``gamma`` (the feasible set grows with ``gamma``) to a

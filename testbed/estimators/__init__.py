@@ -340,11 +340,13 @@ def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
                              "whole-sample IMU delays have no continuous-time form")
-lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias random walks "
-                              "and the vehicle's own LMI system are the paper's states")
+lmi_hinf.paper_design_only = ("the vehicle's own LMI system is written in the paper's states; "
+                              "the matched design's bias random walks are not validated with "
+                              "the error-block design")
 poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
 vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
-                                 "model's A; bias random walks are not Schur-stable")
+                                 "model's A; the matched design's bias random walks are not "
+                                 "validated with the output-injection design")
 ekf.paper_design_only = ukf.paper_design_only = (
     "the MuJoCo process model covers the rig's physical states; the matched design's motor, "
     "bias and delay states have no MuJoCo counterpart yet")
