@@ -228,8 +228,14 @@ def kalman_bucy(design: DesignModel, substeps: int | str = "auto") -> Any:
 
 
 def ms_hinf(design: DesignModel, gamma: float | None = None,
-            initial_weight: np.ndarray | None = None) -> Any:
+            initial_weight: np.ndarray | None = None, sampled: bool = False,
+            gamma_factor: float = 5.0) -> Any:
     """Basin et al.'s mean-square H-infinity filter (Theorem 1).
+
+    ``sampled=True``: its sampled-data counterpart instead, a discrete H-infinity filter for
+    the same two-channel problem on the hold-equivalent (ZOH) model, with a discrete gamma
+    (``gamma_factor`` times the smallest level, on the 1-2-5 grid, unless ``gamma`` is given;
+    :func:`testbed.estimators.lmi.sampled_ms_hinf_estimator`).
 
     Needs deterministic channels ``y2 = C2 x + H w`` in the sensors and the disturbance
     matrix ``G`` in the design (helicopter: ``--disturbance basin-helicopter``, which the
@@ -238,6 +244,17 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     ``design.extras["initial_weight"]`` or the identity.
     """
     det = design.deterministic_index
+    if sampled:
+        from testbed.estimators.lmi import sampled_ms_hinf_estimator, sampled_two_channel_system
+
+        est, meta = sampled_ms_hinf_estimator(design, gamma=gamma, gamma_factor=gamma_factor)
+        est.design_meta = meta
+        est.batched = True
+        index = sampled_two_channel_system(design)[2]
+        if np.array_equal(index, np.arange(len(design.measurement_names))):
+            est.channels = "all"
+            return est
+        return ChannelSelect(est, index, len(design.measurement_names), request=True)
     if len(det) == 0 or design.disturbance_matrix is None:
         raise ValueError("filter 'ms-hinf' needs a deterministic channel y2 = C2 x + H w and "
                          "the disturbance G w(t) (helicopter: disturbance 'basin-helicopter')")

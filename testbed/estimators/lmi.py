@@ -216,3 +216,106 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
     if not plant_block:
         meta["error_hinf_norm"] = lmi.check.error_hinf_norm
     return estimator, meta
+
+
+def sampled_two_channel_system(design: Any) -> tuple[StochasticLinearSystem, np.ndarray,
+                                                     np.ndarray]:
+    """Basin et al.'s two-channel problem at the sampling period (the hold equivalent).
+
+    The continuous problem of :class:`filters.MeanSquareHInfFilter` (Basin et al. Theorem 1):
+    ``dx = (A x + B u + G w) dt + dW``, a stochastic channel ``y1`` and the deterministic
+    ``y2 = C2 x + Hw w``, output ``z = L x``. With ``u`` and ``w`` held over each period (as
+    the simulator applies them) its exact discretization is :func:`design_system`'s plant
+    ``x(k+1) = F x + B_u u + [G_d, Q^1/2, 0] v`` with the sampled channels::
+
+        y1(k) = H x(k)  + D u + [0,  0, R^1/2] v(k)
+        y2(k) = C2 x(k) + D2 u + [Hw, 0, 0    ] v(k)      (the held w(k) at the sample)
+
+    Returns
+    -------
+    system : StochasticLinearSystem
+        ``C_y = [H; C2]``, ``D_y`` as above.
+    feedthrough : ndarray, shape (m1 + m2, k)
+        ``[D; D2]`` of the known input.
+    channels : ndarray of int
+        The sensor channels ``y1`` then ``y2`` (``measurement_index``, then the
+        deterministic ones).
+
+    Raises
+    ------
+    ValueError
+        No deterministic channel or no disturbance matrix ``G`` (the problem's data).
+    """
+    det = design.deterministic_index
+    G = design.disturbance_matrix
+    if len(det) == 0 or G is None or not np.any(G):
+        raise ValueError("filter 'ms-hinf' (sampled): needs a deterministic channel "
+                         "y2 = C2 x + H w and the disturbance G w(t) (helicopter: disturbance "
+                         "'basin-helicopter')")
+    base, _ = design_system(design, stable=False)
+    s = G.shape[1]
+    Hw = np.asarray(design.sensors.Hw[det], float)
+    if Hw.shape[1] < s:
+        Hw = np.pad(Hw, ((0, 0), (0, s - Hw.shape[1])))
+    elif Hw.shape[1] > s:
+        raise ValueError(f"filter 'ms-hinf' (sampled): the sensors' Hw has {Hw.shape[1]} "
+                         f"disturbance columns, the design's G {s}")
+    D_y2 = np.hstack([Hw, np.zeros((len(det), base.n_v - s))])
+    system = StochasticLinearSystem(A=base.A, B=base.B,
+                                    C_y=np.vstack([base.C_y, design.sensors.C[det]]),
+                                    C_z=base.C_z, D_y=np.vstack([base.D_y, D_y2]))
+    feedthrough = np.vstack([design.discrete.D, design.sensors.D[det]])
+    channels = np.concatenate([design.measurement_index, det]).astype(int)
+    return system, feedthrough, channels
+
+
+def sampled_ms_hinf_estimator(design: Any, *, gamma: float | None = None,
+                              gamma_factor: float = 5.0, objective: str = "h2-unique",
+                              max_steps: int = 12) -> tuple[LMIHInfFilter, dict[str, Any]]:
+    """The sampled-data counterpart of Basin et al.'s mean-square H-infinity filter
+    (``ms-hinf`` with ``sampled=True``).
+
+    Basin et al.'s gamma is stated for continuous observation and certifies no sampled loop.
+    This option designs for what the rig gives, the samples of ``y1`` and ``y2`` with ``w``
+    held (:func:`sampled_two_channel_system`): a discrete H-infinity filter (45) whose gain
+    comes from LMI (48) (its error block when ``rho(F) >= 1``, see
+    :func:`filters.lmi_hinf.design_lmi_hinf`), so its ``gamma`` is a discrete bound from
+    ``v = [w; noise]`` to ``z - zhat``, hence from the scenario's ``w``: a certificate of the
+    sampled loop on the design model, which the harness compares with the loop's measured
+    linearized gain (``gamma_kind = "discrete"``). What it is not: Basin et al.'s filter
+    (no Riccati equation in continuous time, a constant gain); it answers the same problem
+    (same channels, disturbance and output) at the sampling period.
+
+    Returns
+    -------
+    estimator : LMIHInfFilter
+    meta : dict
+        As :func:`lmi_estimator`'s, ``design`` naming the sampled-data counterpart.
+
+    Raises
+    ------
+    ValueError
+        Missing channels, or no verified design.
+    """
+    system, feedthrough, _ = sampled_two_channel_system(design)
+    rho = spectral_radius(design)
+    plant_block = rho < 1.0 - 1e-9
+    estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
+                                         objective=objective, input_matrix=design.discrete.B,
+                                         feedthrough=feedthrough, max_steps=max_steps,
+                                         plant_block=plant_block)
+    meta.update(
+        design="sampled-data counterpart of ms-hinf (testbed.estimators.lmi)",
+        gamma_channel="scenario", plant_spectral_radius=rho,
+        certificate=("discrete H-infinity filter for Basin et al.'s two-channel problem at the "
+                     "sampling period (y1, y2 sampled, w held: the exact ZOH model), gain from "
+                     + ("LMI (48)" if plant_block else "the error block of LMI (48)")))
+    return estimator, meta
+
+
+def ms_hinf_sampled(design: Any, gamma: float | None = None, gamma_factor: float = 5.0) -> Any:
+    """``ms-hinf`` with ``sampled=True`` as a factory of its own, for ``testbed score
+    --estimator testbed.estimators.lmi:ms_hinf_sampled``."""
+    from testbed.estimators import ms_hinf
+
+    return ms_hinf(design, gamma=gamma, sampled=True, gamma_factor=gamma_factor)
