@@ -154,6 +154,38 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
     return estimator, meta
 
 
+def undetectable_modes(A: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> list[complex]:
+    """Eigenvalues ``lambda`` of ``A`` with ``|lambda| >= 1`` that ``C`` does not see (PBH:
+    ``rank [lambda I - A; C] < n``): no output injection stabilizes them.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n)
+    C : ndarray, shape (m, n)
+    tol : float
+        Relative singular-value tolerance of the rank test.
+
+    Returns
+    -------
+    list of complex
+        Empty iff ``(A, C)`` is detectable.
+    """
+    n = A.shape[0]
+    out = []
+    for lam in np.linalg.eigvals(A):
+        if abs(lam) < 1.0 - 1e-9:
+            continue
+        M = np.vstack([lam * np.eye(n) - A, C])
+        sv = np.linalg.svd(M, compute_uv=False)
+        if sv[-1] <= tol * max(float(sv[0]), 1.0):
+            out.append(complex(lam))
+    return out
+
+
+def _mode(m: complex) -> str:
+    return f"{m.real:.6g}" if abs(m.imag) <= 1e-12 * max(abs(m), 1.0) else f"{m:.6g}"
+
+
 def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: float | None,
                        gamma_factor: float, objective: str, input_matrix: np.ndarray | None,
                        feedthrough: np.ndarray | None, max_steps: int = 12,
@@ -193,6 +225,13 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
         LMI (48) infeasible for every gamma, or no verified design (the solver status named).
     """
     gamma_min = None
+    if not plant_block:
+        modes = undetectable_modes(system.A, system.C_y)
+        if modes:
+            raise ValueError("the error-block design of LMI (48) needs (F, H) detectable, but "
+                             f"the modes {[_mode(m) for m in modes]} of F are not stable and "
+                             "not seen by the measurements: no gain makes the error system "
+                             "stable")
     if gamma is None:
         search = minimal_gamma(system, plant_block=plant_block)
         if search.gamma_min is None:

@@ -147,3 +147,4 @@ def test_multiplicative_noise_keeps_the_plant_block():
         design_lmi_hinf(s, 1.0, plant_block=False)
     with pytest.raises(ValueError, match="A_w = B_w = 0"):
         check_design(s, np.zeros((2, 1)), None, np.eye(2), 1.0, plant_block=False)
+
