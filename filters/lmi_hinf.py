@@ -1034,6 +1034,14 @@ class _Theorem4Problem:
             except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
                 attempts.append((solver, f"error: {exc}"))
                 continue
+            except BaseException as exc:  # noqa: BLE001 (a Rust solver's panic, see below)
+                # CLARABEL's Rust panics (pyo3 PanicException, a BaseException: measured with
+                # OPENBLAS_CORETYPE=Haswell, "Eigval error" in its eigen-decomposition) are a
+                # solver failure like any other: the next solver is tried
+                if type(exc).__name__ != "PanicException":
+                    raise
+                attempts.append((solver, f"error: solver panic: {exc}"))
+                continue
             attempts.append((solver, status))
             if status.startswith("infeasible"):
                 infeasible = infeasible or self._result("infeasible", status, solver, gamma)
