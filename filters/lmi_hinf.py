@@ -66,6 +66,13 @@ What this module adds to the paper
   directly, not from (48)), ``P1, P2 > 0``, and the mean-square spectral radius
   ``rho(At (x) At + Ct (x) Ct) < 1`` (``E[eta eta']`` evolves by
   ``X -> At X At' + Ct X Ct'``). A solution the check rejects is not reported as feasible.
+* Without multiplicative noise (``A_w = B_w = 0``) the plant block of (48) certifies only
+  the plant's own stability; ``plant_block=False`` solves the error block alone
+  (:func:`error_block_matrix`: the discrete bounded-real lemma of the error system, exact),
+  which designs filters for plants that are not Schur stable (free integrators under a
+  feedback controller) and gives the same infimum of gamma on stable ones. Its a-posteriori
+  check adds the error system's H-infinity norm computed without the LMI
+  (:func:`error_hinf_norm`). The argument is in :func:`design_lmi_hinf`'s Notes.
 * Infeasibility is a result (:class:`LMIHInfDesign` with ``status`` and the solver's status
   string), never an exception.
 * :func:`minimal_gamma` bisects on ``gamma`` (the feasible set grows with ``gamma``) to a
@@ -109,6 +116,9 @@ __all__ = [
     "design_above",
     "design_lmi_hinf",
     "design_on_grid",
+    "error_block_matrix",
+    "error_gari_matrix",
+    "error_hinf_norm",
     "error_system",
     "gamma_grid",
     "gari_matrix",
@@ -432,7 +442,17 @@ class DesignCheck:
         ``min(lambda_min(P1) / s1, lambda_min(P2) / s2)`` (``>= margin`` for an exact solver).
     gari_negative_definite, positive_definite, mean_square_stable : bool
     ok : bool
-        All three.
+        All three (and, for an error-block design, ``error_hinf_norm < gamma``).
+    plant_block : bool
+        False for an error-block design (:func:`design_lmi_hinf` with ``plant_block=False``):
+        then ``P`` is ``P2``, ``PP`` is the error system's bounded-real matrix
+        (:func:`error_gari_matrix`), ``spectral_radius`` is ``rho(Ae (x) Ae) = rho(Ae)^2``
+        of the error system alone and the LMI entries are those of :func:`error_block_matrix`.
+    error_hinf_norm : float or None
+        Error-block designs: the H-infinity norm of the error system
+        ``Ae = A - Khat C_y, Be = B - Khat D_y, C_z, D_z`` computed independently of the LMI
+        and its solver (:func:`filters.analysis.hinf_norm`: bisection on the symplectic
+        pencil, relative tolerance 1e-7); must be below ``gamma``. None for full designs.
     """
 
     gari_max_eig: float
@@ -447,27 +467,46 @@ class DesignCheck:
     positive_definite: bool
     mean_square_stable: bool
     ok: bool
+    plant_block: bool = True
+    error_hinf_norm: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-friendly copy."""
         return dict(self.__dict__)
 
 
-def check_design(system: StochasticLinearSystem, gain: npt.ArrayLike, P1: npt.ArrayLike,
-                 P2: npt.ArrayLike, gamma: float) -> DesignCheck:
+def check_design(system: StochasticLinearSystem, gain: npt.ArrayLike,
+                 P1: npt.ArrayLike | None, P2: npt.ArrayLike, gamma: float, *,
+                 plant_block: bool = True) -> DesignCheck:
     """Verify ``(Khat, P1, P2, gamma)`` a posteriori (Corollary 5 and mean-square stability).
 
     Parameters
     ----------
     system : StochasticLinearSystem
     gain : array_like, shape (n, n_y)
-    P1, P2 : array_like, shape (n, n)
+    P1 : array_like, shape (n, n), or None
+        Ignored (may be None) when ``plant_block`` is False.
+    P2 : array_like, shape (n, n)
     gamma : float
+    plant_block : bool
+        False: verify an error-block design (see :func:`design_lmi_hinf`): the error
+        system's bounded-real matrix (:func:`error_gari_matrix`) negative definite with
+        ``P2 > 0``, ``A - Khat C_y`` Schur stable, and its H-infinity norm computed
+        independently (:func:`filters.analysis.hinf_norm`) below ``gamma``.
 
     Returns
     -------
     DesignCheck
+
+    Raises
+    ------
+    ValueError
+        ``plant_block=False`` on a system with multiplicative noise (named).
     """
+    if not plant_block:
+        return _check_error_block(system, gain, P2, gamma)
+    if P1 is None:
+        raise ValueError("check_design: P1 is needed (plant_block=True)")
     n = system.n
     P1 = matrix("P1", P1, (n, n))
     P2 = matrix("P2", P2, (n, n))
@@ -499,6 +538,143 @@ def check_design(system: StochasticLinearSystem, gain: npt.ArrayLike, P1: npt.Ar
                        gari_negative_definite=neg,
                        positive_definite=pos, mean_square_stable=stable,
                        ok=neg and pos and stable)
+
+
+def _require_no_multiplicative_noise(system: StochasticLinearSystem) -> None:
+    if np.any(system.A_w) or np.any(system.B_w):
+        raise ValueError("plant_block=False needs A_w = B_w = 0: with multiplicative noise "
+                         "the error is driven by the plant state (Ct = [[A_w, 0], [A_w, 0]] "
+                         "in (46)), so the plant block of (48) is part of the error's "
+                         "certificate")
+
+
+def error_gari_matrix(system: StochasticLinearSystem, gain: npt.ArrayLike, P2: npt.ArrayLike,
+                      gamma: float) -> FloatArray:
+    """Bounded-real matrix of the error system alone (``A_w = B_w = 0``)::
+
+        [[Ae'P2 Ae - P2 + C_z'C_z,  Ae'P2 Be + C_z'D_z],
+         [*,                        Be'P2 Be + D_z'D_z - gamma^2 I]]
+
+    with ``Ae = A - Khat C_y``, ``Be = B - Khat D_y``: the error block of ``PP`` (47) at
+    ``P = diag(0, P2)``. Negative definite with ``P2 > 0`` iff (discrete bounded-real
+    lemma) ``Ae`` is Schur stable and ``||C_z (zI - Ae)^-1 Be + D_z||_inf < gamma``.
+
+    Parameters
+    ----------
+    system : StochasticLinearSystem
+    gain : array_like, shape (n, n_y)
+    P2 : array_like, shape (n, n)
+    gamma : float
+
+    Returns
+    -------
+    ndarray, shape (n + n_v, n + n_v)
+        Symmetric.
+    """
+    s = system
+    K = _gain(s, gain)
+    P2 = matrix("P2", P2, (s.n, s.n))
+    P2 = 0.5 * (P2 + P2.T)
+    Ae, Be = s.A - K @ s.C_y, s.B - K @ s.D_y
+    top_left = Ae.T @ P2 @ Ae - P2 + s.C_z.T @ s.C_z
+    top_right = Ae.T @ P2 @ Be + s.C_z.T @ s.D_z
+    bottom = Be.T @ P2 @ Be + s.D_z.T @ s.D_z - float(gamma) ** 2 * np.eye(s.n_v)
+    PP = np.block([[top_left, top_right], [top_right.T, bottom]])
+    return 0.5 * (PP + PP.T)
+
+
+def error_block_matrix(system: StochasticLinearSystem, P2: npt.ArrayLike, P_K: npt.ArrayLike,
+                       gamma: float) -> FloatArray:
+    """The error block of LMI (48) evaluated with numpy (block order ``e, v, At-rows e, z``)::
+
+        [[-P2, 0,       A'P2 - C_y'P_K',  C_z'],
+         [*,  -g^2 I,   B'P2 - D_y'P_K',  D_z'],
+         [*,   *,      -P2,               0   ],
+         [*,   *,       *,               -I   ]]  < 0
+
+    (rows and columns ``x``, ``At``-rows ``x`` and ``Ct``-rows of (48) removed; with
+    ``A_w = B_w = 0`` the ``Ct`` rows are zero). By the Schur complement it is
+    :func:`error_gari_matrix` ``< 0`` with ``Khat = P2^-1 P_K``.
+
+    Returns
+    -------
+    ndarray, shape (2n + n_v + n_z, 2n + n_v + n_z)
+    """
+    s = system
+    n, nv, ny, nz = s.n, s.n_v, s.n_y, s.n_z
+    P2 = matrix("P2", P2, (n, n))
+    PK = matrix("P_K", P_K, (n, ny), labels=("n", "n_y"))
+    sizes = [n, nv, n, nz]
+    upper = {(0, 0): -P2, (0, 2): s.A.T @ P2 - s.C_y.T @ PK.T, (0, 3): s.C_z.T,
+             (1, 1): -float(gamma) ** 2 * np.eye(nv), (1, 2): s.B.T @ P2 - s.D_y.T @ PK.T,
+             (1, 3): s.D_z.T, (2, 2): -P2, (3, 3): -np.eye(nz)}
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    M = np.zeros((offsets[-1], offsets[-1]))
+    for (i, j), block in upper.items():
+        M[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = block
+        if i != j:
+            M[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = np.asarray(block).T
+    return 0.5 * (M + M.T)
+
+
+def error_hinf_norm(system: StochasticLinearSystem, gain: npt.ArrayLike, *,
+                    rtol: float = 1e-7) -> float:
+    """H-infinity norm of the filter's error system ``e+ = Ae e + Be v``,
+    ``ztilde = C_z e + D_z v`` (``Ae = A - Khat C_y``, ``Be = B - Khat D_y``), computed
+    without the LMI (:func:`filters.analysis.hinf_norm`, symplectic-pencil bisection).
+
+    Meaningful as the filter's attenuation when ``A_w = B_w = 0`` (then the error does not
+    depend on the plant state). ``inf`` when ``Ae`` is not Schur stable.
+
+    Parameters
+    ----------
+    system : StochasticLinearSystem
+    gain : array_like, shape (n, n_y)
+    rtol : float
+        Relative tolerance of the norm.
+
+    Returns
+    -------
+    float
+    """
+    from filters.analysis import hinf_norm
+
+    s = system
+    K = _gain(s, gain)
+    return float(hinf_norm(s.A - K @ s.C_y, s.B - K @ s.D_y, s.C_z, s.D_z, discrete=True,
+                           rtol=rtol))
+
+
+def _check_error_block(system: StochasticLinearSystem, gain: npt.ArrayLike,
+                       P2: npt.ArrayLike, gamma: float) -> DesignCheck:
+    _require_no_multiplicative_noise(system)
+    s = system
+    n = s.n
+    K = _gain(s, gain)
+    P2 = matrix("P2", P2, (n, n))
+    P2 = 0.5 * (P2 + P2.T)
+    PP = error_gari_matrix(s, K, P2, gamma)
+    eig = np.linalg.eigvalsh(PP)
+    eP = np.linalg.eigvalsh(P2)
+    Ae = s.A - K @ s.C_y
+    rho = ms_spectral_radius(Ae, np.zeros_like(Ae))
+    gmax = float(eig[-1])
+    neg, pos, stable = bool(gmax < 0.0), bool(eP[0] > 0.0), bool(rho < 1.0)
+    norm = error_hinf_norm(s, K) if stable else float("inf")
+    scale = float(np.abs(eig).max()) or 1.0
+    cond = float(eP[-1] / eP[0]) if eP[0] > 0 else 1e300
+    lmi = error_block_matrix(s, P2, P2 @ K, gamma)
+    (_, s2), diag = balancing(s, gamma, plant_block=False)
+    balanced = lmi * np.outer(diag, diag)
+    return DesignCheck(gari_max_eig=gmax, gari_max_eig_relative=gmax / scale,
+                       P_min_eig=float(eP[0]), P_condition=min(cond, 1e300),
+                       spectral_radius=rho, lmi_max_eig=float(np.linalg.eigvalsh(lmi)[-1]),
+                       lmi_balanced_max_eig=float(np.linalg.eigvalsh(balanced)[-1]),
+                       P_balanced_min_eig=float(eP[0]) / s2,
+                       gari_negative_definite=neg, positive_definite=pos,
+                       mean_square_stable=stable,
+                       ok=neg and pos and stable and bool(norm < float(gamma)),
+                       plant_block=False, error_hinf_norm=norm)
 
 
 # ------------------------------------------------------------------------ design
@@ -541,6 +717,8 @@ class LMIHInfDesign:
         True for an analysis (:func:`certify_gain`): ``gain`` was given, ``P_K = P2 gain``.
     attempts : tuple of (str, str)
         ``(solver, status or error)`` of every solver call, in order.
+    plant_block : bool
+        False for an error-block design (``P1`` is None, ``trace`` is ``trace(P2)``).
     """
 
     status: str
@@ -558,6 +736,7 @@ class LMIHInfDesign:
     check: DesignCheck | None = None
     fixed_gain: bool = False
     attempts: tuple[tuple[str, str], ...] = field(default_factory=tuple)
+    plant_block: bool = True
 
     @property
     def feasible(self) -> bool:
@@ -577,11 +756,12 @@ class LMIHInfDesign:
             "check": None if self.check is None else self.check.as_dict(),
             "fixed_gain": self.fixed_gain,
             "attempts": [list(a) for a in self.attempts],
+            "plant_block": self.plant_block,
         }
 
 
-def balancing(system: StochasticLinearSystem, gamma: float | None = None
-              ) -> tuple[tuple[float, float], FloatArray]:
+def balancing(system: StochasticLinearSystem, gamma: float | None = None, *,
+              plant_block: bool = True) -> tuple[tuple[float, float], FloatArray]:
     """Natural sizes of the unknowns of (48), which define the RELATIVE strictness margin.
 
     ``s2`` is the mean eigenvalue of the output Gramian ``sum_k A'^k C_z'C_z A^k`` (what
@@ -591,16 +771,24 @@ def balancing(system: StochasticLinearSystem, gamma: float | None = None
     ``S = diag(s1^-1/2 I, s2^-1/2 I, gamma^-1 I, s1^-1/2 I, s2^-1/2 I, s1^-1/2 I, s2^-1/2 I, I)``
     in the block order of (48): ``S (48) S`` has diagonal blocks of order one.
 
+    Error-block problems (``plant_block=False``, :func:`error_block_matrix`): ``S =
+    diag(s2^-1/2 I, gamma^-1 I, s2^-1/2 I, I)`` in the block order ``e, v, At-rows e, z``;
+    ``s1 = 1`` (unused); ``s2`` is the output Gramian's mean eigenvalue of the error system
+    ``A - K0 C_y`` (whatever ``A``'s stability), ``K0`` the steady-state Kalman predictor gain
+    for the noise ``[B; D_y] v`` (regularized by ``1e-9`` of its scale; 1 if that fails).
+
     Parameters
     ----------
     system : StochasticLinearSystem
     gamma : float, optional
         Scale of the ``v`` block (1 if None).
+    plant_block : bool
+        False: the error-block problem's sizes and diagonal.
 
     Returns
     -------
     (s1, s2) : tuple of float
-    diag : ndarray, shape (6n + n_v + n_z,)
+    diag : ndarray, shape (6n + n_v + n_z,), or (2n + n_v + n_z,) without the plant block
         The diagonal of ``S``.
     """
     from scipy.linalg import solve_discrete_lyapunov
@@ -608,6 +796,11 @@ def balancing(system: StochasticLinearSystem, gamma: float | None = None
     s = system
     n = s.n
     s1 = s2 = 1.0
+    if not plant_block:
+        s2 = _error_scale(s)
+        d2 = 1.0 / np.sqrt(s2)
+        dv = 1.0 if gamma is None else 1.0 / float(gamma)
+        return (1.0, s2), np.repeat([d2, dv, d2, 1.0], [n, s.n_v, n, s.n_z])
     if np.max(np.abs(np.linalg.eigvals(s.A))) < 1.0:
         try:
             G = solve_discrete_lyapunov(s.A.T, s.C_z.T @ s.C_z)
@@ -623,6 +816,31 @@ def balancing(system: StochasticLinearSystem, gamma: float | None = None
     sizes = [n, n, s.n_v, n, n, n, n, s.n_z]
     diag = np.repeat([d1, d2, dv, d1, d2, d1, d2, 1.0], sizes)
     return (s1, s2), diag
+
+
+def _error_scale(system: StochasticLinearSystem) -> float:
+    """``s2`` of an error-block problem (see :func:`balancing`)."""
+    from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+
+    s = system
+    A = s.A
+    Q, R, S = s.B @ s.B.T, s.D_y @ s.D_y.T, s.B @ s.D_y.T
+    qs = max(float(np.trace(Q)) / s.n, 1e-300)
+    rs = max(float(np.trace(R)) / s.n_y, qs)
+    Qr, Rr = Q + 1e-9 * qs * np.eye(s.n), R + 1e-9 * rs * np.eye(s.n_y)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # scipy's LinAlgWarning on marginal A
+            X = solve_discrete_are(A.T, s.C_y.T, Qr, Rr, s=S)
+        K0 = np.linalg.solve(s.C_y @ X @ s.C_y.T + Rr, (A @ X @ s.C_y.T + S).T).T
+        Ae = A - K0 @ s.C_y
+        if not np.max(np.abs(np.linalg.eigvals(Ae))) < 1.0 - 1e-9:
+            return 1.0
+        G = solve_discrete_lyapunov(Ae.T, s.C_z.T @ s.C_z)
+        t2 = float(np.trace(G)) / s.n
+    except (np.linalg.LinAlgError, ValueError):
+        return 1.0
+    return t2 if np.isfinite(t2) and t2 > 0 else 1.0
 
 
 class _Theorem4Problem:
@@ -643,11 +861,14 @@ class _Theorem4Problem:
         Analysis of a given gain: adds ``P_K = P2 gain`` (linear in ``P2``).
     minimize_gamma : bool
         Make ``gamma^2`` a variable and minimize it (:func:`minimal_gamma_sdp`).
+    plant_block : bool
+        False: the error block of (48) only (:func:`error_block_matrix`, unknowns ``P2``,
+        ``P_K``; see :func:`design_lmi_hinf`).
     """
 
     def __init__(self, system: StochasticLinearSystem, objective: str = "feasibility",
                  margin: float = DEFAULT_MARGIN, fixed_gain: npt.ArrayLike | None = None,
-                 minimize_gamma: bool = False):
+                 minimize_gamma: bool = False, plant_block: bool = True):
         import cvxpy as cp
 
         if objective not in OBJECTIVES:
@@ -658,10 +879,13 @@ class _Theorem4Problem:
         self.system = system
         self.objective = objective
         self.margin = margin
+        self.plant_block = bool(plant_block)
         self.fixed_gain = None if fixed_gain is None else _gain(system, fixed_gain)
+        if not self.plant_block:
+            _require_no_multiplicative_noise(system)
         s = system
         n, nv, ny, nz = s.n, s.n_v, s.n_y, s.n_z
-        (s1, s2), _ = balancing(s)
+        (s1, s2), _ = balancing(s, plant_block=self.plant_block)
         self.scales = (s1, s2)
         # scaled unknowns (X1, X2, Y ~ O(1)): P1 = s1 X1, P2 = s2 X2, P_K = s2 Y
         X1 = cp.Variable((n, n), symmetric=True, name="X1")
@@ -680,6 +904,9 @@ class _Theorem4Problem:
             vv = -np.eye(nv)
         r1, r2 = np.sqrt(s1), np.sqrt(s2)
         AT, AwT = s.A.T, s.A_w.T
+        if not self.plant_block:
+            self._build_error_block(X2, Y, dv, vv, g2, r2, minimize_gamma)
+            return
         sizes = [n, n, nv, n, n, n, n, nz]
         # D P1 D = X1 for the P1-scaled rows/columns (d1^2 s1 = 1), and the cross terms pick
         # up sqrt ratios: d1 d2 s2 = r2 / r1 etc.
@@ -724,6 +951,51 @@ class _Theorem4Problem:
         self._lock = threading.Lock()
         self._g2 = g2
 
+    def _build_error_block(self, X2: Any, Y: Any, dv: Any, vv: Any, g2: Any, r2: float,
+                           minimize_gamma: bool) -> None:
+        """The balanced error block ``S (error_block_matrix) S`` (see :func:`balancing`)."""
+        import cvxpy as cp
+
+        s = self.system
+        n, nv, nz = s.n, s.n_v, s.n_z
+        sizes = [n, nv, n, nz]
+        upper: dict[tuple[int, int], Any] = {
+            (0, 0): -X2, (0, 2): s.A.T @ X2 - s.C_y.T @ Y.T, (0, 3): s.C_z.T / r2,
+            (1, 1): vv, (1, 2): dv * r2 * (s.B.T @ X2 - s.D_y.T @ Y.T), (1, 3): dv * s.D_z.T,
+            (2, 2): -X2, (3, 3): -np.eye(nz),
+        }
+        rows = []
+        for i, ri in enumerate(sizes):
+            row = []
+            for j, cj in enumerate(sizes):
+                if (i, j) in upper:
+                    row.append(upper[(i, j)])
+                elif (j, i) in upper:
+                    row.append(upper[(j, i)].T)
+                else:
+                    row.append(np.zeros((ri, cj)))
+            rows.append(row)
+        lmi = cp.bmat(rows)
+        lmi = 0.5 * (lmi + lmi.T)
+        margin = self.margin
+        cons = [lmi << -margin * np.eye(sum(sizes)), X2 >> margin * np.eye(n)]
+        if self.fixed_gain is not None:
+            cons.append(Y == X2 @ self.fixed_gain)
+        if minimize_gamma:
+            obj = cp.Minimize(g2)
+        elif self.objective == "feasibility":
+            obj = cp.Minimize(0)
+        elif self.objective == "h2":
+            obj = cp.Minimize(cp.trace(X2) / n)
+        else:
+            obj = cp.Minimize(cp.trace(X2) / n + UNIQUE_WEIGHT * (
+                cp.sum_squares(X2) + cp.sum_squares(Y)))
+        self._inv_gamma = None if minimize_gamma else dv
+        self._problem = cp.Problem(obj, cons)
+        self._vars = (None, X2, Y)
+        self._lock = threading.Lock()
+        self._g2 = g2
+
     def solve(self, gamma: float, solvers: tuple[str, ...] = _SOLVERS, *,
               search: bool = False) -> LMIHInfDesign:
         """Thread-safe wrapper of :meth:`_solve` (the compiled problem is shared)."""
@@ -762,18 +1034,28 @@ class _Theorem4Problem:
             except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
                 attempts.append((solver, f"error: {exc}"))
                 continue
+            except BaseException as exc:  # noqa: BLE001 (a Rust solver's panic, see below)
+                # CLARABEL's Rust panics (pyo3 PanicException, a BaseException: measured with
+                # OPENBLAS_CORETYPE=Haswell, "Eigval error" in its eigen-decomposition) are a
+                # solver failure like any other: the next solver is tried
+                if type(exc).__name__ != "PanicException":
+                    raise
+                attempts.append((solver, f"error: solver panic: {exc}"))
+                continue
             attempts.append((solver, status))
             if status.startswith("infeasible"):
                 infeasible = infeasible or self._result("infeasible", status, solver, gamma)
                 if status == "infeasible" or search:
                     break
                 continue
-            X1, X2, Y = (v.value for v in self._vars)
-            if X1 is None or X2 is None or Y is None or not (
-                    np.isfinite(X1).all() and np.isfinite(X2).all() and np.isfinite(Y).all()):
+            X1, X2, Y = (None if v is None else v.value for v in self._vars)
+            if (self.plant_block and X1 is None) or X2 is None or Y is None or not (
+                    (X1 is None or np.isfinite(X1).all()) and np.isfinite(X2).all()
+                    and np.isfinite(Y).all()):
                 continue
             s1, s2 = self.scales
-            P1, P2, PK = s1 * X1, s2 * X2, s2 * Y
+            P1 = None if X1 is None else s1 * X1
+            P2, PK = s2 * X2, s2 * Y
             result = self._verified(P1, P2, PK, status, solver, gamma)
             if result.feasible:
                 reported = result
@@ -792,11 +1074,12 @@ class _Theorem4Problem:
                 gamma: float) -> LMIHInfDesign:
         return LMIHInfDesign(status=status, solver_status=solver_status, solver=solver,
                              gamma=gamma, objective=self.objective, margin=self.margin,
-                             fixed_gain=self.fixed_gain is not None)
+                             fixed_gain=self.fixed_gain is not None,
+                             plant_block=self.plant_block)
 
-    def _verified(self, P1: FloatArray, P2: FloatArray, PK: FloatArray, solver_status: str,
-                  solver: str, gamma: float) -> LMIHInfDesign:
-        P1 = 0.5 * (P1 + P1.T)
+    def _verified(self, P1: FloatArray | None, P2: FloatArray, PK: FloatArray,
+                  solver_status: str, solver: str, gamma: float) -> LMIHInfDesign:
+        P1 = None if P1 is None else 0.5 * (P1 + P1.T)
         P2 = 0.5 * (P2 + P2.T)
         if self.fixed_gain is not None:
             gain = self.fixed_gain.copy()
@@ -807,7 +1090,7 @@ class _Theorem4Problem:
                 return self._result("unverified", solver_status, solver, gamma)
         if not np.isfinite(gain).all():
             return self._result("unverified", solver_status, solver, gamma)
-        check = check_design(self.system, gain, P1, P2, gamma)
+        check = check_design(self.system, gain, P1, P2, gamma, plant_block=self.plant_block)
         # the certificate (check.ok) and the margin the problem was posed with (half of it
         # tolerated for solver inaccuracy), so gamma_min does not depend on the solver used
         half = 0.5 * self.margin
@@ -816,9 +1099,11 @@ class _Theorem4Problem:
         return LMIHInfDesign(status="feasible" if ok else "unverified",
                              solver_status=solver_status, solver=solver, gamma=gamma,
                              objective=self.objective, margin=self.margin,
-                             gain=readonly(gain), P1=readonly(P1), P2=readonly(P2),
-                             P_K=readonly(np.array(PK)), trace=float(np.trace(P1 + P2)),
-                             check=check, fixed_gain=self.fixed_gain is not None)
+                             gain=readonly(gain), P1=None if P1 is None else readonly(P1),
+                             P2=readonly(P2), P_K=readonly(np.array(PK)),
+                             trace=float(np.trace(P2) + (0.0 if P1 is None else np.trace(P1))),
+                             check=check, fixed_gain=self.fixed_gain is not None,
+                             plant_block=self.plant_block)
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -826,20 +1111,23 @@ _CACHE_LOCK = threading.Lock()
 
 
 def _problem(system: StochasticLinearSystem, objective: str, margin: float,
-             fixed_gain: npt.ArrayLike | None = None) -> _Theorem4Problem:
+             fixed_gain: npt.ArrayLike | None = None,
+             plant_block: bool = True) -> _Theorem4Problem:
     """The compiled problem for ``system`` (cached while the system object lives).
 
     cvxpy's canonicalization costs 20-60 ms; re-solving a compiled problem at another gamma
     costs 3-10 ms. The cache is keyed by the system OBJECT (systems are immutable), the
-    objective, the margin and the fixed gain's bytes.
+    objective, the margin, the fixed gain's bytes and ``plant_block``.
     """
     gain = None if fixed_gain is None else _gain(system, fixed_gain)
-    key = (objective, float(margin), None if gain is None else gain.tobytes())
+    key = (objective, float(margin), None if gain is None else gain.tobytes(),
+           bool(plant_block))
     with _CACHE_LOCK:
         per_system = _CACHE.setdefault(system, {})
         problem = per_system.get(key)
         if problem is None:
-            problem = _Theorem4Problem(system, objective, margin, fixed_gain=gain)
+            problem = _Theorem4Problem(system, objective, margin, fixed_gain=gain,
+                                       plant_block=plant_block)
             if len(per_system) >= 16:
                 per_system.pop(next(iter(per_system)))
             per_system[key] = problem
@@ -854,7 +1142,8 @@ def _replace(design: LMIHInfDesign, **changes: Any) -> LMIHInfDesign:
 
 def design_lmi_hinf(system: StochasticLinearSystem, gamma: float, *,
                     objective: str = "feasibility", margin: float = DEFAULT_MARGIN,
-                    solvers: tuple[str, ...] = _SOLVERS) -> LMIHInfDesign:
+                    solvers: tuple[str, ...] = _SOLVERS,
+                    plant_block: bool = True) -> LMIHInfDesign:
     """Design the filter (45) by Theorem 4: solve LMI (48) at ``gamma`` and verify.
 
     Parameters
@@ -871,6 +1160,9 @@ def design_lmi_hinf(system: StochasticLinearSystem, gamma: float, *,
         (:func:`balancing`).
     solvers : tuple of str
         cvxpy solvers tried in order (default CLARABEL, then SCS).
+    plant_block : bool
+        False: solve the error block of (48) only (:func:`error_block_matrix`; needs
+        ``A_w = B_w = 0``). See Notes.
 
     Returns
     -------
@@ -878,16 +1170,49 @@ def design_lmi_hinf(system: StochasticLinearSystem, gamma: float, *,
         ``feasible`` is True only if the a-posteriori :func:`check_design` passed;
         ``solve_s`` includes building the cvxpy problem (20-60 ms) unless one was compiled
         for this system object, objective and margin before (then 3-10 ms).
+
+    Raises
+    ------
+    ValueError
+        ``plant_block=False`` with multiplicative noise (``A_w`` or ``B_w`` nonzero).
+
+    Notes
+    -----
+    Why the plant block is optional without multiplicative noise. With ``A_w = B_w = 0``,
+    ``Ct = Dt = 0`` in (46) and ``At = diag(A, A - Khat C_y)``: the error
+    ``e = x - xhat`` obeys ``e+ = (A - Khat C_y) e + (B - Khat D_y) v``,
+    ``ztilde = C_z e + D_z v``, whatever the plant state (the filter knows every input
+    that is not ``v``; in a closed loop, whatever the controller does). In (47) with
+    ``P = diag(P1, P2)`` the ``x`` rows hold ``A'P1 A - P1`` and couple to ``v`` only through
+    ``B'P1 B >= 0``; so:
+
+    * (48) feasible  =>  ``A'P1 A - P1 < 0`` (``A`` Schur stable) and the error block
+      (:func:`error_block_matrix`) feasible with the same ``P2, P_K, gamma`` (a principal
+      submatrix of ``PP``, minus ``B'P1 B``);
+    * ``A`` Schur stable and the error block strictly feasible  =>  (48) feasible with
+      ``P1 = eps X``, ``A'X A - X = -I``, for ``eps`` small enough (the Schur complement
+      of the ``x`` block adds ``O(eps)`` to the ``v`` block).
+
+    The plant block therefore certifies nothing but the plant's own stability; the error
+    block alone is the discrete bounded-real lemma for the error system (with the change of
+    variables ``P_K = P2 Khat``): ``||ztilde||_2^2 <= gamma^2 ||v||_2^2 + e_0'P2 e_0`` and
+    ``A - Khat C_y`` Schur stable. It is the right design when the plant is not Schur
+    stable (free integrators under a feedback controller): Theorem 4 as printed is then
+    infeasible though the filter's error is certified. On a stable plant both give the same
+    infimum of gamma (up to the margins and the solver's accuracy). The verification
+    (:func:`check_design` with ``plant_block=False``) adds the error system's H-infinity
+    norm computed without the LMI (``error_hinf_norm < gamma``).
     """
     start = time.perf_counter()
-    problem = _problem(system, objective, margin)
+    problem = _problem(system, objective, margin, plant_block=plant_block)
     result = problem.solve(gamma, solvers)
     return _replace(result, solve_s=time.perf_counter() - start)
 
 
 def certify_gain(system: StochasticLinearSystem, gain: npt.ArrayLike, gamma: float, *,
                  objective: str = "feasibility", margin: float = DEFAULT_MARGIN,
-                 solvers: tuple[str, ...] = _SOLVERS) -> LMIHInfDesign:
+                 solvers: tuple[str, ...] = _SOLVERS,
+                 plant_block: bool = True) -> LMIHInfDesign:
     """Analysis of a given gain: find ``P1, P2`` satisfying (48) with ``P_K = P2 gain``.
 
     Parameters
@@ -895,7 +1220,7 @@ def certify_gain(system: StochasticLinearSystem, gain: npt.ArrayLike, gamma: flo
     system : StochasticLinearSystem
     gain : array_like, shape (n, n_y)
         E.g. a printed ``Khat``.
-    gamma, objective, margin, solvers
+    gamma, objective, margin, solvers, plant_block
         As in :func:`design_lmi_hinf`.
 
     Returns
@@ -905,7 +1230,7 @@ def certify_gain(system: StochasticLinearSystem, gain: npt.ArrayLike, gamma: flo
         the gain at ``gamma`` (verified a posteriori).
     """
     start = time.perf_counter()
-    problem = _problem(system, objective, margin, fixed_gain=gain)
+    problem = _problem(system, objective, margin, fixed_gain=gain, plant_block=plant_block)
     result = problem.solve(gamma, solvers)
     return _replace(result, solve_s=time.perf_counter() - start)
 
@@ -1018,8 +1343,8 @@ def _search(problem: _Theorem4Problem, start: float, rtol: float, gamma_start: f
 
 
 def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float = 1.1, *,
-                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10
-                 ) -> tuple[LMIHInfDesign, int]:
+                 objective: str = "h2", margin: float = DEFAULT_MARGIN, max_doublings: int = 10,
+                 plant_block: bool = True) -> tuple[LMIHInfDesign, int]:
     """The design at ``gamma = factor * 2^j * gamma_min`` for the smallest ``j`` that verifies.
 
     Near ``gamma_min`` the minimum-trace (mixed H2/H-infinity) solution can be too
@@ -1033,12 +1358,13 @@ def design_above(system: StochasticLinearSystem, gamma_min: float, factor: float
     j : int
         Number of doublings used.
     """
-    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin)
+    design = design_lmi_hinf(system, factor * gamma_min, objective=objective, margin=margin,
+                             plant_block=plant_block)
     j = 0
     while not design.feasible and j < max_doublings:
         j += 1
         design = design_lmi_hinf(system, factor * 2.0**j * gamma_min, objective=objective,
-                                 margin=margin)
+                                 margin=margin, plant_block=plant_block)
     return design, j
 
 
@@ -1060,7 +1386,8 @@ def gamma_grid(gamma_floor: float, count: int) -> list[float]:
 
 def design_on_grid(system: StochasticLinearSystem, gamma_floor: float, *,
                    objective: str = "h2-unique", margin: float = DEFAULT_MARGIN,
-                   max_steps: int = 12) -> tuple[LMIHInfDesign, int]:
+                   max_steps: int = 12, plant_block: bool = True
+                   ) -> tuple[LMIHInfDesign, int]:
     """The design at the smallest grid level ``gamma >= gamma_floor`` (1, 2, 5 per decade)
     that verifies.
 
@@ -1081,7 +1408,8 @@ def design_on_grid(system: StochasticLinearSystem, gamma_floor: float, *,
     """
     design = None
     for step, gamma in enumerate(gamma_grid(gamma_floor, max_steps)):
-        design = design_lmi_hinf(system, gamma, objective=objective, margin=margin)
+        design = design_lmi_hinf(system, gamma, objective=objective, margin=margin,
+                                 plant_block=plant_block)
         if design.feasible:
             return design, step
     assert design is not None
@@ -1092,7 +1420,7 @@ def minimal_gamma(system: StochasticLinearSystem, *, rtol: float = DEFAULT_RTOL,
                   gamma_start: float | None = None, gamma_max: float = 1e8,
                   gamma_floor: float = 1e-8, margin: float = DEFAULT_MARGIN,
                   max_iter: int = 200, solvers: tuple[str, ...] = _SOLVERS,
-                  gain: npt.ArrayLike | None = None) -> GammaSearch:
+                  gain: npt.ArrayLike | None = None, plant_block: bool = True) -> GammaSearch:
     """Smallest ``gamma`` for which LMI (48) is feasible (verified), by bisection.
 
     Bracketing: from ``gamma_start`` (default 1) divide by 10 while feasible or multiply by
@@ -1117,20 +1445,22 @@ def minimal_gamma(system: StochasticLinearSystem, *, rtol: float = DEFAULT_RTOL,
     solvers : tuple of str
     gain : array_like, shape (n, n_y), optional
         Search for a fixed gain instead (analysis, :func:`certify_gain`).
+    plant_block : bool
+        False: the error block only (see :func:`design_lmi_hinf`).
 
     Returns
     -------
     GammaSearch
     """
     start = time.perf_counter()
-    problem = _problem(system, "feasibility", margin, fixed_gain=gain)
+    problem = _problem(system, "feasibility", margin, fixed_gain=gain, plant_block=plant_block)
     return _search(problem, start, rtol, gamma_start, gamma_max, gamma_floor, max_iter,
                    solvers)
 
 
 def minimal_gamma_sdp(system: StochasticLinearSystem, *, margin: float = 0.0,
-                      gain: npt.ArrayLike | None = None, solver: str = "CLARABEL"
-                      ) -> tuple[float | None, str]:
+                      gain: npt.ArrayLike | None = None, solver: str = "CLARABEL",
+                      plant_block: bool = True) -> tuple[float | None, str]:
     """Cross-check of :func:`minimal_gamma`: ``min gamma^2`` s.t. (48) as one SDP.
 
     ``gamma^2`` enters (48) linearly, so the infimum is a single semidefinite program. The
@@ -1147,6 +1477,8 @@ def minimal_gamma_sdp(system: StochasticLinearSystem, *, margin: float = 0.0,
     gain : array_like, shape (n, n_y), optional
         Fixed gain (analysis) instead of a design.
     solver : str
+    plant_block : bool
+        False: the error block only (see :func:`design_lmi_hinf`).
 
     Returns
     -------
@@ -1158,7 +1490,7 @@ def minimal_gamma_sdp(system: StochasticLinearSystem, *, margin: float = 0.0,
     import cvxpy as cp
 
     problem = _Theorem4Problem(system, "feasibility", margin, fixed_gain=gain,
-                               minimize_gamma=True)
+                               minimize_gamma=True, plant_block=plant_block)
     try:
         problem._problem.solve(solver=solver, **_SOLVER_OPTIONS.get(solver, {}))
     except cp.error.SolverError as exc:

@@ -19,6 +19,8 @@ from filters.analysis import error_covariance, unit_disk
 from filters.variance_constrained import LinearFilter, passes, verify_design
 from testbed import estimators
 from testbed.cli import main
+from testbed.estimators import vc as estimators_vc
+from testbed.estimators.lmi import design_system
 from testbed.estimators.vc import (
     VarianceConstrainedPredictor,
     design_vc_discrete,
@@ -195,13 +197,80 @@ def test_predictor_rejects_bad_measurements_before_changing_state(vehicle_vc, ve
     np.testing.assert_allclose(x1, np.array([[0.01, 0.0]] * 3) @ vc.plant.A.T)
 
 
-def test_helicopter_is_refused_with_the_reason_in_one_line():
-    design = _design("helicopter")
+@pytest.fixture(scope="module")
+def helicopter():
+    return _design("helicopter")
+
+
+@pytest.fixture(scope="module")
+def helicopter_vc(helicopter):
+    return design_vc_discrete(helicopter)  # ~15 s (five injections); cached in-process
+
+
+def test_helicopter_without_injection_is_refused_with_the_reason_in_one_line(helicopter):
     with pytest.raises(ValueError) as err:
-        estimators.build("vc-discrete", design)
+        estimators.build("vc-discrete", helicopter, output_injection=False)
     message = str(err.value)
     assert "\n" not in message
     assert "Schur-stable" in message and "free integrators" in message
+
+
+def test_helicopter_is_designed_in_the_output_injection_loop(helicopter, helicopter_vc):
+    """Free integrators: the theorem's plant is F - L0 H with y a known input (the same
+    uncertainty set), and the design's bounds hold there."""
+    vc, d = helicopter_vc, helicopter
+    F, H = d.discrete.F, d.discrete.H
+    assert np.max(np.abs(np.linalg.eigvals(F))) >= 1.0 - 1e-12
+    L0 = vc.injection
+    assert L0 is not None and vc.injection_scale in estimators_vc.INJECTION_SCALES
+    np.testing.assert_allclose(vc.plant.A, F - L0 @ H)
+    assert np.max(np.abs(np.linalg.eigvals(vc.plant.A))) < 1.0
+    system, _ = design_system(d, stable=False)
+    np.testing.assert_allclose(vc.plant.D1, system.B - L0 @ system.D_y)
+    # the chosen injection has the smallest certified bound ratio of the family
+    assert estimators_vc._ratio(vc) <= 2.0
+    meta = vc.meta()
+    assert meta["certified"] and meta["output_injection"]["rho_F0"] < 1.0
+    check = verify_design(vc.plant, vc.G, vc.K, region=unit_disk(), gamma=vc.gamma,
+                          sigma2=vc.sigma2, n_grid=5)
+    assert passes(check)
+    P_nominal = error_covariance(vc.plant, vc.G, vc.K)
+    assert np.all(np.diag(P_nominal) <= vc.bound * (1 + 1e-9))
+    assert np.all(np.diag(P_nominal) >= vc.reference * (1 - 1e-9))
+
+
+def test_helicopter_predictor_in_a_feedback_loop_has_the_designed_error_covariance(
+        helicopter, helicopter_vc):
+    """Monte Carlo of the design model with its free integrators (F, not F - L0 H) under a
+    state-feedback controller plus a known excitation: the error is stationary with the
+    covariance of the design's error system (computed on the injection loop)."""
+    from scipy.linalg import solve_discrete_are
+
+    vc, d = helicopter_vc, helicopter
+    F, B, H = d.discrete.F, d.discrete.B, d.discrete.H
+    system, _ = design_system(d, stable=False)
+    D1, D2 = system.B, system.D_y
+    n = F.shape[0]
+    X = solve_discrete_are(F, B, np.eye(n), np.eye(B.shape[1]))
+    Kc = np.linalg.solve(B.T @ X @ B + np.eye(B.shape[1]), B.T @ X @ F)
+    rng = np.random.default_rng(11)
+    N, K = 300, 700
+    P_design = error_covariance(vc.plant, vc.G, vc.K)
+    est = VarianceConstrainedPredictor(vc.G, vc.K, F, B, d.discrete.D, H, np.zeros((N, n)),
+                                       d.dt_s, injection=vc.injection)
+    x = rng.multivariate_normal(np.zeros(n), 4 * P_design, N)
+    est.reset(np.zeros((N, n)))
+    est.prime(x @ H.T + rng.standard_normal((N, D2.shape[1])) @ D2.T)
+    errors = []
+    for k in range(K):
+        u = -x @ Kc.T + 2.0 * np.sin(2 * np.pi * 0.3 * k * d.dt_s)
+        w = rng.standard_normal((N, D1.shape[1]))
+        x = x @ F.T + u @ B.T + w @ D1.T
+        y = x @ H.T + w @ D2.T
+        errors.append(x - est.step(y, u))
+    e = np.array(errors[300:]).reshape(-1, n)
+    np.testing.assert_allclose(e.var(axis=0), np.diag(P_design), rtol=0.05)
+    assert np.all(np.abs(e.mean(axis=0)) < 0.05 * np.sqrt(np.diag(P_design)))
 
 
 def test_bad_options_are_refused(vehicle):

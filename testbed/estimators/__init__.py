@@ -229,8 +229,14 @@ def kalman_bucy(design: DesignModel, substeps: int | str = "auto") -> Any:
 
 
 def ms_hinf(design: DesignModel, gamma: float | None = None,
-            initial_weight: np.ndarray | None = None) -> Any:
+            initial_weight: np.ndarray | None = None, sampled: bool = False,
+            gamma_factor: float = 5.0) -> Any:
     """Basin et al.'s mean-square H-infinity filter (Theorem 1).
+
+    ``sampled=True``: its sampled-data counterpart instead, a discrete H-infinity filter for
+    the same two-channel problem on the hold-equivalent (ZOH) model, with a discrete gamma
+    (``gamma_factor`` times the smallest level, on the 1-2-5 grid, unless ``gamma`` is given;
+    :func:`testbed.estimators.lmi.sampled_ms_hinf_estimator`).
 
     Needs deterministic channels ``y2 = C2 x + H w`` in the sensors and the disturbance
     matrix ``G`` in the design (helicopter: ``--disturbance basin-helicopter``, which the
@@ -239,6 +245,17 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     ``design.extras["initial_weight"]`` or the identity.
     """
     det = design.deterministic_index
+    if sampled:
+        from testbed.estimators.lmi import sampled_ms_hinf_estimator, sampled_two_channel_system
+
+        est, meta = sampled_ms_hinf_estimator(design, gamma=gamma, gamma_factor=gamma_factor)
+        est.design_meta = meta
+        est.batched = True
+        index = sampled_two_channel_system(design)[2]
+        if np.array_equal(index, np.arange(len(design.measurement_names))):
+            est.channels = "all"
+            return est
+        return ChannelSelect(est, index, len(design.measurement_names), request=True)
     if len(det) == 0 or design.disturbance_matrix is None:
         raise ValueError("filter 'ms-hinf' needs a deterministic channel y2 = C2 x + H w and "
                          "the disturbance G w(t) (helicopter: disturbance 'basin-helicopter')")
@@ -263,14 +280,21 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
 
 
 def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: float = 5.0,
-             objective: str = "h2-unique") -> Any:
+             objective: str = "h2-unique", plant_block: bool | None = None) -> Any:
     """Zhang et al.'s LMI-designed H-infinity filter (Theorem 4): the rig's LMI design system
     (``design.extras["lmi_system"]``: the vehicle roll rig) or, without one, the system built
-    from the discrete design model (:mod:`testbed.estimators.lmi`; needs a stable plant)."""
+    from the discrete design model (:mod:`testbed.estimators.lmi`: the full LMI (48) on a
+    stable plant, its error block on a plant with free integrators; ``plant_block`` forces
+    either)."""
     build = design.extras.get("lmi_system")
     if build is None:
         from testbed.estimators.lmi import lmi_estimator as build
-    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective)
+    elif plant_block is not None:
+        raise ValueError("filter 'lmi-hinf': option plant_block applies to the generic design "
+                         "(testbed.estimators.lmi), not to this rig's own LMI system")
+    extra = {} if plant_block is None else {"plant_block": bool(plant_block)}
+    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective,
+                      **extra)
     est.design_meta = meta
     est.batched = True
     return _select(est, design)
@@ -295,17 +319,20 @@ def poly_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: flo
 
 
 def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: float = 2.0,
-                sigma_factor: float | None = None, max_evaluations: int = 120) -> Any:
+                sigma_factor: float | None = None, max_evaluations: int = 120,
+                output_injection: bool | None = None) -> Any:
     """The discrete variance-constrained H2/H-infinity predictor (Liu, Deng & Wang) on the
     discrete design model with the rig's parameter-mismatch range as norm-bounded
-    uncertainty ``M F N`` (:mod:`testbed.estimators.vc`; needs a Schur-stable design model).
+    uncertainty ``M F N`` (:mod:`testbed.estimators.vc`; a design model with free integrators
+    is designed in its output-injection loop ``F - L0 H``, or as ``output_injection`` says).
     ``gamma`` defaults to ``gamma_factor`` times the smallest solvable level, the variance
     bounds to the smallest power of two (or ``sigma_factor``) times the nominal Kalman
     predictor's variances that the design meets."""
     from testbed.estimators.vc import vc_discrete_estimator
 
     est, _ = vc_discrete_estimator(design, gamma=gamma, gamma_factor=gamma_factor,
-                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations)
+                                   sigma_factor=sigma_factor, max_evaluations=max_evaluations,
+                                   output_injection=output_injection)
     return _select(est, design)
 
 
@@ -335,11 +362,13 @@ def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
                              "whole-sample IMU delays have no continuous-time form")
-lmi_hinf.paper_design_only = ("the LMI design needs a Schur-stable plant; bias random walks "
-                              "and the vehicle's own LMI system are the paper's states")
+lmi_hinf.paper_design_only = ("the vehicle's own LMI system is written in the paper's states; "
+                              "the matched design's bias random walks are not validated with "
+                              "the error-block design")
 poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
 vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
-                                 "model's A; bias random walks are not Schur-stable")
+                                 "model's A; the matched design's bias random walks are not "
+                                 "validated with the output-injection design")
 
 #: Built-in estimators: name -> factory(design, **options).
 ESTIMATORS: dict[str, Factory] = {

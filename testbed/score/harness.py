@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from filters import FilterError
-from testbed.estimators import EstimatorWrapper, PerMember
+from testbed.estimators import EstimatorWrapper, PerMember, paper_design_only
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
@@ -283,6 +283,11 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         return copy.deepcopy(template)
 
     copy_factory.__name__ = _name(estimator)
+    # the copy needs the design the original was built from (a paper-design-only family on
+    # an augmented design: the paper design, not the matched one)
+    reason = paper_design_only(estimator)
+    if reason is not None:
+        copy_factory.paper_design_only = reason  # type: ignore[attr-defined]
     probe_sensors, removed = without_quantization(experiment.loop.sim.sensors)
     sc = scenario.replace(estimator=copy_factory, disturbance=dist, process_noise=0.0)
     if removed:
