@@ -5,8 +5,9 @@ filter (50) (see docs/references.md).
 (:class:`testbed.reproductions.zhang_lmi_hinf.scenario.NonlinearDiscreteScenario`: ``x0 = [1, 1]``,
 ``gamma = 2``; both are in the output).
 
-- **Monte Carlo** (1000 runs, as in the paper; vectorized over runs,
-  :func:`testbed.reproductions.zhang_lmi_hinf.plant.simulate`): ``v_k = 2 * 0.9999^k``,
+- **Monte Carlo** (1000 runs, as in the paper; one batch of
+  :func:`testbed.reproductions.numpy_plant.rollout` with the library's filter (50)):
+  ``v_k = 2 * 0.9999^k``,
   ``w_k ~ N(0, 1)``, ``xhat_0 = 0``; the cumulative sums ``sum_i E ztilde_i^2`` (sample mean)
   and ``gamma^2 sum_i v_i^2`` (Figure 3). ``inequality_holds``: the first is below the second
   at every ``k``; ``smallest_gamma_mc = sqrt(max_k (sum E ztilde^2) / (sum v^2))``.
@@ -23,8 +24,8 @@ filter (50) (see docs/references.md).
   (``condition_26``): here ``ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2)`` vanishes on a
   three-dimensional subspace, so no such ``W`` exists and the HJI alone does not make (50)
   an H-infinity filter in the paper's sense (internal stability is not certified).
-- One run through ``testbed/NonlinearDiscrete-v0`` with the filter (50) in the loop
-  (:class:`~testbed.envs.wrappers.FilterInLoop`) for the ``.rrd`` and Figures 1-2.
+- One run with the filter (50) in the loop (:func:`run_in_loop`, the noise of
+  ``testbed/NonlinearDiscrete-v0`` seeded alike) for the ``.rrd`` and Figures 1-2.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import numpy as np
 
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
+from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
@@ -60,41 +62,24 @@ HJI_WIDE_HALFWIDTH = 10.0
 
 
 def run_in_loop(x0: np.ndarray, steps: int, seed: int) -> dict[str, np.ndarray]:
-    """One episode of ``NonlinearDiscreteEnv`` with the filter (50) in the loop.
+    """One run of (49) with the filter (50) in the loop, its noise ``w_k`` drawn from
+    ``default_rng(seed)`` step by step (as ``testbed/NonlinearDiscrete-v0`` after
+    ``reset(seed=seed)``).
 
     Returns
     -------
     dict
-        ``t`` (steps + 1,), ``x``, ``xhat`` (steps + 1, 2), ``y`` (steps + 1, 2), ``v``
+        ``t`` (steps + 1,), ``x``, ``xhat``, ``y`` (steps + 1, 2; ``y_0 .. y_steps``), ``v``
         (steps + 1,), ``z_err`` (steps + 1,).
     """
-    from testbed.envs.wrappers import FilterInLoop
-    from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
-
-    env = NonlinearDiscreteEnv()
-    est = plant.filter50()
-    loop = FilterInLoop(env, est, output_matrix=plant.C_Z)
-    _, info = loop.reset(seed=seed, options={"x0": x0})
-    est.prime(info["measurement"])
-    rows: dict[str, list] = {k: [] for k in ("t", "x", "xhat", "y", "v")}
-
-    def keep(info: dict[str, Any]) -> None:
-        rows["t"].append(info["t"])
-        rows["x"].append(info["state"])
-        rows["xhat"].append(info["estimate"])
-        rows["y"].append(info["measurement"])
-        rows["v"].append(info["disturbance"][0])
-
-    keep(info)
-    zero = np.zeros(1)
-    for _ in range(steps):
-        _, _, terminated, _, info = loop.step(zero)
-        keep(info)
-        if terminated:
-            break
-    out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
-    out["z_err"] = plant.output(out["x"]) - plant.output(out["xhat"])
-    return out
+    system = plant.NonlinearDiscretePlant()
+    run = rollout(system, np.asarray(x0, dtype=float), steps,
+                  noise=np.random.default_rng(seed), estimators={"(50)": plant.filter50()})
+    x, n = run.x, len(run.t_s)
+    y = np.concatenate([system.observe(x[0], 0)[None], run.y])
+    return {"t": run.t_s, "x": x, "xhat": run.estimates["(50)"], "y": y,
+            "v": np.array([system.schedule(max(i - 1, 0)) for i in range(n)]),
+            "z_err": plant.output(x) - plant.output(run.estimates["(50)"])}
 
 
 def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Path | None = None,
@@ -140,7 +125,11 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
 
     v = np.asarray(plant.paper_disturbance(np.arange(steps)), dtype=float)
     w = np.random.default_rng(seed).standard_normal((runs, steps))
-    x, xh, _ = plant.simulate(x0, v, w)
+    mc = rollout(plant.NonlinearDiscretePlant(v=v), np.tile(x0, (runs, 1)), steps,
+                 noise=lambda k: w[:, k], estimators={"(50)": plant.filter50(np.zeros((runs, 2)))})
+    if mc.escape is not None:
+        raise mc.escape
+    x, xh = mc.x, mc.estimates["(50)"]
     z_err = plant.output(x[:, :steps]) - plant.output(xh[:, :steps])
     per_run = np.sum(z_err**2, axis=1)
     sum_z = np.cumsum(np.mean(z_err**2, axis=0))
@@ -205,7 +194,8 @@ def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
     """The run of the ``.rrd``: one episode with the filter (50) in the loop."""
     return [Run(_trajectory(run), "filter_in_loop", (
         f"# System (49) with the filter (50) in the loop (seed {result['seed']})\n\n"
-        "One episode of testbed/NonlinearDiscrete-v0 (the FilterInLoop wrapper): "
+        "One run of (49) with the filter (50) in the loop (its noise seeded as "
+        "testbed/NonlinearDiscrete-v0's): "
         f"x0 = {result['x0']}, xhat_0 = 0, disturbance v_k = 2 * 0.9999^k (logged as the "
         "action), noise w_k ~ N(0, 1). What Figs. 1-2 show; Fig. 3 averages "
         f"{result['runs']} such runs (simulated separately, vectorized). Time counts steps; "
