@@ -295,7 +295,8 @@ class PlantEnv(gym.Env):
         return {"state": self._x.copy(), "t": self.t_s, "setpoint": np.zeros(0),
                 "action_applied": applied, "action_clipped": clipped,
                 "escape": None if self._escape is None else dict(self._escape),
-                **self._extras}
+                **{k: v.copy() if isinstance(v, np.ndarray) else v
+                   for k, v in self._extras.items()}}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Start an episode; see the class docstring for ``options``."""

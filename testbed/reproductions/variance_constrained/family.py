@@ -30,6 +30,7 @@ from filters.variance_constrained import (
 )
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
+from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
     Claim,
     agree_text,
@@ -147,16 +148,16 @@ def monte_carlo(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray, F: floa
         ``burn_in``.
     """
     n = sim.model.n
-    x = np.zeros((n_runs, n))
-    filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete,
-                        dt_s=sim.dt_s)
     acc = np.zeros((n_runs, n, n))
-    for k in range(n_steps):
-        x, y, _ = sim.step(x, F, rng)
-        xhat = filt.step(y)
+
+    def gather(k: int, x: np.ndarray, est: dict[str, np.ndarray]) -> None:
         if k + 1 > burn_in:
-            e = x - xhat
-            acc += e[:, :, None] * e[:, None, :]
+            e = x - est["filter"]
+            acc[...] += e[:, :, None] * e[:, None, :]
+
+    filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete, dt_s=sim.dt_s)
+    rollout(sim.at(F), np.zeros((n_runs, n)), n_steps, noise=rng, estimators={"filter": filt},
+            record=False, on_step=gather)
     count = max(n_steps - burn_in, 1)
     per_run = acc / count
     cov = per_run.mean(axis=0)
@@ -211,28 +212,19 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
     return out
 
 
-def make_env(plant: UncertainPlant, dt_s: float, n_steps: int) -> Any:
-    """``testbed/UncertainLinear-v0`` for ``plant`` (``gymnasium.make``, episode ``n_steps``)."""
-    import gymnasium as gym
-
-    import testbed  # noqa: F401  (registers the environments)
-
-    return gym.make(ENV_ID, plant=plant, dt_s=dt_s, max_episode_steps=n_steps)
-
-
-def env_sample(env: Any, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
-               n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
-    """One episode of ``env`` at ``F`` with the filter ``(G, K)`` in the loop.
+def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
+           n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
+    """One run at ``F`` with the filter ``(G, K)`` in the loop, from ``x = xhat = 0``, its
+    noise drawn from ``default_rng(seed)`` step by step (as an episode of :data:`ENV_ID`
+    after ``reset(seed=seed, options={"F": F})``).
 
     Parameters
     ----------
-    env : gymnasium.Env
-        From :func:`make_env`.
+    sim : UncertainLinearPlant
     name : str
         Filter name (recorded).
-    G, K : numpy.ndarray
+    G, K : numpy.ndarray, shapes (n, n), (n, p)
     F : float
-        The episode's uncertainty (``reset(options={"F": F})``).
     n_steps, seed : int
     P : numpy.ndarray, shape (n, n)
         Steady-state error covariance to report with the run.
@@ -243,23 +235,11 @@ def env_sample(env: Any, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
         ``t`` (T,), ``x``, ``xhat`` (T, n), ``y`` (T - 1, p) with ``T = n_steps + 1``,
         ``filter``, ``F``, ``P``, ``seed``.
     """
-    from testbed.envs.wrappers import FilterInLoop
-
-    inner = env.unwrapped
-    n = inner.model.n
-    est = LinearFilter(G, K, np.zeros(n), discrete=inner.model.discrete, dt_s=inner.dt_s,
-                       B=np.zeros((n, inner.plant.B.shape[1])), covariance=P)
-    loop = FilterInLoop(env, est)
-    _, info = loop.reset(seed=seed, options={"F": F})
-    t, xs, hs, ys = [info["t"]], [info["state"]], [info["estimate"]], []
-    zero = np.zeros(loop.action_space.shape)
-    for _ in range(n_steps):
-        _, _, _, _, info = loop.step(zero)
-        t.append(info["t"])
-        xs.append(info["state"])
-        hs.append(info["estimate"])
-        ys.append(info["measurement"])
-    return {"t": np.array(t), "x": np.array(xs), "xhat": np.array(hs), "y": np.array(ys),
+    n = sim.model.n
+    est = LinearFilter(G, K, np.zeros(n), discrete=sim.discrete, dt_s=sim.dt_s, covariance=P)
+    run = rollout(sim.at(F), np.zeros(n), n_steps, noise=np.random.default_rng(seed),
+                  estimators={name: est})
+    return {"t": run.t_s, "x": run.x, "xhat": run.estimates[name], "y": run.y,
             "filter": name, "F": F, "P": P, "seed": seed}
 
 

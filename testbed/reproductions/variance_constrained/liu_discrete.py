@@ -50,15 +50,15 @@ from testbed.reproductions.variance_constrained.family import (
     SEARCHED,
     _fmt,
     design_entry,
-    env_sample,
     episode_run,
     evaluate_published,
     findings_claims,
-    make_env,
+    loop_sample,
     monte_carlo_block,
     plot_figure,
     search_summary,
 )
+from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 from testbed.reproductions.variance_constrained.scenario_liu import (
     VarianceConstrainedDiscreteScenario,
 )
@@ -146,15 +146,14 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         comparison[key] = {"ours": ours.tolist(), "paper": printed.tolist(),
                            "relative_difference": (ours / printed - 1.0).tolist()}
 
-    env = make_env(plant, 1.0, n_steps)
-    mc = monte_carlo_block(env.unwrapped.plant, published + ([searched] if searched else []),
+    sim = UncertainLinearPlant(plant)
+    mc = monte_carlo_block(sim, published + ([searched] if searched else []),
                            plant, n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in,
                            seed=seed)
     first = published[0]
-    sample = env_sample(env, first["name"], np.array(first["G"]), np.array(first["K"]),
+    sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
                         F_VALUES[0], n_steps=n_steps, seed=seed,
                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
-    env.close()
     search_dict = record.to_dict()
     search_dict["summary"] = summary
     result: dict[str, Any] = {

@@ -77,15 +77,15 @@ from testbed.reproductions.variance_constrained.family import (
     SEARCHED,
     _fmt,
     design_entry,
-    env_sample,
     episode_run,
     evaluate_published,
     findings_claims,
-    make_env,
+    loop_sample,
     monte_carlo_block,
     plot_figure,
     search_summary,
 )
+from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 from testbed.reproductions.variance_constrained.scenario_wang import (
     VarianceConstrainedContinuousScenario,
 )
@@ -205,15 +205,13 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
                                       np.array(summary["G"]), region=s.region, gamma=s.gamma,
                                       sigma2=s.sigma2)
 
-    env = make_env(plant, DT_S, n_steps)
-    sim = env.unwrapped.plant
+    sim = UncertainLinearPlant(plant, DT_S)
     mc = monte_carlo_block(sim, published + ([searched] if searched else []), plant,
                            n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
     first = published[0]
-    sample = env_sample(env, first["name"], np.array(first["G"]), np.array(first["K"]),
+    sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
                         F_VALUES[0], n_steps=n_steps, seed=seed,
                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
-    env.close()
 
     paper = {"Q1": s.paper_Q1.tolist(), "Q2": s.paper_Q2.tolist(),
              "K1": s.paper_K1.tolist(), "G1": s.paper_G1.tolist(),

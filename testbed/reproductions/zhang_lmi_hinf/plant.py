@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from filters import FiniteEscapeError, LMIHInfFilter
+from filters.lmi_hinf import StochasticLinearSystem
 
 #: Filter (50): ``xhat+ = F xhat + G y``, ``zhat = C_Z xhat``.
 FILTER_F = 0.5 * np.eye(2)
@@ -185,6 +186,43 @@ class NonlinearDiscretePlant:
         return x_next, self.observe(x_next, k + 1), {
             "disturbance": v, "action_applied": v, "noise": float(noise) if np.ndim(noise) == 0
             else noise, "z": output(x_next) if np.ndim(x_next) > 1 else float(output(x_next))}
+
+
+class StochasticLinearPlant:
+    """The system (44) of Example 5.2 driven by a known disturbance, as a
+    :class:`~testbed.reproductions.numpy_plant.NumpyPlant`::
+
+        x_{k+1} = A x + B v_k + (A_w x + B_w v_k) w_k,   y_k = C_y x_k + D_y v_k
+
+    Parameters
+    ----------
+    system : filters.lmi_hinf.StochasticLinearSystem
+    v : ndarray, shape (N,)
+        ``v_0 .. v_{N-1}`` (the same value on every disturbance channel; 0 after).
+    dt_s : float
+    """
+
+    def __init__(self, system: StochasticLinearSystem, v: np.ndarray, dt_s: float = 1.0):
+        self.system, self.v, self.dt_s = system, np.asarray(v, dtype=float), dt_s
+        self._ones = np.ones(system.n_v)
+
+    def _v(self, k: int) -> np.ndarray:
+        return (self.v[k] if k < len(self.v) else 0.0) * self._ones
+
+    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray:
+        """``w_k ~ N(0, 1)``, shape ``batch``."""
+        return np.zeros(batch) if rng is None else rng.standard_normal(batch)
+
+    def observe(self, x: np.ndarray, k: int) -> np.ndarray:
+        """``y_k``, shape (..., n_y)."""
+        return x @ self.system.C_y.T + self._v(k) @ self.system.D_y.T
+
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, object]]:
+        """``x_{k+1}`` and ``y_{k+1}`` (no extras)."""
+        s, vk = self.system, self._v(k)
+        x = x @ s.A.T + vk @ s.B.T + noise[..., None] * (x @ s.A_w.T + vk @ s.B_w.T)
+        return x, self.observe(x, k + 1), {}
 
 
 # ----------------------------------------------------------------- Corollary 3

@@ -45,6 +45,7 @@ from filters.lmi_hinf import (
 )
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
+from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
@@ -54,6 +55,7 @@ from testbed.reproductions.outputs import (
     draw_claims,
     write_outputs,
 )
+from testbed.reproductions.zhang_lmi_hinf.plant import StochasticLinearPlant
 from testbed.reproductions.zhang_lmi_hinf.scenario import (
     PAPER_K_HAT,
     PAPER_P1,
@@ -78,26 +80,15 @@ def _simulate_model(system: StochasticLinearSystem, gain: np.ndarray, x0: np.nda
                     xhat0: np.ndarray, v: np.ndarray, runs: int,
                     rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``runs`` runs of (44) with the filter (45) (batched estimator), ``N = len(v)`` steps."""
-    s = system
-    n_steps = len(v)
+    s, n_steps = system, len(v)
     w = rng.standard_normal((runs, n_steps))
-    filt = LMIHInfFilter.from_design(s, gain, x0=np.tile(xhat0, (runs, 1)))
-    x = np.tile(np.asarray(x0, float), (runs, 1))
-    xs = np.empty((runs, n_steps + 1, s.n))
-    xh = np.empty((runs, n_steps + 1, s.n))
-    ys = np.empty((runs, n_steps + 1, s.C_y.shape[0]))
-    xs[:, 0], xh[:, 0] = x, filt.x
-    ys[:, 0] = x @ s.C_y.T + (v[0] * np.ones(s.n_v)) @ s.D_y.T
-    filt.prime(ys[:, 0])
-    ones = np.ones(s.n_v)
-    for k in range(n_steps):
-        vk = v[k] * ones
-        x = x @ s.A.T + vk @ s.B.T + w[:, k, None] * (x @ s.A_w.T + vk @ s.B_w.T)
-        v_next = v[k + 1] * ones if k + 1 < n_steps else 0.0 * ones
-        ys[:, k + 1] = x @ s.C_y.T + v_next @ s.D_y.T
-        filt.step(ys[:, k + 1])
-        xs[:, k + 1], xh[:, k + 1] = x, filt.x
+    model = StochasticLinearPlant(s, v)
+    x0s = np.tile(np.asarray(x0, float), (runs, 1))
+    run = rollout(model, x0s, n_steps, noise=lambda k: w[:, k], estimators={
+        "(45)": LMIHInfFilter.from_design(s, gain, x0=np.tile(xhat0, (runs, 1)))})
+    xs, xh = run.x, run.estimates["(45)"]
     z_err = (xs[:, :n_steps] - xh[:, :n_steps]) @ s.C_z.T + (v[:, None] @ s.D_z.T)[None]
+    ys = np.concatenate([model.observe(x0s, 0)[:, None], run.y], axis=1)
     return {"x": xs, "xhat": xh, "y": ys, "z_err": z_err[..., 0]}
 
 
