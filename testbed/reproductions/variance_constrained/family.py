@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import textwrap
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +34,6 @@ from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
-    Claim,
     agree_text,
     claims_height_in,
     draw_claims,
@@ -59,10 +60,6 @@ SEARCHED = "searched design"
 
 
 # ========================================================================= helpers
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.ndarray, *,
                        region: PoleRegion, gamma: float, sigma2: np.ndarray,
                        n_grid: int = 21) -> dict[str, Any]:
@@ -270,16 +267,6 @@ def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
         "is dimensionless (no units)."))
 
 
-def findings_claims(findings: list[dict[str, Any]], paper: dict[str, str],
-                    why: dict[str, str] | None = None) -> list[Claim]:
-    """One :class:`Claim` per finding: the finding's ``label`` as the claim, ``paper[label]``
-    as the paper's value, its ``ours``, the verdict from its computed ``agree`` and
-    ``why.get(label, "")``."""
-    why = why or {}
-    return [Claim(f["label"], paper[f["label"]], f["ours"], Claim.judge(bool(f["agree"])),
-                  why.get(f["label"], "")) for f in findings]
-
-
 def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
     """The best verified design of a search, compactly (``None`` if none was verified).
 
@@ -320,6 +307,78 @@ def design_entry(d: VarianceDesign, plant: UncertainPlant, s: Any) -> dict[str, 
         out["verification"] = verify_design(plant, d.G, d.K, region=s.region, gamma=s.gamma,
                                             sigma2=s.sigma2).to_dict()
     return out
+
+
+def run_example(name: str, s: Any,
+                design: Callable[[], tuple[dict[str, VarianceDesign], dict[str, Any]]],
+                search: Callable[[int, int], DesignSearchRecord], *, dt_s: float,
+                n_steps: int, burn_in: int, n_runs: int, seed: int, search_starts: int,
+                search_evaluations: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What both examples compute: the designs at the printed parameters, the design search,
+    the printed filters and the best searched design checked for every ``F``, their Monte
+    Carlo (:func:`monte_carlo_block`) and one run with the first printed filter at ``F = 1``
+    (:func:`loop_sample`).
+
+    Parameters
+    ----------
+    name : str
+        The reproduction.
+    s : scenario
+        ``plant``, ``region``, ``gamma``, ``sigma2``, ``published()``.
+    design : callable ``() -> (designs, diagnostics)``
+        The designs at the printed parameters (``{"U=1": ..., "U=-1": ...}``).
+    search : callable ``(n_starts, max_evaluations) -> DesignSearchRecord``
+    dt_s : float
+        Sample period of the runs.
+    n_steps, burn_in, n_runs, seed, search_starts, search_evaluations : int
+
+    Returns
+    -------
+    result : dict
+        ``scenario``, ``design``, ``design_diagnostics``, ``design_search`` (with
+        ``summary``), ``published``, ``searched``, ``monte_carlo``, ``env``, ``horizon_s``,
+        ``dt_s``, ``seed``, ``wall_s``.
+    sample : dict
+        The run of :func:`loop_sample`.
+    """
+    for label, value in (("n_runs", n_runs), ("search_starts", search_starts),
+                         ("search_evaluations", search_evaluations)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"{label} must be a positive integer, got {value!r}")
+    start = time.perf_counter()
+    plant = s.plant
+    designs, diagnostics = design()
+    t_design = time.perf_counter() - start
+    record = search(int(search_starts), int(search_evaluations))
+    summary = search_summary(record)
+    t_search = time.perf_counter() - start - t_design
+
+    def evaluate(name: str, K: Any, G: Any) -> dict[str, Any]:
+        return evaluate_published(plant, name, np.array(K), np.array(G), region=s.region,
+                                  gamma=s.gamma, sigma2=s.sigma2)
+
+    published = [evaluate(name, K, G) for name, (K, G) in s.published().items()]
+    searched = None if summary is None else evaluate(SEARCHED, summary["K"], summary["G"])
+    sim = UncertainLinearPlant(plant, dt_s)
+    mc = monte_carlo_block(sim, published + ([searched] if searched else []), plant,
+                           n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
+    first = published[0]
+    sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
+                         F_VALUES[0], n_steps=n_steps, seed=seed,
+                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
+    search_dict = record.to_dict()
+    search_dict["summary"] = summary
+    return {
+        "scenario": name,
+        "design": {k: design_entry(d, plant, s) for k, d in designs.items()},
+        "design_diagnostics": diagnostics, "design_search": search_dict,
+        "published": published, "searched": searched, "monte_carlo": mc,
+        "env": {"id": ENV_ID, "episode": {"filter": sample["filter"], "F": sample["F"],
+                                          "seed": seed, "steps": n_steps}},
+        "horizon_s": n_steps * dt_s, "dt_s": dt_s, "seed": seed,
+        "wall_s": {"design": t_design, "search": t_search,
+                   "total": time.perf_counter() - start},
+    }, sample
 
 
 def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegion,
