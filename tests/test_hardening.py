@@ -302,7 +302,7 @@ def test_plain_plants_stop_at_escape_with_finite_observations_and_rewards():
 
 
 def test_plant_rollout_stops_at_escape_instead_of_returning_nan():
-    from testbed.reproductions.numpy_plant import rollout
+    from testbed.experiment.numpy_plant import rollout
     from testbed.reproductions.zhang_lmi_hinf import plant
     out = rollout(plant.NonlinearDiscretePlant(), np.array([[1.0, 1.0], [9e5, 9e5]]), 5,
                   noise=lambda k: np.zeros(2), u=lambda k: np.full((2, 1), 8.0))

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 import testbed  # noqa: F401  (registers the environments)
 from testbed.envs.wrappers import FilterInLoop
-from testbed.reproductions.numpy_plant import rollout
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.zhang_lmi_hinf import nonlinear_discrete as rep
 from testbed.reproductions.zhang_lmi_hinf import plant
 from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.basin_ms_hinf.plant import LinearSDEPlant
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
-from testbed.reproductions.numpy_plant import rollout
 
 
 def test_noise_free_integration_is_fourth_order():

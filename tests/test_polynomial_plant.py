@@ -15,10 +15,10 @@ import testbed  # noqa: F401  (registers the environments)
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
 from testbed.envs.wrappers import FilterInLoop
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.basin_polynomial.env import PolynomialCubicEnv
 from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_w
-from testbed.reproductions.numpy_plant import rollout
 
 
 def paper_rhs(t, x):

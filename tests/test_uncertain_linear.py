@@ -12,7 +12,7 @@ import testbed  # noqa: F401  (registers the environments)
 from filters.analysis import error_covariance, steady_state_covariance
 from filters.variance_constrained import LinearFilter
 from testbed.envs.wrappers import FilterInLoop
-from testbed.reproductions.numpy_plant import rollout
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.variance_constrained.env import UncertainLinearEnv
 from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant

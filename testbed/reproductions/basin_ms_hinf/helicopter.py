@@ -39,18 +39,18 @@ import numpy as np
 
 from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
 from filters.analysis import noise_output_ratio
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.basin_ms_hinf.plant import LinearSDEPlant
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
-from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
-    claims_height_in,
+    claims_figure,
     claims_json,
-    draw_claims,
+    finish_figure,
+    legend_below,
     write_outputs,
 )
 
@@ -290,15 +290,10 @@ def _runs(mean: dict[str, np.ndarray], noisy: dict[str, np.ndarray],
 
 def _plot(mean: dict, noisy: dict, yaw_errors: dict[str, np.ndarray], result: dict[str, Any],
           s: MsHinfHelicopterScenario, path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    fig, grid = claims_figure(result["claims"], 12, 11, [3.6, 3.4, 3.4], cols=2, wrap=130)
 
-    claims_in = claims_height_in(result["claims"], wrap=130)
-    fig = new_figure(12, 11 + claims_in)
-    grid = fig.add_gridspec(4, 2, height_ratios=[3.6, 3.4, 3.4, claims_in])
-
-    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
-        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.22),
-                  ncols=ncols, frameon=False)
+    def legend(ax: Any, ncols: int = 2) -> None:
+        legend_below(ax, ncols, 0.22)
 
     ax = fig.add_subplot(grid[0, :])
     ax.plot(mean["t"], mean["T"], label="T, mean (noise-free) run")
@@ -327,10 +322,9 @@ def _plot(mean: dict, noisy: dict, yaw_errors: dict[str, np.ndarray], result: di
     bias.set(title="yaw error of the mean run with parts of w removed (w2: G w2 in the state; "
                    "w4: in y2)", xlabel="t [s]", ylabel=f"yaw error [deg]\n({PAPER_ERROR})")
     legend(bias, 4)
-    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=130)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}): central mean-square H-infinity filter, "
-                    f"gamma = {s.gamma}", agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}): central mean-square H-infinity filter, gamma = "
+        f"{s.gamma}"], path, wrap=130)
 
 
 def claims(result: dict[str, Any]) -> list[Claim]:

@@ -15,7 +15,7 @@ import numpy as np
 
 
 class LinearSDEPlant:
-    """The plant as a :class:`~testbed.reproductions.numpy_plant.NumpyPlant` (one state of
+    """The plant as a :class:`~testbed.experiment.numpy_plant.NumpyPlant` (one state of
     shape (n,)).
 
     With ``output``, the interval averages ``(1/dt) int_{t_k}^{t_k+1} output(t, x) dt`` are

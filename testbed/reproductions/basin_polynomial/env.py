@@ -13,9 +13,9 @@ import numpy as np
 
 from filters import real_array
 from filters.polynomial_model import EscapeTest
+from testbed.envs.plant_env import PlantEnv, PlantSensors
 from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.basin_polynomial.scenario import paper_model, paper_w
-from testbed.reproductions.numpy_plant import PlantEnv, PlantSensors
 
 DISTURBANCES = ("paper", "white", "none")
 

@@ -33,7 +33,7 @@ singular (:func:`singular_time`: the ODE continued by ``solve_ivp`` and ``1/P22`
 extrapolated to zero), which is the escape time to quote.
 
 The plant (the one of ``testbed/PolynomialCubic-v0``, input 0: the paper's system) and the
-filters run together in one :func:`~testbed.reproductions.numpy_plant.rollout`.
+filters run together in one :func:`~testbed.experiment.numpy_plant.rollout`.
 """
 
 from __future__ import annotations
@@ -47,18 +47,17 @@ import numpy as np
 
 from filters.analysis import noise_output_ratio
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
+from testbed.experiment.numpy_plant import Rollout, rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_model
-from testbed.reproductions.numpy_plant import Rollout, rollout
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
-    claims_height_in,
+    claims_figure,
     claims_json,
-    draw_claims,
+    finish_figure,
     write_outputs,
 )
 
@@ -332,12 +331,10 @@ def _runs(sim: dict[str, Any], result: dict[str, Any]) -> list[Run]:
 
 def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario,
           path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    from testbed.outputs.plots import FONT_PT
 
     t, x, r = sim["t"], sim["x"], sim["runs"]
-    claims_in = claims_height_in(result["claims"], wrap=120)
-    fig = new_figure(11, 9.5 + claims_in)
-    grid = fig.add_gridspec(3, 1, height_ratios=[4.0, 4.6, claims_in])
+    fig, grid = claims_figure(result["claims"], 11, 9.5, [4.0, 4.6], wrap=120)
     top = fig.add_subplot(grid[0])
     bottom = fig.add_subplot(grid[1], sharex=top)
     styles = (("poly", "polynomial filter (25)-(26)", dict(color="C0", lw=2.5)),
@@ -368,11 +365,9 @@ def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario
     bottom.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=3,
                   frameon=False, title="both panels (dash-dot lines: escape detected)",
                   title_fontsize=FONT_PT)
-    draw_claims(fig.add_subplot(grid[2]), result["claims"], wrap=120)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}): central H-infinity filters, "
-                    f"gamma = {s.gamma}",
-                    agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}): central H-infinity filters, gamma = {s.gamma}"],
+        path, wrap=120)
 
 
 def _checks(result: dict[str, Any]) -> dict[str, Any]:

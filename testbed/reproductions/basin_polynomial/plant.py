@@ -6,7 +6,7 @@ A :class:`PolynomialPlant` wraps a :class:`~filters.polynomial_model.PolynomialM
 classical RK4 on a fixed step. Users define their own systems by building the model::
 
     model = PolynomialModel(a1=..., a2=..., a3=lambda t: ..., B=..., C=..., D=..., L=...)
-    run = rollout(PolynomialPlant(model, dt_s=1e-3, w=my_w), x0, 1000)  # numpy_plant
+    run = rollout(PolynomialPlant(model, dt_s=1e-3, w=my_w), x0, 1000)  # experiment.numpy_plant
 
 Disturbances: a deterministic ``w(t)`` (evaluated at the RK4 stage times, so smooth
 signals keep order 4) and/or white noise of intensity ``q`` (``w = sqrt(q) dW/dt``, one
@@ -56,7 +56,7 @@ def _signal(name: str, value: SignalArg, dim: int) -> Callable[[float], np.ndarr
 
 class PolynomialPlant:
     """A polynomial system integrated with RK4 on a fixed step, a
-    :class:`~testbed.reproductions.numpy_plant.NumpyPlant` for one state of shape (n,):
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant` for one state of shape (n,):
     step ``k`` is :meth:`advance` over ``[k dt_s, (k + 1) dt_s]``, its ``y`` the interval
     average, its extras ``{"disturbance": interval average of w}``.
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from filters.analysis import UncertainPlant
-from testbed.reproductions.numpy_plant import PlantEnv, PlantSensors
+from testbed.envs.plant_env import PlantEnv, PlantSensors
 from testbed.reproductions.variance_constrained.plant import ESCAPE_BOUND, UncertainLinearPlant
 
 #: Default sample period of a continuous-time scenario, s.

@@ -30,13 +30,12 @@ from filters.variance_constrained import (
     VarianceDesign,
     verify_design,
 )
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
-    agree_text,
-    claims_height_in,
-    draw_claims,
+    claims_figure,
+    finish_figure,
 )
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 
@@ -387,17 +386,11 @@ def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegio
     """The figure of a variance-constrained reproduction: :func:`plot_published`'s four
     panels, the claims (``result["claims"]``) under them, ``title`` and the claims' summary
     on top. ``extra(ax)`` (optional) draws more into the panels before their legends."""
-    from testbed.outputs.plots import new_figure, save_figure, set_title
-
-    claims_in = claims_height_in(result["claims"], wrap=140)
-    fig = new_figure(12, 12 + claims_in)
-    grid = fig.add_gridspec(3, 2, height_ratios=[5.6, 5.6, claims_in])
+    fig, grid = claims_figure(result["claims"], 12, 12, [5.6, 5.6], cols=2, wrap=140)
     ax = np.array([[fig.add_subplot(grid[i, j]) for j in range(2)] for i in range(2)])
     plot_published(ax, result, plant, region, gamma, sigma2, sample, discrete=discrete,
                    extra=extra)
-    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
-    set_title(fig, [*title, agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], title, path, wrap=140)
 
 
 def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,

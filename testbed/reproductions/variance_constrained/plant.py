@@ -71,7 +71,7 @@ def _noise_factor(Q: np.ndarray) -> np.ndarray:
 
 class UncertainLinearPlant:
     """Sampled simulation of an :class:`~filters.analysis.UncertainPlant`, a
-    :class:`~testbed.reproductions.numpy_plant.NumpyPlant` at the uncertainty :attr:`F`
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant` at the uncertainty :attr:`F`
     (default 0; :meth:`at` sets another).
 
     Parameters

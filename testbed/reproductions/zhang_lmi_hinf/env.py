@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from testbed.reproductions.numpy_plant import PlantEnv, PlantSensors
+from testbed.envs.plant_env import PlantEnv, PlantSensors
 from testbed.reproductions.zhang_lmi_hinf import plant
 
 

@@ -47,6 +47,8 @@ All functions take a leading batch axis: states of shape ``(..., 2)``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -132,7 +134,7 @@ def filter_step(xhat: npt.ArrayLike, y: npt.ArrayLike) -> np.ndarray:
 
 
 class NonlinearDiscretePlant:
-    """System (49) as a :class:`~testbed.reproductions.numpy_plant.NumpyPlant` (``dt_s = 1``).
+    """System (49) as a :class:`~testbed.experiment.numpy_plant.NumpyPlant` (``dt_s = 1``).
 
     Step ``k`` feels ``v_k = schedule(k) + u`` (``u`` of shape (..., 1), default 0) and the
     scalar noise ``w_k`` of each run; it delivers ``y_{k+1}`` with the schedule's
@@ -190,7 +192,7 @@ class NonlinearDiscretePlant:
 
 class StochasticLinearPlant:
     """The system (44) of Example 5.2 driven by a known disturbance, as a
-    :class:`~testbed.reproductions.numpy_plant.NumpyPlant`::
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant`::
 
         x_{k+1} = A x + B v_k + (A_w x + B_w v_k) w_k,   y_k = C_y x_k + D_y v_k
 
@@ -223,6 +225,36 @@ class StochasticLinearPlant:
         s, vk = self.system, self._v(k)
         x = x @ s.A.T + vk @ s.B.T + noise[..., None] * (x @ s.A_w.T + vk @ s.B_w.T)
         return x, self.observe(x, k + 1), {}
+
+
+def cumulative_sums(z_err: np.ndarray, v: np.ndarray, gamma: float) -> dict[str, Any]:
+    """The inequality (7) over a Monte Carlo: ``sum_i E|ztilde_i|^2`` against
+    ``gamma^2 sum_i |v_i|^2`` at every ``k`` (Figures 3 and 7).
+
+    Parameters
+    ----------
+    z_err : ndarray, shape (R, N)
+        ``ztilde_k`` of each run (scalar output).
+    v : ndarray, shape (N,)
+    gamma : float
+
+    Returns
+    -------
+    dict
+        ``curve_z``, ``curve_v`` (N,) (the two sums over ``k``), ``sum_E_z2``,
+        ``gamma2_sum_v2`` (their final values), ``sum_E_z2_stderr`` (standard error of the
+        first over runs), ``inequality_holds`` (at every ``k``), ``gamma_needed`` (the
+        smallest gamma for which it holds).
+    """
+    sum_z = np.cumsum(np.mean(z_err**2, axis=0))
+    sum_v = np.cumsum(v**2)
+    per_run = np.sum(z_err**2, axis=1)
+    se = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else 0.0
+    return {"curve_z": sum_z, "curve_v": gamma**2 * sum_v,
+            "sum_E_z2": float(sum_z[-1]), "gamma2_sum_v2": float(gamma**2 * sum_v[-1]),
+            "sum_E_z2_stderr": se,
+            "inequality_holds": bool(np.all(sum_z <= gamma**2 * sum_v)),
+            "gamma_needed": float(np.sqrt(np.max(sum_z / sum_v)))}
 
 
 # ----------------------------------------------------------------- Corollary 3

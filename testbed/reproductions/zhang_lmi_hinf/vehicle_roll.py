@@ -37,32 +37,32 @@ from filters.lmi_hinf import (
     LMIHInfFilter,
     StochasticLinearSystem,
     certify_gain,
+    design_above,
     design_lmi_hinf,
     lmi_gamma_for_solution,
     minimal_gamma,
     ms_spectral_radius,
     output_error_moments,
 )
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.numpy_plant import rollout
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
     claims_height_in,
     claims_json,
-    draw_claims,
+    finish_figure,
+    legend_below,
     write_outputs,
 )
-from testbed.reproductions.zhang_lmi_hinf.plant import StochasticLinearPlant
+from testbed.reproductions.zhang_lmi_hinf.plant import StochasticLinearPlant, cumulative_sums
 from testbed.reproductions.zhang_lmi_hinf.scenario import (
     PAPER_K_HAT,
     PAPER_P1,
     PAPER_P2,
     PAPER_P_K,
     VehicleRollLMIScenario,
-    design_above,
     identify_rig_step,
     initial_state_weight,
     paper_system,
@@ -129,20 +129,6 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
 
 
 # ------------------------------------------------------------------ evaluation
-def _sums(z_err: np.ndarray, v: np.ndarray, gamma: float) -> dict[str, Any]:
-    mean_sq = np.mean(z_err**2, axis=0)
-    sum_z = np.cumsum(mean_sq)
-    sum_v = np.cumsum(v**2)
-    # standard error of the final cumulative sum across runs
-    per_run = np.sum(z_err**2, axis=1)
-    se = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else 0.0
-    return {"curve_z": sum_z, "curve_v": gamma**2 * sum_v,
-            "sum_E_z2": float(sum_z[-1]), "gamma2_sum_v2": float(gamma**2 * sum_v[-1]),
-            "sum_E_z2_stderr": se,
-            "inequality_holds": bool(np.all(sum_z <= gamma**2 * sum_v)),
-            "gamma_needed": float(np.sqrt(np.max(sum_z / sum_v)))}
-
-
 def _evaluate(system: StochasticLinearSystem, design: Any, gamma: float, s: VehicleRollLMIScenario,
               v: np.ndarray, runs: int, seed: int, rig: bool = False,
               record: bool = False) -> dict[str, Any]:
@@ -160,7 +146,7 @@ def _evaluate(system: StochasticLinearSystem, design: Any, gamma: float, s: Vehi
         else:
             sim = _simulate_model(system, gain, x0, s.xhat0, v, runs,
                                   np.random.default_rng([seed, i]))
-        sums = _sums(sim["z_err"], v, gamma)
+        sums = cumulative_sums(sim["z_err"], v, gamma)
         exact = np.cumsum(output_error_moments(system, gain, x0, s.xhat0, v))
         bound = sums["gamma2_sum_v2"] + initial_state_weight(design, x0, s.xhat0)
         for key in ("sum_E_z2", "gamma2_sum_v2", "inequality_holds", "sum_E_z2_stderr",
@@ -428,7 +414,7 @@ def _runs(curves: dict, result: dict[str, Any], s: VehicleRollLMIScenario) -> li
 
 
 def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    from testbed.outputs.plots import new_figure
 
     claims_in = claims_height_in(result["claims"], wrap=150)
     fig = new_figure(13, 13 + claims_in)
@@ -438,16 +424,12 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     paper_sim = curves["paper_K_hat"]["x0_paper"]["sim"]
     ours_sim = curves["ours"]["x0_paper"]["sim"]
 
-    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
-        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.2),
-                  ncols=ncols, frameon=False)
-
     ax = fig.add_subplot(grid[0, 0])
     for i, name in enumerate(("x(1) = roll [rad]", "x(2) = roll rate [rad/s]")):
         ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), label=name)
     ax.set(title=f"Fig. 4: state x_k of (52), x0 = {s.x0.tolist()} (mean of runs)",
            xlabel=k_label, ylabel="x_k [rad; rad/s]")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[0, 1])
     for i in range(2):
         ax.plot(k, paper_sim["xhat"][:, :, i].mean(axis=0), label=f"xhat({i + 1}), printed Khat")
@@ -455,7 +437,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
                 label=f"xhat({i + 1}), ours (H2/H-inf)")
     ax.set(title="Fig. 5: estimate xhat_k of (53) (mean of runs)", xlabel=k_label,
            ylabel="xhat_k [rad; rad/s]")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[1, 0])
     for label, c in (("printed Khat", curves["paper_K_hat"]), ("ours", curves["ours"]),
                      ("ours on the MuJoCo rig", curves["rig"])):
@@ -463,7 +445,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     ax.set(title="Fig. 6: ztilde_k, x0 = [0.1, 1] (mean of runs)",
            xlabel=k_label, ylabel="ztilde_k = x_k(1) - xhat_k(1) [rad]\n(the paper's: truth - "
            "estimate)")
-    legend(ax, 3)
+    legend_below(ax, 3)
     for case, cell in zip(CASES, (grid[1, 1], grid[2, 0]), strict=True):
         ax = fig.add_subplot(cell)
         for (label, key), color in zip((("printed Khat", "paper_K_hat"), ("ours", "ours"),
@@ -478,7 +460,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
         ax.set_ylim(bottom=1e-18)
         ax.set(title=f"Fig. 7: cumulative sums, {case.replace('_', ' = ')}", xlabel=k_label,
                ylabel="cumulative sum [rad^2]")
-        legend(ax)
+        legend_below(ax)
     ax = fig.add_subplot(grid[2, 1])
     rig_sim = curves["rig"]["x0_paper"]["sim"]
     for i, name in enumerate(("roll [rad]", "roll rate [rad/s]")):
@@ -486,11 +468,10 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
         ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), ":", label=f"{name}, model (52)")
     ax.set(title="rig vs (52): state from x0 = [0.1, 1] (mean of runs)", xlabel=k_label,
            ylabel="x_k [rad; rad/s]")
-    legend(ax)
-    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=150)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: Theorem-4 filter, "
-                    f"vehicle roll ({result['runs']} runs)", agree_text(result["claims"])])
-    save_figure(fig, path)
+    legend_below(ax)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: Theorem-4 filter, vehicle roll "
+        f"({result['runs']} runs)"], path, wrap=150)
 
 
 def why(result: dict[str, Any]) -> str:
