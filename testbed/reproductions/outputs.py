@@ -279,8 +279,9 @@ def finish_figure(fig: Any, grid: Any, claims: Sequence[Claim | dict[str, str]],
 
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
-                  plot: Callable[[str | os.PathLike], None], runs: Callable[[], list[Any]],
-                  application_id: str, units: dict[str, str] | None = None,
+                  plot: Callable[[str | os.PathLike], None],
+                  runs: Callable[[], list[Any]] | None = None, application_id: str,
+                  units: dict[str, str] | None = None,
                   **rrd_kwargs: Any) -> None:
     """Write whichever outputs were asked for (each atomically).
 
@@ -294,7 +295,8 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         Draws the reproduction's figure into ``path``.
     runs : callable ``() -> list of testbed.outputs.viz.Run``
         The runs of the ``.rrd``, each under its own prefix with its description
-        (:func:`testbed.outputs.viz.write_runs`); only called when ``rrd_path`` is given.
+        (:func:`testbed.outputs.viz.write_runs`); only called (and needed) when ``rrd_path``
+        is given.
     application_id : str
         Rerun application id.
     units : dict, optional
@@ -303,6 +305,8 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
     **rrd_kwargs
         Passed to :func:`testbed.outputs.viz.write_runs` (``degrees``).
     """
+    if rrd_path and runs is None:
+        raise ValueError("write_outputs needs runs for the .rrd")
     result.setdefault("units", dict(units) if units is not None else DIMENSIONLESS)
     if json_path:
         from testbed.io import write_json
