@@ -52,3 +52,34 @@ def test_interval_average_output():
     run = rollout(plant, np.zeros(1), 5, u=lambda k: np.ones(1))
     np.testing.assert_allclose(run.y[:, 0], (np.arange(5) + 0.5) * 0.1, atol=1e-14)
     np.testing.assert_allclose(run.x[:, 0], np.arange(6) * 0.1, atol=1e-14)
+
+
+def test_rollout_records_a_failing_estimator_and_selects_channels():
+    """An estimator's FilterError ends its rows at that step (its state kept), the others go
+    on; ``select`` hands an estimator only its channels."""
+    from filters.errors import FiniteEscapeError
+
+    class Failing:
+        P = None
+
+        def __init__(self, fail_at: int):
+            self.x, self.fail_at, self.seen = np.zeros(1), fail_at, []
+
+        def step(self, y, u=None):
+            self.seen.append(y.shape)
+            if len(self.seen) > self.fail_at:
+                raise FiniteEscapeError("escaped", time=1.0, quantity="x")
+            self.x = self.x + y[..., :1]
+            return self.x
+
+    plant = LinearSDEPlant(np.zeros((1, 1)), np.ones((1, 1)), np.zeros((1, 1)),
+                           np.zeros((1, 1)), lambda t: np.zeros(1), 0.1,
+                           output=lambda t, x: np.concatenate([x, 2 * x]))
+    fail, keep = Failing(3), Failing(99)
+    run = rollout(plant, np.zeros(1), 6, u=lambda k: np.ones(1),
+                  estimators={"fail": fail, "keep": (keep, lambda y: y[1:])})
+    assert run.failures["fail"][0] == 3 and run.estimates["fail"].shape == (4, 1)
+    assert run.estimates["keep"].shape == (7, 1) and "keep" not in run.failures
+    np.testing.assert_allclose(run.estimates["keep"][-1, 0], 2 * run.y[:, 0].sum())
+    assert fail.x[0] == run.estimates["fail"][-1, 0]  # the state before the failing step
+    assert keep.seen == [(1,)] * 6 and run.x.shape == (7, 1) and run.escape is None

@@ -5,27 +5,18 @@ filter (50) (see docs/references.md).
 (:class:`testbed.reproductions.zhang_lmi_hinf.scenario.NonlinearDiscreteScenario`: ``x0 = [1, 1]``,
 ``gamma = 2``; both are in the output).
 
-- **Monte Carlo** (1000 runs, as in the paper; one batch of
-  :func:`testbed.experiment.numpy_plant.rollout` with the library's filter (50)):
-  ``v_k = 2 * 0.9999^k``,
-  ``w_k ~ N(0, 1)``, ``xhat_0 = 0``; the cumulative sums ``sum_i E ztilde_i^2`` (sample mean)
-  and ``gamma^2 sum_i v_i^2`` (Figure 3). ``inequality_holds``: the first is below the second
-  at every ``k``; ``smallest_gamma_mc = sqrt(max_k (sum E ztilde^2) / (sum v^2))``.
-  The proof's bound for ``eta_0 != 0``, ``gamma^2 sum v^2 + V(eta_0)`` (``V = |x|^2 +
-  |xhat|^2``, the paper's), is reported too.
+- **Monte Carlo** (1000 runs, as in the paper): one batch of
+  :func:`testbed.experiment.numpy_plant.rollout` with the library's filter (50),
+  ``v_k = 2 * 0.9999^k``, ``w_k ~ N(0, 1)``, ``xhat_0 = 0``; the inequality of Figure 3 at
+  every ``k`` (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.cumulative_sums`) and the
+  proof's bound for ``eta_0 != 0``, ``gamma^2 sum v^2 + V(eta_0)``.
 - **Corollary 3**: the sufficient conditions (35)-(36) with ``Q1 = Q2 = I`` on a grid of
-  ``(x, xhat)`` (corrected forms, :mod:`testbed.reproductions.zhang_lmi_hinf.plant`), their largest
-  violation, the same for the printed forms, the curvature of (36) at the origin.
-- **Corollary 2**: the HJI (27) itself (which (35)-(36) are sufficient for) with
-  ``V = |x|^2 + |xhat|^2`` on the grid times ``v in [-10, 10]`` and on a wider state box
-  (``hji_27``, ``hji_27_wide``): a grid samples (27), which must hold for all ``eta`` and
-  ``v``, and certifies nothing outside it. Corollary 2 also needs (26),
-  ``|ztilde(eta, 0)|^2 >= W(eta)`` with ``W`` positive and radially unbounded
-  (``condition_26``): here ``ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2)`` vanishes on a
-  three-dimensional subspace, so no such ``W`` exists and the HJI alone does not make (50)
-  an H-infinity filter in the paper's sense (internal stability is not certified).
-- One run with the filter (50) in the loop (:func:`run_in_loop`, the noise of
-  ``testbed/NonlinearDiscrete-v0`` seeded alike) for the ``.rrd`` and Figures 1-2.
+  ``(x, xhat)``, corrected and as printed, and the curvature of (36) at the origin.
+- **Corollary 2**: the HJI (27) itself on the grid times ``v in [-10, 10]`` and on a wider
+  state box (a grid samples (27) and certifies nothing outside it), and whether (26) can
+  hold (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.condition26_check`).
+- One run with the filter (50) in the loop (:func:`run_in_loop`) for the ``.rrd`` and
+  Figures 1-2.
 """
 
 from __future__ import annotations

@@ -17,12 +17,10 @@ vehicle roll (see docs/references.md).
 
 Each: 100 Monte-Carlo runs (multiplicative noise ``w_k ~ N(0, 1)``), ``v_k = 0.01 * 0.9^k``,
 ``xhat_0 = 0``, for ``x0 = 0`` (what the inequality (7) is about: Lemma 2 needs
-``eta_0 = 0``) and for the paper's ``x0 = [0.1, 1]``. Over ``k``: the cumulative sums
-``sum_i E|ztilde_i|^2`` (sample mean over runs) and ``gamma^2 sum_i |v_i|^2`` (Figure 7);
-``inequality_holds`` means the first is below the second at EVERY ``k`` of the horizon.
-The exact expectation (moment propagation of (46), :func:`filters.lmi_hinf.
-output_error_moments`) is computed alongside as an independent check of the Monte Carlo,
-and so is the bound of the proof (13), ``gamma^2 sum |v|^2 + V(eta_0)``, valid for any x0.
+``eta_0 = 0``) and for the paper's ``x0 = [0.1, 1]``: the inequality of Figure 7 at every
+``k`` (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.cumulative_sums`), checked against
+the exact expectation (moment propagation of (46), :func:`filters.lmi_hinf.
+output_error_moments`), and the proof's bound (13) ``gamma^2 sum |v|^2 + V(eta_0)``.
 """
 
 from __future__ import annotations
