@@ -68,7 +68,7 @@ def test_rollout_records_a_failing_estimator_and_selects_channels():
         def step(self, y, u=None):
             self.seen.append(y.shape)
             if len(self.seen) > self.fail_at:
-                raise FiniteEscapeError("escaped", time=1.0, quantity="x")
+                raise FiniteEscapeError("escaped", time=1.0, quantity="x", value=None)
             self.x = self.x + y[..., :1]
             return self.x
 

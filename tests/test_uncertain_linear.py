@@ -140,3 +140,17 @@ def test_filter_in_the_loop_is_aligned():
     emp = e.T @ e / len(e)
     # generous bound: correlated samples (poles <= 0.85)
     np.testing.assert_allclose(np.diag(emp), np.diag(P), rtol=0.12)
+
+
+def test_unstable_plant_terminates_with_finite_values():
+    from filters.analysis import UncertainPlant
+
+    z = np.zeros((1, 1))
+    unstable = UncertainPlant(np.array([[3.0]]), np.array([[1.0]]), np.array([[1.0]]),
+                              np.array([[1.0]]), z, z, z, np.array([[1.0]]), discrete=True)
+    env = UncertainLinearEnv(plant=unstable)
+    env.reset(seed=0, options={"x0": [5e9]})
+    *_, terminated, _, info = env.step(np.zeros(1))
+    assert terminated and info["escape"] == {"quantity": "state", "time": 1.0}
+    y, reward, terminated, _, info = env.step(np.zeros(1))
+    assert terminated and np.all(np.isfinite(y)) and info["state"][0] == 5e9

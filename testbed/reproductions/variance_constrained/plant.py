@@ -215,5 +215,5 @@ class UncertainLinearPlant:
         x_next, y = z[..., :n], z[..., n:]
         if not (np.all(np.abs(x_next) <= ESCAPE_BOUND) and np.all(np.isfinite(y))):
             raise FiniteEscapeError(f"the state left |x| <= {ESCAPE_BOUND:g}",
-                                    time=(k + 1) * self.dt_s, quantity="state")
+                                    time=(k + 1) * self.dt_s, quantity="state", value=x_next)
         return x_next, y, {"disturbance": noise}
