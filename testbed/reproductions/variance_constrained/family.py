@@ -116,57 +116,15 @@ def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.nda
     return 0.5 * (P + P.T)
 
 
-def monte_carlo(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray, F: float, *,
-                n_runs: int, n_steps: int, burn_in: int, rng: np.random.Generator
-                ) -> dict[str, Any]:
-    """``n_runs`` independent runs of plant + filter, stepped as one batch; error statistics
-    after burn-in.
-
-    Every run starts at ``x = xhat = 0``. The per-run time average of ``e e^T`` over steps
-    ``burn_in + 1 .. n_steps`` is averaged over runs; the standard error of each variance is
-    the spread of the per-run averages over ``sqrt(n_runs)`` (runs are independent).
-
-    Parameters
-    ----------
-    sim : UncertainLinearPlant
-        The plant's sampled simulation (the environment's own, ``env.unwrapped.plant``).
-    G, K : numpy.ndarray, shapes (n, n), (n, p)
-    F : float
-        The runs' uncertainty.
-    n_runs, n_steps, burn_in : int
-    rng : numpy.random.Generator
-        One generator for the batch: each step draws ``(n_runs, r)`` standard normals.
-
-    Returns
-    -------
-    dict
-        ``covariance`` (n, n), ``variance`` (n,), ``std_error`` (n,), ``n_runs``, ``n_steps``,
-        ``burn_in``.
-    """
-    n = sim.model.n
-    acc = np.zeros((n_runs, n, n))
-
-    def gather(k: int, x: np.ndarray, est: dict[str, np.ndarray]) -> None:
-        if k + 1 > burn_in:
-            e = x - est["filter"]
-            acc[...] += e[:, :, None] * e[:, None, :]
-
-    filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete, dt_s=sim.dt_s)
-    rollout(sim.at(F), np.zeros((n_runs, n)), n_steps, noise=rng, estimators={"filter": filt},
-            record=False, on_step=gather)
-    count = max(n_steps - burn_in, 1)
-    per_run = acc / count
-    cov = per_run.mean(axis=0)
-    var_runs = np.diagonal(per_run, axis1=1, axis2=2)
-    stderr = var_runs.std(axis=0, ddof=1) / math.sqrt(n_runs) if n_runs > 1 else np.zeros(n)
-    return {"covariance": 0.5 * (cov + cov.T), "variance": np.diag(cov).copy(),
-            "std_error": stderr, "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in}
-
-
 def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
                       plant: UncertainPlant, *, n_runs: int, n_steps: int, burn_in: int,
                       seed: int) -> list[dict[str, Any]]:
-    """Monte Carlo of every filter at ``F = 1, 0, -1``.
+    """Monte Carlo of every filter at ``F = 1, 0, -1``: ``n_runs`` runs from
+    ``x = xhat = 0`` stepped as one batch (:func:`~testbed.experiment.numpy_plant.rollout`).
+
+    The per-run time average of ``e e^T`` over steps ``burn_in + 1 .. n_steps`` is averaged
+    over runs; the standard error of each variance is the spread of the per-run averages over
+    ``sqrt(n_runs)`` (runs are independent).
 
     Parameters
     ----------
@@ -177,7 +135,8 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
     plant : UncertainPlant
     n_runs, n_steps, burn_in, seed : int
         Filter ``i`` at ``F_VALUES[j]`` uses the generator of child ``3 i + j`` of
-        ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged).
+        ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged);
+        each step draws ``(n_runs, r)`` standard normals from it.
 
     Returns
     -------
@@ -187,22 +146,35 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
         ``relative_to_lyapunov``, ``n_runs``, ``n_steps``, ``burn_in``, ``dt_s``.
     """
     seeds = np.random.SeedSequence(seed).spawn(len(filters) * len(F_VALUES))
+    n = sim.model.n
     out = []
-    for i, filt in enumerate(filters):
-        G, K = np.array(filt["G"]), np.array(filt["K"])
+    for i, entry in enumerate(filters):
+        G, K = np.array(entry["G"]), np.array(entry["K"])
         for j, F in enumerate(F_VALUES):
-            rng = np.random.default_rng(seeds[i * len(F_VALUES) + j])
-            mc = monte_carlo(sim, G, K, F, n_runs=n_runs, n_steps=n_steps, burn_in=burn_in,
-                             rng=rng)
+            acc = np.zeros((n_runs, n, n))
+
+            def gather(k: int, x: np.ndarray, est: dict[str, np.ndarray]) -> None:
+                if k + 1 > burn_in:
+                    e = x - est["filter"]
+                    acc[...] += e[:, :, None] * e[:, None, :]  # noqa: B023 (used at once)
+
+            filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete,
+                                dt_s=sim.dt_s)
+            rollout(sim.at(F), np.zeros((n_runs, n)), n_steps,
+                    noise=np.random.default_rng(seeds[i * len(F_VALUES) + j]),
+                    estimators={"filter": filt}, record=False, on_step=gather)
+            per_run = acc / max(n_steps - burn_in, 1)
+            variance = np.diag(per_run.mean(axis=0)).copy()
+            var_runs = np.diagonal(per_run, axis1=1, axis2=2)
+            stderr = (var_runs.std(axis=0, ddof=1) / math.sqrt(n_runs) if n_runs > 1
+                      else np.zeros(n))
             lyap = np.diag(error_covariance(plant, G, K, F))
             sampled = np.diag(sampled_error_covariance(sim, G, K, F))
-            z = (mc["variance"] - sampled) / np.maximum(mc["std_error"], 1e-300)
-            out.append({"filter": filt["name"], "F": F, "variance_mc": mc["variance"].tolist(),
-                        "std_error": mc["std_error"].tolist(),
-                        "variance_lyapunov": lyap.tolist(),
-                        "variance_sampled_loop": sampled.tolist(),
-                        "z_vs_sampled": z.tolist(),
-                        "relative_to_lyapunov": (mc["variance"] / lyap - 1.0).tolist(),
+            z = (variance - sampled) / np.maximum(stderr, 1e-300)
+            out.append({"filter": entry["name"], "F": F, "variance_mc": variance.tolist(),
+                        "std_error": stderr.tolist(), "variance_lyapunov": lyap.tolist(),
+                        "variance_sampled_loop": sampled.tolist(), "z_vs_sampled": z.tolist(),
+                        "relative_to_lyapunov": (variance / lyap - 1.0).tolist(),
                         "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in,
                         "dt_s": sim.dt_s})
     return out
@@ -239,31 +211,28 @@ def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarr
             "filter": name, "F": F, "P": P, "seed": seed}
 
 
-def trajectory(sample: dict[str, Any], scenario: str) -> Trajectory:
-    """A :class:`Trajectory` of one episode (``covariance``: the steady-state ``P``)."""
+def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
+    """The recorded run of a reproduction (:func:`loop_sample`) as the run ``"episode"`` of
+    its ``.rrd``: truth, estimate and the steady-state ``P`` as covariance, with its
+    description; ``time_text`` says what ``t`` counts."""
     t, x, xhat, y = sample["t"], sample["x"], sample["xhat"], sample["y"]
     n, p = x.shape[1], y.shape[1]
-    meas = np.vstack([np.zeros((1, p)), y])
-    return Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
-                      measurement=meas, measurement_names=[f"y{i + 1}" for i in range(p)],
+    traj = Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
+                      measurement=np.vstack([np.zeros((1, p)), y]),
+                      measurement_names=[f"y{i + 1}" for i in range(p)],
                       measured_state_index=[None] * p, action=np.zeros((len(t), 1)),
                       action_names=["u"], estimate=xhat,
                       covariance=np.broadcast_to(sample["P"], (len(t), n, n)).copy(),
                       meta={"scenario": scenario, "filter": sample["filter"],
                             "F": sample["F"], "seed": sample["seed"], "env": ENV_ID,
                             "covariance": "steady-state P (Lyapunov)"})
-
-
-def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
-    """The environment episode of a reproduction as one run of its ``.rrd`` (prefix
-    ``"episode"``), with its description; ``time_text`` says what ``t`` counts."""
-    return Run(trajectory(sample, scenario), "episode", (
+    return Run(traj, "episode", (
         f"# {ENV_ID} episode: filter {sample['filter']}, F = {sample['F']:g} (seed "
-        f"{sample['seed']})\n\nOne episode of the uncertain plant with the filter in the loop "
-        "(FilterInLoop), from x = xhat = 0: truth, estimate and the steady-state error "
-        "covariance P (Lyapunov) as the +-3 sigma band; what the figure's last panel shows. "
-        f"The Monte-Carlo statistics are separate runs, not logged. {time_text} The system "
-        "is dimensionless (no units)."))
+        f"{sample['seed']})\n\nOne run of the uncertain plant with the filter in the loop "
+        "(its noise seeded as an episode of the environment), from x = xhat = 0: truth, "
+        "estimate and the steady-state error covariance P (Lyapunov) as the +-3 sigma band; "
+        "what the figure's last panel shows. The Monte-Carlo statistics are separate runs, "
+        f"not logged. {time_text} The system is dimensionless (no units)."))
 
 
 def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
