@@ -301,14 +301,14 @@ def test_plain_plants_stop_at_escape_with_finite_observations_and_rewards():
         lin.reset(seed=0, options={"x0": [1e300, 0.0]})
 
 
-def test_plant_simulation_raises_at_escape_instead_of_returning_nan():
+def test_plant_rollout_stops_at_escape_instead_of_returning_nan():
+    from testbed.experiment.numpy_plant import rollout
     from testbed.reproductions.zhang_lmi_hinf import plant
-    v, w = np.full(5, 10.0), np.zeros((2, 5))
-    with pytest.raises(FiniteEscapeError) as info:
-        plant.simulate(np.array([[1.0, 1.0], [9e5, 9e5]]), v, w)
-    assert info.value.quantity == "x" and info.value.time == 1.0
-    with pytest.raises(ValueError, match="x0"):
-        plant.simulate([1e300, 0.0], v, w)
+    out = rollout(plant.NonlinearDiscretePlant(), np.array([[1.0, 1.0], [9e5, 9e5]]), 5,
+                  noise=lambda k: np.zeros(2), u=lambda k: np.full((2, 1), 8.0))
+    assert isinstance(out.escape, FiniteEscapeError)
+    assert out.escape.quantity == "state" and out.escape.time == 1.0
+    assert out.x.shape == (2, 1, 2) and np.isfinite(out.x).all()
 
 
 @pytest.mark.parametrize("env_id", testbed.ENV_IDS)

@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 import testbed  # noqa: F401  (registers the environments)
 from testbed.envs.wrappers import FilterInLoop
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.zhang_lmi_hinf import nonlinear_discrete as rep
 from testbed.reproductions.zhang_lmi_hinf import plant
 from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
@@ -29,19 +30,36 @@ def test_plant_equations_49_verbatim():
     assert np.allclose(plant.filter_step([1.0, 2.0], [3.0, 4.0]), [2.0, 3.0])
 
 
+def simulate(x0, w):
+    """(49) with the filter (50) over ``w`` (R, N): states and estimates (R, N + 1, 2)."""
+    runs, n = w.shape
+    out = rollout(plant.NonlinearDiscretePlant(), np.tile(x0, (runs, 1)), n,
+                  noise=lambda k: w[:, k],
+                  estimators={"50": plant.filter50(np.zeros((runs, 2)))})
+    return out.x, out.estimates["50"], out.escape
+
+
 def test_zero_state_stays_zero():
-    x, xh, _ = plant.simulate(np.zeros(2), plant.paper_disturbance(np.arange(50)),
-                              np.random.default_rng(0).standard_normal((3, 50)))
+    x, xh, _ = simulate(np.zeros(2), np.random.default_rng(0).standard_normal((3, 50)))
     assert np.all(x == 0) and np.all(xh == 0)
 
 
-def test_batched_simulation_equals_row_by_row():
-    v = plant.paper_disturbance(np.arange(30))
+def test_batched_simulation_equals_row_by_row_and_the_recursion():
     w = np.random.default_rng(1).standard_normal((5, 30))
-    x, xh, y = plant.simulate([1.0, -0.5], v, w)
+    x, xh, _ = simulate([1.0, -0.5], w)
     for r in range(5):
-        xr, xhr, yr = plant.simulate([1.0, -0.5], v, w[r:r + 1])
+        xr, xhr, _ = simulate([1.0, -0.5], w[r:r + 1])
         assert np.array_equal(x[r], xr[0]) and np.array_equal(xh[r], xhr[0])
+    for k in range(30):
+        v = plant.paper_disturbance(k)
+        assert np.allclose(x[:, k + 1], plant.step(x[:, k], v, w[:, k]))
+        assert np.allclose(xh[:, k + 1], plant.filter_step(xh[:, k], plant.measure(x[:, k], v)))
+
+
+def test_escape_is_reported_with_its_step():
+    x, _, escape = simulate([1.0, 1.0], np.full((2, 40), 1e3))
+    assert escape is not None and escape.quantity == "state" and np.isfinite(x).all()
+    assert escape.time == x.shape[1]
 
 
 # ------------------------------------------------------------------ Corollary 3 / HJI

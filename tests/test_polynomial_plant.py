@@ -15,6 +15,7 @@ import testbed  # noqa: F401  (registers the environments)
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
 from testbed.envs.wrappers import FilterInLoop
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.basin_polynomial.env import PolynomialCubicEnv
 from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_w
@@ -28,7 +29,8 @@ def paper_rhs(t, x):
 
 def test_plant_matches_solve_ivp_and_averages_y():
     s = PolynomialHinfScenario()
-    run = PolynomialPlant(s.model).simulate(s.x0, 1e-3, 1400, w=s.w, substeps=4)
+    plant = PolynomialPlant(s.model, dt_s=1e-3, w=s.w, substeps=4)
+    run = rollout(plant, s.x0, 1400)
     assert run.escape is None and run.x.shape == (1401, 2) and run.y.shape == (1400, 1)
     ref = solve_ivp(paper_rhs, (0, run.t_s[-1]), s.x0, t_eval=run.t_s, rtol=1e-11, atol=1e-12)
     np.testing.assert_allclose(run.x, ref.y.T, rtol=1e-8, atol=1e-9)
@@ -38,14 +40,15 @@ def test_plant_matches_solve_ivp_and_averages_y():
     np.testing.assert_allclose(run.y[:, 0], y_trap, atol=1e-5)
     w1_avg = [(1 / (1 + a) - 1 / (1 + b)) / (b - a) for a, b in zip(run.t_s[:-1], run.t_s[1:],
                                                                   strict=True)]
-    np.testing.assert_allclose(run.w[:, 0], w1_avg, rtol=1e-10)
+    w = [plant.step(run.x[k], k, None, None)[2]["disturbance"][0] for k in range(1400)]
+    np.testing.assert_allclose(w, w1_avg, rtol=1e-10)
 
 
 def test_plant_escape_is_reported_and_the_run_truncated():
     """x' = x^3 from 1 escapes at t = 1/2; from x0 = [1, 1] the paper's plant near 1.785 s."""
     model = PolynomialModel(a3=np.ones((1, 1, 1, 1)), B=[[0.0]], C=[[1.0]], D=[[1.0]],
                             L=[[1.0]])
-    run = PolynomialPlant(model).simulate([1.0], 1e-4, 10_000)
+    run = rollout(PolynomialPlant(model, dt_s=1e-4), np.array([1.0]), 10_000)
     assert run.escape is not None and run.escape.quantity == "state"
     assert 0.499 < run.escape.time <= 0.5
     assert np.isfinite(run.x).all() and len(run.t_s) == len(run.x) == len(run.y) + 1
@@ -54,10 +57,10 @@ def test_plant_escape_is_reported_and_the_run_truncated():
 
 def test_plant_white_noise_intensity_and_reproducibility():
     model = PolynomialModel(B=[[1.0, 0.0]], C=[[0.0]], D=[[0.0, 1.0]], L=[[1.0]], n=1)
-    plant = PolynomialPlant(model)
     q, dt = np.array([4.0, 9.0]), 1e-3
-    a = plant.simulate([0.0], dt, 5000, rng=np.random.default_rng(1), noise_intensity=q)
-    b = plant.simulate([0.0], dt, 5000, rng=np.random.default_rng(1), noise_intensity=q)
+    plant = PolynomialPlant(model, dt_s=dt, noise_intensity=q)
+    a = rollout(plant, np.zeros(1), 5000, noise=np.random.default_rng(1))
+    b = rollout(plant, np.zeros(1), 5000, noise=np.random.default_rng(1))
     np.testing.assert_array_equal(a.x, b.x)
     # sample variances of 5000 draws: relative standard error 2 %
     assert np.var(np.diff(a.x[:, 0])) == pytest.approx(q[0] * dt, rel=0.1)
@@ -65,13 +68,15 @@ def test_plant_white_noise_intensity_and_reproducibility():
 
 
 def test_plant_input_validation():
-    plant = PolynomialPlant(PolynomialHinfScenario().model)
-    with pytest.raises(ValueError, match="x0"):
-        plant.simulate([1.0], 1e-3, 10)
+    model = PolynomialHinfScenario().model
     with pytest.raises(ValueError, match="dt_s"):
-        plant.simulate([1.0, 1.0], 0.0, 10)
+        PolynomialPlant(model, dt_s=0.0)
     with pytest.raises(ValueError, match="w must"):
-        plant.simulate([1.0, 1.0], 1e-3, 10, w=np.ones(3))
+        PolynomialPlant(model, w=np.ones(3))
+    with pytest.raises(ValueError, match="noise_intensity"):
+        PolynomialPlant(model, noise_intensity=-1.0)
+    with pytest.raises(ValueError, match="callable must return"):
+        rollout(PolynomialPlant(model, w=lambda t: np.ones(3)), np.ones(2), 2)
     with pytest.raises(TypeError, match="PolynomialModel"):
         PolynomialPlant("model")
 
@@ -102,7 +107,7 @@ def test_registered_with_time_limit_and_matches_the_plant():
         assert not terminated
     assert len(ys) == 1400 and info["t"] == pytest.approx(1.4)
     s = PolynomialHinfScenario()
-    run = PolynomialPlant(s.model).simulate(s.x0, 1e-3, 1400, w=s.w, substeps=2)
+    run = rollout(PolynomialPlant(s.model, dt_s=1e-3, w=s.w, substeps=2), s.x0, 1400)
     np.testing.assert_allclose(np.array(states), run.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.array(ys), run.y, rtol=0, atol=1e-12)
 
@@ -123,7 +128,7 @@ def test_escape_terminates_without_nan():
     assert env.step(np.zeros(1))[4]["escape"] is None
 
 
-def rollout(seed: int, n: int = 40):
+def env_rollout(seed: int, n: int = 40):
     env = make(disturbance="white", noise_intensity=(0.5, 0.01))
     obs, info = env.reset(seed=seed)
     out = [obs, info["state"]]
@@ -135,7 +140,7 @@ def rollout(seed: int, n: int = 40):
 
 
 def test_same_seed_is_bitwise_identical_and_other_seed_differs():
-    a, b, c = rollout(3), rollout(3), rollout(4)
+    a, b, c = env_rollout(3), env_rollout(3), env_rollout(4)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
     assert any(not np.array_equal(x, y) for x, y in zip(a, c, strict=True))

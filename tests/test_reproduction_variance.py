@@ -1,5 +1,5 @@
 """Reproductions of Wang & Fang (2006) (continuous) and Liu, Deng & Wang (n.d.) (discrete):
-keys, findings, the searched designs checked by an independent computation, CLI."""
+keys, claims, the searched designs checked by an independent computation, CLI."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from testbed.reproductions import load
 from testbed.reproductions.outputs import agree_text
 from testbed.reproductions.variance_constrained import liu_discrete as vd
 from testbed.reproductions.variance_constrained import wang_parabolic as vc
+from testbed.reproductions.variance_constrained.family import SEARCHED
 from testbed.reproductions.variance_constrained.scenario_liu import (
     VarianceConstrainedDiscreteScenario,
 )
@@ -43,7 +44,7 @@ def _finite(obj) -> bool:
 
 def _check_common(data: dict, n_published: int, eqs: tuple[str, str]) -> None:
     assert {"design", "design_search", "published", "searched", "paper", "monte_carlo",
-            "findings", "env"} <= set(data)
+            "claims", "env"} <= set(data)
     assert set(data["design"]) == {"U=1", "U=-1"}
     for d in data["design"].values():
         assert DESIGN_KEYS | {f"residual_{eqs[0]}", f"residual_{eqs[1]}"} <= set(d)
@@ -57,15 +58,14 @@ def _check_common(data: dict, n_published: int, eqs: tuple[str, str]) -> None:
     assert {"found", "design", "candidates", "summary", "evaluations"} <= set(search)
     # candidate 0 is the printed parameters, evaluated as they are
     assert search["candidates"][0]["start"] == 0
-    for f in data["findings"]:
-        assert {"label", "claim", "agree", "ours"} <= set(f) and isinstance(f["agree"], bool)
-    # one claim per finding, its verdict the finding's computed agreement
-    assert [(c["claim"], c["verdict"]) for c in data["claims"]] == [
-        (f["label"], "agrees" if f["agree"] else "differs") for f in data["findings"]]
-    assert all(c["paper"] and c["ours"] for c in data["claims"])
+    # the claims are computed from the JSON's numbers alone
+    module = vc if data["scenario"] == vc.NAME else vd
+    assert [c.__dict__ for c in module.claims(json.loads(json.dumps(data)))] == data["claims"]
+    assert all(c["paper"] and c["ours"] and c["verdict"] in ("agrees", "differs")
+               for c in data["claims"])
     # Monte Carlo: every filter (printed, then the searched one) at F = 1, 0, -1
     names = [pub["name"] for pub in data["published"]] + (
-        [vc.SEARCHED] if data["searched"] else [])
+        [SEARCHED] if data["searched"] else [])
     assert [m["filter"] for m in data["monte_carlo"]] == [n for n in names for _ in range(3)]
     assert data["env"]["id"] == "testbed/UncertainLinear-v0"
     assert _finite(data)
@@ -175,7 +175,7 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_check
     # our Lyapunov covariances of the printed filter are within 4 % of the printed ones
     for comp in data["covariance_comparison"].values():
         assert np.max(np.abs(comp["relative_difference"])) < 0.04
-    agree = {f["label"]: f["agree"] for f in data["findings"]}
+    agree = {c["claim"]: c["verdict"] == "agrees" for c in data["claims"]}
     assert agree == {"printed filter meets the requirements": True,
                      "printed covariances for F = 1, 0": False,
                      "design solvable at the printed eps, delta1": False,
@@ -191,7 +191,6 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_check
     changed = json.loads(json.dumps(data))
     for comp in changed["covariance_comparison"].values():
         comp["relative_difference"] = [[0.0, 0.0], [0.0, 0.0]]
-    changed["findings"] = vd._findings(changed)
     assert vd.claims(changed)[1].verdict == "agrees"
     _check_outputs(tmp_path / "d.rrd", figures, figure_checks, data["claims"])
     out = capsys.readouterr().out
@@ -199,7 +198,7 @@ def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_check
     assert "| ours " in out and "Liu, Deng & Wang (n.d.)" in out
 
 
-def test_continuous_short_run_keys_and_findings(tmp_path, monkeypatch, figure_checks):
+def test_continuous_short_run_keys_and_claims(tmp_path, monkeypatch, figure_checks):
     figures = _capture_figures(monkeypatch)
     r = vc.reproduce(horizon_s=1.0, n_runs=20, json_path=tmp_path / "c.json",
                      plot_path=tmp_path / "c.png", rrd_path=tmp_path / "c.rrd", **SHORT_SEARCH)
@@ -222,7 +221,7 @@ def test_continuous_short_run_keys_and_findings(tmp_path, monkeypatch, figure_ch
     assert data["published"][0]["hinf_worst"] == pytest.approx(0.02488, abs=2e-4)
     checks = data["paper_checks"]
     assert checks["residual_16_at_printed_Q1"] > 1.0
-    agree = {f["label"]: f["agree"] for f in data["findings"]}
+    agree = {c["claim"]: c["verdict"] == "agrees" for c in data["claims"]}
     assert agree == {"printed filters meet the three requirements": True,
                      "(17) solvable with the printed eps, delta, H": False,
                      "printed Q1, Q2, gains follow from (16)-(18)": False,

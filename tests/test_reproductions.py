@@ -228,3 +228,19 @@ def test_claims_follow_the_numbers_figure_and_runs(name, tmp_path, monkeypatch, 
     if name == "basin-ms-hinf-helicopter":  # errors in rad, shown in degrees
         assert c.styles["noisy/state/yaw_error/actual"]["names"][0].endswith("[deg]")
         assert "noise-free" in c.texts["noise_free/about"].lower()
+
+
+def test_reproduce_all_writes_outputs_figures_and_the_doc(tmp_path, monkeypatch):
+    """`testbed reproduce all` under the CLI's all-or-nothing outputs: each reproduction's
+    outputs, its docs figure (made from its PNG) and the document (one fast reproduction)."""
+    import testbed.reproductions as reproductions
+
+    name = "zhang-nonlinear-discrete"
+    monkeypatch.setattr(reproductions, "REPRODUCTIONS", {name: REPRODUCTIONS[name]})
+    doc = tmp_path / "docs" / "reproductions.md"
+    assert main(["reproduce", "all", "--out-dir", str(tmp_path / "out"), "--doc",
+                 str(doc)]) == 0
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {f"{name}.{e}" for e in
+                                                             ("json", "png", "rrd")}
+    assert (doc.parent / "figures" / f"{name}.png").stat().st_size > 10_000
+    assert f"(figures/{name}.png)" in doc.read_text()

@@ -12,6 +12,7 @@ import testbed  # noqa: F401  (registers the environments)
 from filters.analysis import error_covariance, steady_state_covariance
 from filters.variance_constrained import LinearFilter
 from testbed.envs.wrappers import FilterInLoop
+from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.variance_constrained.env import UncertainLinearEnv
 from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
@@ -92,10 +93,11 @@ def test_validation_leaves_state_unchanged():
 
 def test_discrete_plant_matches_the_paper_model():
     s = VarianceConstrainedDiscreteScenario()
-    sim = UncertainLinearPlant(s.plant)
-    rng = np.random.default_rng(0)
+    sim = UncertainLinearPlant(s.plant).at(1.0)
     x = np.array([0.3, -0.2])
-    x1, y, w = sim.step(x, 1.0, rng)
+    w = sim.noise(np.random.default_rng(0), ())
+    x1, y, extras = sim.step(x, 0, None, w)
+    assert extras["disturbance"] is w and w.shape == (2,)
     A_F, C_F = s.plant.perturbed(1.0)
     np.testing.assert_allclose(x1, A_F @ x + s.D1 @ w, atol=1e-15)
     np.testing.assert_allclose(y, C_F @ x + s.D2 @ w, atol=1e-15)
@@ -104,16 +106,16 @@ def test_discrete_plant_matches_the_paper_model():
 def test_continuous_plant_exact_sampling_stationary_covariance():
     """The exactly sampled plant state has the continuous Lyapunov covariance."""
     s = VarianceConstrainedContinuousScenario()
-    sim = UncertainLinearPlant(s.plant, dt_s=0.05)
-    rng = np.random.default_rng(1)
+    sim = UncertainLinearPlant(s.plant, dt_s=0.05).at(1.0)
     N = 20000
-    _, x, y = sim.simulate(1.0, np.zeros((N, 2)), 120, rng)
+    run = rollout(sim, np.zeros((N, 2)), 120, noise=np.random.default_rng(1))
+    x, y = run.x[:, -1], run.y[:, -1]
     X = steady_state_covariance(s.plant.perturbed(1.0)[0], s.D1)
-    emp = x[-1].T @ x[-1] / N
+    emp = x.T @ x / N
     se = np.sqrt((np.outer(np.diag(X), np.diag(X)) + X**2) / N)
     assert np.all(np.abs(emp - X) < 5 * se)
     # interval-averaged measurement: noise variance ~ D2 D2^T / dt dominates
-    assert y[-1].var() == pytest.approx((s.D2 @ s.D2.T)[0, 0] / 0.05, rel=0.05)
+    assert y.var() == pytest.approx((s.D2 @ s.D2.T)[0, 0] / 0.05, rel=0.05)
 
 
 def test_filter_in_the_loop_is_aligned():
@@ -138,3 +140,17 @@ def test_filter_in_the_loop_is_aligned():
     emp = e.T @ e / len(e)
     # generous bound: correlated samples (poles <= 0.85)
     np.testing.assert_allclose(np.diag(emp), np.diag(P), rtol=0.12)
+
+
+def test_unstable_plant_terminates_with_finite_values():
+    from filters.analysis import UncertainPlant
+
+    z = np.zeros((1, 1))
+    unstable = UncertainPlant(np.array([[3.0]]), np.array([[1.0]]), np.array([[1.0]]),
+                              np.array([[1.0]]), z, z, z, np.array([[1.0]]), discrete=True)
+    env = UncertainLinearEnv(plant=unstable)
+    env.reset(seed=0, options={"x0": [5e9]})
+    *_, terminated, _, info = env.step(np.zeros(1))
+    assert terminated and info["escape"] == {"quantity": "state", "time": 1.0}
+    y, reward, terminated, _, info = env.step(np.zeros(1))
+    assert terminated and np.all(np.isfinite(y)) and info["state"][0] == 5e9

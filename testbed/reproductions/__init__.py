@@ -99,8 +99,13 @@ def doc_figure(src: str | Path, dst: str | Path, colors: int = DOC_FIGURE_COLORS
 
 def reproduce_all(out_dir: str | Path, doc_path: str | Path) -> dict[str, dict[str, Any]]:
     """Run every reproduction with its defaults; write its outputs to ``out_dir``, its
-    figure to ``figures/`` beside ``doc_path`` and the document (:func:`render_doc`)."""
-    from testbed.io import atomic_path
+    figure to ``figures/`` beside ``doc_path`` and the document (:func:`render_doc`).
+
+    Within the CLI's all-or-nothing outputs (:func:`testbed.io.outputs_together`) each
+    reproduction's JSON, PNG and ``.rrd`` appear together when it is done
+    (:func:`testbed.io.commit_outputs`: its docs figure is made from its PNG); the docs
+    figures and the document appear at the end."""
+    from testbed.io import atomic_path, commit_outputs
 
     out, doc = Path(out_dir), Path(doc_path)
     results, figures = {}, {}
@@ -109,6 +114,7 @@ def reproduce_all(out_dir: str | Path, doc_path: str | Path) -> dict[str, dict[s
         results[name] = module.reproduce(json_path=out / f"{name}.json",
                                          plot_path=out / f"{name}.png",
                                          rrd_path=out / f"{name}.rrd")
+        commit_outputs()
         figures[name] = f"{FIGURES_DIR}/{name}.png"
         doc_figure(out / f"{name}.png", doc.parent / figures[name])
     with atomic_path(doc) as tmp:

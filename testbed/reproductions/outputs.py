@@ -29,8 +29,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from testbed.experiment.trajectory import Trajectory
-
 VERDICTS = ("agrees", "differs", "not checked")
 _VERDICT_TEXT = {"agrees": "#1b7a33", "differs": "#b3261e", "not checked": "#555555"}
 
@@ -239,12 +237,52 @@ def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int 
 DIMENSIONLESS = {"state": "1 (dimensionless system)", "time": "s"}
 
 
+def legend_below(ax: Any, ncols: int = 2, offset: float = 0.2) -> None:
+    """The legend of ``ax`` below it, outside the data (font :data:`testbed.outputs.plots.
+    FONT_PT`)."""
+    from testbed.outputs.plots import FONT_PT
+
+    ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -offset),
+              ncols=ncols, frameon=False)
+
+
+def claims_figure(claims: Sequence[Claim | dict[str, str]], width_in: float, height_in: float,
+                  panel_heights: Sequence[float], cols: int = 1, wrap: int = 150
+                  ) -> tuple[Any, Any]:
+    """A figure of ``width_in`` by ``height_in`` plus the claims' height, whose last grid row
+    (the whole width) is for the claims (:func:`finish_figure`).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+    grid : matplotlib.gridspec.GridSpec
+        ``len(panel_heights) + 1`` rows of ``cols`` columns.
+    """
+    from testbed.outputs.plots import new_figure
+
+    claims_in = claims_height_in(claims, wrap=wrap)
+    fig = new_figure(width_in, height_in + claims_in)
+    return fig, fig.add_gridspec(len(panel_heights) + 1, cols,
+                                 height_ratios=[*panel_heights, claims_in])
+
+
+def finish_figure(fig: Any, grid: Any, claims: Sequence[Claim | dict[str, str]],
+                  title: list[str], path: str | os.PathLike, wrap: int = 150) -> None:
+    """Draw the claims in the grid's last row, the title lines and the claims' summary
+    (:func:`agree_text`) on top, and save the figure."""
+    from testbed.outputs.plots import save_figure, set_title
+
+    draw_claims(fig.add_subplot(grid[-1, :]), claims, wrap=wrap)
+    set_title(fig, [*title, agree_text(claims)])
+    save_figure(fig, path)
+
+
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
                   plot: Callable[[str | os.PathLike], None],
-                  trajectory: Callable[[], Trajectory] | None = None,
                   runs: Callable[[], list[Any]] | None = None, application_id: str,
-                  units: dict[str, str] | None = None, **rrd_kwargs: Any) -> None:
+                  units: dict[str, str] | None = None,
+                  **rrd_kwargs: Any) -> None:
     """Write whichever outputs were asked for (each atomically).
 
     Parameters
@@ -255,24 +293,20 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         Destinations; None skips that output.
     plot : callable ``path -> None``
         Draws the reproduction's figure into ``path``.
-    trajectory : callable ``() -> Trajectory``, optional
-        One run for the ``.rrd`` (logged at the root; ``rrd_kwargs`` go to
-        :func:`testbed.outputs.viz.write_rrd`).
-    runs : callable ``() -> list of testbed.outputs.viz.Run``, optional
-        Several runs for the ``.rrd``, each under its own prefix with its description
-        (:func:`testbed.outputs.viz.write_runs`). Only called when ``rrd_path`` is given; give
-        ``runs`` or ``trajectory``.
+    runs : callable ``() -> list of testbed.outputs.viz.Run``
+        The runs of the ``.rrd``, each under its own prefix with its description
+        (:func:`testbed.outputs.viz.write_runs`); only called (and needed) when ``rrd_path``
+        is given.
     application_id : str
         Rerun application id.
     units : dict, optional
         The units of the result's quantities, stored as its ``units`` (every JSON output has
         one; default: the system is dimensionless, time in s).
     **rrd_kwargs
-        Passed to :func:`testbed.outputs.viz.write_rrd` (``model``, ``degrees``) or, with ``runs``,
-        to :func:`testbed.outputs.viz.write_runs` (``degrees``).
+        Passed to :func:`testbed.outputs.viz.write_runs` (``degrees``).
     """
-    if rrd_path and (trajectory is None) == (runs is None):
-        raise ValueError("write_outputs needs exactly one of trajectory and runs for the .rrd")
+    if rrd_path and runs is None:
+        raise ValueError("write_outputs needs runs for the .rrd")
     result.setdefault("units", dict(units) if units is not None else DIMENSIONLESS)
     if json_path:
         from testbed.io import write_json
@@ -281,9 +315,6 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
     if plot_path:
         plot(plot_path)
     if rrd_path:
-        from testbed.outputs.viz import write_rrd, write_runs
+        from testbed.outputs.viz import write_runs
 
-        if runs is not None:
-            write_runs(runs(), rrd_path, application_id=application_id, **rrd_kwargs)
-        else:
-            write_rrd(trajectory(), rrd_path, application_id=application_id, **rrd_kwargs)
+        write_runs(runs(), rrd_path, application_id=application_id, **rrd_kwargs)

@@ -39,17 +39,18 @@ import numpy as np
 
 from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
 from filters.analysis import noise_output_ratio
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.basin_ms_hinf.plant import simulate_linear
+from testbed.reproductions.basin_ms_hinf.plant import LinearSDEPlant
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
-    claims_height_in,
+    claims_figure,
     claims_json,
-    draw_claims,
+    finish_figure,
+    legend_below,
     write_outputs,
 )
 
@@ -60,52 +61,44 @@ PAPER = Paper("Basin, Elvira-Ceja & Sanchez", "n.d.", "Section IV",
 PAPER_ERROR = "truth - estimate, the paper's x - m"
 
 
-def _filters(s: MsHinfHelicopterScenario, dt_s: float):
-    m = s.model
-    hinf = MeanSquareHInfFilter(m.A, m.B, m.C1, m.h, m.C2, m.H, m.G, m.b, m.L, s.gamma, s.R,
-                                s.m0, s.P0, dt_s, substeps=1)
-    kb = KalmanBucyFilter(LinearSystem(A=m.A, B=m.B, C=m.C1, Q=m.b @ m.b.T, R=m.h @ m.h.T),
-                          s.m0, s.P0, dt_s=dt_s, substeps=1)
-    return hinf, kb
-
-
 def _run(s: MsHinfHelicopterScenario, dt_s: float, n_steps: int,
          rng: np.random.Generator | None,
          w: Callable[[float], np.ndarray] | None = None,
          kalman: bool = True) -> dict[str, np.ndarray]:
-    """Simulate the plant and the filters; arrays on the grid (rows 0..n_steps).
+    """The plant and the filters in one rollout; arrays on the grid (rows 0..n_steps).
 
     ``w`` replaces the printed disturbance (e.g. with components removed); ``kalman=False``
-    skips the Kalman-Bucy comparison filter (``est_kb``, ``T_kb`` are then absent).
+    skips the Kalman-Bucy comparison filter (``est_kb``, ``T_kb`` are then absent). With
+    ``rng``: the state's Wiener increments, then the measurement noise ``h dW2`` (the
+    interval average of ``y1`` gets ``h xi / sqrt(dt)``), drawn in that order.
     """
     m = s.model
     w = s.w if w is None else w
-
-    def observe(t: float, x: np.ndarray) -> np.ndarray:
-        return np.concatenate([m.C1 @ x, m.C2 @ x + m.H @ w(t)])
-
-    t, x, y_avg = simulate_linear(m.A, m.B, m.G, m.b, s.x0, lambda _t: s.u, w, dt_s,
-                                  n_steps, rng=rng, output=observe)
-    if rng is not None:  # y1 = C1 x dt + h dW2: interval average gets h xi / sqrt(dt)
-        y_avg[:, :2] += rng.standard_normal((n_steps, 2)) @ m.h.T / np.sqrt(dt_s)
-    hinf, kb = _filters(s, dt_s)
-    est = np.empty_like(x)
-    cov = np.empty((n_steps + 1, 4, 4))
-    est[0], cov[0] = hinf.x, hinf.P
-    for k in range(n_steps):
-        est[k + 1] = hinf.step(y_avg[k], s.u)
-        cov[k + 1] = hinf.P
-    ws = np.array([w(ti) for ti in t])
-    L = m.L
-    out = {"t": t, "x": x, "est": est, "cov": cov, "y": y_avg,
-           "T": noise_output_ratio(t, (x - est) @ L.T, ws, s.x0, s.R)}
+    plant = LinearSDEPlant(m.A, m.B, m.G, m.b, w, dt_s, output=lambda t, x: np.concatenate(
+        [m.C1 @ x, m.C2 @ x + m.H @ w(t)]))
+    noise = None
+    if rng is not None:
+        xi = rng.standard_normal((n_steps, m.b.shape[1]))
+        dy = rng.standard_normal((n_steps, 2)) @ m.h.T / np.sqrt(dt_s)
+        noise = lambda k: (xi[k], dy[k])  # noqa: E731
+    filters: dict[str, Any] = {"hinf": MeanSquareHInfFilter(
+        m.A, m.B, m.C1, m.h, m.C2, m.H, m.G, m.b, m.L, s.gamma, s.R, s.m0, s.P0, dt_s,
+        substeps=1)}
     if kalman:
-        est_kb = np.empty_like(x)
-        est_kb[0] = kb.x
-        for k in range(n_steps):
-            est_kb[k + 1] = kb.step(y_avg[k, :2], s.u)
-        out["est_kb"] = est_kb
-        out["T_kb"] = noise_output_ratio(t, (x - est_kb) @ L.T, ws, s.x0, s.R)
+        filters["kb"] = (KalmanBucyFilter(LinearSystem(A=m.A, B=m.B, C=m.C1, Q=m.b @ m.b.T,
+                                                       R=m.h @ m.h.T), s.m0, s.P0,
+                                          dt_s=dt_s, substeps=1), lambda y: y[:2])
+    run = rollout(plant, s.x0, n_steps, noise=noise, u=lambda _k: s.u, estimators=filters)
+    if run.escape is not None:
+        raise run.escape
+    t, x = run.t_s, run.x
+    ws = np.array([w(ti) for ti in t])
+    out = {"t": t, "x": x, "est": run.estimates["hinf"], "y": run.y}
+    for key, name in (("", "hinf"), ("_kb", "kb")):
+        if name in filters:
+            out["est" + key] = run.estimates[name]
+            out["T" + key] = noise_output_ratio(t, (x - run.estimates[name]) @ m.L.T, ws,
+                                                s.x0, s.R)
     return out
 
 
@@ -168,9 +161,8 @@ def _free_pitch(s: MsHinfHelicopterScenario, dt_s: float, n_steps: int) -> float
     """Pitch (rad) of the paper's gravity-free linear model at the end of the horizon under the
     constant ``u`` alone (``w = 0``, no noise, from ``x0``)."""
     m = s.model
-    _, x = simulate_linear(m.A, m.B, m.G, m.b, s.x0, lambda _t: s.u,
-                              lambda _t: np.zeros(4), dt_s, n_steps)
-    return float(x[-1, 0])
+    plant = LinearSDEPlant(m.A, m.B, m.G, m.b, lambda _t: np.zeros(4), dt_s)
+    return float(rollout(plant, s.x0, n_steps, u=lambda _k: s.u).x[-1, 0])
 
 
 def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
@@ -298,15 +290,10 @@ def _runs(mean: dict[str, np.ndarray], noisy: dict[str, np.ndarray],
 
 def _plot(mean: dict, noisy: dict, yaw_errors: dict[str, np.ndarray], result: dict[str, Any],
           s: MsHinfHelicopterScenario, path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    fig, grid = claims_figure(result["claims"], 12, 11, [3.6, 3.4, 3.4], cols=2, wrap=130)
 
-    claims_in = claims_height_in(result["claims"], wrap=130)
-    fig = new_figure(12, 11 + claims_in)
-    grid = fig.add_gridspec(4, 2, height_ratios=[3.6, 3.4, 3.4, claims_in])
-
-    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
-        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.22),
-                  ncols=ncols, frameon=False)
+    def legend(ax: Any, ncols: int = 2) -> None:
+        legend_below(ax, ncols, 0.22)
 
     ax = fig.add_subplot(grid[0, :])
     ax.plot(mean["t"], mean["T"], label="T, mean (noise-free) run")
@@ -335,10 +322,9 @@ def _plot(mean: dict, noisy: dict, yaw_errors: dict[str, np.ndarray], result: di
     bias.set(title="yaw error of the mean run with parts of w removed (w2: G w2 in the state; "
                    "w4: in y2)", xlabel="t [s]", ylabel=f"yaw error [deg]\n({PAPER_ERROR})")
     legend(bias, 4)
-    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=130)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}): central mean-square H-infinity filter, "
-                    f"gamma = {s.gamma}", agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}): central mean-square H-infinity filter, gamma = "
+        f"{s.gamma}"], path, wrap=130)
 
 
 def claims(result: dict[str, Any]) -> list[Claim]:

@@ -32,8 +32,8 @@ test stopped the RK4 run, ``singular_time`` where the solution of the filter's O
 singular (:func:`singular_time`: the ODE continued by ``solve_ivp`` and ``1/P22``
 extrapolated to zero), which is the escape time to quote.
 
-The plant is one episode of ``testbed/PolynomialCubic-v0`` (:func:`simulate_plant`, input 0:
-the paper's system).
+The plant (the one of ``testbed/PolynomialCubic-v0``, input 0: the paper's system) and the
+filters run together in one :func:`~testbed.experiment.numpy_plant.rollout`.
 """
 
 from __future__ import annotations
@@ -46,26 +46,24 @@ from typing import Any
 import numpy as np
 
 from filters.analysis import noise_output_ratio
-from filters.errors import FilterError
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
+from testbed.experiment.numpy_plant import Rollout, rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
+from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.basin_polynomial.scenario import PolynomialHinfScenario, paper_model
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
-    claims_height_in,
+    claims_figure,
     claims_json,
-    draw_claims,
+    finish_figure,
     write_outputs,
 )
 
 NAME = "basin-polynomial-hinf"
 PAPER = Paper("Basin, Shi & Calderon-Alvarez", "n.d.", "Section IV",
               "Polynomial H-infinity filter on a cubic system")
-#: Registered environment of the plant.
-ENV_ID = "testbed/PolynomialCubic-v0"
 #: ``T_before_end`` is reported this long before the end of the common interval, s: near
 #: an escape ``T`` rises steeply, so its value at the cut depends on where the escape test
 #: stops the filter.
@@ -86,37 +84,25 @@ class _FilterRun:
         return len(self.T) - 1
 
 
-def _run_filter(filt: PolynomialHInfFilter | LinearizedHInfFilter, y: np.ndarray,
-                t: np.ndarray, x: np.ndarray, w: np.ndarray,
-                s: PolynomialHinfScenario) -> _FilterRun:
-    """Step ``filt`` on the interval averages ``y`` until the end or an escape.
+def _filter_run(run: Rollout, name: str, filt: PolynomialHInfFilter | LinearizedHInfFilter,
+                w: np.ndarray, s: PolynomialHinfScenario) -> _FilterRun:
+    """One filter of the rollout, its rows ``0..last`` and ``T`` while it exists.
 
     On an escape, ``escaped`` is ``{"quantity", "time", "singular_time", "singular"}``:
     ``time`` is where the escape test stopped the RK4 run (end of the failing substep),
     ``singular_time`` where the solution of the filter's ODE itself becomes singular
-    (:func:`singular_time`).
+    (:func:`singular_time`, from the filter's state before the failing step).
     """
-    n_steps = len(y)
-    est = np.empty((n_steps + 1, 2))
-    P = np.empty((n_steps + 1, 2, 2))
-    est[0], P[0] = filt.x, filt.P
+    est, P = run.estimates[name], run.covariances[name]
+    last = len(est) - 1
     escaped = None
-    last = n_steps
-    for k in range(n_steps):
-        try:
-            est[k + 1] = filt.step(y[k])
-        except FilterError as exc:  # FiniteEscapeError or LossOfDefinitenessError
-            escaped = {"quantity": exc.quantity,  # type: ignore[attr-defined]
-                       "time": exc.time}  # type: ignore[attr-defined]
-            last = k
-            sing = singular_time(filt, y[k:], t[k:])
-            escaped["singular_time"] = None if sing is None else sing["time"]
-            escaped["singular"] = sing
-            break
-        P[k + 1] = filt.P
-    T = noise_output_ratio(t[:last + 1], x[:last + 1] - est[:last + 1], w[:last + 1], s.x0,
-                           s.R)
-    return _FilterRun(est=est[:last + 1], P=P[:last + 1], T=T, escaped=escaped)
+    if name in run.failures:
+        k, exc = run.failures[name]
+        sing = singular_time(filt, run.y[k:], run.t_s[k:])
+        escaped = {"quantity": exc.quantity, "time": exc.time,  # type: ignore[attr-defined]
+                   "singular_time": None if sing is None else sing["time"], "singular": sing}
+    T = noise_output_ratio(run.t_s[:last + 1], run.x[:last + 1] - est, w[:last + 1], s.x0, s.R)
+    return _FilterRun(est=est, P=P, T=T, escaped=escaped)
 
 
 def singular_time(filt: PolynomialHInfFilter | LinearizedHInfFilter, y: np.ndarray,
@@ -214,49 +200,13 @@ def _pair(t: np.ndarray, poly: _FilterRun, lin: _FilterRun,
     }
 
 
-def simulate_plant(s: PolynomialHinfScenario, dt_s: float, n_steps: int) -> dict[str, Any]:
-    """The plant (22)-(24) as one episode of ``testbed/PolynomialCubic-v0`` (input 0).
-
-    The environment integrates with RK4 (one substep of ``dt_s``) under the printed
-    disturbance and returns the interval averages ``y`` of (23); the episode ends early if
-    the state escapes.
-
-    Returns
-    -------
-    dict
-        ``t`` (N + 1,), ``x`` (N + 1, 2), ``y`` (N, 1), ``escape`` (None or ``{"quantity",
-        "time"}``) for ``N <= n_steps`` completed steps.
-    """
-    import gymnasium as gym
-
-    import testbed  # noqa: F401  (registers the environments)
-
-    env = gym.make(ENV_ID, dt_s=dt_s, substeps=1, disturbance="paper",
-                   max_episode_steps=n_steps)
-    _, info = env.reset(options={"x0": s.x0})
-    t, xs, ys = [info["t"]], [info["state"]], []
-    action = np.zeros(1)
-    escape = None
-    for _ in range(n_steps):
-        y, _, terminated, _, info = env.step(action)
-        if terminated:
-            escape = info["escape"]
-            break
-        t.append(info["t"])
-        xs.append(info["state"])
-        ys.append(y)
-    env.close()
-    return {"t": np.array(t), "x": np.array(xs), "y": np.array(ys).reshape(-1, 1),
-            "escape": escape}
-
-
 def _simulate(s: PolynomialHinfScenario, horizon_s: float, dt_s: float) -> dict[str, Any]:
+    """The plant (22)-(24) (the plant of ``testbed/PolynomialCubic-v0`` with one RK4 substep
+    per ``dt_s``, input 0) and every filter on its interval averages ``y``, one rollout."""
     n_steps = int(round(horizon_s / dt_s))
-    plant = simulate_plant(s, dt_s, n_steps)
-    t, x, y = plant["t"], plant["x"], plant["y"]
-    w = np.array([s.w(ti) for ti in t])
+    plant = PolynomialPlant(paper_model(E=np.array([[0.0], [1.0]])), dt_s=dt_s, w=s.w)
     printed = paper_model(L=s.printed_gain_L)
-    runs = {
+    filters = {
         "poly": PolynomialHInfFilter(printed, s.gamma, s.R, dt_s, s.xf0),
         "linearized": LinearizedHInfFilter(printed, s.gamma, s.R, dt_s, s.xf0,
                                            state_equation="jacobian"),
@@ -266,8 +216,13 @@ def _simulate(s: PolynomialHinfScenario, horizon_s: float, dt_s: float) -> dict[
         "linearized_L_identity": LinearizedHInfFilter(s.model, s.gamma, s.R, dt_s, s.xf0,
                                                       state_equation="jacobian"),
     }
-    out = {name: _run_filter(f, y, t, x, w, s) for name, f in runs.items()}
-    return {"t": t, "x": x, "y": y, "w": w, "runs": out, "plant_escape": plant["escape"]}
+    run = rollout(plant, s.x0, n_steps, estimators=filters)
+    w = np.array([s.w(ti) for ti in run.t_s])
+    esc = run.escape
+    return {"t": run.t_s, "x": run.x, "y": run.y, "w": w,
+            "runs": {name: _filter_run(run, name, f, w, s) for name, f in filters.items()},
+            "plant_escape": None if esc is None else {"quantity": esc.quantity,
+                                                      "time": esc.time}}
 
 
 def reproduce(horizon_s: float | None = None, seed: int = 0,
@@ -376,12 +331,10 @@ def _runs(sim: dict[str, Any], result: dict[str, Any]) -> list[Run]:
 
 def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario,
           path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    from testbed.outputs.plots import FONT_PT
 
     t, x, r = sim["t"], sim["x"], sim["runs"]
-    claims_in = claims_height_in(result["claims"], wrap=120)
-    fig = new_figure(11, 9.5 + claims_in)
-    grid = fig.add_gridspec(3, 1, height_ratios=[4.0, 4.6, claims_in])
+    fig, grid = claims_figure(result["claims"], 11, 9.5, [4.0, 4.6], wrap=120)
     top = fig.add_subplot(grid[0])
     bottom = fig.add_subplot(grid[1], sharex=top)
     styles = (("poly", "polynomial filter (25)-(26)", dict(color="C0", lw=2.5)),
@@ -412,11 +365,9 @@ def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario
     bottom.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=3,
                   frameon=False, title="both panels (dash-dot lines: escape detected)",
                   title_fontsize=FONT_PT)
-    draw_claims(fig.add_subplot(grid[2]), result["claims"], wrap=120)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}): central H-infinity filters, "
-                    f"gamma = {s.gamma}",
-                    agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}): central H-infinity filters, gamma = {s.gamma}"],
+        path, wrap=120)
 
 
 def _checks(result: dict[str, Any]) -> dict[str, Any]:

@@ -6,7 +6,7 @@ A :class:`PolynomialPlant` wraps a :class:`~filters.polynomial_model.PolynomialM
 classical RK4 on a fixed step. Users define their own systems by building the model::
 
     model = PolynomialModel(a1=..., a2=..., a3=lambda t: ..., B=..., C=..., D=..., L=...)
-    run = PolynomialPlant(model).simulate(x0, dt_s=1e-3, n_steps=1000, w=my_w)
+    run = rollout(PolynomialPlant(model, dt_s=1e-3, w=my_w), x0, 1000)  # experiment.numpy_plant
 
 Disturbances: a deterministic ``w(t)`` (evaluated at the RK4 stage times, so smooth
 signals keep order 4) and/or white noise of intensity ``q`` (``w = sqrt(q) dW/dt``, one
@@ -25,57 +25,40 @@ every substep (a bound and a growth test; never NaN) and reported as
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
-from filters.errors import FiniteEscapeError
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
 
 SignalArg = Callable[[float], np.ndarray] | np.ndarray | None
 
 
-@dataclass
-class PlantRun:
-    """Result of :meth:`PolynomialPlant.simulate`, truncated at an escape.
-
-    Attributes
-    ----------
-    t_s : ndarray, shape (N + 1,)
-        Grid times, s (``N`` completed steps).
-    x : ndarray, shape (N + 1, n)
-        State at the grid times.
-    y : ndarray, shape (N, m)
-        Interval averages of the observation ``C x + D w`` (row ``k``: over
-        ``[t_k, t_k+1]``).
-    w : ndarray, shape (N, p)
-        Interval averages of the disturbance (deterministic part plus white noise).
-    escape : FiniteEscapeError or None
-        The escape that ended the run early (``quantity="state"``), or None.
-    """
-
-    t_s: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    w: np.ndarray
-    escape: FiniteEscapeError | None = None
-
-
 def _signal(name: str, value: SignalArg, dim: int) -> Callable[[float], np.ndarray] | None:
-    """A callable ``t -> (dim,)`` from a callable, a constant vector or None (zero)."""
+    """A checked callable ``t -> (dim,)`` from a callable, a constant vector or None (zero)."""
     if value is None or dim == 0:
         return None
-    if callable(value):
-        return value
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (dim,) or not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be a callable t_s -> ({dim},) or a finite array of "
-                         f"shape ({dim},), got {value!r}")
-    return lambda _t: arr
+    if not callable(value):
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (dim,) or not np.isfinite(arr).all():
+            raise ValueError(f"{name} must be a callable t_s -> ({dim},) or a finite array of "
+                             f"shape ({dim},), got {value!r}")
+        return lambda _t: arr
+
+    def checked(t_s: float) -> np.ndarray:
+        out = np.asarray(value(t_s), dtype=float)
+        if out.shape != (dim,) or not np.all(np.isfinite(out)):
+            raise ValueError(f"the {name} callable must return a finite array of shape "
+                             f"({dim},), got {out!r} at t = {t_s} s")
+        return out
+
+    return checked
 
 
 class PolynomialPlant:
-    """A polynomial system integrated with RK4 on a fixed step.
+    """A polynomial system integrated with RK4 on a fixed step, a
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant` for one state of shape (n,):
+    step ``k`` is :meth:`advance` over ``[k dt_s, (k + 1) dt_s]``, its ``y`` the interval
+    average, its extras ``{"disturbance": interval average of w}``.
 
     Parameters
     ----------
@@ -84,6 +67,14 @@ class PolynomialPlant:
     escape : EscapeTest, optional
         Finite-escape test of the state (default :class:`EscapeTest()`: bound 1e8, growth
         +10 % per substep above 100).
+    dt_s : float
+        Grid step (sample period of ``y``), s.
+    substeps : int
+        RK4 steps per grid interval.
+    w : callable ``t -> (p,)`` or ndarray, optional
+        Deterministic disturbance (default zero).
+    noise_intensity : float or ndarray, shape (p,), optional
+        White-noise intensity ``q`` per disturbance component (default: no white noise).
 
     Attributes
     ----------
@@ -92,13 +83,47 @@ class PolynomialPlant:
         State, observation, disturbance and input dimensions.
     """
 
-    def __init__(self, model: PolynomialModel, escape: EscapeTest | None = None) -> None:
+    def __init__(self, model: PolynomialModel, escape: EscapeTest | None = None, *,
+                 dt_s: float = 1e-3, substeps: int = 1, w: SignalArg = None,
+                 noise_intensity: float | np.ndarray | None = None) -> None:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive step in s, got {dt_s}")
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps}")
         self.model = model
         self.escape = escape or EscapeTest()
         self.n, self.m, self.p, self.k = model.n, model.m, model.p, model.k
+        self.dt_s, self.substeps = float(dt_s), int(substeps)
+        self.w = _signal("w", w, self.p)
+        self.q = None
+        if noise_intensity is not None:
+            self.q = np.broadcast_to(np.asarray(noise_intensity, dtype=float), (self.p,)).copy()
+            if not np.all(np.isfinite(self.q)) or np.any(self.q < 0):
+                raise ValueError(f"noise_intensity must be finite and >= 0, got "
+                                 f"{noise_intensity!r}")
         self._last: PolynomialCoefficients | None = None  # coefficients at the last time
+
+    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray | None:
+        """Standard normal variates of one step, shape ``batch + (substeps, p)`` (None
+        without white noise)."""
+        if rng is None or self.q is None:
+            return None
+        return rng.standard_normal((*batch, self.substeps, self.p))
+
+    def observe(self, x: np.ndarray, k: int) -> np.ndarray:
+        """``C x + D w`` at ``t = k dt_s`` (deterministic part), shape (m,)."""
+        t = k * self.dt_s
+        c = self.model.at(t)
+        return c.C @ x + c.D @ (np.zeros(self.p) if self.w is None else self.w(t))
+
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`advance` over step ``k``: ``x``, ``y``, ``{"disturbance": w}``."""
+        x, y, w = self.advance(x, k * self.dt_s, self.dt_s, self.substeps, w=self.w, u=u,
+                               dW=noise, noise_intensity=None if noise is None else self.q)
+        return x, y, {"disturbance": w}
 
     def rhs(self, t: float, x: np.ndarray, w: np.ndarray | None,
             u: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -182,70 +207,3 @@ class PolynomialPlant:
                     w_int += inc
                 q = self.escape.check("state", q, x, time=t + h, step_s=h, core_ndim=1)
         return x, y_int / dt_s, w_int / dt_s
-
-    def simulate(self, x0: np.ndarray, dt_s: float, n_steps: int, *, w: SignalArg = None,
-                 u: SignalArg = None, substeps: int = 1, t0: float = 0.0,
-                 rng: np.random.Generator | None = None,
-                 noise_intensity: float | np.ndarray | None = None) -> PlantRun:
-        """Integrate on a uniform grid; stops (without raising) at a finite escape.
-
-        Parameters
-        ----------
-        x0 : ndarray, shape (n,)
-        dt_s : float
-            Grid step (sample period of ``y``), s.
-        n_steps : int
-        w : callable ``t -> (p,)`` or ndarray, optional
-            Deterministic disturbance (default zero).
-        u : callable ``t -> (k,)`` or ndarray, optional
-            Input, held over each grid interval at its value at the interval start.
-        substeps : int
-            RK4 steps per grid interval.
-        t0 : float
-        rng : numpy.random.Generator, optional
-            Source of the white noise (``None``: no white noise).
-        noise_intensity : float or ndarray, shape (p,), optional
-            White-noise intensity ``q`` per disturbance component (default 1 with ``rng``).
-
-        Returns
-        -------
-        PlantRun
-            Arrays up to the last completed step; ``escape`` set if the state escaped.
-        """
-        if not (np.isfinite(dt_s) and dt_s > 0):
-            raise ValueError(f"dt_s must be a positive step in s, got {dt_s}")
-        if int(n_steps) != n_steps or n_steps < 1:
-            raise ValueError(f"n_steps must be a positive integer, got {n_steps}")
-        if int(substeps) != substeps or substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {substeps}")
-        x = np.array(x0, dtype=float)
-        if x.shape != (self.n,) or not np.isfinite(x).all():
-            raise ValueError(f"x0 must be a finite array of shape ({self.n},), got {x0!r}")
-        w_fn = _signal("w", w, self.p)
-        u_fn = _signal("u", u, self.k)
-        q = None
-        if rng is not None:
-            q = np.broadcast_to(np.asarray(1.0 if noise_intensity is None else noise_intensity,
-                                           dtype=float), (self.p,)).copy()
-            if not np.all(np.isfinite(q)) or np.any(q < 0):
-                raise ValueError(f"noise_intensity must be finite and >= 0, got "
-                                 f"{noise_intensity!r}")
-        t = t0 + dt_s * np.arange(n_steps + 1)
-        xs = np.empty((n_steps + 1, self.n))
-        ys = np.empty((n_steps, self.m))
-        ws = np.empty((n_steps, self.p))
-        xs[0] = x
-        escape = None
-        done = n_steps
-        for k in range(n_steps):
-            uk = None if u_fn is None else np.asarray(u_fn(t[k]), dtype=float)
-            dW = None if rng is None else rng.standard_normal((substeps, self.p))
-            try:
-                x, ys[k], ws[k] = self.advance(x, t[k], dt_s, substeps, w=w_fn, u=uk, dW=dW,
-                                               noise_intensity=q)
-            except FiniteEscapeError as exc:
-                escape, done = exc, k
-                break
-            xs[k + 1] = x
-        return PlantRun(t_s=t[:done + 1], x=xs[:done + 1], y=ys[:done], w=ws[:done],
-                        escape=escape)

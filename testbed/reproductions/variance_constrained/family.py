@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import textwrap
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,13 +30,12 @@ from filters.variance_constrained import (
     VarianceDesign,
     verify_design,
 )
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.outputs import (
-    Claim,
-    agree_text,
-    claims_height_in,
-    draw_claims,
+    claims_figure,
+    finish_figure,
 )
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 
@@ -58,10 +59,6 @@ SEARCHED = "searched design"
 
 
 # ========================================================================= helpers
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.ndarray, *,
                        region: PoleRegion, gamma: float, sigma2: np.ndarray,
                        n_grid: int = 21) -> dict[str, Any]:
@@ -119,57 +116,15 @@ def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.nda
     return 0.5 * (P + P.T)
 
 
-def monte_carlo(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray, F: float, *,
-                n_runs: int, n_steps: int, burn_in: int, rng: np.random.Generator
-                ) -> dict[str, Any]:
-    """``n_runs`` independent runs of plant + filter, stepped as one batch; error statistics
-    after burn-in.
-
-    Every run starts at ``x = xhat = 0``. The per-run time average of ``e e^T`` over steps
-    ``burn_in + 1 .. n_steps`` is averaged over runs; the standard error of each variance is
-    the spread of the per-run averages over ``sqrt(n_runs)`` (runs are independent).
-
-    Parameters
-    ----------
-    sim : UncertainLinearPlant
-        The plant's sampled simulation (the environment's own, ``env.unwrapped.plant``).
-    G, K : numpy.ndarray, shapes (n, n), (n, p)
-    F : float
-        The runs' uncertainty.
-    n_runs, n_steps, burn_in : int
-    rng : numpy.random.Generator
-        One generator for the batch: each step draws ``(n_runs, r)`` standard normals.
-
-    Returns
-    -------
-    dict
-        ``covariance`` (n, n), ``variance`` (n,), ``std_error`` (n,), ``n_runs``, ``n_steps``,
-        ``burn_in``.
-    """
-    n = sim.model.n
-    x = np.zeros((n_runs, n))
-    filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete,
-                        dt_s=sim.dt_s)
-    acc = np.zeros((n_runs, n, n))
-    for k in range(n_steps):
-        x, y, _ = sim.step(x, F, rng)
-        xhat = filt.step(y)
-        if k + 1 > burn_in:
-            e = x - xhat
-            acc += e[:, :, None] * e[:, None, :]
-    count = max(n_steps - burn_in, 1)
-    per_run = acc / count
-    cov = per_run.mean(axis=0)
-    var_runs = np.diagonal(per_run, axis1=1, axis2=2)
-    stderr = var_runs.std(axis=0, ddof=1) / math.sqrt(n_runs) if n_runs > 1 else np.zeros(n)
-    return {"covariance": 0.5 * (cov + cov.T), "variance": np.diag(cov).copy(),
-            "std_error": stderr, "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in}
-
-
 def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
                       plant: UncertainPlant, *, n_runs: int, n_steps: int, burn_in: int,
                       seed: int) -> list[dict[str, Any]]:
-    """Monte Carlo of every filter at ``F = 1, 0, -1``.
+    """Monte Carlo of every filter at ``F = 1, 0, -1``: ``n_runs`` runs from
+    ``x = xhat = 0`` stepped as one batch (:func:`~testbed.experiment.numpy_plant.rollout`).
+
+    The per-run time average of ``e e^T`` over steps ``burn_in + 1 .. n_steps`` is averaged
+    over runs; the standard error of each variance is the spread of the per-run averages over
+    ``sqrt(n_runs)`` (runs are independent).
 
     Parameters
     ----------
@@ -180,7 +135,8 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
     plant : UncertainPlant
     n_runs, n_steps, burn_in, seed : int
         Filter ``i`` at ``F_VALUES[j]`` uses the generator of child ``3 i + j`` of
-        ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged).
+        ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged);
+        each step draws ``(n_runs, r)`` standard normals from it.
 
     Returns
     -------
@@ -190,49 +146,53 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
         ``relative_to_lyapunov``, ``n_runs``, ``n_steps``, ``burn_in``, ``dt_s``.
     """
     seeds = np.random.SeedSequence(seed).spawn(len(filters) * len(F_VALUES))
+    n = sim.model.n
     out = []
-    for i, filt in enumerate(filters):
-        G, K = np.array(filt["G"]), np.array(filt["K"])
+    for i, entry in enumerate(filters):
+        G, K = np.array(entry["G"]), np.array(entry["K"])
         for j, F in enumerate(F_VALUES):
-            rng = np.random.default_rng(seeds[i * len(F_VALUES) + j])
-            mc = monte_carlo(sim, G, K, F, n_runs=n_runs, n_steps=n_steps, burn_in=burn_in,
-                             rng=rng)
+            acc = np.zeros((n_runs, n, n))
+
+            def gather(k: int, x: np.ndarray, est: dict[str, np.ndarray]) -> None:
+                if k + 1 > burn_in:
+                    e = x - est["filter"]
+                    acc[...] += e[:, :, None] * e[:, None, :]  # noqa: B023 (used at once)
+
+            filt = LinearFilter(G, K, np.zeros((n_runs, n)), discrete=sim.discrete,
+                                dt_s=sim.dt_s)
+            rollout(sim.at(F), np.zeros((n_runs, n)), n_steps,
+                    noise=np.random.default_rng(seeds[i * len(F_VALUES) + j]),
+                    estimators={"filter": filt}, record=False, on_step=gather)
+            per_run = acc / max(n_steps - burn_in, 1)
+            variance = np.diag(per_run.mean(axis=0)).copy()
+            var_runs = np.diagonal(per_run, axis1=1, axis2=2)
+            stderr = (var_runs.std(axis=0, ddof=1) / math.sqrt(n_runs) if n_runs > 1
+                      else np.zeros(n))
             lyap = np.diag(error_covariance(plant, G, K, F))
             sampled = np.diag(sampled_error_covariance(sim, G, K, F))
-            z = (mc["variance"] - sampled) / np.maximum(mc["std_error"], 1e-300)
-            out.append({"filter": filt["name"], "F": F, "variance_mc": mc["variance"].tolist(),
-                        "std_error": mc["std_error"].tolist(),
-                        "variance_lyapunov": lyap.tolist(),
-                        "variance_sampled_loop": sampled.tolist(),
-                        "z_vs_sampled": z.tolist(),
-                        "relative_to_lyapunov": (mc["variance"] / lyap - 1.0).tolist(),
+            z = (variance - sampled) / np.maximum(stderr, 1e-300)
+            out.append({"filter": entry["name"], "F": F, "variance_mc": variance.tolist(),
+                        "std_error": stderr.tolist(), "variance_lyapunov": lyap.tolist(),
+                        "variance_sampled_loop": sampled.tolist(), "z_vs_sampled": z.tolist(),
+                        "relative_to_lyapunov": (variance / lyap - 1.0).tolist(),
                         "n_runs": n_runs, "n_steps": n_steps, "burn_in": burn_in,
                         "dt_s": sim.dt_s})
     return out
 
 
-def make_env(plant: UncertainPlant, dt_s: float, n_steps: int) -> Any:
-    """``testbed/UncertainLinear-v0`` for ``plant`` (``gymnasium.make``, episode ``n_steps``)."""
-    import gymnasium as gym
-
-    import testbed  # noqa: F401  (registers the environments)
-
-    return gym.make(ENV_ID, plant=plant, dt_s=dt_s, max_episode_steps=n_steps)
-
-
-def env_sample(env: Any, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
-               n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
-    """One episode of ``env`` at ``F`` with the filter ``(G, K)`` in the loop.
+def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
+           n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
+    """One run at ``F`` with the filter ``(G, K)`` in the loop, from ``x = xhat = 0``, its
+    noise drawn from ``default_rng(seed)`` step by step (as an episode of :data:`ENV_ID`
+    after ``reset(seed=seed, options={"F": F})``).
 
     Parameters
     ----------
-    env : gymnasium.Env
-        From :func:`make_env`.
+    sim : UncertainLinearPlant
     name : str
         Filter name (recorded).
-    G, K : numpy.ndarray
+    G, K : numpy.ndarray, shapes (n, n), (n, p)
     F : float
-        The episode's uncertainty (``reset(options={"F": F})``).
     n_steps, seed : int
     P : numpy.ndarray, shape (n, n)
         Steady-state error covariance to report with the run.
@@ -243,61 +203,36 @@ def env_sample(env: Any, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
         ``t`` (T,), ``x``, ``xhat`` (T, n), ``y`` (T - 1, p) with ``T = n_steps + 1``,
         ``filter``, ``F``, ``P``, ``seed``.
     """
-    from testbed.envs.wrappers import FilterInLoop
-
-    inner = env.unwrapped
-    n = inner.model.n
-    est = LinearFilter(G, K, np.zeros(n), discrete=inner.model.discrete, dt_s=inner.dt_s,
-                       B=np.zeros((n, inner.plant.B.shape[1])), covariance=P)
-    loop = FilterInLoop(env, est)
-    _, info = loop.reset(seed=seed, options={"F": F})
-    t, xs, hs, ys = [info["t"]], [info["state"]], [info["estimate"]], []
-    zero = np.zeros(loop.action_space.shape)
-    for _ in range(n_steps):
-        _, _, _, _, info = loop.step(zero)
-        t.append(info["t"])
-        xs.append(info["state"])
-        hs.append(info["estimate"])
-        ys.append(info["measurement"])
-    return {"t": np.array(t), "x": np.array(xs), "xhat": np.array(hs), "y": np.array(ys),
+    n = sim.model.n
+    est = LinearFilter(G, K, np.zeros(n), discrete=sim.discrete, dt_s=sim.dt_s, covariance=P)
+    run = rollout(sim.at(F), np.zeros(n), n_steps, noise=np.random.default_rng(seed),
+                  estimators={name: est})
+    return {"t": run.t_s, "x": run.x, "xhat": run.estimates[name], "y": run.y,
             "filter": name, "F": F, "P": P, "seed": seed}
 
 
-def trajectory(sample: dict[str, Any], scenario: str) -> Trajectory:
-    """A :class:`Trajectory` of one episode (``covariance``: the steady-state ``P``)."""
+def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
+    """The recorded run of a reproduction (:func:`loop_sample`) as the run ``"episode"`` of
+    its ``.rrd``: truth, estimate and the steady-state ``P`` as covariance, with its
+    description; ``time_text`` says what ``t`` counts."""
     t, x, xhat, y = sample["t"], sample["x"], sample["xhat"], sample["y"]
     n, p = x.shape[1], y.shape[1]
-    meas = np.vstack([np.zeros((1, p)), y])
-    return Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
-                      measurement=meas, measurement_names=[f"y{i + 1}" for i in range(p)],
+    traj = Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
+                      measurement=np.vstack([np.zeros((1, p)), y]),
+                      measurement_names=[f"y{i + 1}" for i in range(p)],
                       measured_state_index=[None] * p, action=np.zeros((len(t), 1)),
                       action_names=["u"], estimate=xhat,
                       covariance=np.broadcast_to(sample["P"], (len(t), n, n)).copy(),
                       meta={"scenario": scenario, "filter": sample["filter"],
                             "F": sample["F"], "seed": sample["seed"], "env": ENV_ID,
                             "covariance": "steady-state P (Lyapunov)"})
-
-
-def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
-    """The environment episode of a reproduction as one run of its ``.rrd`` (prefix
-    ``"episode"``), with its description; ``time_text`` says what ``t`` counts."""
-    return Run(trajectory(sample, scenario), "episode", (
+    return Run(traj, "episode", (
         f"# {ENV_ID} episode: filter {sample['filter']}, F = {sample['F']:g} (seed "
-        f"{sample['seed']})\n\nOne episode of the uncertain plant with the filter in the loop "
-        "(FilterInLoop), from x = xhat = 0: truth, estimate and the steady-state error "
-        "covariance P (Lyapunov) as the +-3 sigma band; what the figure's last panel shows. "
-        f"The Monte-Carlo statistics are separate runs, not logged. {time_text} The system "
-        "is dimensionless (no units)."))
-
-
-def findings_claims(findings: list[dict[str, Any]], paper: dict[str, str],
-                    why: dict[str, str] | None = None) -> list[Claim]:
-    """One :class:`Claim` per finding: the finding's ``label`` as the claim, ``paper[label]``
-    as the paper's value, its ``ours``, the verdict from its computed ``agree`` and
-    ``why.get(label, "")``."""
-    why = why or {}
-    return [Claim(f["label"], paper[f["label"]], f["ours"], Claim.judge(bool(f["agree"])),
-                  why.get(f["label"], "")) for f in findings]
+        f"{sample['seed']})\n\nOne run of the uncertain plant with the filter in the loop "
+        "(its noise seeded as an episode of the environment), from x = xhat = 0: truth, "
+        "estimate and the steady-state error covariance P (Lyapunov) as the +-3 sigma band; "
+        "what the figure's last panel shows. The Monte-Carlo statistics are separate runs, "
+        f"not logged. {time_text} The system is dimensionless (no units)."))
 
 
 def search_summary(record: DesignSearchRecord) -> dict[str, Any] | None:
@@ -342,23 +277,89 @@ def design_entry(d: VarianceDesign, plant: UncertainPlant, s: Any) -> dict[str, 
     return out
 
 
+def run_example(name: str, s: Any,
+                design: Callable[[], tuple[dict[str, VarianceDesign], dict[str, Any]]],
+                search: Callable[[int, int], DesignSearchRecord], *, dt_s: float,
+                n_steps: int, burn_in: int, n_runs: int, seed: int, search_starts: int,
+                search_evaluations: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What both examples compute: the designs at the printed parameters, the design search,
+    the printed filters and the best searched design checked for every ``F``, their Monte
+    Carlo (:func:`monte_carlo_block`) and one run with the first printed filter at ``F = 1``
+    (:func:`loop_sample`).
+
+    Parameters
+    ----------
+    name : str
+        The reproduction.
+    s : scenario
+        ``plant``, ``region``, ``gamma``, ``sigma2``, ``published()``.
+    design : callable ``() -> (designs, diagnostics)``
+        The designs at the printed parameters (``{"U=1": ..., "U=-1": ...}``).
+    search : callable ``(n_starts, max_evaluations) -> DesignSearchRecord``
+    dt_s : float
+        Sample period of the runs.
+    n_steps, burn_in, n_runs, seed, search_starts, search_evaluations : int
+
+    Returns
+    -------
+    result : dict
+        ``scenario``, ``design``, ``design_diagnostics``, ``design_search`` (with
+        ``summary``), ``published``, ``searched``, ``monte_carlo``, ``env``, ``horizon_s``,
+        ``dt_s``, ``seed``, ``wall_s``.
+    sample : dict
+        The run of :func:`loop_sample`.
+    """
+    for label, value in (("n_runs", n_runs), ("search_starts", search_starts),
+                         ("search_evaluations", search_evaluations)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"{label} must be a positive integer, got {value!r}")
+    start = time.perf_counter()
+    plant = s.plant
+    designs, diagnostics = design()
+    t_design = time.perf_counter() - start
+    record = search(int(search_starts), int(search_evaluations))
+    summary = search_summary(record)
+    t_search = time.perf_counter() - start - t_design
+
+    def evaluate(name: str, K: Any, G: Any) -> dict[str, Any]:
+        return evaluate_published(plant, name, np.array(K), np.array(G), region=s.region,
+                                  gamma=s.gamma, sigma2=s.sigma2)
+
+    published = [evaluate(name, K, G) for name, (K, G) in s.published().items()]
+    searched = None if summary is None else evaluate(SEARCHED, summary["K"], summary["G"])
+    sim = UncertainLinearPlant(plant, dt_s)
+    mc = monte_carlo_block(sim, published + ([searched] if searched else []), plant,
+                           n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
+    first = published[0]
+    sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
+                         F_VALUES[0], n_steps=n_steps, seed=seed,
+                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
+    search_dict = record.to_dict()
+    search_dict["summary"] = summary
+    return {
+        "scenario": name,
+        "design": {k: design_entry(d, plant, s) for k, d in designs.items()},
+        "design_diagnostics": diagnostics, "design_search": search_dict,
+        "published": published, "searched": searched, "monte_carlo": mc,
+        "env": {"id": ENV_ID, "episode": {"filter": sample["filter"], "F": sample["F"],
+                                          "seed": seed, "steps": n_steps}},
+        "horizon_s": n_steps * dt_s, "dt_s": dt_s, "seed": seed,
+        "wall_s": {"design": t_design, "search": t_search,
+                   "total": time.perf_counter() - start},
+    }, sample
+
+
 def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegion,
                 gamma: float, sigma2: np.ndarray, sample: dict[str, Any], *, discrete: bool,
                 title: list[str], path: str | Path, extra: Any = None) -> None:
     """The figure of a variance-constrained reproduction: :func:`plot_published`'s four
     panels, the claims (``result["claims"]``) under them, ``title`` and the claims' summary
     on top. ``extra(ax)`` (optional) draws more into the panels before their legends."""
-    from testbed.outputs.plots import new_figure, save_figure, set_title
-
-    claims_in = claims_height_in(result["claims"], wrap=140)
-    fig = new_figure(12, 12 + claims_in)
-    grid = fig.add_gridspec(3, 2, height_ratios=[5.6, 5.6, claims_in])
+    fig, grid = claims_figure(result["claims"], 12, 12, [5.6, 5.6], cols=2, wrap=140)
     ax = np.array([[fig.add_subplot(grid[i, j]) for j in range(2)] for i in range(2)])
     plot_published(ax, result, plant, region, gamma, sigma2, sample, discrete=discrete,
                    extra=extra)
-    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
-    set_title(fig, [*title, agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], title, path, wrap=140)
 
 
 def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,

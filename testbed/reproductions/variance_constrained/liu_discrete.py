@@ -3,38 +3,31 @@ with variance constraints (OCR-damaged paper; our reading of the example, see
 docs/references.md).
 
 ``testbed reproduce liu-variance-constrained-discrete``. The same parts as
-:mod:`testbed.reproductions.variance_constrained.wang_parabolic`:
+:mod:`testbed.reproductions.variance_constrained.wang_parabolic`
+(:func:`~testbed.reproductions.variance_constrained.family.run_example`):
 
 1. **design**: (11) and the reconstructed second Riccati equation (12r)
    (:func:`filters.variance_discrete.design_discrete`) with the printed ``gamma = 0.012``,
    ``eps = 1.89``, ``delta1 = 0.31`` and our assumptions ``delta2 = delta1``, ``H = 0`` (then
    ``U = +-1`` give the same gain); the existence threshold of (11) in ``delta1``
    (:func:`~filters.variance_discrete.delta1_threshold`).
-2. **design_search**: does a design meeting the example's specification (stable for all
-   ``|F| <= 1``, ``||H||inf <= 0.012``, variances ``<= [0.02, 0.076]``) exist?
-   :func:`filters.variance_discrete.search_discrete_design` (multi-start Nelder-Mead over
-   eps, delta1, delta2 and H, the printed values first), every candidate verified.
+2. **design_search** (:func:`filters.variance_discrete.search_discrete_design`): does a
+   design meeting the example's specification exist?
 3. **published**: the printed filter ``(G, K)`` checked for all ``F``, with the steady-state
    error covariance at ``F = 1, 0, -1`` next to the printed ones (``paper_covariance``).
-4. **Monte Carlo** of the printed filter and the best searched design on the plant of
-   ``testbed/UncertainLinear-v0`` (exact: the discrete loop has no sampling error),
-   ``n_runs`` runs per ``F``, stepped as one batch.
-5. **findings**: each claim with whether we agree (``row()``).
-
-The ``.rrd`` and the last panel of the figure are one episode of ``testbed/UncertainLinear-v0``
-with the printed filter in the loop at ``F = 1``. The horizon is in samples (the plant's
-``dt_s`` is 1).
+4. **Monte Carlo** on the plant of ``testbed/UncertainLinear-v0`` (exact: the discrete loop
+   has no sampling error). The horizon is in samples (``dt_s = 1``).
 """
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from filters.analysis import UncertainPlant, error_covariance
+from filters.analysis import UncertainPlant
+from filters.variance_constrained import VarianceDesign
 from filters.variance_discrete import (
     delta1_threshold,
     design_discrete,
@@ -44,20 +37,12 @@ from filters.variance_discrete import (
 from testbed.reproductions.outputs import Claim, Paper, claims_json, write_outputs
 from testbed.reproductions.variance_constrained.family import (
     ENV_ID,
-    F_VALUES,
     SEARCH_EVALUATIONS,
     SEARCH_STARTS,
-    SEARCHED,
     _fmt,
-    design_entry,
-    env_sample,
     episode_run,
-    evaluate_published,
-    findings_claims,
-    make_env,
-    monte_carlo_block,
     plot_figure,
-    search_summary,
+    run_example,
 )
 from testbed.reproductions.variance_constrained.scenario_liu import (
     VarianceConstrainedDiscreteScenario,
@@ -100,85 +85,44 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     Returns
     -------
     dict
-        ``design``, ``design_diagnostics``, ``design_search`` (with ``summary``),
-        ``published``, ``searched``, ``paper``, ``paper_covariance``,
-        ``covariance_comparison``, ``monte_carlo``, ``findings``, settings, timings.
+        :func:`~testbed.reproductions.variance_constrained.family.run_example`'s keys and
+        ``parameters``, ``paper``, ``paper_covariance``, ``covariance_comparison``,
+        ``claims``.
     """
     s = VarianceConstrainedDiscreteScenario()
     plant = s.plant
     n_steps = HORIZON if horizon_s is None else int(round(float(horizon_s)))
     if n_steps < 1:
         raise ValueError(f"horizon_s must be >= 1 sample, got {horizon_s}")
-    search_starts = SEARCH_STARTS if search_starts is None else search_starts
-    search_evaluations = SEARCH_EVALUATIONS if search_evaluations is None else search_evaluations
-    for name, value in (("n_runs", n_runs), ("search_starts", search_starts),
-                        ("search_evaluations", search_evaluations)):
-        if int(value) != value or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    burn_in = min(100, n_steps // 4)
-    start = time.perf_counter()
 
-    designs = {f"U={U:g}": design_discrete(plant, s.parameters(U), sigma2=s.sigma2)
-               for U in (1.0, -1.0)}
-    _, iters, how = least_solution11(plant, s.parameters())
-    diag = {"equation11_existence": how, "equation11_iterations": iters,
-            "delta1_threshold_at_printed_eps": delta1_threshold(plant, s.parameters()),
-            "assumed": {"delta2": s.delta2, "H": s.H.tolist()}}
-    t_design = time.perf_counter() - start
+    def design() -> tuple[dict[str, VarianceDesign], dict[str, Any]]:
+        _, iters, how = least_solution11(plant, s.parameters())
+        return ({f"U={U:g}": design_discrete(plant, s.parameters(U), sigma2=s.sigma2)
+                 for U in (1.0, -1.0)},
+                {"equation11_existence": how, "equation11_iterations": iters,
+                 "delta1_threshold_at_printed_eps": delta1_threshold(plant, s.parameters()),
+                 "assumed": {"delta2": s.delta2, "H": s.H.tolist()}})
 
-    record = search_discrete_design(plant, s.parameters(), s.sigma2,
-                                    n_starts=int(search_starts), seed=0,
-                                    max_evaluations=int(search_evaluations))
-    summary = search_summary(record)
-    t_search = time.perf_counter() - start - t_design
-
-    published = [evaluate_published(plant, name, K, G, region=s.region, gamma=s.gamma,
-                                    sigma2=s.sigma2)
-                 for name, (K, G) in s.published().items()]
-    searched = None
-    if summary is not None:
-        searched = evaluate_published(plant, SEARCHED, np.array(summary["K"]),
-                                      np.array(summary["G"]), region=s.region, gamma=s.gamma,
-                                      sigma2=s.sigma2)
-    comparison = {}
-    for key, printed in s.paper_covariance.items():
-        ours = np.array(published[0]["covariance"][key])
-        comparison[key] = {"ours": ours.tolist(), "paper": printed.tolist(),
-                           "relative_difference": (ours / printed - 1.0).tolist()}
-
-    env = make_env(plant, 1.0, n_steps)
-    mc = monte_carlo_block(env.unwrapped.plant, published + ([searched] if searched else []),
-                           plant, n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in,
-                           seed=seed)
-    first = published[0]
-    sample = env_sample(env, first["name"], np.array(first["G"]), np.array(first["K"]),
-                        F_VALUES[0], n_steps=n_steps, seed=seed,
-                        P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
-    env.close()
-    search_dict = record.to_dict()
-    search_dict["summary"] = summary
-    result: dict[str, Any] = {
-        "scenario": NAME,
+    result, sample = run_example(
+        NAME, s, design, lambda n, m: search_discrete_design(
+            plant, s.parameters(), s.sigma2, n_starts=n, seed=0, max_evaluations=m),
+        dt_s=1.0, n_steps=n_steps, burn_in=min(100, n_steps // 4), n_runs=n_runs, seed=seed,
+        search_starts=SEARCH_STARTS if search_starts is None else search_starts,
+        search_evaluations=SEARCH_EVALUATIONS if search_evaluations is None
+        else search_evaluations)
+    result.update({
         "parameters": {"gamma": s.gamma, "sigma2": s.sigma2.tolist(), "eps": s.eps,
                        "delta1": s.delta1, "delta2 (assumed)": s.delta2,
                        "H (assumed)": s.H.tolist()},
-        "design": {k: design_entry(d, plant, s) for k, d in designs.items()},
-        "design_diagnostics": diag,
-        "design_search": search_dict,
-        "published": published,
-        "searched": searched,
         "paper": {"G": s.paper_G.tolist(), "K": s.paper_K.tolist(), "gamma": s.gamma,
                   "eps": s.eps, "delta1": s.delta1, "bound_matrix": s.paper_bound.tolist()},
         "paper_covariance": {k: v.tolist() for k, v in s.paper_covariance.items()},
-        "covariance_comparison": comparison,
-        "monte_carlo": mc,
-        "env": {"id": ENV_ID, "episode": {"filter": sample["filter"], "F": sample["F"],
-                                          "seed": seed, "steps": n_steps}},
-        "horizon_s": float(n_steps), "dt_s": 1.0, "seed": seed,
-        "wall_s": {"design": t_design, "search": t_search,
-                   "total": time.perf_counter() - start},
-    }
-    result["findings"] = _findings(result)
+        "covariance_comparison": {}})
+    for key, printed in s.paper_covariance.items():
+        ours = np.array(result["published"][0]["covariance"][key])
+        result["covariance_comparison"][key] = {
+            "ours": ours.tolist(), "paper": printed.tolist(),
+            "relative_difference": (ours / printed - 1.0).tolist()}
     result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(result, s, plant, sample, path),
@@ -205,15 +149,13 @@ def _plot(result: dict[str, Any], s: VarianceConstrainedDiscreteScenario,
                 path=path, extra=paper_marks)
 
 
-def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each claim of the example, whether we agree, and our number."""
+def claims(result: dict[str, Any]) -> list[Claim]:
+    """The paper's claims next to ours, verdicts computed from ``result``."""
     p, d = result["parameters"], result["design"]["U=1"]
-    pub = result["published"][0]
+    pub, summary = result["published"][0], result["design_search"]["summary"]
     thr = result["design_diagnostics"]["delta1_threshold_at_printed_eps"]
-    comp = result["covariance_comparison"]
-    rel = {k: max(abs(v) for r in c["relative_difference"] for v in r) for k, c in comp.items()}
-    summary = result["design_search"]["summary"]
-    ok_pub = all(v is not False for v in pub["meets"].values())
+    rel = {k: max(abs(v) for r in c["relative_difference"] for v in r)
+           for k, c in result["covariance_comparison"].items()}
     if d["solved"]:
         design_txt = f"solved, diag P2 = {_fmt(np.diag(np.array(d['Q2'])))}"
     elif d["residual_12r"] is None:
@@ -223,54 +165,30 @@ def _findings(result: dict[str, Any]) -> list[dict[str, Any]]:
                          if thr is not None else ""))
     else:
         design_txt = f"(11) solved, (12r) not (smallest residual {d['residual_12r']:.3g})"
+    spec = f"var <= {p['sigma2']}, ||H||inf <= {p['gamma']:g}, stable for every |F| <= 1"
     return [
-        {"label": "printed filter meets the requirements",
-         "claim": f"the printed filter gives var <= {p['sigma2']} and ||H||inf <= "
-                  f"{p['gamma']:g} (for every |F| <= 1)",
-         "agree": ok_pub,
-         "ours": (f"worst ||H||inf {pub['hinf_worst']:.3g}, worst variances "
-                  f"{_fmt(pub['variance_worst'])}, stable: {pub['poles_in_region']}")},
-        {"label": "printed covariances for F = 1, 0",
-         "claim": "the printed steady-state error covariances of the filter for F = 1, 0",
-         "agree": max(rel.values()) <= COVARIANCE_RTOL,
-         "ours": ", ".join(f"F = {k}: up to {v:.1%} off" for k, v in rel.items())},
-        {"label": "design solvable at the printed eps, delta1",
-         "claim": f"the design equations are solvable with eps = {p['eps']:g}, delta1 = "
-                  f"{p['delta1']:g}",
-         "agree": bool(d["solved"]),
-         "ours": design_txt},
-        {"label": "a design meeting the specification exists",
-         "claim": f"the method gives a filter with var <= {p['sigma2']} and ||H||inf <= "
-                  f"{p['gamma']:g} for every |F| <= 1",
-         "agree": summary is not None,
-         "ours": ("no verified design found" if summary is None else
-                  f"yes, with other eps, delta and H (design search): worst ||H||inf "
-                  f"{summary['hinf_worst']:.3g}, worst variances "
-                  f"{_fmt(summary['variance_worst'])}, spectral radius margin "
-                  f"{summary['pole_margin_worst']:.3g}")},
+        Claim("printed filter meets the requirements", f"yes: {spec}",
+              f"worst ||H||inf {pub['hinf_worst']:.3g}, worst variances "
+              f"{_fmt(pub['variance_worst'])}, stable: {pub['poles_in_region']}",
+              Claim.judge(all(v is not False for v in pub["meets"].values()))),
+        Claim("printed covariances for F = 1, 0",
+              "printed P, " + "; ".join(f"F = {k}: diagonal {_fmt(np.diag(np.array(v)))}"
+                                        for k, v in result["paper_covariance"].items()),
+              ", ".join(f"F = {k}: up to {v:.1%} off" for k, v in rel.items()),
+              Claim.judge(max(rel.values()) <= COVARIANCE_RTOL),
+              f"tolerance {COVARIANCE_RTOL:.0%}; Monte Carlo confirms ours, so the gap is in "
+              "the reading of the OCR-damaged example or in the paper's numbers"),
+        Claim("design solvable at the printed eps, delta1",
+              f"yes (eps = {p['eps']:g}, delta1 = {p['delta1']:g}, gamma = {p['gamma']:g})",
+              design_txt, Claim.judge(bool(d["solved"])),
+              "OCR-damaged: (12) reconstructed, delta2 = delta1 and H = 0 assumed"),
+        Claim("a design meeting the specification exists", f"yes: {spec}",
+              "no verified design found" if summary is None else
+              f"yes, with other eps, delta and H (design search): worst ||H||inf "
+              f"{summary['hinf_worst']:.3g}, worst variances "
+              f"{_fmt(summary['variance_worst'])}, spectral radius margin "
+              f"{summary['pole_margin_worst']:.3g}", Claim.judge(summary is not None)),
     ]
-
-
-def claims(result: dict[str, Any]) -> list[Claim]:
-    """The paper's claims next to ours (one per finding), verdicts computed from ``result``."""
-    p = result["parameters"]
-    spec = (f"var <= {p['sigma2']}, ||H||inf <= {p['gamma']:g}, stable for every |F| <= 1")
-    pc = result["paper_covariance"]
-    return findings_claims(result["findings"], paper={
-        "printed filter meets the requirements": f"yes: {spec}",
-        "printed covariances for F = 1, 0":
-            "printed P, " + "; ".join(f"F = {k}: diagonal {_fmt(np.diag(np.array(v)))}"
-                                      for k, v in pc.items()),
-        "design solvable at the printed eps, delta1":
-            f"yes (eps = {p['eps']:g}, delta1 = {p['delta1']:g}, gamma = {p['gamma']:g})",
-        "a design meeting the specification exists": f"yes: {spec}",
-    }, why={
-        "printed covariances for F = 1, 0":
-            f"tolerance {COVARIANCE_RTOL:.0%}; Monte Carlo confirms ours, so the gap is in the "
-            "reading of the OCR-damaged example or in the paper's numbers",
-        "design solvable at the printed eps, delta1":
-            "OCR-damaged: (12) reconstructed, delta2 = delta1 and H = 0 assumed",
-    })
 
 
 def why(result: dict[str, Any]) -> str:

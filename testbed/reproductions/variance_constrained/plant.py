@@ -24,6 +24,7 @@ A filter ``xhat(k+1) = G xhat(k) + K y[k]`` (discrete) or its exact sampled vers
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,11 @@ from scipy.linalg import expm
 
 from filters import real_array
 from filters.analysis import UncertainPlant
+from filters.errors import FiniteEscapeError
+
+#: State magnitude beyond which the plant has escaped (an unstable plant or an absurd ``x0``
+#: would otherwise overflow to inf and NaN).
+ESCAPE_BOUND = 1e10
 
 
 @dataclass(frozen=True)
@@ -56,49 +62,6 @@ class Transition:
     noise_cov: np.ndarray
 
 
-@dataclass(frozen=True)
-class UncertainLinearSensors:
-    """The measurement ``y`` of an uncertain linear plant, for environments and designs.
-
-    Attributes
-    ----------
-    model : UncertainPlant
-    """
-
-    model: UncertainPlant
-
-    @property
-    def dim(self) -> int:
-        """Number of measurement channels ``p``."""
-        return self.model.p
-
-    @property
-    def names(self) -> list[str]:
-        """``["y1", ..., "yp"]``."""
-        return [f"y{i + 1}" for i in range(self.model.p)]
-
-    @property
-    def measured_state_index(self) -> list[int | None]:
-        """The state a channel measures directly (a unit row of ``C``), else None."""
-        out: list[int | None] = []
-        for row in self.model.C:
-            nz = np.flatnonzero(row)
-            out.append(int(nz[0]) if nz.size == 1 and row[nz[0]] == 1.0 else None)
-        return out
-
-    def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Nominal ``C`` and the per-sample noise covariance of ``y`` (the ``D2`` part).
-
-        Returns
-        -------
-        C : ndarray, shape (p, n)
-        R : ndarray, shape (p, p)
-            ``D2 D2^T`` (discrete) or ``D2 D2^T / dt_s`` (continuous, interval average).
-        """
-        R = self.model.D2 @ self.model.D2.T
-        return self.model.C.copy(), R if self.model.discrete else R / dt_s
-
-
 def _noise_factor(Q: np.ndarray) -> np.ndarray:
     """``S`` with ``S S^T = Q`` for a symmetric PSD (possibly singular) ``Q``."""
     w, V = np.linalg.eigh(0.5 * (Q + Q.T))
@@ -107,7 +70,9 @@ def _noise_factor(Q: np.ndarray) -> np.ndarray:
 
 
 class UncertainLinearPlant:
-    """Sampled simulation of an :class:`~filters.analysis.UncertainPlant`.
+    """Sampled simulation of an :class:`~filters.analysis.UncertainPlant`, a
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant` at the uncertainty :attr:`F`
+    (default 0; :meth:`at` sets another).
 
     Parameters
     ----------
@@ -135,6 +100,7 @@ class UncertainLinearPlant:
         if B_.ndim != 2 or B_.shape[0] != n or not np.isfinite(B_).all():
             raise ValueError(f"B must be a finite matrix with shape ({n}, k), got {B_.shape}")
         self.B = B_
+        self.F = model.uncertainty(None)
         self._cache: dict[bytes, Transition] = {}
 
     @property
@@ -201,63 +167,53 @@ class UncertainLinearPlant:
         self._cache[key] = out
         return out
 
-    def step(self, x: np.ndarray, F: np.ndarray | float | None, rng: np.random.Generator,
-             u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One step for one plant or a batch.
+    def at(self, F: np.ndarray | float | None) -> UncertainLinearPlant:
+        """The plant with the run's uncertainty ``F`` (sharing the transition cache)."""
+        out = copy.copy(self)
+        out.F = self.model.uncertainty(F)
+        return out
+
+    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray:
+        """The standard normal ``xi`` of one step, shape ``batch + (r_eff,)``."""
+        r = self.transition(self.F).S.shape[1]
+        return np.zeros((*batch, r)) if rng is None else rng.standard_normal((*batch, r))
+
+    def observe(self, x: np.ndarray, k: int) -> np.ndarray:
+        """No measurement before the first step: zeros, shape (..., p)."""
+        return np.zeros((*np.shape(x)[:-1], self.model.p))
+
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """One step at :attr:`F` for one plant or a batch.
 
         Parameters
         ----------
-        x : ndarray, shape (n,) or (N, n)
-        F : the run's uncertainty
-        rng : numpy.random.Generator
-        u : ndarray, shape (k,) or (N, k), optional
+        x : ndarray, shape (..., n)
+        k : int
+        u : ndarray, shape (..., k), optional
+        noise : ndarray, shape (..., r_eff)
+            The standard normal ``xi`` (``S xi`` is the noise of ``[x_next; y]``).
 
         Returns
         -------
-        x_next : ndarray, shape like ``x``
-        y : ndarray, shape (p,) or (N, p)
+        x_next : ndarray, shape (..., n)
+        y : ndarray, shape (..., p)
             The measurement of this step (see the module docstring).
-        xi : ndarray, shape (r_eff,) or (N, r_eff)
-            The standard normal draw (``S xi`` is the noise of ``[x_next; y]``).
+        extras : dict
+            ``{"disturbance": xi}``.
+
+        Raises
+        ------
+        FiniteEscapeError
+            A state beyond :data:`ESCAPE_BOUND` or a non-finite measurement.
         """
-        tr = self.transition(F)
+        tr = self.transition(self.F)
         n = self.model.n
-        xi = rng.standard_normal((*x.shape[:-1], tr.S.shape[1]))
-        z = x @ tr.Phi.T + xi @ tr.S.T
+        z = x @ tr.Phi.T + noise @ tr.S.T
         if u is not None:
             z = z + u @ tr.Gu.T
-        return z[..., :n], z[..., n:], xi
-
-    def simulate(self, F: np.ndarray | float | None, x0: np.ndarray, n_steps: int,
-                 rng: np.random.Generator, u: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A run of ``n_steps`` steps for one plant or a batch of independent plants.
-
-        Parameters
-        ----------
-        F : the uncertainty of the run (shared by the batch)
-        x0 : ndarray, shape (n,) or (N, n)
-        n_steps : int
-        rng : numpy.random.Generator
-        u : ndarray, shape (n_steps, k) or (n_steps, N, k), optional
-
-        Returns
-        -------
-        t_s : ndarray, shape (n_steps + 1,)
-        x : ndarray, shape (n_steps + 1, n) or (n_steps + 1, N, n)
-        y : ndarray, shape (n_steps, p) or (n_steps, N, p)
-            ``y[k]`` is the measurement of the step ``k -> k + 1``.
-        """
-        if int(n_steps) != n_steps or n_steps < 1:
-            raise ValueError(f"n_steps must be a positive integer, got {n_steps}")
-        x = np.array(x0, dtype=float)
-        if x.shape[-1] != self.model.n or x.ndim > 2 or not np.isfinite(x).all():
-            raise ValueError(f"x0 must be finite with shape ({self.model.n},) or (N, "
-                             f"{self.model.n}), got {x.shape}")
-        xs = np.empty((n_steps + 1, *x.shape))
-        ys = np.empty((n_steps, *x.shape[:-1], self.model.p))
-        xs[0] = x
-        for k in range(n_steps):
-            x, ys[k], _ = self.step(x, F, rng, None if u is None else u[k])
-            xs[k + 1] = x
-        return np.arange(n_steps + 1) * self.dt_s, xs, ys
+        x_next, y = z[..., :n], z[..., n:]
+        if not (np.all(np.abs(x_next) <= ESCAPE_BOUND) and np.all(np.isfinite(y))):
+            raise FiniteEscapeError(f"the state left |x| <= {ESCAPE_BOUND:g}",
+                                    time=(k + 1) * self.dt_s, quantity="state", value=x_next)
+        return x_next, y, {"disturbance": noise}

@@ -5,26 +5,18 @@ filter (50) (see docs/references.md).
 (:class:`testbed.reproductions.zhang_lmi_hinf.scenario.NonlinearDiscreteScenario`: ``x0 = [1, 1]``,
 ``gamma = 2``; both are in the output).
 
-- **Monte Carlo** (1000 runs, as in the paper; vectorized over runs,
-  :func:`testbed.reproductions.zhang_lmi_hinf.plant.simulate`): ``v_k = 2 * 0.9999^k``,
-  ``w_k ~ N(0, 1)``, ``xhat_0 = 0``; the cumulative sums ``sum_i E ztilde_i^2`` (sample mean)
-  and ``gamma^2 sum_i v_i^2`` (Figure 3). ``inequality_holds``: the first is below the second
-  at every ``k``; ``smallest_gamma_mc = sqrt(max_k (sum E ztilde^2) / (sum v^2))``.
-  The proof's bound for ``eta_0 != 0``, ``gamma^2 sum v^2 + V(eta_0)`` (``V = |x|^2 +
-  |xhat|^2``, the paper's), is reported too.
+- **Monte Carlo** (1000 runs, as in the paper): one batch of
+  :func:`testbed.experiment.numpy_plant.rollout` with the library's filter (50),
+  ``v_k = 2 * 0.9999^k``, ``w_k ~ N(0, 1)``, ``xhat_0 = 0``; the inequality of Figure 3 at
+  every ``k`` (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.cumulative_sums`) and the
+  proof's bound for ``eta_0 != 0``, ``gamma^2 sum v^2 + V(eta_0)``.
 - **Corollary 3**: the sufficient conditions (35)-(36) with ``Q1 = Q2 = I`` on a grid of
-  ``(x, xhat)`` (corrected forms, :mod:`testbed.reproductions.zhang_lmi_hinf.plant`), their largest
-  violation, the same for the printed forms, the curvature of (36) at the origin.
-- **Corollary 2**: the HJI (27) itself (which (35)-(36) are sufficient for) with
-  ``V = |x|^2 + |xhat|^2`` on the grid times ``v in [-10, 10]`` and on a wider state box
-  (``hji_27``, ``hji_27_wide``): a grid samples (27), which must hold for all ``eta`` and
-  ``v``, and certifies nothing outside it. Corollary 2 also needs (26),
-  ``|ztilde(eta, 0)|^2 >= W(eta)`` with ``W`` positive and radially unbounded
-  (``condition_26``): here ``ztilde(eta, 0) = 0.1 (x1 + x2 - xhat1 - xhat2)`` vanishes on a
-  three-dimensional subspace, so no such ``W`` exists and the HJI alone does not make (50)
-  an H-infinity filter in the paper's sense (internal stability is not certified).
-- One run through ``testbed/NonlinearDiscrete-v0`` with the filter (50) in the loop
-  (:class:`~testbed.envs.wrappers.FilterInLoop`) for the ``.rrd`` and Figures 1-2.
+  ``(x, xhat)``, corrected and as printed, and the curvature of (36) at the origin.
+- **Corollary 2**: the HJI (27) itself on the grid times ``v in [-10, 10]`` and on a wider
+  state box (a grid samples (27) and certifies nothing outside it), and whether (26) can
+  hold (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.condition26_check`).
+- One run with the filter (50) in the loop (:func:`run_in_loop`) for the ``.rrd`` and
+  Figures 1-2.
 """
 
 from __future__ import annotations
@@ -35,15 +27,16 @@ from typing import Any
 
 import numpy as np
 
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
-    claims_height_in,
+    claims_figure,
     claims_json,
-    draw_claims,
+    finish_figure,
+    legend_below,
     write_outputs,
 )
 from testbed.reproductions.zhang_lmi_hinf import plant
@@ -60,41 +53,24 @@ HJI_WIDE_HALFWIDTH = 10.0
 
 
 def run_in_loop(x0: np.ndarray, steps: int, seed: int) -> dict[str, np.ndarray]:
-    """One episode of ``NonlinearDiscreteEnv`` with the filter (50) in the loop.
+    """One run of (49) with the filter (50) in the loop, its noise ``w_k`` drawn from
+    ``default_rng(seed)`` step by step (as ``testbed/NonlinearDiscrete-v0`` after
+    ``reset(seed=seed)``).
 
     Returns
     -------
     dict
-        ``t`` (steps + 1,), ``x``, ``xhat`` (steps + 1, 2), ``y`` (steps + 1, 2), ``v``
+        ``t`` (steps + 1,), ``x``, ``xhat``, ``y`` (steps + 1, 2; ``y_0 .. y_steps``), ``v``
         (steps + 1,), ``z_err`` (steps + 1,).
     """
-    from testbed.envs.wrappers import FilterInLoop
-    from testbed.reproductions.zhang_lmi_hinf.env import NonlinearDiscreteEnv
-
-    env = NonlinearDiscreteEnv()
-    est = plant.filter50()
-    loop = FilterInLoop(env, est, output_matrix=plant.C_Z)
-    _, info = loop.reset(seed=seed, options={"x0": x0})
-    est.prime(info["measurement"])
-    rows: dict[str, list] = {k: [] for k in ("t", "x", "xhat", "y", "v")}
-
-    def keep(info: dict[str, Any]) -> None:
-        rows["t"].append(info["t"])
-        rows["x"].append(info["state"])
-        rows["xhat"].append(info["estimate"])
-        rows["y"].append(info["measurement"])
-        rows["v"].append(info["disturbance"][0])
-
-    keep(info)
-    zero = np.zeros(1)
-    for _ in range(steps):
-        _, _, terminated, _, info = loop.step(zero)
-        keep(info)
-        if terminated:
-            break
-    out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
-    out["z_err"] = plant.output(out["x"]) - plant.output(out["xhat"])
-    return out
+    system = plant.NonlinearDiscretePlant()
+    run = rollout(system, np.asarray(x0, dtype=float), steps,
+                  noise=np.random.default_rng(seed), estimators={"(50)": plant.filter50()})
+    x, n = run.x, len(run.t_s)
+    y = np.concatenate([system.observe(x[0], 0)[None], run.y])
+    return {"t": run.t_s, "x": x, "xhat": run.estimates["(50)"], "y": y,
+            "v": np.array([system.schedule(max(i - 1, 0)) for i in range(n)]),
+            "z_err": plant.output(x) - plant.output(run.estimates["(50)"])}
 
 
 def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Path | None = None,
@@ -140,13 +116,15 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
 
     v = np.asarray(plant.paper_disturbance(np.arange(steps)), dtype=float)
     w = np.random.default_rng(seed).standard_normal((runs, steps))
-    x, xh, _ = plant.simulate(x0, v, w)
+    mc = rollout(plant.NonlinearDiscretePlant(v=v), np.tile(x0, (runs, 1)), steps,
+                 noise=lambda k: w[:, k], estimators={"(50)": plant.filter50(np.zeros((runs, 2)))})
+    if mc.escape is not None:
+        raise mc.escape
+    x, xh = mc.x, mc.estimates["(50)"]
     z_err = plant.output(x[:, :steps]) - plant.output(xh[:, :steps])
-    per_run = np.sum(z_err**2, axis=1)
-    sum_z = np.cumsum(np.mean(z_err**2, axis=0))
-    sum_v = np.cumsum(v**2)
-    bound = gamma**2 * sum_v[-1] + float(x0 @ x0)  # V(eta_0) = |x0|^2 + |xhat0|^2, xhat0 = 0
-    ratio = sum_z / sum_v
+    sums = plant.cumulative_sums(z_err, v, gamma)
+    sum_z, sum_v = sums["curve_z"], np.cumsum(v**2)
+    bound = sums["gamma2_sum_v2"] + float(x0 @ x0)  # V(eta_0) = |x0|^2 + |xhat0|^2, xhat0 = 0
     cor = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points)
     cor_printed = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points, printed=True)
     v_test = np.linspace(-HJI_V_MAX, HJI_V_MAX, HJI_V_POINTS)
@@ -162,12 +140,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         "seed": seed,
         "defaults_note": "the paper gives neither x0 nor gamma; defaults x0 = [1, 1], "
                          "gamma = 2 (just above the 1.84 that (35) needs on the grid)",
-        "sum_E_z2": float(sum_z[-1]),
-        "sum_E_z2_stderr": float(np.std(per_run, ddof=1) / np.sqrt(runs)),
-        "gamma2_sum_v2": float(gamma**2 * sum_v[-1]),
-        "inequality_holds": bool(np.all(sum_z <= gamma**2 * sum_v)),
-        "smallest_gamma_mc": float(np.sqrt(ratio.max())),
-        "smallest_gamma_mc_step": int(np.argmax(ratio)),
+        **{key: sums[key] for key in ("sum_E_z2", "sum_E_z2_stderr", "gamma2_sum_v2",
+                                      "inequality_holds")},
+        "smallest_gamma_mc": sums["gamma_needed"],
+        "smallest_gamma_mc_step": int(np.argmax(sum_z / sum_v)),
         "smallest_gamma_mc_after_k0": float(np.sqrt(((sum_z - sum_z[0]) / sum_v)[1:].max()))
         if steps > 1 else 0.0,
         "bound_13": bound,
@@ -185,7 +161,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     result["wall_s"] = time.perf_counter() - start
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   units={"state": "1 (dimensionless system)", "time": "steps"},
-                  plot=lambda path: _plot(result, sum_z, gamma**2 * sum_v, loop, x, xh, gamma,
+                  plot=lambda path: _plot(result, sum_z, sums["curve_v"], loop, x, xh, gamma,
                                           s, path),
                   runs=lambda: _runs(loop, result),
                   application_id="testbed-" + NAME, degrees=False)
@@ -205,7 +181,8 @@ def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
     """The run of the ``.rrd``: one episode with the filter (50) in the loop."""
     return [Run(_trajectory(run), "filter_in_loop", (
         f"# System (49) with the filter (50) in the loop (seed {result['seed']})\n\n"
-        "One episode of testbed/NonlinearDiscrete-v0 (the FilterInLoop wrapper): "
+        "One run of (49) with the filter (50) in the loop (its noise seeded as "
+        "testbed/NonlinearDiscrete-v0's): "
         f"x0 = {result['x0']}, xhat_0 = 0, disturbance v_k = 2 * 0.9999^k (logged as the "
         "action), noise w_k ~ N(0, 1). What Figs. 1-2 show; Fig. 3 averages "
         f"{result['runs']} such runs (simulated separately, vectorized). Time counts steps; "
@@ -214,28 +191,20 @@ def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
 
 def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.ndarray,
           xh: np.ndarray, gamma: float, s: NonlinearDiscreteScenario, path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
-
-    claims_in = claims_height_in(result["claims"], wrap=140)
-    fig = new_figure(12, 9 + claims_in)
-    grid = fig.add_gridspec(3, 2, height_ratios=[4.0, 4.0, claims_in])
+    fig, grid = claims_figure(result["claims"], 12, 9, [4.0, 4.0], cols=2, wrap=140)
     k_label = "k [steps]"
-
-    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
-        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.2),
-                  ncols=ncols, frameon=False)
 
     ax = fig.add_subplot(grid[0, 0])
     ax.plot(loop["t"], plant.output(loop["x"]), label="z_k")
     ax.plot(loop["t"], plant.output(loop["xhat"]), "--", label="zhat_k (filter (50))")
     ax.set(title="Fig. 1: z_k and zhat_k (one run, filter in the loop)", xlabel=k_label,
            ylabel="z_k, zhat_k (dimensionless)")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[0, 1])
     ax.plot(loop["t"], loop["z_err"], label="ztilde_k, in-the-loop run")
     ax.set(title="Fig. 2: estimation error ztilde_k", xlabel=k_label,
            ylabel="ztilde_k = z_k - zhat_k\n(the paper's: truth - estimate)")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[1, 0])
     k = np.arange(len(sum_z))
     ax.plot(k, sum_z, label=f"sum E ztilde^2 ({result['runs']} runs)")
@@ -243,7 +212,7 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     ax.set_yscale("log")
     ax.set(title=f"Fig. 3: cumulative sums, x0 = {result['x0']}", xlabel=k_label,
            ylabel="cumulative sum (dimensionless)")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[1, 1])
     axis = np.linspace(-s.grid_halfwidth, s.grid_halfwidth, 161)
     X2, XH2 = np.meshgrid(axis, axis, indexing="xy")
@@ -257,11 +226,9 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
                  label="(36) left-hand side (> 0: violated)")
     ax.set(title="Corollary 3 (36), Q1 = Q2 = I, slice x1 = xhat1 = 0 (black: 0 contour)",
            xlabel="x2 (dimensionless)", ylabel="xhat2 (dimensionless)")
-    draw_claims(fig.add_subplot(grid[2, :]), result["claims"], wrap=140)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: filter (50) for (49); "
-                    f"x0, gamma ours",
-                    agree_text(result["claims"])])
-    save_figure(fig, path)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: filter (50) for (49); x0, gamma ours"],
+        path, wrap=140)
 
 
 def claims(result: dict[str, Any]) -> list[Claim]:

@@ -47,10 +47,13 @@ All functions take a leading batch axis: states of shape ``(..., 2)``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
 from filters import FiniteEscapeError, LMIHInfFilter
+from filters.lmi_hinf import StochasticLinearSystem
 
 #: Filter (50): ``xhat+ = F xhat + G y``, ``zhat = C_Z xhat``.
 FILTER_F = 0.5 * np.eye(2)
@@ -130,67 +133,128 @@ def filter_step(xhat: npt.ArrayLike, y: npt.ArrayLike) -> np.ndarray:
     return np.asarray(xhat, dtype=float) @ FILTER_F.T + np.asarray(y, dtype=float) @ FILTER_G.T
 
 
-def simulate(x0: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike,
-             xhat0: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Run (49) and the filter (50) together over ``N`` steps for a batch of runs.
+class NonlinearDiscretePlant:
+    """System (49) as a :class:`~testbed.experiment.numpy_plant.NumpyPlant` (``dt_s = 1``).
 
-    The filter is the library's :class:`filters.LMIHInfFilter` (:func:`filter50`), batched over
-    the runs: at step ``k`` it is given ``y_k`` (``prime``) and advanced (``step``), so
-    ``xhat_{k+1} = F xhat_k + G y_k`` as in the paper.
+    Step ``k`` feels ``v_k = schedule(k) + u`` (``u`` of shape (..., 1), default 0) and the
+    scalar noise ``w_k`` of each run; it delivers ``y_{k+1}`` with the schedule's
+    ``v_{k+1}``. Beyond :data:`ESCAPE_BOUND` (or non-finite) it raises
+    :class:`~filters.errors.FiniteEscapeError` (``quantity="state"``, ``time = k + 1``).
 
     Parameters
     ----------
-    x0 : array_like, shape (2,) or (R, 2)
-        Initial state (one for all runs or one per run).
-    v : array_like, shape (N,)
-        Disturbance ``v_0 .. v_{N-1}``.
-    w : array_like, shape (R, N)
-        Noise ``w_k`` of each run (R runs).
-    xhat0 : array_like, shape (2,), optional
-        Filter's initial state (default 0).
+    disturbance : {"paper", None}
+        The paper's ``v_k = 2 * 0.9999^k`` or none.
+    v : ndarray, shape (N,), optional
+        The paper's ``v_0 .. v_{N-1}`` as computed for a Monte Carlo (vectorized ``pow``
+        rounds differently from the scalar one in the last bit); later steps: the scalar.
+    """
+
+    dt_s = 1.0
+
+    def __init__(self, disturbance: str | None = "paper", v: np.ndarray | None = None) -> None:
+        if disturbance not in ("paper", None):
+            raise ValueError(f"disturbance must be 'paper' or None, got {disturbance!r}")
+        self.disturbance, self.v = disturbance, v
+
+    def schedule(self, k: int) -> float:
+        """Scheduled disturbance ``v_k`` (``2 * 0.9999^k`` or 0)."""
+        if self.disturbance is None:
+            return 0.0
+        return float(self.v[k] if self.v is not None and k < len(self.v)
+                     else paper_disturbance(k))
+
+    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray:
+        """``w_k ~ N(0, 1)``, shape ``batch``."""
+        return np.zeros(batch) if rng is None else rng.standard_normal(batch)
+
+    def observe(self, x: np.ndarray, k: int) -> np.ndarray:
+        """``y_k = 0.5 x + v_k sin(x)``, shape (..., 2)."""
+        return measure(x, np.full(np.shape(x)[:-1], self.schedule(k)))
+
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, object]]:
+        """``x_{k+1}``, ``y_{k+1}`` and the extras ``disturbance``, ``action_applied``
+        (``[v_k]``), ``noise`` (``w_k``), ``z``."""
+        v = self.schedule(k) + (0.0 if u is None else u[..., 0])
+        with np.errstate(over="ignore", invalid="ignore"):
+            x_next = step(x, v, noise)
+        bad = ~np.all(np.abs(x_next) <= ESCAPE_BOUND, axis=-1)  # NaN counts
+        if np.any(bad):
+            raise FiniteEscapeError(f"the state escaped |x| <= {ESCAPE_BOUND:g}",
+                                    time=float(k + 1), quantity="state",
+                                    value=np.asarray(x_next)[bad][0].copy())
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        return x_next, self.observe(x_next, k + 1), {
+            "disturbance": v, "action_applied": v, "noise": float(noise) if np.ndim(noise) == 0
+            else noise, "z": output(x_next) if np.ndim(x_next) > 1 else float(output(x_next))}
+
+
+class StochasticLinearPlant:
+    """The system (44) of Example 5.2 driven by a known disturbance, as a
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant`::
+
+        x_{k+1} = A x + B v_k + (A_w x + B_w v_k) w_k,   y_k = C_y x_k + D_y v_k
+
+    Parameters
+    ----------
+    system : filters.lmi_hinf.StochasticLinearSystem
+    v : ndarray, shape (N,)
+        ``v_0 .. v_{N-1}`` (the same value on every disturbance channel; 0 after).
+    dt_s : float
+    """
+
+    def __init__(self, system: StochasticLinearSystem, v: np.ndarray, dt_s: float = 1.0):
+        self.system, self.v, self.dt_s = system, np.asarray(v, dtype=float), dt_s
+        self._ones = np.ones(system.n_v)
+
+    def _v(self, k: int) -> np.ndarray:
+        return (self.v[k] if k < len(self.v) else 0.0) * self._ones
+
+    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray:
+        """``w_k ~ N(0, 1)``, shape ``batch``."""
+        return np.zeros(batch) if rng is None else rng.standard_normal(batch)
+
+    def observe(self, x: np.ndarray, k: int) -> np.ndarray:
+        """``y_k``, shape (..., n_y)."""
+        return x @ self.system.C_y.T + self._v(k) @ self.system.D_y.T
+
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, object]]:
+        """``x_{k+1}`` and ``y_{k+1}`` (no extras)."""
+        s, vk = self.system, self._v(k)
+        x = x @ s.A.T + vk @ s.B.T + noise[..., None] * (x @ s.A_w.T + vk @ s.B_w.T)
+        return x, self.observe(x, k + 1), {}
+
+
+def cumulative_sums(z_err: np.ndarray, v: np.ndarray, gamma: float) -> dict[str, Any]:
+    """The inequality (7) over a Monte Carlo: ``sum_i E|ztilde_i|^2`` against
+    ``gamma^2 sum_i |v_i|^2`` at every ``k`` (Figures 3 and 7).
+
+    Parameters
+    ----------
+    z_err : ndarray, shape (R, N)
+        ``ztilde_k`` of each run (scalar output).
+    v : ndarray, shape (N,)
+    gamma : float
 
     Returns
     -------
-    x : ndarray, shape (R, N + 1, 2)
-        States ``x_0 .. x_N``.
-    xhat : ndarray, shape (R, N + 1, 2)
-        Estimates ``xhat_0 .. xhat_N``.
-    y : ndarray, shape (R, N, 2)
-        Measurements ``y_0 .. y_{N-1}``.
-
-    Raises
-    ------
-    ValueError
-        ``x0`` beyond :data:`ESCAPE_BOUND` (or not finite), or inconsistent shapes.
-    filters.FiniteEscapeError
-        A run's state leaves :data:`ESCAPE_BOUND` (``quantity="x"``, ``time`` the step):
-        nothing non-finite is returned.
+    dict
+        ``curve_z``, ``curve_v`` (N,) (the two sums over ``k``), ``sum_E_z2``,
+        ``gamma2_sum_v2`` (their final values), ``sum_E_z2_stderr`` (standard error of the
+        first over runs), ``inequality_holds`` (at every ``k``), ``gamma_needed`` (the
+        smallest gamma for which it holds).
     """
-    v = np.asarray(v, dtype=float)
-    w = np.atleast_2d(np.asarray(w, dtype=float))
-    runs, n = w.shape
-    if v.shape != (n,):
-        raise ValueError(f"v must have shape ({n},) to match w {w.shape}, got {v.shape}")
-    x = np.empty((runs, n + 1, 2))
-    xh = np.empty((runs, n + 1, 2))
-    y = np.empty((runs, n, 2))
-    x[:, 0] = np.broadcast_to(np.asarray(x0, dtype=float), (runs, 2))
-    if not np.all(np.abs(x[:, 0]) <= ESCAPE_BOUND):
-        raise ValueError(f"x0 must be finite with |x0_i| <= {ESCAPE_BOUND:g}, got {x0!r}")
-    xh[:, 0] = 0.0 if xhat0 is None else np.asarray(xhat0, dtype=float)
-    estimator = filter50(xh[:, 0])
-    for k in range(n):
-        y[:, k] = measure(x[:, k], np.full(runs, v[k]))
-        with np.errstate(over="ignore", invalid="ignore"):
-            x[:, k + 1] = step(x[:, k], v[k], w[:, k])
-        escaped = ~np.all(np.abs(x[:, k + 1]) <= ESCAPE_BOUND, axis=1)  # NaN counts
-        if escaped.any():
-            r = int(np.flatnonzero(escaped)[0])
-            raise FiniteEscapeError(f"the state of run {r} escaped |x| <= {ESCAPE_BOUND:g}",
-                                    time=float(k + 1), quantity="x", value=x[r, k + 1].copy())
-        estimator.prime(y[:, k])
-        xh[:, k + 1] = estimator.step(y[:, k])
-    return x, xh, y
+    sum_z = np.cumsum(np.mean(z_err**2, axis=0))
+    sum_v = np.cumsum(v**2)
+    per_run = np.sum(z_err**2, axis=1)
+    se = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else 0.0
+    return {"curve_z": sum_z, "curve_v": gamma**2 * sum_v,
+            "sum_E_z2": float(sum_z[-1]), "gamma2_sum_v2": float(gamma**2 * sum_v[-1]),
+            "sum_E_z2_stderr": se,
+            "inequality_holds": bool(np.all(sum_z <= gamma**2 * sum_v)),
+            "gamma_needed": float(np.sqrt(np.max(sum_z / sum_v)))}
 
 
 # ----------------------------------------------------------------- Corollary 3

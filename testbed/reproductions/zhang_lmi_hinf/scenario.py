@@ -19,8 +19,8 @@ Two versions:
   ``C_R + D_n w_k`` held over the step gives ``A_w``, ``B_w`` as ``D_n`` times the derivative
   of ``(A, B)`` with respect to ``C_R`` (Frechet derivative of the matrix exponential).
 
-:func:`vehicle_lmi_estimator` designs the filter for the rig in the loop with any vehicle
-sensor suite and a known lateral acceleration (the CLI's ``--filter lmi-hinf``).
+(:func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_estimator` designs the filter for the rig in
+the loop with any vehicle sensor suite and a known lateral acceleration.)
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from filters.lmi_hinf import (
     DEFAULT_MARGIN,
     LMIHInfDesign,
     StochasticLinearSystem,
-    design_above,
 )
 from testbed.rigs.vehicle_roll import (
     PAPER_PERIOD_S,
@@ -41,11 +40,7 @@ from testbed.rigs.vehicle_roll import (
     paper_disturbance,
     paper_model,
 )
-from testbed.rigs.vehicle_roll.lmi import (
-    vehicle_design_system,
-    vehicle_lmi_estimator,
-    zoh_with_damping_derivative,
-)
+from testbed.rigs.vehicle_roll.lmi import zoh_with_damping_derivative
 
 #: Printed solution of (48) and the printed gain (Example 5.2).
 PAPER_P1 = np.array([[0.0114, 0.0002], [0.0002, 0.0002]])
@@ -206,19 +201,3 @@ def initial_state_weight(design: LMIHInfDesign, x0: np.ndarray, xhat0: np.ndarra
     e0 = x0 - np.asarray(xhat0, dtype=float)
     return float(x0 @ design.P1 @ x0 + e0 @ design.P2 @ e0)
 
-
-__all__ = [
-    "PAPER_K_HAT",
-    "PAPER_P1",
-    "PAPER_P2",
-    "PAPER_P_K",
-    "NonlinearDiscreteScenario",
-    "VehicleRollLMIScenario",
-    "design_above",
-    "identify_rig_step",
-    "initial_state_weight",
-    "paper_system",
-    "rig_system",
-    "vehicle_design_system",
-    "vehicle_lmi_estimator",
-]

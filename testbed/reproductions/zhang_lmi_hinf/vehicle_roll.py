@@ -17,12 +17,10 @@ vehicle roll (see docs/references.md).
 
 Each: 100 Monte-Carlo runs (multiplicative noise ``w_k ~ N(0, 1)``), ``v_k = 0.01 * 0.9^k``,
 ``xhat_0 = 0``, for ``x0 = 0`` (what the inequality (7) is about: Lemma 2 needs
-``eta_0 = 0``) and for the paper's ``x0 = [0.1, 1]``. Over ``k``: the cumulative sums
-``sum_i E|ztilde_i|^2`` (sample mean over runs) and ``gamma^2 sum_i |v_i|^2`` (Figure 7);
-``inequality_holds`` means the first is below the second at EVERY ``k`` of the horizon.
-The exact expectation (moment propagation of (46), :func:`filters.lmi_hinf.
-output_error_moments`) is computed alongside as an independent check of the Monte Carlo,
-and so is the bound of the proof (13), ``gamma^2 sum |v|^2 + V(eta_0)``, valid for any x0.
+``eta_0 = 0``) and for the paper's ``x0 = [0.1, 1]``: the inequality of Figure 7 at every
+``k`` (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.cumulative_sums`), checked against
+the exact expectation (moment propagation of (46), :func:`filters.lmi_hinf.
+output_error_moments`), and the proof's bound (13) ``gamma^2 sum |v|^2 + V(eta_0)``.
 """
 
 from __future__ import annotations
@@ -37,30 +35,32 @@ from filters.lmi_hinf import (
     LMIHInfFilter,
     StochasticLinearSystem,
     certify_gain,
+    design_above,
     design_lmi_hinf,
     lmi_gamma_for_solution,
     minimal_gamma,
     ms_spectral_radius,
     output_error_moments,
 )
+from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
-    agree_text,
     claims_height_in,
     claims_json,
-    draw_claims,
+    finish_figure,
+    legend_below,
     write_outputs,
 )
+from testbed.reproductions.zhang_lmi_hinf.plant import StochasticLinearPlant, cumulative_sums
 from testbed.reproductions.zhang_lmi_hinf.scenario import (
     PAPER_K_HAT,
     PAPER_P1,
     PAPER_P2,
     PAPER_P_K,
     VehicleRollLMIScenario,
-    design_above,
     identify_rig_step,
     initial_state_weight,
     paper_system,
@@ -78,26 +78,15 @@ def _simulate_model(system: StochasticLinearSystem, gain: np.ndarray, x0: np.nda
                     xhat0: np.ndarray, v: np.ndarray, runs: int,
                     rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``runs`` runs of (44) with the filter (45) (batched estimator), ``N = len(v)`` steps."""
-    s = system
-    n_steps = len(v)
+    s, n_steps = system, len(v)
     w = rng.standard_normal((runs, n_steps))
-    filt = LMIHInfFilter.from_design(s, gain, x0=np.tile(xhat0, (runs, 1)))
-    x = np.tile(np.asarray(x0, float), (runs, 1))
-    xs = np.empty((runs, n_steps + 1, s.n))
-    xh = np.empty((runs, n_steps + 1, s.n))
-    ys = np.empty((runs, n_steps + 1, s.C_y.shape[0]))
-    xs[:, 0], xh[:, 0] = x, filt.x
-    ys[:, 0] = x @ s.C_y.T + (v[0] * np.ones(s.n_v)) @ s.D_y.T
-    filt.prime(ys[:, 0])
-    ones = np.ones(s.n_v)
-    for k in range(n_steps):
-        vk = v[k] * ones
-        x = x @ s.A.T + vk @ s.B.T + w[:, k, None] * (x @ s.A_w.T + vk @ s.B_w.T)
-        v_next = v[k + 1] * ones if k + 1 < n_steps else 0.0 * ones
-        ys[:, k + 1] = x @ s.C_y.T + v_next @ s.D_y.T
-        filt.step(ys[:, k + 1])
-        xs[:, k + 1], xh[:, k + 1] = x, filt.x
+    model = StochasticLinearPlant(s, v)
+    x0s = np.tile(np.asarray(x0, float), (runs, 1))
+    run = rollout(model, x0s, n_steps, noise=lambda k: w[:, k], estimators={
+        "(45)": LMIHInfFilter.from_design(s, gain, x0=np.tile(xhat0, (runs, 1)))})
+    xs, xh = run.x, run.estimates["(45)"]
     z_err = (xs[:, :n_steps] - xh[:, :n_steps]) @ s.C_z.T + (v[:, None] @ s.D_z.T)[None]
+    ys = np.concatenate([model.observe(x0s, 0)[:, None], run.y], axis=1)
     return {"x": xs, "xhat": xh, "y": ys, "z_err": z_err[..., 0]}
 
 
@@ -138,20 +127,6 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
 
 
 # ------------------------------------------------------------------ evaluation
-def _sums(z_err: np.ndarray, v: np.ndarray, gamma: float) -> dict[str, Any]:
-    mean_sq = np.mean(z_err**2, axis=0)
-    sum_z = np.cumsum(mean_sq)
-    sum_v = np.cumsum(v**2)
-    # standard error of the final cumulative sum across runs
-    per_run = np.sum(z_err**2, axis=1)
-    se = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run))) if len(per_run) > 1 else 0.0
-    return {"curve_z": sum_z, "curve_v": gamma**2 * sum_v,
-            "sum_E_z2": float(sum_z[-1]), "gamma2_sum_v2": float(gamma**2 * sum_v[-1]),
-            "sum_E_z2_stderr": se,
-            "inequality_holds": bool(np.all(sum_z <= gamma**2 * sum_v)),
-            "gamma_needed": float(np.sqrt(np.max(sum_z / sum_v)))}
-
-
 def _evaluate(system: StochasticLinearSystem, design: Any, gamma: float, s: VehicleRollLMIScenario,
               v: np.ndarray, runs: int, seed: int, rig: bool = False,
               record: bool = False) -> dict[str, Any]:
@@ -169,7 +144,7 @@ def _evaluate(system: StochasticLinearSystem, design: Any, gamma: float, s: Vehi
         else:
             sim = _simulate_model(system, gain, x0, s.xhat0, v, runs,
                                   np.random.default_rng([seed, i]))
-        sums = _sums(sim["z_err"], v, gamma)
+        sums = cumulative_sums(sim["z_err"], v, gamma)
         exact = np.cumsum(output_error_moments(system, gain, x0, s.xhat0, v))
         bound = sums["gamma2_sum_v2"] + initial_state_weight(design, x0, s.xhat0)
         for key in ("sum_E_z2", "gamma2_sum_v2", "inequality_holds", "sum_E_z2_stderr",
@@ -437,7 +412,7 @@ def _runs(curves: dict, result: dict[str, Any], s: VehicleRollLMIScenario) -> li
 
 
 def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT, new_figure, save_figure, set_title
+    from testbed.outputs.plots import new_figure
 
     claims_in = claims_height_in(result["claims"], wrap=150)
     fig = new_figure(13, 13 + claims_in)
@@ -447,16 +422,12 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     paper_sim = curves["paper_K_hat"]["x0_paper"]["sim"]
     ours_sim = curves["ours"]["x0_paper"]["sim"]
 
-    def legend(ax: Any, ncols: int = 2) -> None:  # below the axes, outside the data
-        ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.2),
-                  ncols=ncols, frameon=False)
-
     ax = fig.add_subplot(grid[0, 0])
     for i, name in enumerate(("x(1) = roll [rad]", "x(2) = roll rate [rad/s]")):
         ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), label=name)
     ax.set(title=f"Fig. 4: state x_k of (52), x0 = {s.x0.tolist()} (mean of runs)",
            xlabel=k_label, ylabel="x_k [rad; rad/s]")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[0, 1])
     for i in range(2):
         ax.plot(k, paper_sim["xhat"][:, :, i].mean(axis=0), label=f"xhat({i + 1}), printed Khat")
@@ -464,7 +435,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
                 label=f"xhat({i + 1}), ours (H2/H-inf)")
     ax.set(title="Fig. 5: estimate xhat_k of (53) (mean of runs)", xlabel=k_label,
            ylabel="xhat_k [rad; rad/s]")
-    legend(ax)
+    legend_below(ax)
     ax = fig.add_subplot(grid[1, 0])
     for label, c in (("printed Khat", curves["paper_K_hat"]), ("ours", curves["ours"]),
                      ("ours on the MuJoCo rig", curves["rig"])):
@@ -472,7 +443,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
     ax.set(title="Fig. 6: ztilde_k, x0 = [0.1, 1] (mean of runs)",
            xlabel=k_label, ylabel="ztilde_k = x_k(1) - xhat_k(1) [rad]\n(the paper's: truth - "
            "estimate)")
-    legend(ax, 3)
+    legend_below(ax, 3)
     for case, cell in zip(CASES, (grid[1, 1], grid[2, 0]), strict=True):
         ax = fig.add_subplot(cell)
         for (label, key), color in zip((("printed Khat", "paper_K_hat"), ("ours", "ours"),
@@ -487,7 +458,7 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
         ax.set_ylim(bottom=1e-18)
         ax.set(title=f"Fig. 7: cumulative sums, {case.replace('_', ' = ')}", xlabel=k_label,
                ylabel="cumulative sum [rad^2]")
-        legend(ax)
+        legend_below(ax)
     ax = fig.add_subplot(grid[2, 1])
     rig_sim = curves["rig"]["x0_paper"]["sim"]
     for i, name in enumerate(("roll [rad]", "roll rate [rad/s]")):
@@ -495,11 +466,10 @@ def _plot(curves: dict, result: dict, s: VehicleRollLMIScenario, path: str | Pat
         ax.plot(k, paper_sim["x"][:, :, i].mean(axis=0), ":", label=f"{name}, model (52)")
     ax.set(title="rig vs (52): state from x0 = [0.1, 1] (mean of runs)", xlabel=k_label,
            ylabel="x_k [rad; rad/s]")
-    legend(ax)
-    draw_claims(fig.add_subplot(grid[3, :]), result["claims"], wrap=150)
-    set_title(fig, [f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: Theorem-4 filter, "
-                    f"vehicle roll ({result['runs']} runs)", agree_text(result["claims"])])
-    save_figure(fig, path)
+    legend_below(ax)
+    finish_figure(fig, grid, result["claims"], [
+        f"{PAPER.authors} ({PAPER.year}), {PAPER.where}: Theorem-4 filter, vehicle roll "
+        f"({result['runs']} runs)"], path, wrap=150)
 
 
 def why(result: dict[str, Any]) -> str:
