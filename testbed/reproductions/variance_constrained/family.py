@@ -92,9 +92,8 @@ def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.nda
     return 0.5 * (P + P.T)
 
 
-def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
-                      plant: UncertainPlant, *, n_runs: int, n_steps: int, burn_in: int,
-                      seed: int) -> list[dict[str, Any]]:
+def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]], *,
+                      n_runs: int, n_steps: int, burn_in: int, seed: int) -> list[dict[str, Any]]:
     """Monte Carlo of every filter at ``F = 1, 0, -1``: ``n_runs`` runs from
     ``x = xhat = 0`` stepped as one batch (:func:`~testbed.experiment.numpy_plant.rollout`).
 
@@ -108,7 +107,6 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
     filters : list of dict
         Each with ``name``, ``K`` (n, p) and ``G`` (n, n) (the ``published`` entries, then
         e.g. the searched design).
-    plant : UncertainPlant
     n_runs, n_steps, burn_in, seed : int
         Filter ``i`` at ``F_VALUES[j]`` uses the generator of child ``3 i + j`` of
         ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged);
@@ -122,7 +120,7 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
         ``relative_to_lyapunov``, ``n_runs``, ``n_steps``, ``burn_in``, ``dt_s``.
     """
     seeds = np.random.SeedSequence(seed).spawn(len(filters) * len(F_VALUES))
-    n = sim.model.n
+    plant, n = sim.model, sim.model.n
     out = []
     for i, entry in enumerate(filters):
         G, K = np.array(entry["G"]), np.array(entry["K"])
@@ -157,10 +155,11 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
 
 
 def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
-           n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
+                n_steps: int, seed: int) -> dict[str, Any]:
     """One run at ``F`` with the filter ``(G, K)`` in the loop, from ``x = xhat = 0``, its
     noise drawn from ``default_rng(seed)`` step by step (as an episode of :data:`ENV_ID`
-    after ``reset(seed=seed, options={"F": F})``).
+    after ``reset(seed=seed, options={"F": F})``), with the filter's steady-state error
+    covariance ``P`` (Lyapunov) as its covariance.
 
     Parameters
     ----------
@@ -170,16 +169,14 @@ def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarr
     G, K : numpy.ndarray, shapes (n, n), (n, p)
     F : float
     n_steps, seed : int
-    P : numpy.ndarray, shape (n, n)
-        Steady-state error covariance to report with the run.
 
     Returns
     -------
     dict
         ``t`` (T,), ``x``, ``xhat`` (T, n), ``y`` (T - 1, p) with ``T = n_steps + 1``,
-        ``filter``, ``F``, ``P``, ``seed``.
+        ``P`` (n, n), ``filter``, ``F``, ``seed``.
     """
-    n = sim.model.n
+    n, P = sim.model.n, error_covariance(sim.model, G, K, F)
     est = LinearFilter(G, K, np.zeros(n), discrete=sim.discrete, dt_s=sim.dt_s, covariance=P)
     run = rollout(sim.at(F), np.zeros(n), n_steps, noise=np.random.default_rng(seed),
                   estimators={name: est})
@@ -315,12 +312,11 @@ def run_example(name: str, s: Any,
     published = [evaluate(name, K, G) for name, (K, G) in s.published().items()]
     searched = None if summary is None else evaluate(SEARCHED, summary["K"], summary["G"])
     sim = UncertainLinearPlant(plant, dt_s)
-    mc = monte_carlo_block(sim, published + ([searched] if searched else []), plant,
+    mc = monte_carlo_block(sim, published + ([searched] if searched else []),
                            n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
     first = published[0]
     sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
-                         F_VALUES[0], n_steps=n_steps, seed=seed,
-                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
+                         F_VALUES[0], n_steps=n_steps, seed=seed)
     search_dict = record.to_dict()
     search_dict["summary"] = summary
     return {
