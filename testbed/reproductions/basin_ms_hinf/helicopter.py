@@ -172,11 +172,10 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
         ``T_final``, ``T_max`` (mean run), ``T_final_noisy``, ``T_max_noisy``, ``gamma``,
         ``final_error`` (pitch, yaw of the mean run), ``paper_T_max``, ``kalman_T_final``
         (Kalman-Bucy on ``y1`` only, mean run), ``kalman_T_final_noisy``,
-        ``final_error_without`` (the mean run's final error with parts of ``w`` removed,
-        :data:`BIAS_VARIANTS`), ``yaw_bias_contributions`` (the final yaw error split into
-        the parts due to ``w2``, ``w4`` and the rest), ``model_pitch_final_rad`` (the
-        gravity-free model's pitch at the end of the mean run) and
-        ``model_pitch_final_u_only_rad`` (under ``u`` alone), timings.
+        ``final_error_without`` (:func:`_bias_decomposition`), ``yaw_bias_contributions``
+        (:func:`_contributions`), ``model_pitch_final_rad`` (the gravity-free model's pitch
+        at the end of the mean run), ``model_pitch_final_u_only_rad`` (under ``u`` alone),
+        timings.
     """
     s = MsHinfHelicopterScenario()
     horizon_s = s.horizon_s if horizon_s is None else float(horizon_s)
