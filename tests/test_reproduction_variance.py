@@ -14,6 +14,7 @@ from scipy.linalg import solve_continuous_lyapunov, solve_discrete_lyapunov
 from testbed.cli import main
 from testbed.reproductions import load
 from testbed.reproductions.outputs import agree_text
+from testbed.reproductions.variance_constrained import family
 from testbed.reproductions.variance_constrained import liu_discrete as vd
 from testbed.reproductions.variance_constrained import wang_parabolic as vc
 from testbed.reproductions.variance_constrained.family import SEARCHED
@@ -155,8 +156,8 @@ def _check_outputs(rrd_path, figures, checks, claims) -> None:
 
 def test_discrete_cli_writes_outputs(tmp_path, capsys, monkeypatch, figure_checks):
     figures = _capture_figures(monkeypatch)
-    monkeypatch.setattr(vd, "SEARCH_STARTS", SHORT_SEARCH["search_starts"])
-    monkeypatch.setattr(vd, "SEARCH_EVALUATIONS", SHORT_SEARCH["search_evaluations"])
+    monkeypatch.setattr(family, "SEARCH_STARTS", SHORT_SEARCH["search_starts"])
+    monkeypatch.setattr(family, "SEARCH_EVALUATIONS", SHORT_SEARCH["search_evaluations"])
     out = tmp_path / "d"
     code = main(["reproduce", "liu-variance-constrained-discrete", "--horizon", "80", "--seed",
                  "1", "--json", f"{out}.json", "--plot", f"{out}.png", "--rrd", f"{out}.rrd"])
@@ -254,7 +255,7 @@ def test_continuous_cli_full_run(tmp_path):
     data = json.loads((tmp_path / "c.json").read_text())
     _check_common(data, 2, ("16", "17"))
     summary = data["design_search"]["summary"]
-    assert summary["n_candidates"] == vc.SEARCH_STARTS + 1 and summary["n_verified"] >= 2
+    assert summary["n_candidates"] == family.SEARCH_STARTS + 1 and summary["n_verified"] >= 2
     assert summary["certified"]
     s = VarianceConstrainedContinuousScenario()
     _check_searched(data, s.plant, discrete=False, a=s.a, b=s.b)

@@ -1,25 +1,12 @@
-"""What a reproduction shows: its claims as data, its figure and its Rerun file.
+"""What a reproduction shows: its claims as data (:class:`Claim`, verdicts computed from our
+numbers, never typed in), its figure and its Rerun file.
 
-**Claims.** A reproduction states, one :class:`Claim` per line, what the paper claims,
-the paper's value, ours and a verdict computed from our numbers (never typed in):
-``agrees``, ``differs`` or ``not checked``. The same list goes
-
-- into the JSON result (``result["claims"]``, via :func:`claims_json`),
-- onto the figure (:func:`draw_claims`: a block under the panels, verdicts coloured),
-- into the printed summary (:func:`format_claims`, printed by ``testbed reproduce``),
-- into ``docs/reproductions.md`` (:func:`claims_table`: one table row per claim, and
-  :func:`agree_text` in the index).
-
-**Sections.** Each reproduction module gives its paper (:class:`Paper`: authors, year,
-where in the paper, the example) and ``why(result)``: a short paragraph, computed from the
-result, on what the claims do not say (causes, corrections, what limits the check). No
-prose restates the claims' numbers; :func:`section` assembles the section of
-``docs/reproductions.md`` (heading, paper, claims table, why, figure).
-
-**Runs.** :func:`write_outputs` writes the JSON, the PNG and the ``.rrd``; the Rerun file
-holds every run the reproduction wants to show (e.g. noise-free and noisy), each under its
-own entity path with a text entry saying what it is (:class:`testbed.outputs.viz.Run`, one tab per
-run in the viewer).
+The same claims go into the JSON result (:func:`claims_json`), onto the figure
+(:func:`claims_figure`, :func:`finish_figure`), into the printed summary
+(:func:`format_claims`) and into the module's section of ``docs/reproductions.md``
+(:func:`section`, with its :class:`Paper` and ``why(result)``: what the claims do not say).
+:func:`write_outputs` writes the JSON, the PNG and the ``.rrd`` (one
+:class:`testbed.outputs.viz.Run` per run it shows).
 """
 
 from __future__ import annotations

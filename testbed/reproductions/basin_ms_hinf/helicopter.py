@@ -2,30 +2,16 @@
 H-infinity filter on the helicopter (see docs/references.md).
 
 ``testbed reproduce basin-ms-hinf-helicopter``. The plant is the paper's linear model (12)-(15)
-(not the MuJoCo rig), with every printed value (:class:`MsHinfHelicopterScenario`).
-
-Two runs on a ``dt_s`` grid (default 10 ms):
-
-- **mean** (noise-free): ``dx = (A x + B u + G w) dt``; ``y1`` is the interval average of
-  ``C1 x``, ``y2 = C2 x + H w`` the interval average too. This is the trajectory of ``E[x]``
-  that the attenuation requirement (6) bounds, so its ``T`` is the one to compare with the
-  paper's 0.208.
-- **noisy**: the same plus the unit-intensity white noises ``b dW1`` (state) and
-  ``h dW2`` (``y1``: sample covariance ``h h^T / dt``), as printed. No H-infinity bound covers
-  the error the white noise adds.
-
-``T(t) = ||z - L m||_2 / (||w||_2^2 + E(x0)^T R E(x0))^(1/2)`` over ``[0, t]`` (trapezoid
-rule, :func:`filters.analysis.noise_output_ratio`). The Kalman-Bucy filter on ``y1`` alone
-runs on the same data for comparison.
-
-The final yaw bias of the mean run is decomposed by rerunning it with ``w2``, ``w4`` or both
-removed (``final_error_without``, ``yaw_bias_contributions``: the error is affine in ``w``).
-
-The paper's model leaves gravity out. The constant ``u = [12.495, -3.835]`` V about cancels
-gravity at level pitch on the MuJoCo rig, but in the simulated gravity-free linear model it
-drives pitch without bound (``model_pitch_final_rad``, about 250 rad at 80 s). That
-trajectory is not rig motion: the figure and the ``.rrd`` show estimation errors and ``T``,
-never the model's angles.
+(not the MuJoCo rig), with every printed value (:class:`MsHinfHelicopterScenario`), on a
+``dt_s`` grid (default 10 ms). Two runs (:func:`_run`, outputs averaged over each interval):
+the noise-free **mean** run is the trajectory of ``E[x]`` that the attenuation requirement (6)
+bounds, so its ``T`` is the one to compare with the paper's 0.208; the **noisy** run adds the
+printed unit-intensity white noises ``b dW1`` and ``h dW2``, whose error no H-infinity bound
+covers. ``T(t) = ||z - L m||_2 / (||w||_2^2 + E(x0)^T R E(x0))^(1/2)`` over ``[0, t]``
+(:func:`filters.analysis.noise_output_ratio`); the Kalman-Bucy filter on ``y1`` alone runs on
+the same data for comparison. The mean run's final yaw bias is split by source
+(:func:`_bias_decomposition`); the gravity-free model's angles are never shown
+(:data:`MODEL_NOTE`).
 """
 
 from __future__ import annotations
@@ -186,11 +172,10 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
         ``T_final``, ``T_max`` (mean run), ``T_final_noisy``, ``T_max_noisy``, ``gamma``,
         ``final_error`` (pitch, yaw of the mean run), ``paper_T_max``, ``kalman_T_final``
         (Kalman-Bucy on ``y1`` only, mean run), ``kalman_T_final_noisy``,
-        ``final_error_without`` (the mean run's final error with parts of ``w`` removed,
-        :data:`BIAS_VARIANTS`), ``yaw_bias_contributions`` (the final yaw error split into
-        the parts due to ``w2``, ``w4`` and the rest), ``model_pitch_final_rad`` (the
-        gravity-free model's pitch at the end of the mean run) and
-        ``model_pitch_final_u_only_rad`` (under ``u`` alone), timings.
+        ``final_error_without`` (:func:`_bias_decomposition`), ``yaw_bias_contributions``
+        (:func:`_contributions`), ``model_pitch_final_rad`` (the gravity-free model's pitch
+        at the end of the mean run), ``model_pitch_final_u_only_rad`` (under ``u`` alone),
+        timings.
     """
     s = MsHinfHelicopterScenario()
     horizon_s = s.horizon_s if horizon_s is None else float(horizon_s)
@@ -254,10 +239,8 @@ def _trajectory(run: dict[str, np.ndarray], s: MsHinfHelicopterScenario,
                       state_names=["pitch_error", "yaw_error", "pitch_rate_error",
                                    "yaw_rate_error"],
                       measurement=run["T"][:, None], measurement_names=["T"],
-                      measured_state_index=[None],
                       action=np.tile(s.u, (len(run["t"]), 1)),
-                      action_names=["V_pitch [V]", "V_yaw [V]"], estimate=None,
-                      covariance=None,
+                      action_names=["V_pitch [V]", "V_yaw [V]"],
                       meta={"scenario": NAME, "run": name, "units": dict(UNITS),
                             "state_label": f"error ({PAPER_ERROR})",
                             "measurement_label": "",

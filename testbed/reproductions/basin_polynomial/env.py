@@ -75,21 +75,17 @@ class PolynomialCubicEnv(PlantEnv):
                              f"(q1, q2), got {noise_intensity!r}")
         if callable(disturbance):
             w = disturbance
-            self.disturbance_name = getattr(disturbance, "__name__", "callable")
         elif disturbance in DISTURBANCES:
             w = paper_w if disturbance == "paper" else None
-            self.disturbance_name = disturbance
         else:
             raise ValueError(f"disturbance must be one of {DISTURBANCES} or a callable "
                              f"t_s -> [w1, w2], got {disturbance!r}")
         white = disturbance == "white"
-        self.noise_intensity = q
         self.model = paper_model(E=np.array([[0.0], [1.0]]))
         system = PolynomialPlant(self.model, EscapeTest(bound=escape_bound,
                                                         growth_rtol=growth_rtol),
                                  dt_s=dt, substeps=substeps, w=w,
                                  noise_intensity=q if white else None)
-        self.substeps = system.substeps
         sensors = PlantSensors(["y"], np.array([[1.0, 0.0]]),
                                np.array([[q[1] if white and q[1] > 0 else 1.0]]),
                                per_sample=False, name="output")

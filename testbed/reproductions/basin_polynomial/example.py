@@ -1,39 +1,27 @@
 """Reproduction of the example of Basin, Shi & Calderon-Alvarez (n.d.): central H-infinity
 filter for a cubic polynomial system (see docs/references.md).
 
-``testbed reproduce basin-polynomial-hinf``. The plant is the paper's system (22)-(24)
-(:class:`~testbed.reproductions.basin_polynomial.scenario.PolynomialHinfScenario`), integrated
-with
-RK4 on a ``dt_s`` grid (default 0.1 ms, far below the 0.126 s period of ``sin 50t``) with the
-printed L2 disturbance ``w1 = 1/(1+t)^2``, ``w2 = 2/(2+t)^2``; the filters get the interval
-averages of ``y`` (held over each interval) and step on the same grid.
+``testbed reproduce basin-polynomial-hinf``. The plant is the paper's system (22)-(24) with the
+printed L2 disturbance (:class:`~testbed.reproductions.basin_polynomial.scenario.
+PolynomialHinfScenario`), integrated with RK4 on a ``dt_s`` grid (default 0.1 ms, far below
+the 0.126 s period of ``sin 50t``); the filters get the interval averages of ``y`` and step
+on the same grid, all in one :func:`~testbed.experiment.numpy_plant.rollout`
+(:func:`_simulate`). Filters (all from ``x_f(0) = 0``, ``P(0) = R^-1 = I``, ``gamma = 1.05``):
 
-Filters (all from ``x_f(0) = 0``, ``P(0) = R^-1 = I``, ``gamma = 1.05``):
-
-- **poly**: :class:`~filters.hinf_polynomial.PolynomialHInfFilter`, Theorem 1. The main
-  run uses the ``L`` for which (13) gives the printed (26) (``L = [1 0]``, see
-  :mod:`testbed.reproductions.basin_polynomial.scenario`); a test proves the implementation
-  equals
-  (25)-(26).
-- **linearized**: :class:`~filters.hinf_polynomial.LinearizedHInfFilter`, (27)-(28). The
-  main run uses (27) as printed (``state_equation="jacobian"``: ``0.2 m^2 + (0.3 + 0.3 sin
-  50t) m^3``); the variant ``"system"`` uses the system's ``0.1 m^2 + (0.1 + 0.1 sin 50t)
-  m^3``.
-- **L_identity**: both filters with the example's own output ``z = x`` (``L = I``) in the
-  Riccati equation, i.e. Theorem 1 as stated.
+- **poly**: :class:`~filters.hinf_polynomial.PolynomialHInfFilter`, Theorem 1, with the ``L``
+  for which (13) gives the printed (26) (``L = [1 0]``; a test proves the implementation
+  equals (25)-(26));
+- **linearized**: :class:`~filters.hinf_polynomial.LinearizedHInfFilter`, (27)-(28), (27) as
+  printed (``state_equation="jacobian"``: ``0.2 m^2 + (0.3 + 0.3 sin 50t) m^3``); the
+  variant ``"system"`` uses the system's ``0.1 m^2 + (0.1 + 0.1 sin 50t) m^3``;
+- **L_identity**: both with the example's own output ``z = x`` (``L = I``) in the Riccati
+  equation, i.e. Theorem 1 as stated.
 
 ``T(t) = ||z - z_f||_2 / (||w||_2^2 + x0^T R x0)^(1/2)`` over ``[0, t]`` with ``z = x``
-(:func:`filters.analysis.noise_output_ratio`, trapezoid rule); the paper's
-``||T_zw||^2`` is ``T^2``. A filter whose ``x_f`` or ``P`` escapes (bound or growth test,
-:class:`~filters.polynomial_model.EscapeTest`) stops existing at the last completed step;
-``T`` is reported where both filters exist (``null`` in the curve elsewhere), and the
-escape as ``{"quantity", "time", "singular_time", "singular"}``: ``time`` is where the escape
-test stopped the RK4 run, ``singular_time`` where the solution of the filter's ODE becomes
-singular (:func:`singular_time`: the ODE continued by ``solve_ivp`` and ``1/P22``
-extrapolated to zero), which is the escape time to quote.
-
-The plant (the one of ``testbed/PolynomialCubic-v0``, input 0: the paper's system) and the
-filters run together in one :func:`~testbed.experiment.numpy_plant.rollout`.
+(:func:`filters.analysis.noise_output_ratio`); the paper's ``||T_zw||^2`` is ``T^2``. A filter
+whose ``x_f`` or ``P`` escapes stops existing at the last completed step (:func:`_filter_run`:
+where its escape test fired and where its ODE becomes singular, the escape time to quote);
+``T`` is reported where both filters of a pair exist (:func:`_pair`).
 """
 
 from __future__ import annotations
@@ -168,16 +156,12 @@ def _pair(t: np.ndarray, poly: _FilterRun, lin: _FilterRun,
     k = min(poly.last, lin.last)
     dt = float(t[1] - t[0])
 
-    def curve(run: _FilterRun) -> list[float | None]:
-        out: list[float | None] = []
-        for tau in s.curve_times:
-            i = int(round(tau / dt))
-            out.append(float(run.T[i]) if i <= run.last else None)
-        return out
-
     def at(run: _FilterRun, tau: float) -> float | None:
         i = int(round(tau / dt))
         return float(run.T[i]) if 0 <= i <= run.last else None
+
+    def curve(run: _FilterRun) -> list[float | None]:
+        return [at(run, tau) for tau in s.curve_times]
 
     def crossing(run: _FilterRun) -> float | None:
         above = np.nonzero(run.T > s.gamma)[0]

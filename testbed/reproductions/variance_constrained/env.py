@@ -20,40 +20,26 @@ SCENARIOS = ("wang-variance-constrained-parabolic", "liu-variance-constrained-di
 
 
 def _scenario_model(name: str) -> UncertainPlant:
+    from testbed.reproductions.variance_constrained import scenario_liu, scenario_wang
+
     if name == "wang-variance-constrained-parabolic":
-        from testbed.reproductions.variance_constrained.scenario_wang import (
-            VarianceConstrainedContinuousScenario,
-        )
-
-        return VarianceConstrainedContinuousScenario().plant
+        return scenario_wang.VarianceConstrainedContinuousScenario().plant
     if name == "liu-variance-constrained-discrete":
-        from testbed.reproductions.variance_constrained.scenario_liu import (
-            VarianceConstrainedDiscreteScenario,
-        )
-
-        return VarianceConstrainedDiscreteScenario().plant
+        return scenario_liu.VarianceConstrainedDiscreteScenario().plant
     raise ValueError(f"scenario must be one of {list(SCENARIOS)} (or pass plant=...), got "
                      f"{name!r}")
 
 
 class UncertainLinearEnv(PlantEnv):
-    """A linear plant with norm-bounded uncertainty ``[dA; dC] = [M1; M2] F N``, ``F^T F <= I``.
+    """A linear plant with norm-bounded uncertainty ``[dA; dC] = [M1; M2] F N``, ``F^T F <= I``
+    (the model and its exact sampling: :mod:`testbed.reproductions.variance_constrained.plant`).
 
     The example of Wang & Fang (2006) (continuous,
     ``scenario="wang-variance-constrained-parabolic"``) or of Liu, Deng & Wang (n.d.)
     (discrete, ``"liu-variance-constrained-discrete"``), or any
-    :class:`~filters.analysis.UncertainPlant` (``plant=``)::
-
-        continuous: x' = (A + M1 F N) x + B u + D1 w,   y = (C + M2 F N) x + D2 w
-        discrete:   x(k+1) = (A + M1 F N) x(k) + B u(k) + D1 w(k),
-                    y(k) = (C + M2 F N) x(k) + D2 w(k)
-
-    ``w`` is white noise of unit intensity (continuous) or unit covariance (discrete), the same
-    in state and measurement. ``F`` is drawn per episode from the env's generator (entries
-    uniform in [-1, 1], scaled to spectral norm <= 1) unless fixed by the constructor or
-    ``reset(options={"F": ...})``. Simulation:
-    :class:`~testbed.reproductions.variance_constrained.plant.UncertainLinearPlant` (exact for
-    the continuous plant: ``x`` and ``int y dt`` by Van Loan). The common contract
+    :class:`~filters.analysis.UncertainPlant` (``plant=``). ``F`` is drawn per episode from
+    the env's generator (entries uniform in [-1, 1], scaled to spectral norm <= 1) unless
+    fixed by the constructor or ``reset(options={"F": ...})``. The common contract
     (validation, escape beyond ``1e10``, info) is :class:`PlantEnv`'s; reward 0; truncated
     after 1000 steps (registration).
 
@@ -62,12 +48,11 @@ class UncertainLinearEnv(PlantEnv):
     | action      | (k,)  | normalized input ``u`` through ``B`` (default ``B = 0``), [-1, 1] |
     | observation | (p,)  | the measurement of the last step; zeros after ``reset``         |
 
-    After a step ``k -> k+1`` the observation is the measurement of that step: discrete
-    ``y(k)`` (it shares ``w(k)`` with ``x(k+1)``, as in (1)-(2) of Liu, Deng & Wang (n.d.));
-    continuous the average of ``y(t)`` over the step (noise covariance ``D2 D2^T / dt``). A
-    filter ``xhat(k+1) = G xhat(k) + K y(k)`` stepped on it estimates ``info["state"] =
-    x(k+1)``. ``info`` adds ``F`` (the episode's) and ``disturbance`` (discrete: ``w(k)``;
-    continuous: the standard normal ``xi`` of the exact step).
+    After a step ``k -> k+1`` the observation is the measurement of that step (discrete
+    ``y(k)``, continuous the average of ``y(t)`` over the step), so a filter ``xhat(k+1) =
+    G xhat(k) + K y(k)`` stepped on it estimates ``info["state"] = x(k+1)``. ``info`` adds
+    ``F`` (the episode's) and ``disturbance`` (discrete: ``w(k)``; continuous: the standard
+    normal ``xi`` of the exact step).
 
     Arguments: ``scenario`` or ``plant``; ``dt_s`` (continuous: sample period, default
     0.01 s; discrete: time label, default 1); ``F`` (fixed uncertainty, default None: drawn

@@ -1,8 +1,5 @@
-"""The variance-constrained family's shared evaluation (Wang et al.'s parabolic-region
-filter and Liu, Deng & Wang's discrete filter): the published filters checked against their
-requirements, the Monte Carlo of a filter on the uncertain plant, the Gymnasium episode
-samples, the design-search summaries and the figure."""
-
+"""What the variance-constrained examples (Wang & Fang's parabolic-region filter and Liu,
+Deng & Wang's discrete filter) share: :func:`run_example`, its pieces and the figure."""
 
 from __future__ import annotations
 
@@ -33,32 +30,21 @@ from filters.variance_constrained import (
 from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.outputs import (
-    claims_figure,
-    finish_figure,
-)
+from testbed.reproductions.outputs import claims_figure, finish_figure, legend_below
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
 
 #: Registered environment of the plant (``testbed/UncertainLinear-v0``).
 ENV_ID = "testbed/UncertainLinear-v0"
-
-
+#: The uncertainties at which the filters are checked in detail and simulated.
 F_VALUES = (1.0, 0.0, -1.0)
-
-
 #: Optimizer starts and objective evaluations per start of the design search (the printed
 #: parameters are start 0).
 SEARCH_STARTS = 8
-
-
 SEARCH_EVALUATIONS = 300
-
-
 #: Name of the best searched design in ``monte_carlo`` and the figure.
 SEARCHED = "searched design"
 
 
-# ========================================================================= helpers
 def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.ndarray, *,
                        region: PoleRegion, gamma: float, sigma2: np.ndarray,
                        n_grid: int = 21) -> dict[str, Any]:
@@ -79,21 +65,11 @@ def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.nd
             cov[f"{F:g}"] = error_covariance(plant, G, K, F).tolist()
         except Exception:  # unstable for this F: no steady state
             cov[f"{F:g}"] = None
-    return {
-        "name": name, "K": np.asarray(K).tolist(), "G": np.asarray(G).tolist(),
-        "hinf_worst": summary["hinf_worst"], "variance_worst": summary["variance_worst"],
-        "poles_in_region": summary["poles_in_region"], "worst_F": summary["worst_F"],
-        "covariance": cov, "pole_margin_worst": summary["pole_margin_worst"],
-        "meets": summary["meets"], "analysis": summary,
-        "filter_poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(G)],
-    }
-
-
-def _filter_maps(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    if sim.discrete:
-        return G, K
-    return zoh(G, K, sim.dt_s)
+    return {"name": name, "K": np.asarray(K).tolist(), "G": np.asarray(G).tolist(),
+            **{key: summary[key] for key in ("hinf_worst", "variance_worst", "poles_in_region",
+                                             "worst_F", "pole_margin_worst", "meets")},
+            "covariance": cov, "analysis": summary,
+            "filter_poles": [[float(z.real), float(z.imag)] for z in np.linalg.eigvals(G)]}
 
 
 def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.ndarray,
@@ -107,7 +83,7 @@ def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.nda
     """
     tr = sim.transition(F)
     n = sim.model.n
-    Pg, Gy = _filter_maps(sim, G, K)
+    Pg, Gy = (G, K) if sim.discrete else zoh(G, K, sim.dt_s)
     Az = np.block([[tr.Phi[:n], np.zeros((n, n))], [Gy @ tr.Phi[n:], Pg]])
     Bz = np.vstack([tr.S[:n], Gy @ tr.S[n:]])
     Xz = solve_discrete_lyapunov(Az, Bz @ Bz.T)
@@ -116,9 +92,8 @@ def sampled_error_covariance(sim: UncertainLinearPlant, G: np.ndarray, K: np.nda
     return 0.5 * (P + P.T)
 
 
-def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
-                      plant: UncertainPlant, *, n_runs: int, n_steps: int, burn_in: int,
-                      seed: int) -> list[dict[str, Any]]:
+def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]], *,
+                      n_runs: int, n_steps: int, burn_in: int, seed: int) -> list[dict[str, Any]]:
     """Monte Carlo of every filter at ``F = 1, 0, -1``: ``n_runs`` runs from
     ``x = xhat = 0`` stepped as one batch (:func:`~testbed.experiment.numpy_plant.rollout`).
 
@@ -132,7 +107,6 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
     filters : list of dict
         Each with ``name``, ``K`` (n, p) and ``G`` (n, n) (the ``published`` entries, then
         e.g. the searched design).
-    plant : UncertainPlant
     n_runs, n_steps, burn_in, seed : int
         Filter ``i`` at ``F_VALUES[j]`` uses the generator of child ``3 i + j`` of
         ``SeedSequence(seed)`` (appending a filter leaves the others' numbers unchanged);
@@ -146,7 +120,7 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
         ``relative_to_lyapunov``, ``n_runs``, ``n_steps``, ``burn_in``, ``dt_s``.
     """
     seeds = np.random.SeedSequence(seed).spawn(len(filters) * len(F_VALUES))
-    n = sim.model.n
+    plant, n = sim.model, sim.model.n
     out = []
     for i, entry in enumerate(filters):
         G, K = np.array(entry["G"]), np.array(entry["K"])
@@ -181,10 +155,11 @@ def monte_carlo_block(sim: UncertainLinearPlant, filters: list[dict[str, Any]],
 
 
 def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarray, F: float, *,
-           n_steps: int, seed: int, P: np.ndarray) -> dict[str, Any]:
+                n_steps: int, seed: int) -> dict[str, Any]:
     """One run at ``F`` with the filter ``(G, K)`` in the loop, from ``x = xhat = 0``, its
     noise drawn from ``default_rng(seed)`` step by step (as an episode of :data:`ENV_ID`
-    after ``reset(seed=seed, options={"F": F})``).
+    after ``reset(seed=seed, options={"F": F})``), with the filter's steady-state error
+    covariance ``P`` (Lyapunov) as its covariance.
 
     Parameters
     ----------
@@ -194,16 +169,14 @@ def loop_sample(sim: UncertainLinearPlant, name: str, G: np.ndarray, K: np.ndarr
     G, K : numpy.ndarray, shapes (n, n), (n, p)
     F : float
     n_steps, seed : int
-    P : numpy.ndarray, shape (n, n)
-        Steady-state error covariance to report with the run.
 
     Returns
     -------
     dict
         ``t`` (T,), ``x``, ``xhat`` (T, n), ``y`` (T - 1, p) with ``T = n_steps + 1``,
-        ``filter``, ``F``, ``P``, ``seed``.
+        ``P`` (n, n), ``filter``, ``F``, ``seed``.
     """
-    n = sim.model.n
+    n, P = sim.model.n, error_covariance(sim.model, G, K, F)
     est = LinearFilter(G, K, np.zeros(n), discrete=sim.discrete, dt_s=sim.dt_s, covariance=P)
     run = rollout(sim.at(F), np.zeros(n), n_steps, noise=np.random.default_rng(seed),
                   estimators={name: est})
@@ -220,8 +193,7 @@ def episode_run(sample: dict[str, Any], scenario: str, time_text: str) -> Run:
     traj = Trajectory(t_s=t, state=x, state_names=[f"x{i + 1}" for i in range(n)],
                       measurement=np.vstack([np.zeros((1, p)), y]),
                       measurement_names=[f"y{i + 1}" for i in range(p)],
-                      measured_state_index=[None] * p, action=np.zeros((len(t), 1)),
-                      action_names=["u"], estimate=xhat,
+                      action=np.zeros((len(t), 1)), action_names=["u"], estimate=xhat,
                       covariance=np.broadcast_to(sample["P"], (len(t), n, n)).copy(),
                       meta={"scenario": scenario, "filter": sample["filter"],
                             "F": sample["F"], "seed": sample["seed"], "env": ENV_ID,
@@ -280,8 +252,9 @@ def design_entry(d: VarianceDesign, plant: UncertainPlant, s: Any) -> dict[str, 
 def run_example(name: str, s: Any,
                 design: Callable[[], tuple[dict[str, VarianceDesign], dict[str, Any]]],
                 search: Callable[[int, int], DesignSearchRecord], *, dt_s: float,
-                n_steps: int, burn_in: int, n_runs: int, seed: int, search_starts: int,
-                search_evaluations: int) -> tuple[dict[str, Any], dict[str, Any]]:
+                n_steps: int, burn_in: int, n_runs: int, seed: int,
+                search_starts: int | None = None, search_evaluations: int | None = None
+                ) -> tuple[dict[str, Any], dict[str, Any]]:
     """What both examples compute: the designs at the printed parameters, the design search,
     the printed filters and the best searched design checked for every ``F``, their Monte
     Carlo (:func:`monte_carlo_block`) and one run with the first printed filter at ``F = 1``
@@ -298,7 +271,16 @@ def run_example(name: str, s: Any,
     search : callable ``(n_starts, max_evaluations) -> DesignSearchRecord``
     dt_s : float
         Sample period of the runs.
-    n_steps, burn_in, n_runs, seed, search_starts, search_evaluations : int
+    n_steps, burn_in : int
+        Steps of each run and steps left out of its averages.
+    n_runs : int
+        Monte-Carlo runs per filter and ``F``.
+    seed : int
+        Seed of the Monte Carlo and of the environment episode (the designs and the search
+        are deterministic; the search's random starts use seed 0).
+    search_starts, search_evaluations : int or None
+        Optimizer starts of the design search (the printed parameters included) and objective
+        evaluations per start (``None``: :data:`SEARCH_STARTS`, :data:`SEARCH_EVALUATIONS`).
 
     Returns
     -------
@@ -309,6 +291,8 @@ def run_example(name: str, s: Any,
     sample : dict
         The run of :func:`loop_sample`.
     """
+    search_starts = SEARCH_STARTS if search_starts is None else search_starts
+    search_evaluations = SEARCH_EVALUATIONS if search_evaluations is None else search_evaluations
     for label, value in (("n_runs", n_runs), ("search_starts", search_starts),
                          ("search_evaluations", search_evaluations)):
         if int(value) != value or value < 1:
@@ -328,12 +312,11 @@ def run_example(name: str, s: Any,
     published = [evaluate(name, K, G) for name, (K, G) in s.published().items()]
     searched = None if summary is None else evaluate(SEARCHED, summary["K"], summary["G"])
     sim = UncertainLinearPlant(plant, dt_s)
-    mc = monte_carlo_block(sim, published + ([searched] if searched else []), plant,
+    mc = monte_carlo_block(sim, published + ([searched] if searched else []),
                            n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
     first = published[0]
     sample = loop_sample(sim, first["name"], np.array(first["G"]), np.array(first["K"]),
-                         F_VALUES[0], n_steps=n_steps, seed=seed,
-                         P=error_covariance(plant, first["G"], first["K"], F_VALUES[0]))
+                         F_VALUES[0], n_steps=n_steps, seed=seed)
     search_dict = record.to_dict()
     search_dict["summary"] = summary
     return {
@@ -349,31 +332,35 @@ def run_example(name: str, s: Any,
     }, sample
 
 
-def plot_figure(result: dict[str, Any], plant: UncertainPlant, region: PoleRegion,
-                gamma: float, sigma2: np.ndarray, sample: dict[str, Any], *, discrete: bool,
-                title: list[str], path: str | Path, extra: Any = None) -> None:
-    """The figure of a variance-constrained reproduction: :func:`plot_published`'s four
-    panels, the claims (``result["claims"]``) under them, ``title`` and the claims' summary
-    on top. ``extra(ax)`` (optional) draws more into the panels before their legends."""
+def plot_figure(result: dict[str, Any], s: Any, sample: dict[str, Any], title: list[str],
+                path: str | Path, extra: Callable[[Any], None] | None = None) -> None:
+    """The figure of a variance-constrained reproduction: four panels (poles over F with the
+    region, H-infinity norm over F, variances: Lyapunov curve and Monte-Carlo points, one
+    environment episode's error with +-2 sigma), the claims (``result["claims"]``) under
+    them, ``title`` and the claims' summary on top.
+
+    Parameters
+    ----------
+    result : dict
+        :func:`run_example`'s result with ``claims``; its filters are ``result["published"]``
+        and, if found, ``result["searched"]``.
+    s : scenario
+        ``plant``, ``region``, ``gamma``, ``sigma2``. The system is dimensionless; time is in
+        s (continuous plant) or samples (discrete).
+    sample : dict
+        The episode (:func:`loop_sample`).
+    title : list of str
+        The title's lines; the last one gets the design search's outcome appended.
+    path : path
+    extra : callable ``ax -> None``, optional
+        Draws more into the panels (``ax``: ndarray of Axes, shape (2, 2)) before their
+        legends, which go below them.
+    """
+    found = "verified design found" if result["searched"] is not None else "nothing verified"
     fig, grid = claims_figure(result["claims"], 12, 12, [5.6, 5.6], cols=2, wrap=140)
     ax = np.array([[fig.add_subplot(grid[i, j]) for j in range(2)] for i in range(2)])
-    plot_published(ax, result, plant, region, gamma, sigma2, sample, discrete=discrete,
-                   extra=extra)
-    finish_figure(fig, grid, result["claims"], title, path, wrap=140)
-
-
-def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
-                   region: PoleRegion, gamma: float, sigma2: np.ndarray,
-                   sample: dict[str, Any], *, discrete: bool, extra: Any = None) -> None:
-    """Four panels: poles over F with the region, H-infinity norm over F, variances
-    (Lyapunov curve, Monte-Carlo points), one environment episode's error with +-2 sigma.
-
-    The filters are ``result["published"]`` and, if found, ``result["searched"]``. The
-    system is dimensionless; time is in s (continuous) or samples (discrete). Legends go
-    below the panels; ``extra(ax)`` draws more before them.
-    """
-    from testbed.outputs.plots import FONT_PT
-
+    plant, region, gamma, sigma2 = s.plant, s.region, s.gamma, s.sigma2
+    discrete = plant.discrete
     Fs = np.linspace(-1.0, 1.0, 41)
     markers = ["o", "s", "^"]
     filters = result["published"] + ([result["searched"]] if result.get("searched") else [])
@@ -392,8 +379,8 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
                                   yerr=[2 * e for e in mc["std_error"]], fmt="k.", ms=4,
                                   label="Monte Carlo +-2 s.e." if i == 0 and mc["F"] == 1.0
                                   else None)
+    th = np.linspace(0, 2 * np.pi, 200)
     if discrete:
-        th = np.linspace(0, 2 * np.pi, 200)
         ax[0, 0].plot(np.cos(th), np.sin(th), "k", lw=0.8, label="unit circle")
         ax[0, 0].set(xlabel="Re z", ylabel="Im z")
     else:
@@ -401,7 +388,6 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
         im = np.linspace(-3, 3, 200)
         ax[0, 0].plot(-a - b * im**2 / 2, im, "k", lw=0.8, label=f"P({a:g}, {b:g})")
         disk = region.proof_disk()  # type: ignore[attr-defined]
-        th = np.linspace(0, 2 * np.pi, 200)
         c = float(np.real(disk.center))
         ax[0, 0].plot(c + disk.radius * np.cos(th), disk.radius * np.sin(th), "k:", lw=0.8,
                       label="disk of proof (28)")
@@ -431,5 +417,6 @@ def plot_published(ax: Any, result: dict[str, Any], plant: UncertainPlant,
         extra(ax)
     for a_ in ax.ravel():
         a_.set_title(textwrap.fill(a_.get_title(), 60), fontsize=10)
-        a_.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2,
-                  frameon=False)
+        legend_below(a_, 2, 0.14)
+    finish_figure(fig, grid, result["claims"],
+                  [*title[:-1], f"{title[-1]}; design search: {found}"], path, wrap=140)

@@ -2,21 +2,15 @@
 with variance constraints (OCR-damaged paper; our reading of the example, see
 docs/references.md).
 
-``testbed reproduce liu-variance-constrained-discrete``. The same parts as
-:mod:`testbed.reproductions.variance_constrained.wang_parabolic`
-(:func:`~testbed.reproductions.variance_constrained.family.run_example`):
-
-1. **design**: (11) and the reconstructed second Riccati equation (12r)
-   (:func:`filters.variance_discrete.design_discrete`) with the printed ``gamma = 0.012``,
-   ``eps = 1.89``, ``delta1 = 0.31`` and our assumptions ``delta2 = delta1``, ``H = 0`` (then
-   ``U = +-1`` give the same gain); the existence threshold of (11) in ``delta1``
-   (:func:`~filters.variance_discrete.delta1_threshold`).
-2. **design_search** (:func:`filters.variance_discrete.search_discrete_design`): does a
-   design meeting the example's specification exist?
-3. **published**: the printed filter ``(G, K)`` checked for all ``F``, with the steady-state
-   error covariance at ``F = 1, 0, -1`` next to the printed ones (``paper_covariance``).
-4. **Monte Carlo** on the plant of ``testbed/UncertainLinear-v0`` (exact: the discrete loop
-   has no sampling error). The horizon is in samples (``dt_s = 1``).
+``testbed reproduce liu-variance-constrained-discrete``: what
+:func:`~testbed.reproductions.variance_constrained.family.run_example` computes, with the
+design of :func:`filters.variance_discrete.design_discrete` ((11) and the reconstructed
+(12r)) at the printed parameters and our assumptions ``delta2 = delta1``, ``H = 0`` (then
+``U = +-1`` give the same gain), the existence threshold of (11) in ``delta1``
+(:func:`~filters.variance_discrete.delta1_threshold`), the search of
+:func:`filters.variance_discrete.search_discrete_design`, the printed filter's steady-state
+error covariances next to the printed ones, and the Monte Carlo (exact: the discrete loop
+has no sampling error; the horizon is in samples, ``dt_s = 1``).
 """
 
 from __future__ import annotations
@@ -26,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from filters.analysis import UncertainPlant
 from filters.variance_constrained import VarianceDesign
 from filters.variance_discrete import (
     delta1_threshold,
@@ -37,8 +30,6 @@ from filters.variance_discrete import (
 from testbed.reproductions.outputs import Claim, Paper, claims_json, write_outputs
 from testbed.reproductions.variance_constrained.family import (
     ENV_ID,
-    SEARCH_EVALUATIONS,
-    SEARCH_STARTS,
     _fmt,
     episode_run,
     plot_figure,
@@ -71,16 +62,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     horizon_s : float, optional
         Samples per Monte-Carlo run (``dt_s = 1``; default 400; burn-in a quarter, at most
         100).
-    seed : int
-        Seed of the Monte Carlo and of the environment episode (the search's random starts
-        use seed 0).
     json_path, plot_path, rrd_path : path, optional
-    n_runs : int
-        Monte-Carlo runs per filter and ``F``.
-    search_starts, search_evaluations : int, optional
-        Optimizer starts of the design search (the printed parameters included) and objective
-        evaluations per start (``None``: :data:`SEARCH_STARTS`, :data:`SEARCH_EVALUATIONS`,
-        8 and 300: about 10 s).
+    seed, n_runs, search_starts, search_evaluations : int
+        As :func:`~testbed.reproductions.variance_constrained.family.run_example` (its
+        default search takes about 10 s).
 
     Returns
     -------
@@ -107,9 +92,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         NAME, s, design, lambda n, m: search_discrete_design(
             plant, s.parameters(), s.sigma2, n_starts=n, seed=0, max_evaluations=m),
         dt_s=1.0, n_steps=n_steps, burn_in=min(100, n_steps // 4), n_runs=n_runs, seed=seed,
-        search_starts=SEARCH_STARTS if search_starts is None else search_starts,
-        search_evaluations=SEARCH_EVALUATIONS if search_evaluations is None
-        else search_evaluations)
+        search_starts=search_starts, search_evaluations=search_evaluations)
     result.update({
         "parameters": {"gamma": s.gamma, "sigma2": s.sigma2.tolist(), "eps": s.eps,
                        "delta1": s.delta1, "delta2 (assumed)": s.delta2,
@@ -125,7 +108,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
             "relative_difference": (ours / printed - 1.0).tolist()}
     result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
-                  plot=lambda path: _plot(result, s, plant, sample, path),
+                  plot=lambda path: _plot(result, s, sample, path),
                   units={"state": "1 (dimensionless system)", "time": "samples"},
                   runs=lambda: [episode_run(sample, NAME, "t counts samples (dt_s = 1).")],
                   application_id="testbed-" + NAME, degrees=False)
@@ -133,20 +116,16 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
 
 
 def _plot(result: dict[str, Any], s: VarianceConstrainedDiscreteScenario,
-          plant: UncertainPlant, sample: dict[str, Any], path: str | Path) -> None:
+          sample: dict[str, Any], path: str | Path) -> None:
     def paper_marks(ax: Any) -> None:
         for key, P in s.paper_covariance.items():
             ax[1, 0].plot([float(key)] * 2, np.diag(P), "rx", ms=7,
                           label="paper's P (diagonal)" if key == "1" else None)
 
-    found = result["searched"] is not None
-    plot_figure(result, plant, s.region, s.gamma, s.sigma2, sample, discrete=True,
-                title=[f"{PAPER.authors} ({PAPER.year}): the printed filter and the searched "
-                       "design, checked for all |F| <= 1",
-                       f"Printed eps, delta1: (11) solvable: "
-                       f"{'yes' if result['design']['U=1']['solved'] else 'no'}; design search: "
-                       f"{'verified design found' if found else 'nothing verified'}"],
-                path=path, extra=paper_marks)
+    solved = "yes" if result["design"]["U=1"]["solved"] else "no"
+    plot_figure(result, s, sample, [
+        f"{PAPER.authors} ({PAPER.year}): the printed filter and the searched design, checked "
+        "for all |F| <= 1", f"Printed eps, delta1: (11) solvable: {solved}"], path, paper_marks)
 
 
 def claims(result: dict[str, Any]) -> list[Claim]:

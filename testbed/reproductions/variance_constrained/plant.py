@@ -130,10 +130,11 @@ class UncertainLinearPlant:
         m = self.model
         A_F, C_F = m.perturbed(Fm)
         n, p, k = m.n, m.p, self.B.shape[1]
+        Dz = np.vstack([m.D1, m.D2])
+        Bz = np.vstack([self.B, np.zeros((p, k))])
         if m.discrete:
             Phi = np.vstack([A_F, C_F])
-            Gu = np.vstack([self.B, np.zeros((p, k))])
-            Dz = np.vstack([m.D1, m.D2])
+            Gu = Bz
             Q = Dz @ Dz.T
         else:
             dt = self.dt_s
@@ -141,9 +142,7 @@ class UncertainLinearPlant:
             Az = np.zeros((nz, nz))
             Az[:n, :n] = A_F
             Az[n:, :n] = C_F
-            Dz = np.vstack([m.D1, m.D2])
             # drift and input: exp([[Az, Bz], [0, 0]] dt)
-            Bz = np.vstack([self.B, np.zeros((p, k))])
             big = np.zeros((nz + k, nz + k))
             big[:nz, :nz] = Az
             big[:nz, nz:] = Bz

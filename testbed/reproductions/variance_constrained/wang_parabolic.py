@@ -1,25 +1,13 @@
 """Reproduction of the example of Wang & Fang (2006): variance-constrained robust H-infinity
 filtering with parabolic pole assignment (see docs/references.md).
 
-``testbed reproduce wang-variance-constrained-parabolic``; the parts shared with
-:mod:`~testbed.reproductions.variance_constrained.liu_discrete` are
-:func:`~testbed.reproductions.variance_constrained.family.run_example`'s.
-
-1. **design** with the printed parameters (eps1 = eps2 = 0.58, delta1 = delta2 = 0.01,
-   H = [0.1 0.1]^T, U = +-1) and the corrected equations
-   (:func:`filters.variance_continuous.design_parabolic`): (16) by monotone Newton (least
-   solution), (17) by its stabilizing branch continued in gamma from the Riccati solution at
-   gamma = inf (``design_diagnostics["equation17_branch"]``: where the branch ends), then a
-   multi-start local search. The same branch with ``H = 0`` tells whether another ``H`` could
-   help at these eps.
-2. **design_search** (:func:`filters.variance_continuous.search_parabolic_design`): does a
-   Theorem 1 design meeting the example's specification exist?
-3. **published**: the printed filters (K1, G1), (K2, G2) checked for all ``F``; how the
-   printed Q1, Q2 and gains relate to (16)-(18) (``paper_checks``).
-4. **Monte Carlo** on the exactly sampled plant of ``testbed/UncertainLinear-v0`` (the
-   filter is the exact ZOH sampling of (4)): the error variance against the continuous
-   Lyapunov value and the sampled loop's steady state. The ``.rrd`` and the figure's last
-   panel: one run with (K1, G1) at ``F = 1``.
+``testbed reproduce wang-variance-constrained-parabolic``: what
+:func:`~testbed.reproductions.variance_constrained.family.run_example` computes, with the
+design of :func:`filters.variance_continuous.design_parabolic` at the printed parameters
+(``U = +-1``; ``design_diagnostics``: where (17)'s stabilizing branch ends, also with
+``H = 0``), the search of :func:`filters.variance_continuous.search_parabolic_design`, how
+the printed Q1, Q2 and gains relate to (16)-(18) (``paper_checks``), and the Monte Carlo on
+the exactly sampled plant (the filter is the exact ZOH sampling of (4)).
 """
 
 from __future__ import annotations
@@ -44,8 +32,6 @@ from filters.variance_continuous import (
 from testbed.reproductions.outputs import Claim, Paper, claims_json, write_outputs
 from testbed.reproductions.variance_constrained.family import (
     ENV_ID,
-    SEARCH_EVALUATIONS,
-    SEARCH_STARTS,
     _fmt,
     episode_run,
     plot_figure,
@@ -80,16 +66,10 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     horizon_s : float, optional
         Simulated time of each Monte-Carlo run (default 20 s; burn-in a quarter of it, at
         most 5 s).
-    seed : int
-        Seed of the Monte Carlo and of the environment episode (the designs and the search
-        are deterministic; the search's random starts use seed 0).
     json_path, plot_path, rrd_path : path, optional
-    n_runs : int
-        Monte-Carlo runs per filter and ``F``.
-    search_starts, search_evaluations : int, optional
-        Optimizer starts of the design search (the printed parameters included) and objective
-        evaluations per start (``None``: :data:`SEARCH_STARTS`, :data:`SEARCH_EVALUATIONS`,
-        8 and 300: 25-40 s).
+    seed, n_runs, search_starts, search_evaluations : int
+        As :func:`~testbed.reproductions.variance_constrained.family.run_example` (its
+        default search takes 25-40 s).
 
     Returns
     -------
@@ -113,10 +93,8 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         NAME, s, design, lambda n, m: search_parabolic_design(
             plant, s.parameters(1.0), s.sigma2, n_starts=n, seed=0, max_evaluations=m),
         dt_s=DT_S, n_steps=n_steps, burn_in=min(int(round(5.0 / DT_S)), n_steps // 4),
-        n_runs=n_runs, seed=seed,
-        search_starts=SEARCH_STARTS if search_starts is None else search_starts,
-        search_evaluations=SEARCH_EVALUATIONS if search_evaluations is None
-        else search_evaluations)
+        n_runs=n_runs, seed=seed, search_starts=search_starts,
+        search_evaluations=search_evaluations)
     disk = s.region.proof_disk()
     for pub in result["published"]:
         lam = [np.linalg.eigvals(error_system(plant, pub["G"], pub["K"], F)[0])
@@ -133,7 +111,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         "proof_disk": {"center": float(np.real(disk.center)), "radius": disk.radius}})
     result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
-                  plot=lambda path: _plot(result, s, plant, sample, path),
+                  plot=lambda path: _plot(result, s, sample, path),
                   runs=lambda: [episode_run(sample, NAME, f"t in s (dt = {DT_S:g} s).")],
                   application_id="testbed-" + NAME, degrees=False)
     return result
@@ -205,16 +183,12 @@ def _paper_checks(s: VarianceConstrainedContinuousScenario,
 
 
 def _plot(result: dict[str, Any], s: VarianceConstrainedContinuousScenario,
-          plant: UncertainPlant, sample: dict[str, Any], path: str | Path) -> None:
+          sample: dict[str, Any], path: str | Path) -> None:
     branch = result["design_diagnostics"]["equation17_branch"]["gamma_reached"]
-    found = result["searched"] is not None
-    plot_figure(result, plant, s.region, s.gamma, s.sigma2, sample, discrete=False,
-                title=[f"{PAPER.authors} ({PAPER.year}): printed filters and the searched "
-                       "Theorem 1 design, checked for all |F| <= 1",
-                       f"Printed eps: (17)'s branch ends at gamma = {branch:.3g} > "
-                       f"{s.gamma:g}; design search: "
-                       f"{'verified design found' if found else 'nothing verified'}"],
-                path=path)
+    plot_figure(result, s, sample, [
+        f"{PAPER.authors} ({PAPER.year}): printed filters and the searched Theorem 1 design, "
+        "checked for all |F| <= 1",
+        f"Printed eps: (17)'s branch ends at gamma = {branch:.3g} > {s.gamma:g}"], path)
 
 
 def claims(result: dict[str, Any]) -> list[Claim]:

@@ -40,19 +40,14 @@ class NonlinearDiscreteEnv(PlantEnv):
 
     def __init__(self, disturbance: str | None = "paper", render_mode: str | None = None):
         system = plant.NonlinearDiscretePlant(disturbance)
-        self.disturbance_name = disturbance
         self._setup(system, PlantSensors(list(plant.MEASUREMENT_NAMES), 0.5 * np.eye(2),
                                          np.zeros((2, 2))),
                     action_limit=10.0, action_names=["v [-]"],
                     state_names=list(plant.STATE_NAMES), x0=np.array(self.DEFAULT_X0),
                     escape_bound=plant.ESCAPE_BOUND, render_mode=render_mode)
 
-    def schedule(self, k: int) -> float:
-        """Scheduled disturbance ``v_k`` (``2 * 0.9999^k`` or 0)."""
-        return self.plant.schedule(k)
-
     def _first(self, x0: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-        v0 = np.array([self.schedule(0)])
+        v0 = np.array([self.plant.schedule(0)])
         return self.plant.observe(x0, 0), {"disturbance": v0, "action_applied": v0,
                                             "noise": 0.0, "z": float(plant.output(x0))}
 

@@ -172,8 +172,7 @@ def _trajectory(run: dict[str, np.ndarray]) -> Trajectory:
     """The in-the-loop run; the system is dimensionless (no units), ``t_s`` counts steps."""
     return Trajectory(t_s=run["t"], state=run["x"], state_names=list(plant.STATE_NAMES),
                       measurement=run["y"], measurement_names=list(plant.MEASUREMENT_NAMES),
-                      measured_state_index=[None, None], action=run["v"][:, None],
-                      action_names=["v"], estimate=run["xhat"],
+                      action=run["v"][:, None], action_names=["v"], estimate=run["xhat"],
                       meta={"scenario": NAME, "filter": "(50)"})
 
 

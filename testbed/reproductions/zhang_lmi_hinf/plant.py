@@ -34,15 +34,9 @@ condition. For Example 5.1: ``f1 = [0.6 x1^3 / (1 + |x|^2); 0.65 x2 + 0.1 x1 x2]
 ``h1 = [0.1 x1; 0]``, ``f2 = 0``, ``g1 = 0.5 x``, ``g2 = [sin x1; sin x2]``,
 ``fhat = 0.5 xhat``, ``ghat = 0.5 I``, ``m = 0.1 (x1 + x2)``, ``mhat = 0.1 (xhat1 + xhat2)``.
 
-Besides Corollary 3, :func:`hji_values` evaluates the HJI (27) of Corollary 2 itself,
-``H(eta, v) - gamma^2 v^2 = E V(eta+) - V(eta) + |z - zhat|^2 - gamma^2 v^2``, exactly (``V``
-is quadratic and ``w`` enters linearly: ``E V = V(mean) + V(noise coefficient)``). (27) must
-hold for every ``eta`` and every ``v``; a grid check (:func:`hji_check`) samples a box and a
-range of ``v`` only. Corollary 2 also needs (26), ``|ztilde(eta, 0)|^2 >= W(eta)`` for a
-positive, radially unbounded ``W``, which (27) does not imply; :func:`condition26_check`
-tests whether ``|ztilde(eta, 0)|^2`` can dominate such a ``W`` at all.
-
-All functions take a leading batch axis: states of shape ``(..., 2)``.
+Corollary 2 itself: the HJI (27) (:func:`hji_values`, :func:`hji_check`) and its condition
+(26) (:func:`condition26_check`), which (27) does not imply. All functions take a leading
+batch axis: states of shape ``(..., 2)``.
 """
 
 from __future__ import annotations
@@ -211,9 +205,7 @@ class StochasticLinearPlant:
     def _v(self, k: int) -> np.ndarray:
         return (self.v[k] if k < len(self.v) else 0.0) * self._ones
 
-    def noise(self, rng: np.random.Generator | None, batch: tuple[int, ...]) -> np.ndarray:
-        """``w_k ~ N(0, 1)``, shape ``batch``."""
-        return np.zeros(batch) if rng is None else rng.standard_normal(batch)
+    noise = NonlinearDiscretePlant.noise  # w_k ~ N(0, 1), shape batch
 
     def observe(self, x: np.ndarray, k: int) -> np.ndarray:
         """``y_k``, shape (..., n_y)."""
@@ -365,10 +357,11 @@ def corollary3_origin_curvature(*, printed: bool = False, eps: float = 1e-4) -> 
 
 def hji_values(x: npt.ArrayLike, xhat: npt.ArrayLike, v: npt.ArrayLike,
                gamma: float) -> np.ndarray:
-    """``H(eta, v) - gamma^2 v^2`` of (27) for (49)-(50) with ``V = |x|^2 + |xhat|^2``.
+    """``H(eta, v) - gamma^2 v^2 = E V(eta+) - V(eta) + |z - zhat|^2 - gamma^2 v^2`` of (27)
+    for (49)-(50) with ``V = |x|^2 + |xhat|^2``.
 
     Exact: with ``x+ = a + b w``, ``xhat+ = c`` (``w`` scalar, unit variance, zero mean),
-    ``E V(eta+) = |a|^2 + |b|^2 + |c|^2``.
+    ``E V(eta+) = |a|^2 + |b|^2 + |c|^2``. (27) must hold for every ``eta`` and every ``v``.
 
     Parameters
     ----------
@@ -395,7 +388,8 @@ def hji_values(x: npt.ArrayLike, xhat: npt.ArrayLike, v: npt.ArrayLike,
 
 def hji_check(gamma: float, halfwidth: float = 2.0, points: int = 13,
               v_values: npt.ArrayLike | None = None) -> dict[str, float | list[float]]:
-    """Largest value of :func:`hji_values` on the state grid times a set of ``v``.
+    """Largest value of :func:`hji_values` on the state grid times a set of ``v`` (a sample of
+    (27), which must hold everywhere).
 
     ``v_values`` default: 11 values in ``[0, 2]`` (the range of the paper's ``v_k``; (27)
     must hold for every real ``v``, so pass a wider set to test it).

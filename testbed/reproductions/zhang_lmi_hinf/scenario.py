@@ -8,19 +8,10 @@ StochasticLinearSystem` (paper (44) letters in brackets)::
     y_k     = C_y x + D_y v              (52): H, L   [(44): K, L]
     z_k     = C_z x                      (52): M      [(44): G]
 
-Two versions:
-
-- :func:`paper_system`: (52) verbatim (:func:`testbed.rigs.vehicle_roll.paper_model`, the
-  forward-Euler model without ``g`` in ``A[1, 0]``).
-- :func:`rig_system`: the physically consistent model of the MuJoCo rig driven by the
-  ``paper-decay`` manoeuvre (``a_y = v_k``, m/s^2) and measured by the ``paper`` suite
-  (``y = H x + L v``): exact zero-order-hold discretization of the physical linearization
-  (with ``g``), ``A = expm(A_c T)``, ``B = int_0^T expm(A_c s) ds B_c``; the damping noise
-  ``C_R + D_n w_k`` held over the step gives ``A_w``, ``B_w`` as ``D_n`` times the derivative
-  of ``(A, B)`` with respect to ``C_R`` (Frechet derivative of the matrix exponential).
-
-(:func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_estimator` designs the filter for the rig in
-the loop with any vehicle sensor suite and a known lateral acceleration.)
+in two versions: (52) verbatim (:func:`paper_system`: the forward-Euler model without ``g``
+in ``A[1, 0]``) and the physically consistent model of the MuJoCo rig (:func:`rig_system`:
+exact zero-order hold of the physical linearization, with ``g``). For the rig in the loop with
+any vehicle sensor suite: :func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_estimator`.
 """
 
 from __future__ import annotations
@@ -63,7 +54,10 @@ def paper_system(params: VehicleRollParams | None = None) -> StochasticLinearSys
 
 def rig_system(params: VehicleRollParams | None = None,
                dt_s: float = PAPER_PERIOD_S) -> StochasticLinearSystem:
-    """The MuJoCo rig with the ``paper-decay`` manoeuvre and the ``paper`` suite, as (44).
+    """The MuJoCo rig with the ``paper-decay`` manoeuvre (``a_y = v_k``, m/s^2) and the
+    ``paper`` suite (``y = H x + L v``), as (44): ``A_w``, ``B_w`` are ``D_n`` times the
+    derivatives of ``(A, B)`` with respect to ``C_R`` (Frechet derivative of the matrix
+    exponential).
 
     Parameters
     ----------
