@@ -60,6 +60,19 @@ class Decorator(Sensor):
         """The inner sensor's model (the change is not modelled)."""
         return self.inner.linear_model()
 
+    #: Normals this decorator draws per sample, after its inner sensor's (None: not
+    #: declared). A subclass that keeps :meth:`measure` and :meth:`apply` draws none.
+    own_draws: int | None = None
+
+    def draws_per_sample(self) -> int | None:
+        """The inner sensor's draws plus :attr:`own_draws` (None when either is unknown)."""
+        own = self.own_draws
+        if own is None and type(self).measure is Decorator.measure \
+                and type(self).apply is Decorator.apply:
+            own = 0  # passes the inner measurement through
+        inner = self.inner.draws_per_sample()
+        return None if own is None or inner is None else inner + own
+
     def sample_periods_s(self) -> set[float]:
         """The inner sensor's periods plus this decorator's ``dt_s`` (if it has one)."""
         own = getattr(self, "dt_s", None)
@@ -79,6 +92,8 @@ class Quantize(Decorator):
     step : float or sequence of float
         Resolution per channel, in the channel's unit (positive).
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, step: float | np.ndarray):
         super().__init__(inner)
@@ -156,6 +171,11 @@ class WhiteNoise(Decorator):
                     else self._chol @ self._chol.T)
         self._draws = m if (self._std is None or np.any(self._std > 0)) else 0
 
+    @property
+    def own_draws(self) -> int:
+        """``m`` normals per sample (none when the noise is zero)."""
+        return self._draws
+
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + std xi`` or ``y + chol(cov) xi``."""
         if not self._draws:
@@ -175,6 +195,8 @@ class WhiteNoise(Decorator):
 
 class Bias(Decorator):
     """A constant offset ``b`` (per channel), left out of the linear model."""
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, bias: float | np.ndarray):
         super().__init__(inner)
@@ -229,6 +251,11 @@ class BiasRandomWalk(Decorator):
         else:
             self.bias[sample.members] = 0.0
 
+    def draws_per_sample(self) -> int | None:
+        """The inner sensor's draws, plus ``m`` when the bias walks (``walk > 0``)."""
+        inner = self.inner.draws_per_sample()
+        return None if inner is None else inner + (self.dim if np.any(self.walk > 0) else 0)
+
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + b_k``; then the walk advances."""
         bias = self.bias[sample.members]
@@ -258,6 +285,8 @@ class ScaleFactor(Decorator):
     -----
     Draws ``m`` normals at reset when ``initial_std > 0``, none per sample.
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, error: float | np.ndarray = 0.0,
                  initial_std: float | np.ndarray = 0.0):
@@ -295,6 +324,8 @@ class Delay(Decorator):
     samples : int
         Delay in samples (>= 1).
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, samples: int):
         super().__init__(inner)
@@ -378,6 +409,8 @@ class Tap(Decorator):
     sample of the channels it taps (e.g. the vehicle's ``a_y`` = speed times yaw rate), so
     every estimator in the loop gets the measured input.
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor):
         super().__init__(inner)
