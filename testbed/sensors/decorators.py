@@ -25,6 +25,28 @@ import numpy as np
 from testbed.sensors.base import Noise, Sample, Sensor, SensorModel, as_array
 
 
+class _Rows:
+    """A per-channel parameter (m,) repeated for the k rows of a sample, remade when the
+    parameter is replaced or k changes: numpy's ufuncs between arrays of one shape skip the
+    broadcasting machinery, which costs more than the arithmetic on a few channels (the same
+    values, bitwise)."""
+
+    __slots__ = ("rows", "source")
+
+    def __init__(self) -> None:
+        self.source: np.ndarray | None = None
+        self.rows = np.zeros((0, 0))
+
+    def of(self, values: np.ndarray, k: int) -> np.ndarray:
+        """``values`` as a read-only (k, m) array."""
+        rows = self.rows
+        if values is not self.source or len(rows) != k:
+            rows = np.tile(values, (k, 1))
+            rows.flags.writeable = False
+            self.source, self.rows = values, rows
+        return rows
+
+
 class Decorator(Sensor):
     """A sensor wrapping another; by default passes everything through.
 
@@ -100,10 +122,12 @@ class Quantize(Decorator):
         self.step = as_array(step, inner.dim, "step")
         if np.any(self.step <= 0):
             raise ValueError(f"step must be positive, got {step!r}")
+        self._step_rows = _Rows()
 
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``round(y / step) step``."""
-        return np.rint(y / self.step) * self.step  # np.round with 0 decimals, less overhead
+        step = self._step_rows.of(self.step, len(y))
+        return np.rint(y / step) * step  # np.round with 0 decimals, less overhead
 
     def linear_model(self) -> SensorModel:
         """Quantization as uniform white noise: ``R += diag(step^2 / 12)``."""
@@ -170,6 +194,7 @@ class WhiteNoise(Decorator):
         self.cov = (np.diag(self._std**2) if self._std is not None
                     else self._chol @ self._chol.T)
         self._draws = m if (self._std is None or np.any(self._std > 0)) else 0
+        self._std_rows = _Rows()
 
     @property
     def own_draws(self) -> int:
@@ -182,7 +207,7 @@ class WhiteNoise(Decorator):
             return y
         xi = noise.normal(self._draws)
         if self._std is not None:
-            return y + self._std * xi
+            return y + self._std_rows.of(self._std, len(y)) * xi
         return y + np.matvec(self._chol, xi)
 
     def linear_model(self) -> SensorModel:
@@ -201,10 +226,11 @@ class Bias(Decorator):
     def __init__(self, inner: Sensor, bias: float | np.ndarray):
         super().__init__(inner)
         self.bias = as_array(bias, inner.dim, "bias", non_negative=False)
+        self._bias_rows = _Rows()
 
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + b``."""
-        return y + self.bias
+        return y + self._bias_rows.of(self.bias, len(y))
 
 
 class BiasRandomWalk(Decorator):
@@ -237,6 +263,7 @@ class BiasRandomWalk(Decorator):
         self.bias = np.zeros((0, inner.dim))
         self._walk_of: np.ndarray | None = None  # the walk _walk_step was computed from
         self._walk_step: np.ndarray | None = None
+        self._step_rows = _Rows()
 
     def allocate(self, num: int) -> None:
         """One bias per member and channel."""
@@ -265,7 +292,8 @@ class BiasRandomWalk(Decorator):
             self._walk_of, self._walk_step = walk, (walk * np.sqrt(self.dt_s)
                                                     if np.any(walk > 0) else None)
         if self._walk_step is not None:
-            self.bias[sample.members] = bias + self._walk_step * noise.normal(self.dim)
+            self.bias[sample.members] = bias + (self._step_rows.of(self._walk_step, len(y))
+                                                * noise.normal(self.dim))
         return out
 
 

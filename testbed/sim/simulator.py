@@ -602,7 +602,14 @@ class Simulator:
         self._all = np.arange(n)  # read-only constants of the step
         self._zero_input, self._zero_accel = np.zeros((n, self._nu)), np.zeros((n, self._j))
         self._zero_w = np.zeros((n, 0))
-        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w):
+        # the step's constants with one row per member: numpy's ufuncs between arrays of one
+        # shape skip the broadcasting machinery, which costs more than the arithmetic on a few
+        # columns (the same values, bitwise)
+        self._low_rows, self._high_rows = np.tile(self._low, (n, 1)), np.tile(self._high, (n, 1))
+        self._envelope_rows = np.tile(self._envelope, (n, 1))
+        self._dt_rows, self._one_rows = np.full(n, self.dt_s), np.ones(n, dtype=np.int64)
+        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w, self._low_rows,
+                  self._high_rows, self._envelope_rows, self._dt_rows, self._one_rows):
             a.flags.writeable = False
         widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
                   "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
@@ -887,13 +894,14 @@ class Simulator:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
             index, sel, k = self._all, slice(None), self.num
+            low, high, envelope = self._low_rows, self._high_rows, self._envelope_rows
         else:
             index = sel = np.asarray(members, int)
             k = len(index)
             if np.count_nonzero(self._ready[index]) != k:
                 raise RuntimeError("reset() every member before stepping it")
+            low, high, envelope = self._low, self._high, self._envelope
         u = actions if checked else self.check_actions(actions, k)
-        low, high = self._low, self._high
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
@@ -936,14 +944,15 @@ class Simulator:
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
         if members is None:
-            steps = self.steps
-            steps += 1
+            steps = self.steps + self._one_rows
+            self.steps[...] = steps
+            t = steps * self._dt_rows
         else:
             steps = self.steps[sel] + 1
             self.steps[sel] = steps
-        t = steps * self.dt_s
+            t = steps * self.dt_s
         x = physics.states(sel)
-        inside = np.less_equal(np.abs(x), self._envelope)  # NaN compares False
+        inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel)
@@ -952,7 +961,7 @@ class Simulator:
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index) if has_signal else self._zero_w[:k]
-        sample = Sample(x, t, applied, w_now, index)
+        sample = Sample(x, t, applied, w_now, sel)
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
             self.obs[sel] = self.sensors.measure(sample, noise)
         else:

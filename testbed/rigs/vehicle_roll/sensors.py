@@ -113,7 +113,9 @@ class SpeedChannel(SpeedYawRate):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``v``, shape (k, 1)."""
-        return np.full((sample.k, 1), self.speed_m_s)
+        out = np.empty((sample.k, 1))
+        out.fill(self.speed_m_s)
+        return out
 
     def linear_model(self) -> SensorModel:
         """This channel's row of :meth:`SpeedYawRate.linear_model`."""
