@@ -588,6 +588,7 @@ class Simulator:
                                                   + self.sensors.dim + rig.x0_draws, 4),
                                          self._step_draws))
         self._noise_all = self.noise.view(slice(None))
+        self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
         # fixed for the simulator's life: read once, not per step
         self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
         self.steps = np.zeros(n, dtype=np.int64)
@@ -622,6 +623,7 @@ class Simulator:
         for key, width in widths.items():
             self._info_columns[key] = slice(start, start + width)
             start += width
+        self._info_items = tuple(self._info_columns.items())
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -662,7 +664,7 @@ class Simulator:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
-        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_columns.items()}
+        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
         out["t"] = float(row[self._info_columns["t"].start])
         out["action_clipped"] = self.info["action_clipped"][i].copy()
         return out
@@ -752,6 +754,8 @@ class Simulator:
     def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
         if len(self._tables) == 1:  # one schedule for every member
             table = self._tables[0]
+            if len(table) == 1:  # a constant reference
+                return np.broadcast_to(table[0, 1:], (len(t), table.shape[1] - 1))
             if len(t) == 1:  # the same row as below, without numpy's per-call overhead
                 row = bisect.bisect_right(self._table_times, float(t[0])) - 1
                 return table[max(row, 0), 1:][None]
@@ -965,10 +969,11 @@ class Simulator:
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
             self.obs[sel] = self.sensors.measure(sample, noise)
         else:
-            drawn_ahead = Drawn(xi[:, n_step + self._dist_draws:] if xi is not None
-                                else self._zero_w[:k])
+            drawn_ahead = (Drawn(xi[:, n_step + self._dist_draws:]) if self._sensor_draws
+                           else self._no_draws)
             self.obs[sel] = self.sensors.measure(sample, drawn_ahead)
             if drawn_ahead.position != self._sensor_draws:
+                self._no_draws.position = 0
                 raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
                                    f"{drawn_ahead.position} normals per sample but declare "
                                    f"{self._sensor_draws} (draws_per_sample)")
