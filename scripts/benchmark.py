@@ -37,9 +37,10 @@ shared):
   (``mc_hardware_traj_steps_per_s``, ``mc_hardware_vs_paper``), the ratios with one thread
   (``*_1thread``, diagnostic), ``mc_mshinf_traj_steps_per_s``,
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
-  scale: 1000 helicopter runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a
-  16-point sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long
-  ones;
+  scale: 1000 helicopter runs of 80 s with the Kalman filter), ``sweep_ray_speedup`` (a
+  16-point sweep on local Ray, 2 workers vs 1; target >= 1.6) and ``mc_ray_speedup``
+  (``mc --backend ray`` of 1000 helicopter runs of 10 s, 2 local workers vs 1, one physics
+  thread each; target >= 1.6). ``--quick`` skips the three long ones;
 - LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of Zhang et al.'s LMI (48) for
   Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
@@ -116,6 +117,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "mc_1000x80s_wall_s": ("s", "the papers' scale: 1000 helicopter runs of 80 s, Kalman"),
     "sweep_ray_wall_s": ("s", "16-point sweep on local Ray, by number of workers"),
     "sweep_ray_speedup": ("", "sweep wall time 1 worker / 2 workers"),
+    "mc_ray_wall_s": ("s", "mc --backend ray, 1000 helicopter runs of 10 s, by workers"),
+    "mc_ray_speedup": ("", "mc --backend ray wall time 1 worker / 2 workers"),
     "lmi_solve_s": ("s", "LMI (48) solve, Zhang, Deng & Zhang (2018) Example 5.2 (median)"),
     "gamma_bisection_s": ("s", "gamma bisection on the same LMI (median)"),
 }
@@ -130,6 +133,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "mc_vehicle_vs_raw": (">=", 0.9),
     "mc_peak_rss_mb": ("<=", 500.0),
     "sweep_ray_speedup": (">=", 1.6),
+    "mc_ray_speedup": (">=", 1.6),
     "lmi_solve_s": ("<", 0.1),
     "gamma_bisection_s": ("<", 2.0),
 }
@@ -313,6 +317,7 @@ def bench_scale(mode: str) -> dict[str, Any]:
                       progress=False)
     out["mc_1000x80s_wall_s"] = big["wall_s"]
     out.update(bench_ray_sweep())
+    out.update(bench_ray_mc())
     return out
 
 
@@ -339,6 +344,31 @@ def bench_ray_sweep(runs: int = 32, duration_s: float = 10.0) -> dict[str, Any]:
         finally:
             ray.shutdown()
     return {"sweep_ray_wall_s": walls, "sweep_ray_speedup": walls[1] / walls[2]}
+
+
+def bench_ray_mc(runs: int = 1000, duration_s: float = 10.0) -> dict[str, Any]:
+    """``monte_carlo(..., backend="ray")`` of the helicopter (Kalman filter) on a local Ray
+    instance with 1 and 2 workers, one physics thread each (Ray started and its workers
+    warmed up outside the timed region)."""
+    import ray
+
+    from testbed.experiment.runner import monte_carlo
+    from testbed.experiment.scenario import Scenario
+
+    scenario = Scenario(rig="helicopter", estimator="kalman", seed=0)
+    walls: dict[int, float] = {}
+    for workers in (1, 2):
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        try:
+            monte_carlo(scenario.replace(duration_s=0.1), 2 * workers, backend="ray",
+                        workers=workers)  # warm the workers
+            start = time.perf_counter()
+            monte_carlo(scenario.replace(duration_s=duration_s), runs, backend="ray",
+                        workers=workers)
+            walls[workers] = time.perf_counter() - start
+        finally:
+            ray.shutdown()
+    return {"mc_ray_wall_s": walls, "mc_ray_speedup": walls[1] / walls[2]}
 
 
 # ------------------------------------------------------------------------------- report
@@ -484,7 +514,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=7, help="timed blocks (median taken)")
     parser.add_argument("--quick", action="store_true",
                         help="small Monte Carlo; skip the 1000 x 80 s Monte Carlo and the Ray "
-                             "sweep")
+                             "sweep and Monte Carlo")
     parser.add_argument("--smoke", action="store_true",
                         help="tiny sizes everywhere (checks that the script runs)")
     parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")

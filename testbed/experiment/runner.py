@@ -533,7 +533,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     save_npz : path, optional
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
-        Physics threads.
+        Physics threads (default: the CPUs available; with a ``backend``, 1 per job).
     envelope_points : int, optional
         Also gather the error envelope over runs on this many time points
         (:class:`testbed.experiment.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
@@ -682,7 +682,8 @@ def _mc_shard(scenario: Scenario, seeds: np.ndarray, batch_size: int | None,
 def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
                          progress: bool, num_threads: int | None, backend: str,
                          workers: int | None, address: str | None) -> dict[str, Any]:
-    """:func:`monte_carlo` in contiguous shards of the runs on :func:`map_jobs`."""
+    """:func:`monte_carlo` in contiguous shards of the runs on :func:`map_jobs` (each job
+    holds one CPU: its physics runs on ``num_threads``, default 1, threads)."""
     workers = check_backend(backend, workers, address)
     scenario.check()
     start_time = time.perf_counter()
@@ -691,7 +692,7 @@ def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
     bar = tqdm(total=len(shards), desc=f"monte carlo ({backend})", unit="shard",
                disable=not progress)
     with bar:
-        parts = map_jobs(_mc_shard, [(scenario, part, batch_size, num_threads)
+        parts = map_jobs(_mc_shard, [(scenario, part, batch_size, num_threads or 1)
                                      for part in shards], backend=backend, workers=workers,
                          address=address, on_done=lambda _: bar.update())
 
