@@ -754,8 +754,6 @@ class Simulator:
     def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
         if len(self._tables) == 1:  # one schedule for every member
             table = self._tables[0]
-            if len(table) == 1:  # a constant reference
-                return np.broadcast_to(table[0, 1:], (len(t), table.shape[1] - 1))
             if len(t) == 1:  # the same row as below, without numpy's per-call overhead
                 row = bisect.bisect_right(self._table_times, float(t[0])) - 1
                 return table[max(row, 0), 1:][None]
