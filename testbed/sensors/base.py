@@ -193,8 +193,12 @@ class Drawn:
     def normal(self, d: int) -> np.ndarray:
         """The next ``d`` normals of each member, shape (k, d) (read-only use)."""
         p = self.position
-        self.position = p + d
-        return self.xi[:, p:p + d]
+        e = p + d
+        if e > self.xi.shape[1]:
+            raise RuntimeError(f"the sensors drew more than the {self.xi.shape[1]} normals per "
+                               "sample they declare (draws_per_sample)")
+        self.position = e
+        return self.xi[:, p:e]
 
 
 @dataclass
