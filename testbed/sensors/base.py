@@ -11,7 +11,10 @@ has the same four parts:
   ``sample.members`` start an episode / take one sample. All randomness comes from
   ``noise.normal(d)``, each member's own seeded stream, so a member's measurements do not
   depend on which other members are simulated with it;
-- ``linear_model()``: ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample, for designers.
+- ``linear_model()``: ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample, for designers;
+- ``draws_per_sample()`` (optional): how many normals ``measure`` draws per member, when that
+  is fixed; the simulator then draws them together with the step's own and hands them out
+  in order (:class:`Drawn`): the same values, one draw per step instead of one per request.
 
 MuJoCo adds no sensor noise; noise given as a continuous-time intensity ``S`` (a power
 spectral density) becomes the per-sample covariance ``S / dt_s`` (the average of ``dy/dt``
