@@ -537,7 +537,11 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     save_npz : path, optional
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
-        Physics threads (default: the CPUs available; with a ``backend``, 1 per job).
+        Threads (default: the CPUs available; with a ``backend``, 1 per job). In one
+        process, ``T > 1`` threads run the runs in ``T`` lanes (contiguous parts, each on a
+        Python thread of its own with one physics thread), so that one lane's Python overlaps
+        the others' physics; without ``save_npz`` and ``envelope_points`` (one lane then, on
+        ``T`` physics threads). The results do not depend on it.
     envelope_points : int, optional
         Also gather the error envelope over runs on this many time points
         (:class:`testbed.experiment.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
