@@ -20,7 +20,7 @@ import threading
 import time
 import zipfile
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,7 @@ from testbed.estimators.design import DesignModel
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.control import make_controller
 from testbed.experiment.envelope import ErrorEnvelope
-from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
+from testbed.experiment.loop import ClosedLoop, EstimatorStage, Stopped, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
 from testbed.experiment.trajectory import Trajectory
@@ -687,29 +687,39 @@ def _run_lanes(scenario: Scenario, parts: list[np.ndarray], batch_size: int,
     stop = threading.Event()
     own: list[dict[int, Experiment]] = [experiments] + [{} for _ in parts[1:]]
 
+    state_names = list(experiments[batch_size].loop.sim.rig.state_names)
+
     def lane(j: int) -> RunMetrics:
-        gathered = None
-        cache = own[j]
+        gathered = RunMetrics(state_names)
         for start in range(0, len(parts[j]), batch_size):
             size = min(batch_size, len(parts[j]) - start)
-            if size not in cache:
-                cache[size] = build(scenario, size, num_threads=1)
-            loop = cache[size].loop
-            if gathered is None:
-                gathered = RunMetrics(list(loop.sim.rig.state_names))
-            gathered.add(loop.run(parts[j][start:start + size], scenario.duration_s,
-                                  bar=bar, stop=stop))
+            gathered.add(own[j][size].loop.run(parts[j][start:start + size],
+                                               scenario.duration_s, bar=bar, stop=stop))
         return gathered
 
     try:
+        # every lane's experiments built here, one after the other: a build takes the
+        # scenario's checked rig and sensors (Scenario.take_resolved), not thread-safe
+        for j, part in enumerate(parts):
+            for size in {min(batch_size, len(part) - start)
+                         for start in range(0, len(part), batch_size)}:
+                if size not in own[j]:
+                    own[j][size] = build(scenario, size, num_threads=1)
         # BLAS single-threaded for the whole study (each run's own limit then nests)
         with threadpool_limits(1), ThreadPoolExecutor(len(parts)) as pool:
             futures = [pool.submit(lane, j) for j in range(len(parts))]
             try:
-                results = [future.result() for future in futures]
-            except BaseException:
-                stop.set()  # the other lanes stop within a step; the executor waits for them
+                _, pending = wait(futures, return_when=FIRST_EXCEPTION)
+            except BaseException:  # an interrupt: the lanes stop within a step
+                stop.set()
                 raise
+            if pending:  # a lane failed: the others stop within a step
+                stop.set()
+        failures = [f.exception() for f in futures
+                    if f.exception() is not None and not isinstance(f.exception(), Stopped)]
+        if failures:
+            raise failures[0]
+        results = [f.result() for f in futures]
     finally:
         for cache in own[1:]:
             for experiment in cache.values():
