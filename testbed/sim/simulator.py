@@ -376,7 +376,8 @@ class Physics:
             field = self._fields.get(name)
             if field is None:
                 field = self._fields[name] = self.batch.expand(name)
-            field[(sel, *where) if isinstance(where, tuple) else (sel, where)] = values
+            field[(sel, where) if isinstance(where, int | np.integer)
+                  else (sel, *np.atleast_1d(where).tolist())] = values
 
     def step(self, members: np.ndarray, need_mass: bool = False,
              need_poses: bool = False, step_noise: np.ndarray | None = None) -> bool:
@@ -890,8 +891,8 @@ class Simulator:
         ``checked=True``: the caller has already made ``actions`` a finite ``float64`` array
         of shape (k, nu) (the Gymnasium env's own check), so it is not checked twice.
         """
-        # the simulator's own arrays: a basic slice for the whole batch (no gather/scatter
-        # copies); sensors, noise streams and physics keep the member indices
+        # the simulator's and the sensors' arrays: a basic slice for the whole batch (no
+        # gather/scatter copies); noise streams and physics keep the member indices
         if members is None:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
