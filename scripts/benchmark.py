@@ -2,7 +2,7 @@
 
 Usage::
 
-    python scripts/benchmark.py --json runs/benchmark.json          # everything (~15 min)
+    python scripts/benchmark.py --json runs/benchmark.json          # everything (~20 min)
     python scripts/benchmark.py --quick --json runs/benchmark.json  # without the two long ones
     python scripts/benchmark.py --markdown runs/b1.json runs/b2.json [--readme README.md]
 
