@@ -14,7 +14,8 @@ Usage::
 - ``mc_traj_steps_per_s`` / ``mc_vehicle_traj_steps_per_s``: ``monte_carlo`` of the rig's
   default scenario with the Kalman filter (helicopter: LQR tracking the default setpoints;
   vehicle roll: the double-lane-change manoeuvre open loop, with its per-step damping noise),
-  same trajectories and steps, set-up included (``traj_steps_per_s`` of the result);
+  same trajectories and steps and threads (``monte_carlo`` runs them in lanes, one Python and
+  one physics thread each), set-up included (``traj_steps_per_s`` of the result);
   ``mc_vs_raw`` / ``mc_vehicle_vs_raw`` their ratios (target >= 0.7 each);
 - ``raw_batch_traj_steps_per_s`` / ``raw_batch_vehicle_traj_steps_per_s``: bare
   ``mujoco.batch`` stepping of the same MJCF (what the simulator runs its members on), and

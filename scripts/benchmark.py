@@ -2,7 +2,7 @@
 
 Usage::
 
-    python scripts/benchmark.py --json runs/benchmark.json          # everything (~15 min)
+    python scripts/benchmark.py --json runs/benchmark.json          # everything (~20 min)
     python scripts/benchmark.py --quick --json runs/benchmark.json  # without the two long ones
     python scripts/benchmark.py --markdown runs/b1.json runs/b2.json [--readme README.md]
 
@@ -44,9 +44,10 @@ shared):
   (``mc_hardware_traj_steps_per_s``, ``mc_hardware_vs_paper``), the ratios with one thread
   (``*_1thread``, diagnostic), ``mc_mshinf_traj_steps_per_s``,
   ``mc_peak_rss_mb`` (target <= 500), ``scaling``, ``mc_1000x80s_wall_s`` (the papers'
-  scale: 1000 helicopter runs of 80 s with the Kalman filter) and ``sweep_ray_speedup`` (a
-  16-point sweep on local Ray, 2 workers vs 1; target >= 1.6). ``--quick`` skips the two long
-  ones;
+  scale: 1000 helicopter runs of 80 s with the Kalman filter), ``sweep_ray_speedup`` (a
+  16-point sweep on local Ray, 2 workers vs 1; target >= 1.6) and ``mc_ray_speedup``
+  (``mc --backend ray`` of 1000 helicopter runs of 10 s, 2 local workers vs 1, one physics
+  thread each; target >= 1.6). ``--quick`` skips the three long ones;
 - LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of Zhang et al.'s LMI (48) for
   Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
@@ -130,6 +131,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "mc_1000x80s_wall_s": ("s", "the papers' scale: 1000 helicopter runs of 80 s, Kalman"),
     "sweep_ray_wall_s": ("s", "16-point sweep on local Ray, by number of workers"),
     "sweep_ray_speedup": ("", "sweep wall time 1 worker / 2 workers"),
+    "mc_ray_wall_s": ("s", "mc --backend ray, 1000 helicopter runs of 10 s, by workers"),
+    "mc_ray_speedup": ("", "mc --backend ray wall time 1 worker / 2 workers"),
     "lmi_solve_s": ("s", "LMI (48) solve, Zhang, Deng & Zhang (2018) Example 5.2 (median)"),
     "gamma_bisection_s": ("s", "gamma bisection on the same LMI (median)"),
 }
@@ -146,6 +149,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "mc_vehicle_vs_raw": (">=", 0.9),
     "mc_peak_rss_mb": ("<=", 500.0),
     "sweep_ray_speedup": (">=", 1.6),
+    "mc_ray_speedup": (">=", 1.6),
     "lmi_solve_s": ("<", 0.1),
     "gamma_bisection_s": ("<", 2.0),
 }
@@ -372,6 +376,7 @@ def bench_scale(mode: str) -> dict[str, Any]:
                       progress=False)
     out["mc_1000x80s_wall_s"] = big["wall_s"]
     out.update(bench_ray_sweep())
+    out.update(bench_ray_mc())
     return out
 
 
@@ -398,6 +403,33 @@ def bench_ray_sweep(runs: int = 32, duration_s: float = 10.0) -> dict[str, Any]:
         finally:
             ray.shutdown()
     return {"sweep_ray_wall_s": walls, "sweep_ray_speedup": walls[1] / walls[2]}
+
+
+def bench_ray_mc(runs: int = 1000, duration_s: float = 10.0,
+                 repeats: int = 2) -> dict[str, Any]:
+    """``monte_carlo(..., backend="ray")`` of the helicopter (Kalman filter) with 1 and 2
+    workers (one physics thread each) on one local Ray instance of 2 CPUs, started and warmed
+    up outside the timed region; the two are interleaved ``repeats`` times and the shortest
+    wall time of each kept (the machine may be shared)."""
+    import ray
+
+    from testbed.experiment.runner import monte_carlo
+    from testbed.experiment.scenario import Scenario
+
+    scenario = Scenario(rig="helicopter", estimator="kalman", seed=0)
+    walls: dict[int, float] = {1: np.inf, 2: np.inf}
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        monte_carlo(scenario.replace(duration_s=0.1), 4, backend="ray", workers=2)  # warm up
+        for _ in range(repeats):
+            for workers in walls:
+                start = time.perf_counter()
+                monte_carlo(scenario.replace(duration_s=duration_s), runs, backend="ray",
+                            workers=workers)
+                walls[workers] = min(walls[workers], time.perf_counter() - start)
+    finally:
+        ray.shutdown()
+    return {"mc_ray_wall_s": walls, "mc_ray_speedup": walls[1] / walls[2]}
 
 
 # ------------------------------------------------------------------------------- report
@@ -544,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=7, help="timed blocks (median taken)")
     parser.add_argument("--quick", action="store_true",
                         help="small Monte Carlo; skip the 1000 x 80 s Monte Carlo and the Ray "
-                             "sweep")
+                             "sweep and Monte Carlo")
     parser.add_argument("--smoke", action="store_true",
                         help="tiny sizes everywhere (checks that the script runs)")
     parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")

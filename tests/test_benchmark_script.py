@@ -20,7 +20,8 @@ import bench_mc  # noqa: E402
 import benchmark  # noqa: E402
 
 #: Only the full mode measures these (minutes each).
-LONG = {"mc_1000x80s_wall_s", "sweep_ray_wall_s", "sweep_ray_speedup"}
+LONG = {"mc_1000x80s_wall_s", "sweep_ray_wall_s", "sweep_ray_speedup", "mc_ray_wall_s",
+        "mc_ray_speedup"}
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from testbed.experiment.runner import monte_carlo
 from testbed.experiment.scenario import Scenario
 
 #: Everything but timings and where it ran.
-_TIMING = ("wall_s", "traj_steps_per_s", "backend", "workers", "batch_size")
+_TIMING = ("wall_s", "traj_steps_per_s", "backend", "workers", "batch_size", "threads")
 
 
 def _results(result: dict) -> dict:

@@ -138,3 +138,28 @@ def test_a_run_reads_its_mjcf_at_most_twice(monkeypatch, profile, reads):
     base._read_mjcf.cache_clear()
     assert len(paths) == reads and all(p.endswith("helicopter_2dof.xml") for p in paths)
     assert np.isfinite(summary["rmse"]["pitch"])
+
+
+def test_lanes_equal_one_thread_and_a_failing_lane_stops_the_study(monkeypatch):
+    """``num_threads`` > 1 runs contiguous parts of the runs on as many Python threads: the
+    same per-run results as one thread; a lane's failure is raised once the others stop."""
+    scenario = Scenario(rig="helicopter", duration_s=0.5, seed=4)
+    one = runner.monte_carlo(scenario, runs=5, num_threads=1)
+    three = runner.monte_carlo(scenario, runs=5, num_threads=3)
+    assert three["threads"] == 3
+    assert three["rmse_per_run"] == one["rmse_per_run"]
+    assert three["nees"] == one["nees"]
+
+    from testbed.experiment.loop import ClosedLoop
+
+    run = ClosedLoop.run
+    last = runner.run_seeds(4, 5)[-1]
+
+    def failing(self, seeds, *args, **kwargs):
+        if seeds[-1] == last:
+            raise RuntimeError("lane failed")
+        return run(self, seeds, *args, **kwargs)
+
+    monkeypatch.setattr(ClosedLoop, "run", failing)
+    with pytest.raises(RuntimeError, match="lane failed"):
+        runner.monte_carlo(scenario.replace(duration_s=5.0), runs=5, num_threads=3)

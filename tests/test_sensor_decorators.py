@@ -95,3 +95,48 @@ def test_sensors_built_for_another_period_are_rejected():
     with pytest.raises(ValueError, match="sampling period"):
         RigEnv("helicopter", sensors=SampleAndHold(WhiteNoise(encoders(), density=0.01,
                                                               dt_s=dt), 4))
+
+
+PRESETS = [("helicopter", p, o) for p in ("encoders", "encoders+gyros", "paper", "hardware")
+           for o in ({}, {"noise_std_rad": 1e-3})] + \
+          [("vehicle-roll", p, o) for p in ("imu", "paper", "hardware")
+           for o in ({}, {"noise_std": 0.01} if p == "paper" else {"roll_sensor": True})]
+
+
+@pytest.mark.parametrize("rig, preset, options", PRESETS,
+                         ids=[f"{r}-{p}-{bool(o)}" for r, p, o in PRESETS])
+def test_declared_draws_are_the_draws_a_sample_takes(rig, preset, options):
+    """``draws_per_sample`` (the simulator draws that many with the step's own) equals what
+    ``measure`` takes from the streams, sample after sample; None only with a hold."""
+    from testbed.rigs import resolve_rig
+
+    sensors = resolve_rig(rig)().sensors(preset, **options)
+    declared = sensors.draws_per_sample()
+    assert (declared is None) == ("sampleandhold" in sensors.describe())
+    if declared is None:
+        return
+    num, n = 3, 4 if rig == "helicopter" else 2
+    streams = NoiseStreams(num)
+    for i in range(num):
+        streams.seed(i, i)
+    sensors.allocate(num)
+    w = np.zeros((num, 1 if preset == "paper" and rig == "vehicle-roll" else 0))
+    sample = Sample(np.full((num, n), 0.01), np.zeros(num), np.ones((num, 2 if n == 4 else 1)),
+                    w, slice(None))
+    sensors.reset(sample, streams.view(slice(None)))
+    for _ in range(3):
+        before = streams._pos.copy()
+        sensors.measure(sample, streams.view(slice(None)))
+        np.testing.assert_array_equal((streams._pos - before) % streams.block, declared)
+
+
+@pytest.mark.parametrize("declared, message", [(0, "drew more than the 0 normals"),
+                                               (2, "drew 1 normals per sample but declare 2")])
+def test_a_sensor_drawing_other_than_it_declares_is_named(declared, message):
+    class Liar(WhiteNoise):
+        own_draws = declared  # draws one per sample all the same
+
+    env = RigEnv("vehicle-roll", sensors=Liar(channel(), std=0.1), reset_noise_scale=0.0)
+    env.reset(seed=0)
+    with pytest.raises(RuntimeError, match=message):
+        env.step(np.zeros(1))

@@ -91,6 +91,7 @@ class RigEnv(gym.Env):
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.sensors.dim,), np.float64)
         self.state_names = list(rig_obj.state_names)
         self.action_names = list(rig_obj.action_names)
+        self._shape = (rig_obj.n_actions,)
         self._action_label = (f"action ({', '.join(rig_obj.action_names)} in "
                               f"{', '.join(rig_obj.action_units)})")
 
@@ -124,7 +125,12 @@ class RigEnv(gym.Env):
 
     def step(self, action):
         """Apply one action for one control period."""
-        u = real_array(action, self._action_label, shape=(self.rig.n_actions,))
+        u = action
+        # a finite float64 array of the action's shape is used as it is (the simulator
+        # keeps none of it); anything else is converted and checked by real_array
+        if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
+                and np.count_nonzero(np.isfinite(u)) == self._shape[0]):
+            u = real_array(action, self._action_label, shape=self._shape)
         self.sim.step(u[None], checked=True)
         sim = self.sim
         return (sim.obs[0].copy(), float(sim.reward[0]), bool(sim.terminated[0]), False,

@@ -7,6 +7,7 @@ and reproductions) and the Gymnasium wrapper :class:`testbed.envs.wrappers.Filte
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -20,6 +21,11 @@ from filters.errors import FilterError, FiniteEscapeError
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.plugins import PLUGIN_FAILURES, EstimatorFailed, describe
 from testbed.sim.simulator import Simulator
+
+
+class Stopped(RuntimeError):
+    """:meth:`ClosedLoop.run` saw its ``stop`` event set (another part of the study failed
+    or was interrupted); the batch's results are incomplete."""
 
 
 class EstimatorContractError(ValueError):
@@ -257,7 +263,8 @@ class ClosedLoop:
     def run(self, seeds: np.ndarray, duration_s: float, options: Any = None, *,
             record: bool | dict[str, np.ndarray] = False, poses: bool = False,
             bar: tqdm | None = None,
-            on_step: Callable[[int, dict[str, Any]], None] | None = None) -> LoopResult:
+            on_step: Callable[[int, dict[str, Any]], None] | None = None,
+            stop: threading.Event | None = None) -> LoopResult:
         """Run ``len(seeds)`` episodes of ``duration_s`` (rounded to control periods).
 
         Parameters
@@ -277,6 +284,9 @@ class ClosedLoop:
             ``row`` = :meth:`row` (``t_s`` and the current arrays of all N members, read-only
             views valid during the call: copy what you keep). It only reads; the run is the
             same with or without it.
+        stop : threading.Event, optional
+            Checked before each step: when set, the run raises :class:`Stopped` (a study
+            running batches in several threads stops them all this way).
         """
         sim, stage, ctrl = self.sim, self.stage, self.controller
         n = sim.num
@@ -308,6 +318,8 @@ class ClosedLoop:
         clipped = np.zeros(n, dtype=np.int64)
         with threadpool_limits(1):
             for k in range(n_steps):
+                if stop is not None and stop.is_set():
+                    raise Stopped(f"stopped at t = {k * sim.dt_s:g} s")
                 sim.step(ctrl(info["state"] if self.truth_feedback else x_hat,
                               k * sim.dt_s))
                 x_hat = stage.step(sim.obs, info["action_applied"], info["state"],

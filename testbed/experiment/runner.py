@@ -16,14 +16,17 @@ import io
 import itertools
 import os
 import shutil
+import threading
 import time
 import zipfile
 from collections.abc import Callable
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from testbed import estimators
@@ -31,7 +34,7 @@ from testbed.estimators.design import DesignModel
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.control import make_controller
 from testbed.experiment.envelope import ErrorEnvelope
-from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
+from testbed.experiment.loop import ClosedLoop, EstimatorStage, Stopped, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
 from testbed.experiment.trajectory import Trajectory
@@ -44,6 +47,7 @@ from testbed.io import (
 )
 from testbed.rigs import resolve_rig
 from testbed.sim import build_simulator
+from testbed.sim.simulator import default_num_threads, positive_int
 
 #: Default number of trajectories stepped together by :func:`monte_carlo`.
 DEFAULT_BATCH_SIZE = 1000
@@ -533,7 +537,11 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     save_npz : path, optional
         Also write every trajectory (``(runs, steps + 1, ...)``) and the per-run metrics.
     num_threads : int, optional
-        Physics threads.
+        Threads (default: the CPUs available; with a ``backend``, 1 per job). In one
+        process, ``T > 1`` threads run the runs in ``T`` lanes (contiguous parts, each on a
+        Python thread of its own with one physics thread), so that one lane's Python overlaps
+        the others' physics; without ``save_npz`` and ``envelope_points`` (one lane then, on
+        ``T`` physics threads). The results do not depend on it.
     envelope_points : int, optional
         Also gather the error envelope over runs on this many time points
         (:class:`testbed.experiment.envelope.ErrorEnvelope`: streaming, no trajectory kept); the
@@ -575,12 +583,21 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     start_time = time.perf_counter()
     check_study_size(scenario, runs, envelope_points)
     seeds = run_seeds(scenario.seed, runs)
-    starts = list(range(0, runs, batch_size))
+    threads = (default_num_threads() if num_threads is None
+               else positive_int(num_threads, "num_threads"))
+    # lanes: contiguous parts of the runs stepped in as many Python threads, one physics
+    # thread each, so that one lane's Python (sensors, estimator, controller; it holds the
+    # GIL) runs while the other lanes' physics runs (MuJoCo releases the GIL); a run's
+    # results do not depend on its batch. A stream or an envelope keeps one lane.
+    lanes = min(threads, runs) if save_npz is None and envelope_points is None else 1
+    if lanes > 1:
+        batch_size = min(batch_size, -(-runs // lanes))
     experiments: dict[int, Experiment] = {}
 
     def experiment_for(size: int) -> Experiment:
         if size not in experiments:
-            experiments[size] = build(scenario, size, num_threads=num_threads)
+            experiments[size] = build(scenario, size,
+                                      num_threads=1 if lanes > 1 else num_threads)
         return experiments[size]
 
     first = experiment_for(batch_size)
@@ -600,19 +617,24 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
             shapes = {k: (runs, *s[1:])
                       for k, s in first.loop.trajectory_shapes(n_steps).items()}
             stream = _NpzStream(save_npz, shapes)
-        bar = tqdm(total=len(starts) * n_steps, desc=f"monte carlo ({first.meta['rig']})",
+        parts = [part for part in np.array_split(seeds, lanes) if len(part)]
+        batches = sum(-(-len(part) // batch_size) for part in parts)
+        bar = tqdm(total=batches * n_steps, desc=f"monte carlo ({first.meta['rig']})",
                    unit="step", disable=not progress)
         with bar:
-            for start in starts:
-                size = min(batch_size, runs - start)
-                loop = experiment_for(size).loop
-                record = stream.rows(start, start + size) if stream is not None else False
-                result = loop.run(seeds[start:start + size], scenario.duration_s,
-                                  record=record, bar=bar,
-                                  on_step=None if envelope is None else envelope.observer(start))
-                if stream is not None:
-                    stream.flush()
-                gathered.add(result)
+            if lanes > 1:
+                gathered = _run_lanes(scenario, parts, batch_size, experiments, bar)
+            else:
+                for start in range(0, runs, batch_size):
+                    size = min(batch_size, runs - start)
+                    loop = experiment_for(size).loop
+                    record = stream.rows(start, start + size) if stream is not None else False
+                    on_step = None if envelope is None else envelope.observer(start)
+                    result = loop.run(seeds[start:start + size], scenario.duration_s,
+                                      record=record, bar=bar, on_step=on_step)
+                    if stream is not None:
+                        stream.flush()
+                    gathered.add(result)
     except BaseException:
         if stream is not None:
             stream.abort()
@@ -639,7 +661,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
         "seeds": seeds.tolist(),
         "seed_rule": "numpy.random.SeedSequence(seed).generate_state(runs)",
         "batch_size": batch_size,
-        "threads": first.loop.sim.physics.num_threads,
+        "threads": first.loop.sim.physics.num_threads * lanes,
         "wall_s": wall_s,
         "traj_steps_per_s": runs * n_steps / wall_s,
         **per_run_summary(per_run),
@@ -651,6 +673,61 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     if envelope is not None:
         result["error_envelope"] = envelope.result()
     return result
+
+
+def _run_lanes(scenario: Scenario, parts: list[np.ndarray], batch_size: int,
+               experiments: dict[int, Experiment], bar: tqdm) -> RunMetrics:
+    """The runs of ``parts`` (contiguous seeds, in order), each part in batches of at most
+    ``batch_size`` on a thread of its own with its own one-thread experiments (the first
+    part's are ``experiments``, closed by the caller; the others' are closed here).
+
+    A failure or an interrupt stops every lane within a step (:class:`Stopped`) and is
+    raised once they have stopped.
+    """
+    stop = threading.Event()
+    own: list[dict[int, Experiment]] = [experiments] + [{} for _ in parts[1:]]
+
+    state_names = list(experiments[batch_size].loop.sim.rig.state_names)
+
+    def lane(j: int) -> RunMetrics:
+        gathered = RunMetrics(state_names)
+        for start in range(0, len(parts[j]), batch_size):
+            size = min(batch_size, len(parts[j]) - start)
+            gathered.add(own[j][size].loop.run(parts[j][start:start + size],
+                                               scenario.duration_s, bar=bar, stop=stop))
+        return gathered
+
+    try:
+        # every lane's experiments built here, one after the other: a build takes the
+        # scenario's checked rig and sensors (Scenario.take_resolved), not thread-safe
+        for j, part in enumerate(parts):
+            for size in {min(batch_size, len(part) - start)
+                         for start in range(0, len(part), batch_size)}:
+                if size not in own[j]:
+                    own[j][size] = build(scenario, size, num_threads=1)
+        # BLAS single-threaded for the whole study (each run's own limit then nests)
+        with threadpool_limits(1), ThreadPoolExecutor(len(parts)) as pool:
+            futures = [pool.submit(lane, j) for j in range(len(parts))]
+            try:
+                _, pending = wait(futures, return_when=FIRST_EXCEPTION)
+            except BaseException:  # an interrupt: the lanes stop within a step
+                stop.set()
+                raise
+            if pending:  # a lane failed: the others stop within a step
+                stop.set()
+        failures = [f.exception() for f in futures
+                    if f.exception() is not None and not isinstance(f.exception(), Stopped)]
+        if failures:
+            raise failures[0]
+        results = [f.result() for f in futures]
+    finally:
+        for cache in own[1:]:
+            for experiment in cache.values():
+                experiment.close()
+    gathered = results[0]
+    for part in results[1:]:
+        gathered.extend(part)
+    return gathered
 
 
 def _mc_shard(scenario: Scenario, seeds: np.ndarray, batch_size: int | None,
@@ -682,7 +759,8 @@ def _mc_shard(scenario: Scenario, seeds: np.ndarray, batch_size: int | None,
 def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
                          progress: bool, num_threads: int | None, backend: str,
                          workers: int | None, address: str | None) -> dict[str, Any]:
-    """:func:`monte_carlo` in contiguous shards of the runs on :func:`map_jobs`."""
+    """:func:`monte_carlo` in contiguous shards of the runs on :func:`map_jobs` (each job
+    holds one CPU: its physics runs on ``num_threads``, default 1, threads)."""
     workers = check_backend(backend, workers, address)
     scenario.check()
     start_time = time.perf_counter()
@@ -691,7 +769,7 @@ def _sharded_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None,
     bar = tqdm(total=len(shards), desc=f"monte carlo ({backend})", unit="shard",
                disable=not progress)
     with bar:
-        parts = map_jobs(_mc_shard, [(scenario, part, batch_size, num_threads)
+        parts = map_jobs(_mc_shard, [(scenario, part, batch_size, num_threads or 1)
                                      for part in shards], backend=backend, workers=workers,
                          address=address, on_done=lambda _: bar.update())
 
@@ -756,6 +834,16 @@ class RunMetrics:
         self.nees.append(result.metrics.nees_mean())
         self.T.append(result.metrics.noise_output_ratio())
         self.clipped.append(result.clipped_fraction)
+
+    def extend(self, other: RunMetrics) -> None:
+        """The runs of ``other`` after this one's."""
+        for k, v in other.rmse.items():
+            self.rmse[k].extend(v)
+        for k, v in other.measurement_rmse.items():
+            self.measurement_rmse.setdefault(k, []).extend(v)
+        self.nees.extend(other.nees)
+        self.T.extend(other.T)
+        self.clipped.extend(other.clipped)
 
     def arrays(self) -> dict[str, Any]:
         """``rmse``/``measurement_rmse`` ``{name: (runs,)}``, ``nees``, ``T`` ((runs,) or

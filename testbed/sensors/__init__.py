@@ -6,6 +6,7 @@ delay and sample-and-hold.
 """
 
 from testbed.sensors.base import (
+    Drawn,
     Noise,
     NoiseStreams,
     Sample,
@@ -26,6 +27,6 @@ from testbed.sensors.decorators import (
     WhiteNoise,
 )
 
-__all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "LinearChannel", "Noise",
+__all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "Drawn", "LinearChannel", "Noise",
            "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "ScaleFactor", "Sensor",
            "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise"]

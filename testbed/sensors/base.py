@@ -11,7 +11,10 @@ has the same four parts:
   ``sample.members`` start an episode / take one sample. All randomness comes from
   ``noise.normal(d)``, each member's own seeded stream, so a member's measurements do not
   depend on which other members are simulated with it;
-- ``linear_model()``: ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample, for designers.
+- ``linear_model()``: ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample, for designers;
+- ``draws_per_sample()`` (optional): how many normals ``measure`` draws per member, when that
+  is fixed; the simulator then draws them together with the step's own and hands them out
+  in order (:class:`Drawn`): the same values, one draw per step instead of one per request.
 
 MuJoCo adds no sensor noise; noise given as a continuous-time intensity ``S`` (a power
 spectral density) becomes the per-sample covariance ``S / dt_s`` (the average of ``dy/dt``
@@ -172,6 +175,35 @@ class Noise:
         return self.streams.draw(d, self.members)
 
 
+class Drawn:
+    """Standard normals drawn ahead for one sample, handed out in order (a :class:`Noise`).
+
+    A stream's values do not depend on how its draws are split (:class:`NoiseStreams`), so
+    drawing everything a step needs at once, then handing out ``xi[:, p:p + d]`` to each
+    request in turn, gives every request the values it would have drawn itself.
+
+    Parameters
+    ----------
+    xi : ndarray, shape (k, D)
+        The sample's normals, in the order they are requested.
+    """
+
+    __slots__ = ("xi", "position")
+
+    def __init__(self, xi: np.ndarray):
+        self.xi, self.position = xi, 0
+
+    def normal(self, d: int) -> np.ndarray:
+        """The next ``d`` normals of each member, shape (k, d) (read-only use)."""
+        p = self.position
+        e = p + d
+        if e > self.xi.shape[1]:
+            raise RuntimeError(f"the sensors drew more than the {self.xi.shape[1]} normals per "
+                               "sample they declare (draws_per_sample)")
+        self.position = e
+        return self.xi[:, p:e]
+
+
 @dataclass
 class SensorModel:
     """Linear model ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample.
@@ -249,6 +281,12 @@ class Sensor:
         """The model a designer uses (see :class:`SensorModel`)."""
         raise NotImplementedError
 
+    def draws_per_sample(self) -> int | None:
+        """Standard normals :meth:`measure` draws per member and sample, when that number is
+        fixed (the simulator then draws them with the step's own, in one call); None
+        (default): not declared, the sensor draws from the streams itself."""
+        return None
+
     def sample_periods_s(self) -> set[float]:
         """Sampling periods (s) this sensor's parameters were computed for, in units of the
         simulator's control period (default: none; the simulator checks that every one equals
@@ -291,8 +329,14 @@ class Suite(Sensor):
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"sensor channel names must be unique, got {list(self.names)}")
         direct = [s.direct_state() for s in flat]
-        #: States read directly when every member is a bare state channel (one gather).
-        self._state_index = None if None in direct else np.array(direct)
+        #: States read directly when every member is a bare state channel (one gather; a
+        #: slice when they are consecutive).
+        self._state_index: Any = None
+        if None not in direct:
+            lo = direct[0]
+            self._state_index = (slice(lo, lo + len(direct))
+                                 if direct == list(range(lo, lo + len(direct)))
+                                 else np.array(direct))
 
     def allocate(self, num: int) -> None:
         """Allocate every member sensor."""
@@ -306,12 +350,19 @@ class Suite(Sensor):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """Every sensor in order (their draws in that order), concatenated: (k, m)."""
-        if self._state_index is not None:  # what the channels return, in one gather
-            return sample.x[:, self._state_index]
+        index = self._state_index
+        if index is not None:  # what the channels return, in one gather
+            return (sample.x[:, index].copy() if isinstance(index, slice)
+                    else sample.x.take(index, axis=1))
         if len(self.sensors) == 1:
             return self.sensors[0].measure(sample, noise)
         parts = [s.measure(sample, noise) for s in self.sensors]
         return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+    def draws_per_sample(self) -> int | None:
+        """The member sensors' draws summed (None when one of them does not declare its)."""
+        draws = [s.draws_per_sample() for s in self.sensors]
+        return None if None in draws else sum(draws)
 
     def sample_periods_s(self) -> set[float]:
         """The union of the member sensors' periods."""

@@ -35,6 +35,10 @@ class StateChannel(Sensor):
         """This channel's state index."""
         return self.index
 
+    def draws_per_sample(self) -> int:
+        """0: noise comes from decorators."""
+        return 0
+
     def linear_model(self) -> SensorModel:
         """A unit row of ``C``, no noise."""
         C = np.zeros((1, self.n_states))
@@ -87,6 +91,10 @@ class LinearChannel(Sensor):
             raise ValueError(f"channels {list(self.names)} need the disturbance w of size "
                              f"{self.Hw.shape[1]}; this scenario's has size {w.shape[1]}")
         return y + np.matvec(self.Hw, w)
+
+    def draws_per_sample(self) -> int:
+        """0: noise comes from decorators."""
+        return 0
 
     def linear_model(self) -> SensorModel:
         """``C``, ``Hw``; no noise; deterministic when ``Hw`` is given."""

@@ -25,6 +25,28 @@ import numpy as np
 from testbed.sensors.base import Noise, Sample, Sensor, SensorModel, as_array
 
 
+class _Rows:
+    """A per-channel parameter (m,) repeated for the k rows of a sample, remade when the
+    parameter is replaced or k changes: numpy's ufuncs between arrays of one shape skip the
+    broadcasting machinery, which costs more than the arithmetic on a few channels (the same
+    values, bitwise)."""
+
+    __slots__ = ("rows", "source")
+
+    def __init__(self) -> None:
+        self.source: np.ndarray | None = None
+        self.rows = np.zeros((0, 0))
+
+    def of(self, values: np.ndarray, k: int) -> np.ndarray:
+        """``values`` as a read-only (k, m) array."""
+        rows = self.rows
+        if values is not self.source or len(rows) != k:
+            rows = np.tile(values, (k, 1))
+            rows.flags.writeable = False
+            self.source, self.rows = values, rows
+        return rows
+
+
 class Decorator(Sensor):
     """A sensor wrapping another; by default passes everything through.
 
@@ -60,6 +82,19 @@ class Decorator(Sensor):
         """The inner sensor's model (the change is not modelled)."""
         return self.inner.linear_model()
 
+    #: Normals this decorator draws per sample, after its inner sensor's (None: not
+    #: declared). A subclass that keeps :meth:`measure` and :meth:`apply` draws none.
+    own_draws: int | None = None
+
+    def draws_per_sample(self) -> int | None:
+        """The inner sensor's draws plus :attr:`own_draws` (None when either is unknown)."""
+        own = self.own_draws
+        if own is None and type(self).measure is Decorator.measure \
+                and type(self).apply is Decorator.apply:
+            own = 0  # passes the inner measurement through
+        inner = self.inner.draws_per_sample()
+        return None if own is None or inner is None else inner + own
+
     def sample_periods_s(self) -> set[float]:
         """The inner sensor's periods plus this decorator's ``dt_s`` (if it has one)."""
         own = getattr(self, "dt_s", None)
@@ -80,15 +115,19 @@ class Quantize(Decorator):
         Resolution per channel, in the channel's unit (positive).
     """
 
+    own_draws = 0
+
     def __init__(self, inner: Sensor, step: float | np.ndarray):
         super().__init__(inner)
         self.step = as_array(step, inner.dim, "step")
         if np.any(self.step <= 0):
             raise ValueError(f"step must be positive, got {step!r}")
+        self._step_rows = _Rows()
 
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``round(y / step) step``."""
-        return np.rint(y / self.step) * self.step  # np.round with 0 decimals, less overhead
+        step = self._step_rows.of(self.step, len(y))
+        return np.rint(y / step) * step  # np.round with 0 decimals, less overhead
 
     def linear_model(self) -> SensorModel:
         """Quantization as uniform white noise: ``R += diag(step^2 / 12)``."""
@@ -155,6 +194,12 @@ class WhiteNoise(Decorator):
         self.cov = (np.diag(self._std**2) if self._std is not None
                     else self._chol @ self._chol.T)
         self._draws = m if (self._std is None or np.any(self._std > 0)) else 0
+        self._std_rows = _Rows()
+
+    @property
+    def own_draws(self) -> int:
+        """``m`` normals per sample (none when the noise is zero)."""
+        return self._draws
 
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + std xi`` or ``y + chol(cov) xi``."""
@@ -162,7 +207,7 @@ class WhiteNoise(Decorator):
             return y
         xi = noise.normal(self._draws)
         if self._std is not None:
-            return y + self._std * xi
+            return y + self._std_rows.of(self._std, len(y)) * xi
         return y + np.matvec(self._chol, xi)
 
     def linear_model(self) -> SensorModel:
@@ -176,13 +221,16 @@ class WhiteNoise(Decorator):
 class Bias(Decorator):
     """A constant offset ``b`` (per channel), left out of the linear model."""
 
+    own_draws = 0
+
     def __init__(self, inner: Sensor, bias: float | np.ndarray):
         super().__init__(inner)
         self.bias = as_array(bias, inner.dim, "bias", non_negative=False)
+        self._bias_rows = _Rows()
 
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + b``."""
-        return y + self.bias
+        return y + self._bias_rows.of(self.bias, len(y))
 
 
 class BiasRandomWalk(Decorator):
@@ -215,6 +263,7 @@ class BiasRandomWalk(Decorator):
         self.bias = np.zeros((0, inner.dim))
         self._walk_of: np.ndarray | None = None  # the walk _walk_step was computed from
         self._walk_step: np.ndarray | None = None
+        self._step_rows = _Rows()
 
     def allocate(self, num: int) -> None:
         """One bias per member and channel."""
@@ -229,6 +278,11 @@ class BiasRandomWalk(Decorator):
         else:
             self.bias[sample.members] = 0.0
 
+    def draws_per_sample(self) -> int | None:
+        """The inner sensor's draws, plus ``m`` when the bias walks (``walk > 0``)."""
+        inner = self.inner.draws_per_sample()
+        return None if inner is None else inner + (self.dim if np.any(self.walk > 0) else 0)
+
     def apply(self, y: np.ndarray, sample: Sample, noise: Noise) -> np.ndarray:
         """``y + b_k``; then the walk advances."""
         bias = self.bias[sample.members]
@@ -238,7 +292,8 @@ class BiasRandomWalk(Decorator):
             self._walk_of, self._walk_step = walk, (walk * np.sqrt(self.dt_s)
                                                     if np.any(walk > 0) else None)
         if self._walk_step is not None:
-            self.bias[sample.members] = bias + self._walk_step * noise.normal(self.dim)
+            self.bias[sample.members] = bias + (self._step_rows.of(self._walk_step, len(y))
+                                                * noise.normal(self.dim))
         return out
 
 
@@ -258,6 +313,8 @@ class ScaleFactor(Decorator):
     -----
     Draws ``m`` normals at reset when ``initial_std > 0``, none per sample.
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, error: float | np.ndarray = 0.0,
                  initial_std: float | np.ndarray = 0.0):
@@ -295,6 +352,8 @@ class Delay(Decorator):
     samples : int
         Delay in samples (>= 1).
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor, samples: int):
         super().__init__(inner)
@@ -378,6 +437,8 @@ class Tap(Decorator):
     sample of the channels it taps (e.g. the vehicle's ``a_y`` = speed times yaw rate), so
     every estimator in the loop gets the measured input.
     """
+
+    own_draws = 0
 
     def __init__(self, inner: Sensor):
         super().__init__(inner)

@@ -46,7 +46,7 @@ import numpy as np
 from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
-from testbed.sensors import NoiseStreams, Sample, Sensor
+from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
 from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
@@ -204,6 +204,7 @@ class Physics:
         self.poses: tuple[np.ndarray, np.ndarray] | None = None
         #: Members whose MuJoCo data reported an instability warning in their last step.
         self.unstable = np.zeros(self.num, dtype=bool)
+        self._any_unstable = False  # whether some entry of unstable is True
         self._all_ids = np.arange(self.num)
 
     def _attach(self) -> None:
@@ -339,6 +340,7 @@ class Physics:
                 self.rig.act_window(self.constants[index]), axis=1)
         self._warning[index] = 0
         self.unstable[index] = False
+        self._any_unstable = bool(np.count_nonzero(self.unstable))
 
     def _store_mass(self, sel: Any) -> None:
         """Dense mass matrices of the members from MuJoCo's sparse ``M`` (a copy of the
@@ -352,8 +354,10 @@ class Physics:
             self.mass[sel[:, None], self._m_cols, self._m_rows] = m
 
     def states(self, members: Any = slice(None)) -> np.ndarray:
-        """Rig states of the members, shape (k, n)."""
-        return self.state[members][:, self._gather]
+        """Rig states of the members (a slice or int indices), shape (k, n)."""
+        if isinstance(members, slice):
+            return self.state[members].take(self._gather, axis=1)
+        return self.state[np.asarray(members)[:, None], self._gather]
 
     def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
                    qfrc: np.ndarray | None) -> None:
@@ -372,7 +376,8 @@ class Physics:
             field = self._fields.get(name)
             if field is None:
                 field = self._fields[name] = self.batch.expand(name)
-            field[(sel, *np.atleast_1d(where).tolist())] = values
+            field[(sel, where) if isinstance(where, int | np.integer)
+                  else (sel, *np.atleast_1d(where).tolist())] = values
 
     def step(self, members: np.ndarray, need_mass: bool = False,
              need_poses: bool = False, step_noise: np.ndarray | None = None) -> bool:
@@ -422,8 +427,10 @@ class Physics:
             unstable = np.any(bad, axis=1)
             self.unstable[sel] = unstable
             self._warning[self._all_ids[sel][unstable]] = 0
-        else:
+            self._any_unstable = True
+        elif self._any_unstable:  # clear the marks of an earlier step
             self.unstable[sel] = False
+            self._any_unstable = bool(np.count_nonzero(self.unstable))
         if need_mass:
             self._store_mass(sel)
         if need_poses:
@@ -564,14 +571,27 @@ class Simulator:
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
+        #: No member has an input profile (updated when a reset registers one).
+        self._no_manoeuvre = self._schedules[0] is None
         self._w_dim = len(self.disturbance.signal(0.0))
         self._dist_draws = 0 if self.disturbance.b is None else self.disturbance.b.shape[1]
         self.physics = Physics(rig, n, self.frame_skip, num_threads)
         self.physics.reset(range(n), [self.nominal_params] * n,
                            np.tile(rig.default_x0(), (n, 1)))
-        self.noise = NoiseStreams(n, 64 * max(self._dist_draws + rig.step_noise_dim
-                                              + self.sensors.dim + rig.x0_draws, 4))
+        #: The sensors' normals per sample when they declare a fixed number (drawn with the
+        #: step's own in one call, :class:`~testbed.sensors.Drawn`), else None.
+        self._sensor_draws = self.sensors.draws_per_sample()
+        #: Normals a step draws in one call: the rig's step noise, the disturbance's, then
+        #: (when declared) the sensors'.
+        self._step_draws = (rig.step_noise_dim + self._dist_draws
+                            + (self._sensor_draws or 0))
+        self.noise = NoiseStreams(n, max(64 * max(self._dist_draws + rig.step_noise_dim
+                                                  + self.sensors.dim + rig.x0_draws, 4),
+                                         self._step_draws))
         self._noise_all = self.noise.view(slice(None))
+        self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
+        # fixed for the simulator's life: read once, not per step
+        self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
         self.steps = np.zeros(n, dtype=np.int64)
         self._ready = np.zeros(n, dtype=bool)
         self._all_ready = False
@@ -584,7 +604,14 @@ class Simulator:
         self._all = np.arange(n)  # read-only constants of the step
         self._zero_input, self._zero_accel = np.zeros((n, self._nu)), np.zeros((n, self._j))
         self._zero_w = np.zeros((n, 0))
-        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w):
+        # the step's constants with one row per member: numpy's ufuncs between arrays of one
+        # shape skip the broadcasting machinery, which costs more than the arithmetic on a few
+        # columns (the same values, bitwise)
+        self._low_rows, self._high_rows = np.tile(self._low, (n, 1)), np.tile(self._high, (n, 1))
+        self._envelope_rows = np.tile(self._envelope, (n, 1))
+        self._dt_rows, self._one_rows = np.full(n, self.dt_s), np.ones(n, dtype=np.int64)
+        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w, self._low_rows,
+                  self._high_rows, self._envelope_rows, self._dt_rows, self._one_rows):
             a.flags.writeable = False
         widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
                   "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
@@ -597,6 +624,7 @@ class Simulator:
         for key, width in widths.items():
             self._info_columns[key] = slice(start, start + width)
             start += width
+        self._info_items = tuple(self._info_columns.items())
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -637,7 +665,7 @@ class Simulator:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
-        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_columns.items()}
+        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
         out["t"] = float(row[self._info_columns["t"].start])
         out["action_clipped"] = self.info["action_clipped"][i].copy()
         return out
@@ -746,11 +774,6 @@ class Simulator:
         groups = self._table_of[members]
         return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
 
-    @property
-    def _no_manoeuvre(self) -> bool:
-        """No member has an input profile."""
-        return len(self._schedules) == 1 and self._schedules[0] is None
-
     def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
         if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
@@ -825,6 +848,7 @@ class Simulator:
         self.physics.reset(index.tolist(), params, x0)
         self._table_of[index] = tables
         self._schedule_of[index] = schedules
+        self._no_manoeuvre = len(self._schedules) == 1 and self._schedules[0] is None
         self._ready[index] = True
         self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
@@ -867,19 +891,24 @@ class Simulator:
         ``checked=True``: the caller has already made ``actions`` a finite ``float64`` array
         of shape (k, nu) (the Gymnasium env's own check), so it is not checked twice.
         """
-        index = self._all if members is None else np.asarray(members, int)
-        # the simulator's own arrays: a basic slice for the whole batch (no gather/scatter
-        # copies); sensors, noise streams and physics keep the member indices
-        sel: Any = slice(None) if members is None else index
-        k = len(index)
-        if not (self._all_ready if members is None
-                else np.count_nonzero(self._ready[sel]) == k):
-            raise RuntimeError("reset() every member before stepping it")
+        # the simulator's and the sensors' arrays: a basic slice for the whole batch (no
+        # gather/scatter copies); noise streams and physics keep the member indices
+        if members is None:
+            if not self._all_ready:
+                raise RuntimeError("reset() every member before stepping it")
+            index, sel, k = self._all, slice(None), self.num
+            low, high, envelope = self._low_rows, self._high_rows, self._envelope_rows
+        else:
+            index = sel = np.asarray(members, int)
+            k = len(index)
+            if np.count_nonzero(self._ready[index]) != k:
+                raise RuntimeError("reset() every member before stepping it")
+            low, high, envelope = self._low, self._high, self._envelope
         u = actions if checked else self.check_actions(actions, k)
-        low, high = self._low, self._high
-        rig, physics, dist = self.rig, self.physics, self.disturbance
-        no_manoeuvre = self._no_manoeuvre
-        t = self.steps[sel] * self.dt_s if dist.has_signal or not no_manoeuvre else None
+        rig, physics, info = self.rig, self.physics, self.info
+        has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
+                                                 self._no_manoeuvre)
+        t = self.steps[sel] * self.dt_s if has_signal or not no_manoeuvre else None
         # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
         clipped_u = np.minimum(np.maximum(u, low), high)
         if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
@@ -891,32 +920,42 @@ class Simulator:
             total = clipped_u + profile
             applied = np.minimum(np.maximum(total, low), high)
             clipped = (clipped_u != u) | (applied != total)
+        # the step's normals in one draw, in stream order: step noise, disturbance, sensors
         noise = self._noise_all if members is None else self.noise.view(index)
-        info = self.info
+        xi = noise.normal(self._step_draws) if self._step_draws else None
+        n_step = rig.step_noise_dim
         step_noise = None
-        if rig.step_noise_dim:  # applied by the physics threads, before each member's step
-            step_noise = noise.normal(rig.step_noise_dim)
+        if n_step:  # applied by the physics threads, before each member's step
+            step_noise = xi[:, :n_step]
             info["step_noise"][sel] = step_noise
         qfrc = None
-        w = self._signal(t, index) if dist.has_signal else info["disturbance"][sel]
-        accel: Any = self._zero_accel[:k]
-        if dist.active:
+        if dist_active:
+            dist = self.disturbance
+            w = self._signal(t, index) if has_signal else info["disturbance"][sel]
+            accel: Any = self._zero_accel[:k]
             if dist.G is not None:
                 accel = accel + np.matvec(dist.G[self._j:], w)
             if dist.b is not None:
-                xi = noise.normal(self._dist_draws)
-                accel = accel + np.matvec(dist.b[self._j:], xi) / np.sqrt(self.dt_s)
+                drawn = xi[:, n_step:n_step + self._dist_draws]
+                accel = accel + np.matvec(dist.b[self._j:], drawn) / np.sqrt(self.dt_s)
             a = np.zeros((k, physics.nv))
             a[:, rig.dof_adr] = accel
             qfrc = np.matvec(physics.mass[sel], a)
+        elif has_signal:
+            w = self._signal(t, index)
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
-        warned = physics.step(index, need_mass=dist.active, need_poses=self.record_poses,
+        warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
-        steps = self.steps[sel] + 1
-        self.steps[sel] = steps
-        t = steps * self.dt_s
+        if members is None:
+            steps = self.steps + self._one_rows
+            self.steps[...] = steps
+            t = steps * self._dt_rows
+        else:
+            steps = self.steps[sel] + 1
+            self.steps[sel] = steps
+            t = steps * self.dt_s
         x = physics.states(sel)
-        inside = np.less_equal(np.abs(x), self._envelope)  # NaN compares False
+        inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel)
@@ -924,20 +963,30 @@ class Simulator:
         self.reward[sel] = -np.add.reduce(e * e, axis=1)
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
-        w_now = self._signal(t, index) if dist.has_signal else self._zero_w[:k]
-        sample = Sample(x, t, applied, w_now, index)
-        self.obs[sel] = self.sensors.measure(sample, noise)
+        w_now = self._signal(t, index) if has_signal else self._zero_w[:k]
+        sample = Sample(x, t, applied, w_now, sel)
+        if self._sensor_draws is None:  # the sensors draw from the streams themselves
+            self.obs[sel] = self.sensors.measure(sample, noise)
+        else:
+            drawn_ahead = (Drawn(xi[:, n_step + self._dist_draws:]) if self._sensor_draws
+                           else self._no_draws)
+            self.obs[sel] = self.sensors.measure(sample, drawn_ahead)
+            if drawn_ahead.position != self._sensor_draws:
+                self._no_draws.position = 0
+                raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
+                                   f"{drawn_ahead.position} normals per sample but declare "
+                                   f"{self._sensor_draws} (draws_per_sample)")
         info["state"][sel] = x
         info["t"][sel] = t
         info["setpoint"][sel] = ref
         info["action_applied"][sel] = applied
         info["action_clipped"][sel] = clipped
         # the entries below keep what reset wrote without a signal, profile or disturbance
-        if dist.has_signal:
+        if has_signal:
             info["disturbance"][sel] = w
         if not no_manoeuvre:
             info["manoeuvre"][sel] = profile
-        if dist.active:
+        if dist_active:
             info["process_accel"][sel] = accel
 
     def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,

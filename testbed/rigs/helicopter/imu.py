@@ -33,6 +33,10 @@ class HelicopterIMU(Sensor):
     units = ("rad/s", "rad/s", "m/s^2")
     measured_state = (2, None, None)
 
+    def draws_per_sample(self) -> int:
+        """0: noise comes from decorators."""
+        return 0
+
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``[pitch_rate, yaw_rate cos(pitch), g sin(pitch)]``, shape (k, 3)."""
         pitch, pitch_rate, yaw_rate = sample.x[:, 0], sample.x[:, 2], sample.x[:, 3]

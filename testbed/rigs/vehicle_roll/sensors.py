@@ -87,6 +87,10 @@ class SpeedYawRate(Sensor):
             raise ValueError(f"speed_m_s must be a positive speed in m/s, got {speed_m_s}")
         self.speed_m_s = speed_m_s
 
+    def draws_per_sample(self) -> int:
+        """0: noise comes from decorators."""
+        return 0
+
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``[v, a_y / v]`` with the ``a_y`` applied over the step, shape (k, 2)."""
         out = np.empty((sample.k, 2))
@@ -109,7 +113,9 @@ class SpeedChannel(SpeedYawRate):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``v``, shape (k, 1)."""
-        return np.full((sample.k, 1), self.speed_m_s)
+        out = np.empty((sample.k, 1))
+        out.fill(self.speed_m_s)
+        return out
 
     def linear_model(self) -> SensorModel:
         """This channel's row of :meth:`SpeedYawRate.linear_model`."""
@@ -167,6 +173,10 @@ class LateralAccelerometer(Sensor):
     """
 
     names, units, measured_state = ("lateral_accel",), ("m/s^2",), (None,)
+
+    def draws_per_sample(self) -> int:
+        """0: noise comes from decorators."""
+        return 0
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``a_y cos(roll) + g sin(roll)``, shape (k, 1)."""
@@ -282,6 +292,10 @@ class PaperRollChannel(Sensor):
         self.H, self.L = model.H, model.L
         self._v = PaperDecay()
         self.lmi_amplitude = self._v.amplitude_m_s2
+
+    def draws_per_sample(self) -> int:
+        """Two normals with ``noise_std > 0``, else none."""
+        return 2 if self.noise_std else 0
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``H x + L v (+ noise)``, shape (k, 2)."""
