@@ -26,6 +26,7 @@ when asked for).
 from __future__ import annotations
 
 import copy
+import json
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -180,8 +181,24 @@ def _unwrap(estimator: Any) -> Any:
     return estimator.instances[0] if isinstance(estimator, PerMember) else estimator
 
 
+def _tape_key(experiment: Any, seeds: np.ndarray, options: Any) -> str:
+    """What a recorded Monte Carlo (:class:`~testbed.experiment.loop.Tape`) depends on
+    besides the estimator: the built scenario (an estimator's scenario defaults may change
+    its sensors or disturbance), the sensors, the seeds and the reset options. The entry's
+    sampled disturbance is named, not hashed: within one entry it is always the same one
+    (:func:`_sampled`)."""
+    scenario = {k: v for k, v in experiment.meta["scenario"].items()
+                if k not in ("estimator", "estimator_options")}
+    if isinstance(scenario.get("disturbance"), SampledDisturbance):
+        scenario["disturbance"] = "the entry's sampled disturbance"
+    x0 = [] if options is None else [np.asarray(o["x0"]).tolist() for o in options]
+    return json.dumps([scenario, experiment.meta["sensors"], np.asarray(seeds).tolist(), x0,
+                       experiment.loop.truth_feedback], sort_keys=True, default=repr)
+
+
 def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool = True,
-               num_threads: int | None = None) -> PairResult:
+               num_threads: int | None = None,
+               tapes: dict[str, Any] | None = None) -> PairResult:
     """One estimator on one entry: Monte Carlo, consistency, cost, worst case.
 
     Parameters
@@ -193,6 +210,12 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         Base seed (``runner.run_seeds(seed, entry.runs)`` per run).
     worst_case : bool
         Run the entry's worst-case search (when it has one).
+    tapes : dict, optional
+        Recorded Monte Carlos of this entry shared between its estimators (filled here):
+        with ``feedback = "truth"`` the simulated episodes do not depend on the estimator,
+        so every estimator after the first is replayed on the first one's episodes
+        (:meth:`~testbed.experiment.loop.ClosedLoop.replay`; the same result, bitwise,
+        without simulating again).
     """
     name = _name(estimator)
     out = PairResult(estimator=name, scenario=entry.name, runs=entry.runs)
@@ -219,8 +242,16 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         probe = Probe(inner)
         experiment.loop.stage.estimator = probe
         options = _trajectory_x0(entry, experiment.design, seeds)
+        shared = tapes is not None and experiment.loop.truth_feedback
+        key = _tape_key(experiment, seeds, options) if shared else ""
         try:
-            result = experiment.loop.run(seeds, steps * dt_s, options, record=True)
+            if shared and key in tapes:
+                result = experiment.loop.replay(tapes[key], options, record=True)
+            else:
+                result = experiment.loop.run(seeds, steps * dt_s, options, record=True,
+                                             tape=shared)
+                if shared:
+                    tapes[key] = result.tape
         except (FilterError, FloatingPointError, SimulationDiverged) as err:
             out.skipped = f"failed: {type(err).__name__}: {err}"
             return out
@@ -316,8 +347,9 @@ def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
     for extra in (REFERENCE, reference):
         if _name(extra) not in [name for name, _ in todo]:
             todo.append((_name(extra), extra))
+    tapes: dict[str, Any] = {}  # the entry's simulated episodes, shared (see score_pair)
     return {name: score_pair(entry, est, seed, worst_case=worst_case and name in names,
-                             num_threads=num_threads)
+                             num_threads=num_threads, tapes=tapes)
             for name, est in todo}
 
 
