@@ -108,7 +108,12 @@ class Probe(EstimatorWrapper):
 
 @dataclass
 class PairResult:
-    """Raw results of one estimator on one entry (JSON-ready apart from the arrays)."""
+    """Raw results of one estimator on one entry (JSON-ready apart from the arrays).
+
+    ``cpu_s``: CPU seconds of the stages (``build``: simulator, design and estimator;
+    ``monte_carlo``: the runs, simulated or replayed, and their statistics; ``worst_case``:
+    the search), where the time of ``testbed score`` goes.
+    """
 
     estimator: str
     scenario: str
@@ -128,6 +133,7 @@ class PairResult:
     trajectory: dict[str, np.ndarray] | None = None
     units: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 def _name(estimator: Any) -> str:
@@ -223,6 +229,14 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
     if reason:
         out.skipped = reason
         return out
+    clock = time.process_time()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.process_time()
+        out.cpu_s[stage] = out.cpu_s.get(stage, 0.0) + now - clock
+        clock = now
+
     scenario = entry.resolved_scenario()
     dt_s = scenario.physics_dt_s * scenario.frame_skip
     steps = int(round(scenario.duration_s / dt_s))
@@ -230,11 +244,14 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
     sc = scenario.replace(estimator=estimator)
     if dist is not None:
         sc = sc.replace(disturbance=dist, process_noise=0.0)
+
     try:
         experiment = runner.build(sc, entry.runs, num_threads=num_threads)
     except (ValueError, FilterError) as err:
         out.skipped = f"the factory raised {type(err).__name__}: {err}"
         return out
+    finally:
+        lap("build")
     seeds = runner.run_seeds(seed, entry.runs)
     experiment.loop.truth_feedback = entry.feedback == "truth"
     try:
@@ -285,6 +302,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
                           "estimate": rec["estimate"][0],
                           "measurement": rec["measurement"][0], "action": rec["action"][0]}
         experiment.loop.stage.estimator = inner
+        lap("monte_carlo")
         if worst_case and entry.worst_case is not None:
             try:
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
@@ -292,6 +310,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
             except (ValueError, FilterError, FloatingPointError,
                     SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
+            lap("worst_case")
     finally:
         experiment.close()
     return out
@@ -353,6 +372,40 @@ def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
             for name, est in todo}
 
 
+#: Fixed cost of one step of a batched closed loop, in member-steps (measured on the
+#: helicopter with the Kalman filter, one thread: 0.56 ms per step of 1 member, 0.91 ms of
+#: 7, 3.5 ms of 100: about 0.5 ms plus 35 us per member).
+STEP_OVERHEAD = 15
+#: Cost per member-step of an entry's estimators relative to the others', where it differs
+#: (measured on the quick suite with all eight built-in estimators, 2026-11-26: the hardware
+#: helicopter's augmented design makes poly-hinf's and ms-hinf's integration 4 to 5 times
+#: dearer than on the paper profile; the other entries are within 30 % of each other).
+ENTRY_COST_FACTORS = {("helicopter", "hardware"): 4.0}
+
+
+def entry_cost(entry: SuiteEntry) -> float:
+    """A rough estimate of an entry's run time, relative to the other entries', for
+    scheduling the entries over workers longest first (:func:`run_entries`).
+
+    Member-steps of the Monte Carlo and of the worst-case search's closed-loop runs (the
+    impulse response over ``K / 4 + K`` steps, then ``2 + generations`` runs of ``K`` steps)
+    plus :data:`STEP_OVERHEAD` per step, times :data:`ENTRY_COST_FACTORS`.
+    """
+    if entry.unavailable():
+        return 0.0
+    scenario = entry.scenario
+    rig = scenario.rig if isinstance(scenario.rig, str) else getattr(scenario.rig, "name", "")
+    dt_s = scenario.physics_dt_s * scenario.frame_skip
+    steps = scenario.duration_s / dt_s
+    cost = steps * (entry.runs + STEP_OVERHEAD)
+    spec = entry.worst_case
+    if spec is not None:
+        K = (spec.horizon_s or scenario.duration_s) / dt_s
+        members = max(3 + spec.random_draws, population(spec.basis - 1) + 1)
+        cost += (2.25 + spec.generations + 1) * K * (members + STEP_OVERHEAD)
+    return cost * ENTRY_COST_FACTORS.get((rig, entry.profile), 1.0)
+
+
 def _job(args: tuple) -> dict[str, PairResult]:
     entry, estimators, seed, worst_case, num_threads, reference = args
     return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads,
@@ -365,14 +418,18 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
                 reference: Any = REFERENCE) -> list[dict[str, PairResult]]:
     """:func:`score_entry` for every entry, locally (``workers`` processes) or on Ray.
 
-    Results do not depend on the backend or the number of workers (apart from timings).
+    Entries are the unit of work (one job each: its estimators share its simulated
+    episodes); they start longest first (:func:`entry_cost`) so that the workers finish
+    together. Results do not depend on the backend or the number of workers (apart from
+    timings).
     """
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
     jobs = [(e, estimators, seed, worst_case, 1, reference) for e in entries]
     return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
-                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name))
+                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name),
+                    costs=[entry_cost(e) for e in entries])
 
 
 @dataclass
