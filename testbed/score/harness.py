@@ -11,6 +11,9 @@ factory
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the
    same for every estimator and entry), the true initial states drawn from the design prior
    when the entry asks, the estimator wrapped in a :class:`Probe` (step time, innovations);
+   with ``feedback = "truth"`` the episodes do not depend on the estimator: the entry's
+   first estimator simulates them, every other one is replayed on them (bitwise the same
+   result, without the simulator's cost);
 3. RMSE, NEES, NIS and the whitened innovations from the recorded trajectories
    (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
    :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
@@ -18,6 +21,7 @@ factory
    whose estimator is a copy of the first and whose sensors are the entry's without
    quantization (:func:`~testbed.score.worst_case.without_quantization`).
 
+Entries are the unit of parallel work, started longest first (:func:`entry_cost`).
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
 when asked for).
