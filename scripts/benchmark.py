@@ -48,6 +48,9 @@ shared):
   16-point sweep on local Ray, 2 workers vs 1; target >= 1.6) and ``mc_ray_speedup``
   (``mc --backend ray`` of 1000 helicopter runs of 10 s, 2 local workers vs 1, one physics
   thread each; target >= 1.6). ``--quick`` skips the three long ones;
+- ``score_replay_vs_simulate``: ``testbed score`` simulates each entry's episodes once and
+  replays every further estimator on them (truth feedback): one Monte Carlo of the Kalman
+  filter on the helicopter (16 runs x 2 s) replayed / simulated (target <= 0.5);
 - LMI (``scripts/bench_lmi.py``): ``lmi_solve_s`` (median solve of Zhang et al.'s LMI (48) for
   Example 5.2; target < 0.1 s) and ``gamma_bisection_s`` (target < 2 s).
 
@@ -133,6 +136,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "sweep_ray_speedup": ("", "sweep wall time 1 worker / 2 workers"),
     "mc_ray_wall_s": ("s", "mc --backend ray, 1000 helicopter runs of 10 s, by workers"),
     "mc_ray_speedup": ("", "mc --backend ray wall time 1 worker / 2 workers"),
+    "score_replay_vs_simulate": ("", "testbed score: a Monte Carlo replayed on recorded "
+                                 "episodes / simulated (helicopter, Kalman, 16 x 2 s)"),
     "lmi_solve_s": ("s", "LMI (48) solve, Zhang, Deng & Zhang (2018) Example 5.2 (median)"),
     "gamma_bisection_s": ("s", "gamma bisection on the same LMI (median)"),
 }
@@ -150,6 +155,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "mc_peak_rss_mb": ("<=", 500.0),
     "sweep_ray_speedup": (">=", 1.6),
     "mc_ray_speedup": (">=", 1.6),
+    "score_replay_vs_simulate": ("<=", 0.5),
     "lmi_solve_s": ("<", 0.1),
     "gamma_bisection_s": ("<", 2.0),
 }
@@ -342,6 +348,24 @@ def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
             out.update({"ekf_batch32_vs_kalman": t["ekf"] / t["kalman"],
                         "ukf_batch32_vs_kalman": t["ukf"] / t["kalman"]})
     return out
+def bench_score(repeats: int, runs: int = 16, duration_s: float = 2.0) -> dict[str, float]:
+    """``testbed score``'s Monte Carlo of one estimator on the helicopter: simulated (with its
+    tape kept) and replayed on the tape (what every estimator after the first of an entry
+    costs, :meth:`ClosedLoop.replay`), interleaved."""
+    from testbed.experiment import runner
+    from testbed.experiment.scenario import Scenario
+
+    experiment = runner.build(Scenario(rig="helicopter", estimator="kalman",
+                                       duration_s=duration_s), runs, num_threads=1)
+    loop = experiment.loop
+    loop.truth_feedback = True
+    seeds = np.arange(runs)
+    tape = loop.run(seeds, duration_s, record=True, tape=True).tape
+    t = time_interleaved({"simulate": lambda: loop.run(seeds, duration_s, record=True,
+                                                       tape=True),
+                          "replay": lambda: loop.replay(tape, record=True)}, 1, repeats)
+    experiment.close()
+    return {"score_replay_vs_simulate": t["replay"] / t["simulate"]}
 
 
 def bench_reference_env(calls: int, repeats: int) -> dict[str, Any]:
@@ -550,6 +574,7 @@ def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
     values.update(bench_filters(calls, repeats))
     values.update(bench_nonlinear(calls, repeats))
     values.update(bench_reference_env(calls, repeats))
+    values.update(bench_score(repeats, duration_s=0.2 if mode == "smoke" else 2.0))
     values.update(bench_lmi(**({"repeats": 1, "bisections": 1} if mode == "smoke" else {})))
     settings: dict[str, Any] = {"calls": calls, "repeats": repeats, "mode": mode}
     if mc:

@@ -80,7 +80,8 @@ def check_ray_address(address: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S) ->
 
 def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "local",
              workers: int = 1, address: str | None = None,
-             on_done: Callable[[int], None] | None = None) -> list[Any]:
+             on_done: Callable[[int], None] | None = None,
+             costs: Sequence[float] | None = None) -> list[Any]:
     """``[fn(*job) for job in jobs]`` on ``workers`` local processes or Ray tasks.
 
     Parameters
@@ -98,6 +99,11 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
         Ray cluster address (checked by :func:`check_backend` beforehand).
     on_done : callable, optional
         Called with the job index as each result arrives, in job order (progress bars).
+    costs : sequence of float, optional
+        An estimate of each job's run time (any unit). Jobs then start most costly first
+        (longest-processing-time-first list scheduling: each free worker takes the next
+        one), so that a long job does not start last and keep one worker busy while the
+        others idle. Results are in job order whatever the order of execution.
 
     Returns
     -------
@@ -108,6 +114,11 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
         if on_done is not None:
             on_done(i)
 
+    if costs is not None and len(costs) != len(jobs):
+        raise ValueError(f"got {len(costs)} costs for {len(jobs)} jobs")
+    # execution order: most costly first (stable: job order among equal costs)
+    order = (list(range(len(jobs))) if costs is None
+             else sorted(range(len(jobs)), key=lambda i: -float(costs[i])))
     out: list[Any] = []
     if backend == "local" and (workers == 1 or len(jobs) <= 1):
         for i, job in enumerate(jobs):
@@ -117,7 +128,8 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
     if backend == "local":
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
                                  mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(fn, *job) for job in jobs]
+            submitted = {i: pool.submit(fn, *jobs[i]) for i in order}
+            futures = [submitted[i] for i in range(len(jobs))]
             for i, future in enumerate(futures):
                 out.append(future.result())
                 done(i)
@@ -134,7 +146,8 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
     try:
         task = ray.remote(num_cpus=1)(fn)
-        refs = [task.remote(*job) for job in jobs]
+        launched = {i: task.remote(*jobs[i]) for i in order}
+        refs = [launched[i] for i in range(len(jobs))]
         for i, ref in enumerate(refs):
             out.append(ray.get(ref))
             done(i)

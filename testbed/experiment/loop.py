@@ -223,6 +223,8 @@ class LoopResult:
         With ``record``: ``t_s`` (T+1,), ``state``/``estimate`` (N, T+1, n), ``covariance``
         (N, T+1, n, n) or absent, ``measurement`` (N, T+1, m), ``action`` (N, T+1, nu),
         ``setpoint`` (N, T+1, r), and with poses ``body_pos``/``body_quat_wxyz``.
+    tape : Tape or None
+        With ``run(..., tape=True)``: the simulator's side of the episodes.
     """
 
     seeds: np.ndarray
@@ -231,12 +233,76 @@ class LoopResult:
     metrics: EpisodeMetrics
     clipped_fraction: np.ndarray
     trajectory: dict[str, np.ndarray] | None = None
+    tape: Tape | None = None
 
     def summary(self, index: int) -> dict[str, Any]:
         """Member ``index``'s summary (floats, JSON-ready)."""
         out = self.metrics.summary(index)
         out["clipped_fraction"] = float(self.clipped_fraction[index])
         return out
+
+
+@dataclass
+class Tape:
+    """What the simulator fed the estimator stage during one :meth:`ClosedLoop.run`, so that
+    another estimator can be run on the same episodes without simulating them again
+    (:meth:`ClosedLoop.replay`).
+
+    Valid only while the trajectories do not depend on the estimator: the controller acts on
+    the true state (``truth_feedback``) and the simulator is the same (rig, parameters,
+    sensors, disturbance, seeds, reset options). Arrays are time-major (row ``k`` is
+    contiguous: the estimator receives the same bytes as from the simulator).
+
+    Attributes
+    ----------
+    seeds : ndarray of int, shape (N,)
+    dt_s : float
+    measurement : ndarray, shape (T + 1, N, m)
+        ``sim.obs`` after the reset (row 0) and after each step.
+    state : ndarray, shape (T + 1, N, n)
+    action : ndarray, shape (T + 1, N, nu)
+        The applied input (row ``k + 1``: over step ``k``).
+    setpoint : ndarray, shape (T + 1, N, r)
+    disturbance : list of (ndarray or None)
+        ``info["disturbance"]`` of each step (T entries).
+    clipped_fraction : ndarray, shape (N,)
+    taps : list of ndarray, shape (T + 1, N, d)
+        The latest values of each :class:`~testbed.sensors.decorators.Tap` of the sensors
+        (:func:`sensor_taps` order) after the reset and after each step: a design's input
+        transform may read them (the vehicle's measured ``a_y``).
+    """
+
+    seeds: np.ndarray
+    dt_s: float
+    measurement: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    setpoint: np.ndarray
+    disturbance: list[np.ndarray | None]
+    clipped_fraction: np.ndarray
+    taps: list[np.ndarray]
+
+    @property
+    def steps(self) -> int:
+        """Control steps T (fewer than asked when a member terminated the episode)."""
+        return len(self.disturbance)
+
+
+def sensor_taps(sensor: Any) -> list[Any]:
+    """The :class:`~testbed.sensors.decorators.Tap` decorators of a sensor tree
+    (:class:`~testbed.sensors.Suite` members and decorators' inner sensors, depth first)."""
+    from testbed.sensors import Suite
+    from testbed.sensors.decorators import Decorator, Tap
+
+    if isinstance(sensor, Suite):
+        return [tap for part in sensor.sensors for tap in sensor_taps(part)]
+    if isinstance(sensor, Decorator):
+        return ([sensor] if isinstance(sensor, Tap) else []) + sensor_taps(sensor.inner)
+    return []
+
+
+#: The per-step arrays of a :class:`Tape`.
+_TAPE_ARRAYS = ("measurement", "state", "action", "setpoint")
 
 
 class ClosedLoop:
@@ -264,7 +330,8 @@ class ClosedLoop:
             record: bool | dict[str, np.ndarray] = False, poses: bool = False,
             bar: tqdm | None = None,
             on_step: Callable[[int, dict[str, Any]], None] | None = None,
-            stop: threading.Event | None = None) -> LoopResult:
+            stop: threading.Event | None = None,
+            tape: bool = False) -> LoopResult:
         """Run ``len(seeds)`` episodes of ``duration_s`` (rounded to control periods).
 
         Parameters
@@ -287,6 +354,9 @@ class ClosedLoop:
         stop : threading.Event, optional
             Checked before each step: when set, the run raises :class:`Stopped` (a study
             running batches in several threads stops them all this way).
+        tape : bool
+            Also keep what the simulator fed the estimator (``LoopResult.tape``), for
+            :meth:`replay`.
         """
         sim, stage, ctrl = self.sim, self.stage, self.controller
         n = sim.num
@@ -313,6 +383,9 @@ class ClosedLoop:
         rec = self._recorder(record, n_steps)
         if rec is not None:
             self._record(rec, 0)
+        rows = self._tape_rows(n_steps) if tape else None
+        if rows is not None:
+            self._tape_row(rows, 0)
         if on_step is not None:
             on_step(0, self.row(0.0))
         clipped = np.zeros(n, dtype=np.int64)
@@ -327,6 +400,8 @@ class ClosedLoop:
                 clipped += info["action_clipped"].any(axis=1)
                 if rec is not None:
                     self._record(rec, k + 1)
+                if rows is not None:
+                    self._tape_row(rows, k + 1)
                 if on_step is not None:
                     on_step(k + 1, self.row((k + 1) * sim.dt_s))
                 if bar is not None:
@@ -340,8 +415,102 @@ class ClosedLoop:
         if rec is not None:
             rec["t_s"] = np.arange(n_steps + 1) * sim.dt_s
             trajectory = rec
+        kept = None
+        if rows is not None:
+            kept = Tape(seeds=seeds, dt_s=sim.dt_s,
+                        **{key: rows[key][:n_steps + 1] for key in _TAPE_ARRAYS},
+                        disturbance=rows["disturbance"][:n_steps],
+                        clipped_fraction=clipped / n_steps,
+                        taps=[values[:n_steps + 1] for values in rows["taps"]])
         return LoopResult(seeds=seeds, steps=n_steps, dt_s=sim.dt_s, metrics=stage.metrics,
-                          clipped_fraction=clipped / n_steps, trajectory=trajectory)
+                          clipped_fraction=clipped / n_steps, trajectory=trajectory, tape=kept)
+
+    def _tape_rows(self, n_steps: int) -> dict[str, Any]:
+        sim = self.sim
+        n, T = sim.num, n_steps + 1
+        dims = {"measurement": sim.sensors.dim, "state": sim.rig.n_states,
+                "action": sim.rig.n_actions, "setpoint": len(sim.rig.tracked_states)}
+        rows: dict[str, Any] = {key: np.zeros((T, n, d)) for key, d in dims.items()}
+        rows["disturbance"] = []
+        rows["taps"] = [np.zeros((T, n, tap.dim)) for tap in sensor_taps(sim.sensors)]
+        return rows
+
+    def _tape_row(self, rows: dict[str, Any], k: int) -> None:
+        info = self.sim.info
+        rows["measurement"][k] = self.sim.obs
+        rows["state"][k] = info["state"]
+        rows["action"][k] = info["action_applied"]
+        rows["setpoint"][k] = info["setpoint"]
+        for values, tap in zip(rows["taps"], sensor_taps(self.sim.sensors), strict=True):
+            values[k] = tap.last
+        if k > 0:
+            w = info["disturbance"]
+            rows["disturbance"].append(None if w is None else np.array(w))
+
+    def replay(self, tape: Tape, options: Any = None, *,
+               record: bool | dict[str, np.ndarray] = False) -> LoopResult:
+        """The estimator stage on the episodes of an earlier :meth:`run` (its ``tape``),
+        without simulating them again.
+
+        The estimator receives what it received in that run, step for step (measurements,
+        applied inputs, true states for the metrics, disturbances), so the result is the
+        one :meth:`run` with the same seeds gives, bitwise, as long as the trajectories do
+        not depend on the estimator (the controller acts on the truth, the simulator is the
+        same): checking that is the caller's part.
+
+        Parameters
+        ----------
+        tape : Tape
+        options : dict or sequence of N dicts, optional
+            As in :meth:`run`; only the ``estimator`` priors are used here.
+        record : bool or dict of ndarray
+            As in :meth:`run` (no poses).
+        """
+        stage = self.stage
+        n = tape.state.shape[1]
+        if n != self.sim.num:
+            raise ValueError(f"the tape has {n} members, the loop {self.sim.num}")
+        if options is None or isinstance(options, dict):
+            priors = [dict(options or {}).get("estimator")] * n
+        else:
+            priors = [dict(o or {}).get("estimator") for o in options]
+        x0_hat, P0 = stage.priors(n, priors)
+        n_steps = tape.steps
+        taps = sensor_taps(self.sim.sensors)
+        if len(taps) != len(tape.taps):
+            raise ValueError(f"the tape has {len(tape.taps)} sensor taps, the loop {len(taps)}")
+
+        def restore_taps(k: int) -> None:
+            for tap, values in zip(taps, tape.taps, strict=True):
+                tap.last[:] = values[k]
+
+        restore_taps(0)
+        stage.reset(tape.measurement[0].copy(), tape.state[0], x0_hat, P0)
+        self.sim.record_poses = False
+        rec = self._recorder(record, n_steps)
+        if rec is not None:
+            self._replay_record(rec, tape, 0)
+        with threadpool_limits(1):
+            for k in range(n_steps):
+                restore_taps(k + 1)
+                stage.step(tape.measurement[k + 1], tape.action[k + 1], tape.state[k + 1],
+                           tape.disturbance[k])
+                if rec is not None:
+                    self._replay_record(rec, tape, k + 1)
+        if rec is not None:
+            rec["t_s"] = np.arange(n_steps + 1) * tape.dt_s
+        return LoopResult(seeds=tape.seeds, steps=n_steps, dt_s=tape.dt_s,
+                          metrics=stage.metrics, clipped_fraction=tape.clipped_fraction,
+                          trajectory=rec)
+
+    def _replay_record(self, rec: dict[str, np.ndarray], tape: Tape, k: int) -> None:
+        rec["state"][:, k] = tape.state[k]
+        rec["estimate"][:, k] = self.stage.x
+        if "covariance" in rec:
+            rec["covariance"][:, k] = self.stage.P
+        rec["measurement"][:, k] = tape.measurement[k]
+        rec["action"][:, k] = tape.action[k]
+        rec["setpoint"][:, k] = tape.setpoint[k]
 
     def trajectory_shapes(self, n_steps: int, poses: bool = False) -> dict[str, tuple]:
         """Shapes of the recorded arrays for ``n_steps`` steps (without ``t_s``)."""

@@ -11,6 +11,9 @@ factory
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the
    same for every estimator and entry), the true initial states drawn from the design prior
    when the entry asks, the estimator wrapped in a :class:`Probe` (step time, innovations);
+   with ``feedback = "truth"`` the episodes do not depend on the estimator: the entry's
+   first estimator simulates them, every other one is replayed on them (bitwise the same
+   result, without the simulator's cost);
 3. RMSE, NEES, NIS and the whitened innovations from the recorded trajectories
    (:mod:`testbed.score.stats`; the tests on them in :mod:`testbed.score.consistency` and
    :mod:`testbed.score.paired`, applied by :mod:`testbed.score.report`);
@@ -18,6 +21,7 @@ factory
    whose estimator is a copy of the first and whose sensors are the entry's without
    quantization (:func:`~testbed.score.worst_case.without_quantization`).
 
+Entries are the unit of parallel work, started longest first (:func:`entry_cost`).
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
 when asked for).
@@ -26,6 +30,7 @@ when asked for).
 from __future__ import annotations
 
 import copy
+import json
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -107,7 +112,12 @@ class Probe(EstimatorWrapper):
 
 @dataclass
 class PairResult:
-    """Raw results of one estimator on one entry (JSON-ready apart from the arrays)."""
+    """Raw results of one estimator on one entry (JSON-ready apart from the arrays).
+
+    ``cpu_s``: CPU seconds of the stages (``build``: simulator, design and estimator;
+    ``monte_carlo``: the runs, simulated or replayed, and their statistics; ``worst_case``:
+    the search), where the time of ``testbed score`` goes.
+    """
 
     estimator: str
     scenario: str
@@ -127,6 +137,7 @@ class PairResult:
     trajectory: dict[str, np.ndarray] | None = None
     units: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 def _name(estimator: Any) -> str:
@@ -180,8 +191,24 @@ def _unwrap(estimator: Any) -> Any:
     return estimator.instances[0] if isinstance(estimator, PerMember) else estimator
 
 
+def _tape_key(experiment: Any, seeds: np.ndarray, options: Any) -> str:
+    """What a recorded Monte Carlo (:class:`~testbed.experiment.loop.Tape`) depends on
+    besides the estimator: the built scenario (an estimator's scenario defaults may change
+    its sensors or disturbance), the sensors, the seeds and the reset options. The entry's
+    sampled disturbance is named, not hashed: within one entry it is always the same one
+    (:func:`_sampled`)."""
+    scenario = {k: v for k, v in experiment.meta["scenario"].items()
+                if k not in ("estimator", "estimator_options")}
+    if isinstance(scenario.get("disturbance"), SampledDisturbance):
+        scenario["disturbance"] = "the entry's sampled disturbance"
+    x0 = [] if options is None else [np.asarray(o["x0"]).tolist() for o in options]
+    return json.dumps([scenario, experiment.meta["sensors"], np.asarray(seeds).tolist(), x0,
+                       experiment.loop.truth_feedback], sort_keys=True, default=repr)
+
+
 def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool = True,
-               num_threads: int | None = None) -> PairResult:
+               num_threads: int | None = None,
+               tapes: dict[str, Any] | None = None) -> PairResult:
     """One estimator on one entry: Monte Carlo, consistency, cost, worst case.
 
     Parameters
@@ -193,6 +220,12 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         Base seed (``runner.run_seeds(seed, entry.runs)`` per run).
     worst_case : bool
         Run the entry's worst-case search (when it has one).
+    tapes : dict, optional
+        Recorded Monte Carlos of this entry shared between its estimators (filled here):
+        with ``feedback = "truth"`` the simulated episodes do not depend on the estimator,
+        so every estimator after the first is replayed on the first one's episodes
+        (:meth:`~testbed.experiment.loop.ClosedLoop.replay`; the same result, bitwise,
+        without simulating again).
     """
     name = _name(estimator)
     out = PairResult(estimator=name, scenario=entry.name, runs=entry.runs)
@@ -200,6 +233,14 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
     if reason:
         out.skipped = reason
         return out
+    clock = time.process_time()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.process_time()
+        out.cpu_s[stage] = out.cpu_s.get(stage, 0.0) + now - clock
+        clock = now
+
     scenario = entry.resolved_scenario()
     dt_s = scenario.physics_dt_s * scenario.frame_skip
     steps = int(round(scenario.duration_s / dt_s))
@@ -207,11 +248,14 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
     sc = scenario.replace(estimator=estimator)
     if dist is not None:
         sc = sc.replace(disturbance=dist, process_noise=0.0)
+
     try:
         experiment = runner.build(sc, entry.runs, num_threads=num_threads)
     except (ValueError, FilterError) as err:
         out.skipped = f"the factory raised {type(err).__name__}: {err}"
         return out
+    finally:
+        lap("build")
     seeds = runner.run_seeds(seed, entry.runs)
     experiment.loop.truth_feedback = entry.feedback == "truth"
     try:
@@ -219,8 +263,16 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         probe = Probe(inner)
         experiment.loop.stage.estimator = probe
         options = _trajectory_x0(entry, experiment.design, seeds)
+        shared = tapes is not None and experiment.loop.truth_feedback
+        key = _tape_key(experiment, seeds, options) if shared else ""
         try:
-            result = experiment.loop.run(seeds, steps * dt_s, options, record=True)
+            if shared and key in tapes:
+                result = experiment.loop.replay(tapes[key], options, record=True)
+            else:
+                result = experiment.loop.run(seeds, steps * dt_s, options, record=True,
+                                             tape=shared)
+                if shared:
+                    tapes[key] = result.tape
         except (FilterError, FloatingPointError, SimulationDiverged) as err:
             out.skipped = f"failed: {type(err).__name__}: {err}"
             return out
@@ -254,6 +306,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
                           "estimate": rec["estimate"][0],
                           "measurement": rec["measurement"][0], "action": rec["action"][0]}
         experiment.loop.stage.estimator = inner
+        lap("monte_carlo")
         if worst_case and entry.worst_case is not None:
             try:
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
@@ -261,6 +314,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
             except (ValueError, FilterError, FloatingPointError,
                     SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
+            lap("worst_case")
     finally:
         experiment.close()
     return out
@@ -321,9 +375,44 @@ def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
     for extra in (REFERENCE, reference):
         if _name(extra) not in [name for name, _ in todo]:
             todo.append((_name(extra), extra))
+    tapes: dict[str, Any] = {}  # the entry's simulated episodes, shared (see score_pair)
     return {name: score_pair(entry, est, seed, worst_case=worst_case and name in names,
-                             num_threads=num_threads)
+                             num_threads=num_threads, tapes=tapes)
             for name, est in todo}
+
+
+#: Fixed cost of one step of a batched closed loop, in member-steps (measured on the
+#: helicopter with the Kalman filter, one thread: 0.56 ms per step of 1 member, 0.91 ms of
+#: 7, 3.5 ms of 100: about 0.5 ms plus 35 us per member).
+STEP_OVERHEAD = 15
+#: Cost per member-step of an entry's estimators relative to the others', where it differs
+#: (measured on the quick suite with all eight built-in estimators, 2026-11-26: the hardware
+#: helicopter's augmented design makes poly-hinf's and ms-hinf's integration 4 to 5 times
+#: dearer than on the paper profile; the other entries are within 30 % of each other).
+ENTRY_COST_FACTORS = {("helicopter", "hardware"): 4.0}
+
+
+def entry_cost(entry: SuiteEntry) -> float:
+    """A rough estimate of an entry's run time, relative to the other entries', for
+    scheduling the entries over workers longest first (:func:`run_entries`).
+
+    Member-steps of the Monte Carlo and of the worst-case search's closed-loop runs (the
+    impulse response over ``K / 4 + K`` steps, then ``2 + generations`` runs of ``K`` steps)
+    plus :data:`STEP_OVERHEAD` per step, times :data:`ENTRY_COST_FACTORS`.
+    """
+    if entry.unavailable():
+        return 0.0
+    scenario = entry.scenario
+    rig = scenario.rig if isinstance(scenario.rig, str) else getattr(scenario.rig, "name", "")
+    dt_s = scenario.physics_dt_s * scenario.frame_skip
+    steps = scenario.duration_s / dt_s
+    cost = steps * (entry.runs + STEP_OVERHEAD)
+    spec = entry.worst_case
+    if spec is not None:
+        K = (spec.horizon_s or scenario.duration_s) / dt_s
+        members = max(3 + spec.random_draws, population(spec.basis - 1) + 1)
+        cost += (2.25 + spec.generations + 1) * K * (members + STEP_OVERHEAD)
+    return cost * ENTRY_COST_FACTORS.get((rig, entry.profile), 1.0)
 
 
 def _job(args: tuple) -> dict[str, PairResult]:
@@ -338,14 +427,18 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
                 reference: Any = REFERENCE) -> list[dict[str, PairResult]]:
     """:func:`score_entry` for every entry, locally (``workers`` processes) or on Ray.
 
-    Results do not depend on the backend or the number of workers (apart from timings).
+    Entries are the unit of work (one job each: its estimators share its simulated
+    episodes); they start longest first (:func:`entry_cost`) so that the workers finish
+    together. Results do not depend on the backend or the number of workers (apart from
+    timings).
     """
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
     jobs = [(e, estimators, seed, worst_case, 1, reference) for e in entries]
     return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
-                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name))
+                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name),
+                    costs=[entry_cost(e) for e in entries])
 
 
 @dataclass
