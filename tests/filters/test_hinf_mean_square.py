@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import re
-import timeit
 import warnings
 from collections.abc import Callable
 
@@ -19,7 +18,6 @@ from filters import (
     FilterError,
     FiniteEscapeError,
     KalmanBucyFilter,
-    KalmanFilter,
     LinearSystem,
     MeanSquareHInfFilter,
 )
@@ -621,23 +619,6 @@ def test_innovation_is_that_of_the_interval_start() -> None:
 
 
 # ==================================================================== speed
-def test_step_speed_against_kalman_filter() -> None:
-    f = paper_filter()
-    kf = KalmanFilter(LinearSystem(A=A_EX, B=B_EX, C=C_EX, Q=b_EX @ b_EX.T + 1e-3 * np.eye(4),
-                                   R=np.eye(2)).discretize(0.01), M0_EX, P0_EX)
-    y4, y2 = np.array([0.1, 0.2, 0.1, 0.2]), np.array([0.1, 0.2])
-
-    def kalman() -> None:
-        kf.predict(U_EX)
-        kf.update(y2)
-
-    t_hinf = min(timeit.repeat(lambda: f.step(y4, U_EX), number=500, repeat=5)) / 500
-    t_kf = min(timeit.repeat(kalman, number=500, repeat=5)) / 500
-    print(f"\nms-hinf step {t_hinf * 1e6:.1f} us, KalmanFilter predict+update "
-          f"{t_kf * 1e6:.1f} us, ratio {t_hinf / t_kf:.2f}")
-    assert t_hinf < 4.0 * t_kf  # lenient (shared machine); typical ratio ~2
-
-
 # ====================================================== noise_output_ratio helper
 def test_noise_output_ratio_closed_forms() -> None:
     t = np.linspace(0.0, 2.0, 201)
