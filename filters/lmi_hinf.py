@@ -843,6 +843,18 @@ def _error_scale(system: StochasticLinearSystem) -> float:
     return t2 if np.isfinite(t2) and t2 > 0 else 1.0
 
 
+
+def _symmetric_bmat(upper: dict[tuple[int, int], Any], sizes: list[int]) -> Any:
+    """The symmetric block matrix (cvxpy expression) whose upper blocks ``(i, j)``, ``i <= j``,
+    are ``upper`` (missing blocks zero; the lower ones transposed), symmetrized exactly."""
+    import cvxpy as cp
+
+    rows = [[upper[(i, j)] if (i, j) in upper else
+             upper[(j, i)].T if (j, i) in upper else np.zeros((ri, cj))
+             for j, cj in enumerate(sizes)] for i, ri in enumerate(sizes)]
+    lmi = cp.bmat(rows)
+    return 0.5 * (lmi + lmi.T)
+
 class _Theorem4Problem:
     """LMI (48), balanced, as a parametrized cvxpy problem (``1/gamma`` is a parameter:
     compile once, re-solve at any gamma).
@@ -919,19 +931,7 @@ class _Theorem4Problem:
             (2, 7): dv * s.D_z.T,
             (3, 3): -X1, (4, 4): -X2, (5, 5): -X1, (6, 6): -X2, (7, 7): -np.eye(nz),
         }
-        rows = []
-        for i, ri in enumerate(sizes):
-            row = []
-            for j, cj in enumerate(sizes):
-                if (i, j) in upper:
-                    row.append(upper[(i, j)])
-                elif (j, i) in upper:
-                    row.append(upper[(j, i)].T)
-                else:
-                    row.append(np.zeros((ri, cj)))
-            rows.append(row)
-        lmi = cp.bmat(rows)
-        lmi = 0.5 * (lmi + lmi.T)
+        lmi = _symmetric_bmat(upper, sizes)
         cons = [lmi << -margin * np.eye(sum(sizes)), X1 >> margin * np.eye(n),
                 X2 >> margin * np.eye(n)]
         if self.fixed_gain is not None:
@@ -964,19 +964,7 @@ class _Theorem4Problem:
             (1, 1): vv, (1, 2): dv * r2 * (s.B.T @ X2 - s.D_y.T @ Y.T), (1, 3): dv * s.D_z.T,
             (2, 2): -X2, (3, 3): -np.eye(nz),
         }
-        rows = []
-        for i, ri in enumerate(sizes):
-            row = []
-            for j, cj in enumerate(sizes):
-                if (i, j) in upper:
-                    row.append(upper[(i, j)])
-                elif (j, i) in upper:
-                    row.append(upper[(j, i)].T)
-                else:
-                    row.append(np.zeros((ri, cj)))
-            rows.append(row)
-        lmi = cp.bmat(rows)
-        lmi = 0.5 * (lmi + lmi.T)
+        lmi = _symmetric_bmat(upper, sizes)
         margin = self.margin
         cons = [lmi << -margin * np.eye(sum(sizes)), X2 >> margin * np.eye(n)]
         if self.fixed_gain is not None:
