@@ -18,11 +18,9 @@ from testbed.reproductions.variance_constrained import family
 from testbed.reproductions.variance_constrained import liu_discrete as vd
 from testbed.reproductions.variance_constrained import wang_parabolic as vc
 from testbed.reproductions.variance_constrained.family import SEARCHED
-from testbed.reproductions.variance_constrained.scenario_liu import (
-    VarianceConstrainedDiscreteScenario,
-)
-from testbed.reproductions.variance_constrained.scenario_wang import (
+from testbed.reproductions.variance_constrained.scenario import (
     VarianceConstrainedContinuousScenario,
+    VarianceConstrainedDiscreteScenario,
 )
 
 DESIGN_KEYS = {"solved", "Q1", "Q2", "K", "G"}

@@ -16,11 +16,9 @@ from testbed.experiment.numpy_plant import rollout
 from testbed.reproductions.variance_constrained.env import UncertainLinearEnv
 from testbed.reproductions.variance_constrained.family import sampled_error_covariance
 from testbed.reproductions.variance_constrained.plant import UncertainLinearPlant
-from testbed.reproductions.variance_constrained.scenario_liu import (
-    VarianceConstrainedDiscreteScenario,
-)
-from testbed.reproductions.variance_constrained.scenario_wang import (
+from testbed.reproductions.variance_constrained.scenario import (
     VarianceConstrainedContinuousScenario,
+    VarianceConstrainedDiscreteScenario,
 )
 
 #: The two named scenarios of the environment.

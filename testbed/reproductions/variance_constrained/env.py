@@ -20,12 +20,12 @@ SCENARIOS = ("wang-variance-constrained-parabolic", "liu-variance-constrained-di
 
 
 def _scenario_model(name: str) -> UncertainPlant:
-    from testbed.reproductions.variance_constrained import scenario_liu, scenario_wang
+    from testbed.reproductions.variance_constrained import scenario
 
     if name == "wang-variance-constrained-parabolic":
-        return scenario_wang.VarianceConstrainedContinuousScenario().plant
+        return scenario.VarianceConstrainedContinuousScenario().plant
     if name == "liu-variance-constrained-discrete":
-        return scenario_liu.VarianceConstrainedDiscreteScenario().plant
+        return scenario.VarianceConstrainedDiscreteScenario().plant
     raise ValueError(f"scenario must be one of {list(SCENARIOS)} (or pass plant=...), got "
                      f"{name!r}")
 

@@ -35,7 +35,7 @@ from testbed.reproductions.variance_constrained.family import (
     plot_figure,
     run_example,
 )
-from testbed.reproductions.variance_constrained.scenario_liu import (
+from testbed.reproductions.variance_constrained.scenario import (
     VarianceConstrainedDiscreteScenario,
 )
 

@@ -37,7 +37,7 @@ from testbed.reproductions.variance_constrained.family import (
     plot_figure,
     run_example,
 )
-from testbed.reproductions.variance_constrained.scenario_wang import (
+from testbed.reproductions.variance_constrained.scenario import (
     VarianceConstrainedContinuousScenario,
 )
 
