@@ -32,10 +32,11 @@ Errors
     :class:`FiniteEscapeError`, :class:`SubstepLimitError` and :func:`check_covariance`.
 Input conversion
     :func:`real_array`: user input as a real ``float64`` array or a ``ValueError`` naming the
-    argument (complex values, non-numeric containers, integers beyond the float range).
+    argument (complex values, non-numeric containers, integers beyond the float range);
+    :class:`TimeFunction`: a constant or a function of time, checked for shape and finiteness.
 """
 
-from filters._linalg import real_array, zoh
+from filters._linalg import TimeFunction, real_array, zoh
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.ekf import ExtendedKalmanFilter
@@ -81,6 +82,7 @@ from filters.variance_discrete import (
 
 __all__ = [
     "zoh",
+    "TimeFunction",
     "MAX_AUTO_SUBSTEPS",
     "DesignCheck",
     "DesignSearchRecord",

@@ -75,7 +75,7 @@ def test_plant_input_validation():
         PolynomialPlant(model, w=np.ones(3))
     with pytest.raises(ValueError, match="noise_intensity"):
         PolynomialPlant(model, noise_intensity=-1.0)
-    with pytest.raises(ValueError, match="callable must return"):
+    with pytest.raises(ValueError, match="w must have shape"):
         rollout(PolynomialPlant(model, w=lambda t: np.ones(3)), np.ones(2), 2)
     with pytest.raises(TypeError, match="PolynomialModel"):
         PolynomialPlant("model")

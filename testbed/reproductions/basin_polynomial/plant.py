@@ -28,30 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from filters import TimeFunction
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
-
-SignalArg = Callable[[float], np.ndarray] | np.ndarray | None
-
-
-def _signal(name: str, value: SignalArg, dim: int) -> Callable[[float], np.ndarray] | None:
-    """A checked callable ``t -> (dim,)`` from a callable, a constant vector or None (zero)."""
-    if value is None or dim == 0:
-        return None
-    if not callable(value):
-        arr = np.asarray(value, dtype=float)
-        if arr.shape != (dim,) or not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be a callable t_s -> ({dim},) or a finite array of "
-                             f"shape ({dim},), got {value!r}")
-        return lambda _t: arr
-
-    def checked(t_s: float) -> np.ndarray:
-        out = np.asarray(value(t_s), dtype=float)
-        if out.shape != (dim,) or not np.all(np.isfinite(out)):
-            raise ValueError(f"the {name} callable must return a finite array of shape "
-                             f"({dim},), got {out!r} at t = {t_s} s")
-        return out
-
-    return checked
 
 
 class PolynomialPlant:
@@ -84,7 +62,8 @@ class PolynomialPlant:
     """
 
     def __init__(self, model: PolynomialModel, escape: EscapeTest | None = None, *,
-                 dt_s: float = 1e-3, substeps: int = 1, w: SignalArg = None,
+                 dt_s: float = 1e-3, substeps: int = 1,
+                 w: Callable[[float], np.ndarray] | np.ndarray | None = None,
                  noise_intensity: float | np.ndarray | None = None) -> None:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
@@ -96,7 +75,7 @@ class PolynomialPlant:
         self.escape = escape or EscapeTest()
         self.n, self.m, self.p, self.k = model.n, model.m, model.p, model.k
         self.dt_s, self.substeps = float(dt_s), int(substeps)
-        self.w = _signal("w", w, self.p)
+        self.w = None if w is None or self.p == 0 else TimeFunction("w", w, (self.p,), 0.0)
         self.q = None
         if noise_intensity is not None:
             self.q = np.broadcast_to(np.asarray(noise_intensity, dtype=float), (self.p,)).copy()
