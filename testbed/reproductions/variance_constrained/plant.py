@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from filters import real_array
+from filters import real_array, zoh
 from filters.analysis import UncertainPlant
 from filters.errors import FiniteEscapeError
 
@@ -142,12 +142,7 @@ class UncertainLinearPlant:
             Az = np.zeros((nz, nz))
             Az[:n, :n] = A_F
             Az[n:, :n] = C_F
-            # drift and input: exp([[Az, Bz], [0, 0]] dt)
-            big = np.zeros((nz + k, nz + k))
-            big[:nz, :nz] = Az
-            big[:nz, nz:] = Bz
-            E = expm(big * dt)
-            Phi_z, Gu = E[:nz, :nz], E[:nz, nz:]
+            Phi_z, Gu = zoh(Az, Bz, dt)  # drift and input
             # noise covariance by Van Loan
             vl = np.zeros((2 * nz, 2 * nz))
             vl[:nz, :nz] = -Az
