@@ -34,9 +34,8 @@ from filters.polynomial_model import EscapeTest, PolynomialCoefficients, Polynom
 
 class PolynomialPlant:
     """A polynomial system integrated with RK4 on a fixed step, a
-    :class:`~testbed.experiment.numpy_plant.NumpyPlant` for one state of shape (n,):
-    step ``k`` is :meth:`advance` over ``[k dt_s, (k + 1) dt_s]``, its ``y`` the interval
-    average, its extras ``{"disturbance": interval average of w}``.
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant` for one state of shape (n,): its
+    :meth:`step` returns the interval averages of ``y`` and ``w``.
 
     Parameters
     ----------
@@ -97,13 +96,6 @@ class PolynomialPlant:
         c = self.model.at(t)
         return c.C @ x + c.D @ (np.zeros(self.p) if self.w is None else self.w(t))
 
-    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray | None
-             ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """:meth:`advance` over step ``k``: ``x``, ``y``, ``{"disturbance": w}``."""
-        x, y, w = self.advance(x, k * self.dt_s, self.dt_s, self.substeps, w=self.w, u=u,
-                               dW=noise, noise_intensity=None if noise is None else self.q)
-        return x, y, {"disturbance": w}
-
     def rhs(self, t: float, x: np.ndarray, w: np.ndarray | None,
             u: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """``(dx/dt, y)`` at one point: ``f(x, t) + B w + E u`` and ``C x + D w``."""
@@ -121,42 +113,37 @@ class PolynomialPlant:
             dx = dx + c.E @ u
         return dx, y
 
-    def advance(self, x: np.ndarray, t_s: float, dt_s: float, substeps: int = 1, *,
-                w: Callable[[float], np.ndarray] | None = None, u: np.ndarray | None = None,
-                dW: np.ndarray | None = None, noise_intensity: np.ndarray | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Integrate one interval ``[t_s, t_s + dt_s]`` in ``substeps`` RK4 steps.
+    def step(self, x: np.ndarray, k: int, u: np.ndarray | None, noise: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Integrate step ``k``, the interval ``[k dt_s, (k + 1) dt_s]``, in ``substeps`` RK4
+        steps.
 
         Parameters
         ----------
         x : ndarray, shape (n,)
-        t_s : float
-        dt_s : float
-        substeps : int
-        w : callable ``t -> (p,)``, optional
-            Deterministic disturbance.
+        k : int
         u : ndarray, shape (k,), optional
             Input held over the interval.
-        dW : ndarray, shape (substeps, p), optional
-            Standard normal variates, one row per substep (white noise).
-        noise_intensity : ndarray, shape (p,), optional
-            White-noise intensity ``q`` of each disturbance component (with ``dW``).
+        noise : ndarray, shape (substeps, p), optional
+            Standard normal variates, one row per substep (:meth:`noise`: the white noise of
+            intensity ``q``).
 
         Returns
         -------
         x : ndarray, shape (n,)
-            State at ``t_s + dt_s``.
-        y_avg : ndarray, shape (m,)
+            State at ``(k + 1) dt_s``.
+        y : ndarray, shape (m,)
             Interval average of ``C x + D w``.
-        w_avg : ndarray, shape (p,)
-            Interval average of ``w``.
+        extras : dict
+            ``{"disturbance": interval average of w}``, shape (p,).
 
         Raises
         ------
         FiniteEscapeError
             ``quantity="state"``, time = end of the failing substep.
         """
-        p = self.p
+        p, w, dt_s, substeps = self.p, self.w, self.dt_s, self.substeps
+        t_s = k * dt_s
         h = dt_s / substeps
         x = np.array(x, dtype=float)
         y_int = np.zeros(self.m)
@@ -178,11 +165,11 @@ class PolynomialPlant:
                 x = x + h / 6 * (k1 + 2 * (k2 + k3) + k4)
                 y_int += h / 6 * (y1 + 2 * (y2 + y3) + y4)
                 w_int += h / 6 * (w1 + 2 * (w2 + w3) + w4)
-                if dW is not None:
+                if noise is not None:
                     c = self.model.at(t + h)
-                    inc = np.sqrt(noise_intensity * h) * dW[i]  # int w dt over the substep
+                    inc = np.sqrt(self.q * h) * noise[i]  # int w dt over the substep
                     x = x + c.B @ inc
                     y_int += c.D @ inc
                     w_int += inc
                 q = self.escape.check("state", q, x, time=t + h, step_s=h, core_ndim=1)
-        return x, y_int / dt_s, w_int / dt_s
+        return x, y_int / dt_s, {"disturbance": w_int / dt_s}
