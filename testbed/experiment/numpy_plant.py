@@ -4,7 +4,8 @@ A paper whose plant is not a MuJoCo rig (the nonlinear system of Zhang, Deng & Z
 (2018), the uncertain linear plants of Wang & Fang (2006) and Liu, Deng & Wang (n.d.), the
 cubic system of Basin, Shi & Calderon-Alvarez (n.d.), the linear helicopter model of Basin,
 Elvira-Ceja & Sanchez (n.d.); see docs/references.md) gives it as a :class:`NumpyPlant`
-(the plants live with their reproductions, ``testbed/reproductions/<family>/plant.py``):
+(the plants live with their reproductions, ``testbed/reproductions/<family>/plant.py``;
+the helicopter's is a polynomial plant of degree 1):
 
 - ``dt_s``; ``noise(rng, batch)``: one step's random draws for a batch (None for a
   noise-free plant);

@@ -3,7 +3,8 @@ H-infinity filter on the helicopter (see docs/references.md).
 
 ``testbed reproduce basin-ms-hinf-helicopter``. The plant is the paper's linear model (12)-(15)
 (not the MuJoCo rig), with every printed value (:class:`MsHinfHelicopterScenario`), on a
-``dt_s`` grid (default 10 ms). Two runs (:func:`_run`, outputs averaged over each interval):
+``dt_s`` grid (default 10 ms; :func:`_plant`). Two runs (:func:`_run`, outputs averaged over
+each interval):
 the noise-free **mean** run is the trajectory of ``E[x]`` that the attenuation requirement (6)
 bounds, so its ``T`` is the one to compare with the paper's 0.208; the **noisy** run adds the
 printed unit-intensity white noises ``b dW1`` and ``h dW2``, whose error no H-infinity bound
@@ -23,13 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter
+from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter, PolynomialModel
 from filters.analysis import noise_output_ratio
 from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
-from testbed.reproductions.basin_ms_hinf.plant import LinearSDEPlant
 from testbed.reproductions.basin_ms_hinf.scenario import MsHinfHelicopterScenario
+from testbed.reproductions.basin_polynomial.plant import PolynomialPlant
 from testbed.reproductions.outputs import (
     Claim,
     Paper,
@@ -47,6 +48,28 @@ PAPER = Paper("Basin, Elvira-Ceja & Sanchez", "n.d.", "Section IV",
 PAPER_ERROR = "truth - estimate, the paper's x - m"
 
 
+def _plant(s: MsHinfHelicopterScenario, dt_s: float,
+           w: Callable[[float], np.ndarray] | None = None, noisy: bool = False
+           ) -> PolynomialPlant:
+    """The paper's linear model (12)-(15), ``dx = (A x + B u + G w) dt + b dW1``,
+    ``y1 dt = C1 x dt + h dW2``, ``y2 = C2 x + H w``, as a polynomial plant of degree 1 (RK4,
+    one step per ``dt_s``; its measurement is the interval average of ``[y1; y2]``).
+
+    Its disturbance is ``[w; dW1/dt; dW2/dt]``: ``w`` (default zero) and, when ``noisy``,
+    white noise of unit intensity (one standard normal draw per component and step).
+    """
+    m = s.model
+    ng, nb, nh = m.G.shape[1], m.b.shape[1], m.h.shape[1]
+    model = PolynomialModel(a1=m.A, B=np.hstack([m.G, m.b, np.zeros((len(m.A), nh))]),
+                            C=np.vstack([m.C1, m.C2]), L=m.L, E=m.B,
+                            D=np.block([[np.zeros((2, ng + nb)), m.h],
+                                        [m.H, np.zeros((2, nb + nh))]]))
+    white = np.zeros(nb + nh)
+    return PolynomialPlant(model, dt_s=dt_s,
+                           w=None if w is None else lambda t: np.concatenate([w(t), white]),
+                           noise_intensity=np.r_[np.zeros(ng), white + 1.0] if noisy else None)
+
+
 def _run(s: MsHinfHelicopterScenario, dt_s: float, n_steps: int,
          rng: np.random.Generator | None,
          w: Callable[[float], np.ndarray] | None = None,
@@ -60,13 +83,12 @@ def _run(s: MsHinfHelicopterScenario, dt_s: float, n_steps: int,
     """
     m = s.model
     w = s.w if w is None else w
-    plant = LinearSDEPlant(m.A, m.B, m.G, m.b, w, dt_s, output=lambda t, x: np.concatenate(
-        [m.C1 @ x, m.C2 @ x + m.H @ w(t)]))
+    plant = _plant(s, dt_s, w, noisy=rng is not None)
     noise = None
     if rng is not None:
         xi = rng.standard_normal((n_steps, m.b.shape[1]))
-        dy = rng.standard_normal((n_steps, 2)) @ m.h.T / np.sqrt(dt_s)
-        noise = lambda k: (xi[k], dy[k])  # noqa: E731
+        dy = rng.standard_normal((n_steps, m.h.shape[1]))
+        noise = lambda k: np.concatenate([np.zeros(m.G.shape[1]), xi[k], dy[k]])[None]  # noqa: E731
     filters: dict[str, Any] = {"hinf": MeanSquareHInfFilter(
         m.A, m.B, m.C1, m.h, m.C2, m.H, m.G, m.b, m.L, s.gamma, s.R, s.m0, s.P0, dt_s,
         substeps=1)}
@@ -146,9 +168,7 @@ def _contributions(bias: dict[str, dict[str, float]]) -> dict[str, float]:
 def _free_pitch(s: MsHinfHelicopterScenario, dt_s: float, n_steps: int) -> float:
     """Pitch (rad) of the paper's gravity-free linear model at the end of the horizon under the
     constant ``u`` alone (``w = 0``, no noise, from ``x0``)."""
-    m = s.model
-    plant = LinearSDEPlant(m.A, m.B, m.G, m.b, lambda _t: np.zeros(4), dt_s)
-    return float(rollout(plant, s.x0, n_steps, u=lambda _k: s.u).x[-1, 0])
+    return float(rollout(_plant(s, dt_s), s.x0, n_steps, u=lambda _k: s.u).x[-1, 0])
 
 
 def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,

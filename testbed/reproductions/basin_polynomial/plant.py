@@ -1,5 +1,7 @@
 """Simulation of a polynomial plant ``dx/dt = f(x, t) + B w + E u`` (the class of systems of
-Basin, Shi & Calderon-Alvarez (n.d.); see docs/references.md).
+Basin, Shi & Calderon-Alvarez (n.d.); of degree 1, also the linear helicopter model of Basin,
+Elvira-Ceja & Sanchez (n.d.): :func:`testbed.reproductions.basin_ms_hinf.helicopter._plant`;
+see docs/references.md).
 
 A :class:`PolynomialPlant` wraps a :class:`~filters.polynomial_model.PolynomialModel`
 (coefficient tensors of degree <= 3, constant or functions of time) and integrates it with
