@@ -33,10 +33,11 @@ Errors
 Input conversion
     :func:`real_array`: user input as a real ``float64`` array or a ``ValueError`` naming the
     argument (complex values, non-numeric containers, integers beyond the float range);
-    :class:`TimeFunction`: a constant or a function of time, checked for shape and finiteness.
+    :class:`TimeFunction`: a constant or a function of time, checked for shape and finiteness;
+    :func:`positive_time`: a time step in seconds, finite and positive.
 """
 
-from filters._linalg import TimeFunction, real_array, zoh
+from filters._linalg import TimeFunction, positive_time, real_array, zoh
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.ekf import ExtendedKalmanFilter
@@ -83,6 +84,7 @@ from filters.variance_discrete import (
 __all__ = [
     "zoh",
     "TimeFunction",
+    "positive_time",
     "MAX_AUTO_SUBSTEPS",
     "DesignCheck",
     "DesignSearchRecord",

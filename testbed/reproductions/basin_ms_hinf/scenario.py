@@ -53,8 +53,4 @@ class MsHinfHelicopterScenario:
     horizon_s: float = 80.0
     paper_T_max: float = 0.208
 
-    @staticmethod
-    def w(t_s: float) -> np.ndarray:
-        """The printed L2 disturbance ``w(t)``, shape (4,) (from
-        :mod:`testbed.rigs.disturbances`)."""
-        return basin_helicopter_w(t_s)
+    w = staticmethod(basin_helicopter_w)  # the printed L2 disturbance w(t)

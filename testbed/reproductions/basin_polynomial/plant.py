@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from filters import TimeFunction
+from filters import TimeFunction, positive_time
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
 
 
@@ -68,8 +68,7 @@ class PolynomialPlant:
                  noise_intensity: float | np.ndarray | None = None) -> None:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
-        if not (np.isfinite(dt_s) and dt_s > 0):
-            raise ValueError(f"dt_s must be a positive step in s, got {dt_s}")
+        dt_s = positive_time("dt_s", dt_s)
         if int(substeps) != substeps or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps}")
         self.model = model

@@ -104,7 +104,4 @@ class PolynomialHinfScenario:
     paper_T_poly: float = 0.952
     paper_T_linearized: float = 1.079
 
-    @staticmethod
-    def w(t_s: float) -> np.ndarray:
-        """The printed L2 disturbance, shape (2,) (see :func:`paper_w`)."""
-        return paper_w(t_s)
+    w = staticmethod(paper_w)  # the printed L2 disturbance

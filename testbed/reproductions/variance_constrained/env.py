@@ -71,12 +71,10 @@ class UncertainLinearEnv(PlantEnv):
         model = plant if plant is not None else _scenario_model(scenario)
         if dt_s is None:
             dt_s = 1.0 if model.discrete else CONTINUOUS_DT_S
-        if not (isinstance(dt_s, (int, float)) and np.isfinite(dt_s) and dt_s > 0):
-            raise ValueError(f"dt_s must be a positive finite float (s), got {dt_s!r}")
         self.model = model
         self._fixed_F = None if F is None else model.uncertainty(F)
         self._F_option: np.ndarray | None = None
-        system = UncertainLinearPlant(model, float(dt_s), B)
+        system = UncertainLinearPlant(model, dt_s, B)  # checks dt_s
         sensors = PlantSensors([f"y{i + 1}" for i in range(model.p)], model.C,
                                model.D2 @ model.D2.T, per_sample=model.discrete)
         k = system.B.shape[1]

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from filters import real_array, zoh
+from filters import positive_time, real_array, zoh
 from filters.analysis import UncertainPlant
 from filters.errors import FiniteEscapeError
 
@@ -91,10 +91,8 @@ class UncertainLinearPlant:
 
     def __init__(self, model: UncertainPlant, dt_s: float = 1.0,
                  B: np.ndarray | None = None) -> None:
-        if not (np.isfinite(dt_s) and dt_s > 0):
-            raise ValueError(f"dt_s must be a positive finite float (s), got {dt_s!r}")
         self.model = model
-        self.dt_s = float(dt_s)
+        self.dt_s = positive_time("dt_s", dt_s)
         n = model.n
         B_ = np.zeros((n, 1)) if B is None else real_array(B, "B", finite=False)
         if B_.ndim != 2 or B_.shape[0] != n or not np.isfinite(B_).all():

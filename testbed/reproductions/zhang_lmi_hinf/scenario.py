@@ -152,10 +152,7 @@ class VehicleRollLMIScenario:
     margin: float = DEFAULT_MARGIN
     rtol: float = 1e-3
 
-    @staticmethod
-    def v(k: np.ndarray | int) -> np.ndarray | float:
-        """``v_k = 0.01 * 0.9^k``."""
-        return paper_disturbance(k)
+    v = staticmethod(paper_disturbance)  # v_k = 0.01 * 0.9^k
 
 
 @dataclass(frozen=True)
