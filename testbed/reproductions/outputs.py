@@ -267,7 +267,7 @@ def finish_figure(fig: Any, grid: Any, claims: Sequence[Claim | dict[str, str]],
 def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None,
                   plot_path: str | os.PathLike | None, rrd_path: str | os.PathLike | None,
                   plot: Callable[[str | os.PathLike], None],
-                  runs: Callable[[], list[Any]] | None = None, application_id: str,
+                  runs: Callable[[], list[Any]] | None = None, application_id: str | None = None,
                   units: dict[str, str] | None = None,
                   **rrd_kwargs: Any) -> None:
     """Write whichever outputs were asked for (each atomically).
@@ -284,8 +284,8 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
         The runs of the ``.rrd``, each under its own prefix with its description
         (:func:`testbed.outputs.viz.write_runs`); only called (and needed) when ``rrd_path``
         is given.
-    application_id : str
-        Rerun application id.
+    application_id : str, optional
+        Rerun application id (default ``"testbed-" + result["scenario"]``).
     units : dict, optional
         The units of the result's quantities, stored as its ``units`` (every JSON output has
         one; default: the system is dimensionless, time in s).
@@ -304,4 +304,5 @@ def write_outputs(result: dict[str, Any], *, json_path: str | os.PathLike | None
     if rrd_path:
         from testbed.outputs.viz import write_runs
 
-        write_runs(runs(), rrd_path, application_id=application_id, **rrd_kwargs)
+        write_runs(runs(), rrd_path, **rrd_kwargs,
+                   application_id=application_id or "testbed-" + result["scenario"])

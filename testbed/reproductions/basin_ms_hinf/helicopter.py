@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter, PolynomialModel
+from filters import KalmanBucyFilter, LinearSystem, MeanSquareHInfFilter, positive_time
 from filters.analysis import noise_output_ratio
+from filters.polynomial_model import PolynomialModel
 from testbed.experiment.numpy_plant import rollout
 from testbed.experiment.trajectory import Trajectory
 from testbed.outputs.viz import Run
@@ -198,9 +199,7 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
         timings.
     """
     s = MsHinfHelicopterScenario()
-    horizon_s = s.horizon_s if horizon_s is None else float(horizon_s)
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise ValueError(f"horizon_s must be positive, got {horizon_s}")
+    horizon_s = s.horizon_s if horizon_s is None else positive_time("horizon_s", horizon_s)
     n_steps = int(round(horizon_s / dt_s))
     start = time.perf_counter()
     mean = _run(s, dt_s, n_steps, rng=None)
@@ -232,8 +231,7 @@ def reproduce(horizon_s: float | None = None, dt_s: float = 0.01, seed: int = 0,
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(mean, noisy, yaw_errors, result, s, path),
                   units={"time": "s", "final_error": "rad", "T": "1 (noise-output ratio)"},
-                  runs=lambda: _runs(mean, noisy, s, result),
-                  application_id="testbed-" + NAME)
+                  runs=lambda: _runs(mean, noisy, s, result))
     return result
 
 

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from filters import positive_time
 from filters.analysis import noise_output_ratio
 from filters.hinf_polynomial import LinearizedHInfFilter, PolynomialHInfFilter
 from testbed.experiment.numpy_plant import Rollout, rollout
@@ -236,9 +237,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         ``T_at_paper_horizon``, ``exceeds_gamma_at`` and timings.
     """
     s = PolynomialHinfScenario()
-    horizon_s = s.horizon_s if horizon_s is None else float(horizon_s)
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise ValueError(f"horizon_s must be positive, got {horizon_s}")
+    horizon_s = s.horizon_s if horizon_s is None else positive_time("horizon_s", horizon_s)
     if not (np.isfinite(dt_s) and 0 < dt_s <= horizon_s):
         raise ValueError(f"dt_s must be positive and at most the horizon, got {dt_s}")
     start = time.perf_counter()
@@ -269,8 +268,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
                   plot=lambda path: _plot(sim, result, s, path),
                   units={"state": "1 (dimensionless system)", "time": "s",
                          "T": "1 (noise-output ratio)"},
-                  runs=lambda: _runs(sim, result),
-                  application_id="testbed-" + NAME, degrees=False)
+                  runs=lambda: _runs(sim, result), degrees=False)
     return result
 
 

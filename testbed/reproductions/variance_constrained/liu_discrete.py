@@ -108,10 +108,9 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
             "relative_difference": (ours / printed - 1.0).tolist()}
     result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
-                  plot=lambda path: _plot(result, s, sample, path),
+                  plot=lambda path: _plot(result, s, sample, path), degrees=False,
                   units={"state": "1 (dimensionless system)", "time": "samples"},
-                  runs=lambda: [episode_run(sample, NAME, "t counts samples (dt_s = 1).")],
-                  application_id="testbed-" + NAME, degrees=False)
+                  runs=lambda: [episode_run(sample, NAME, "t counts samples (dt_s = 1).")])
     return result
 
 

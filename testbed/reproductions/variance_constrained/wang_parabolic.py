@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from filters import positive_time
 from filters.analysis import UncertainPlant, error_system
 from filters.variance_constrained import VarianceDesign
 from filters.variance_continuous import (
@@ -79,9 +80,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
     """
     s = VarianceConstrainedContinuousScenario()
     plant = s.plant
-    horizon_s = HORIZON_S if horizon_s is None else float(horizon_s)
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise ValueError(f"horizon_s must be positive, got {horizon_s}")
+    horizon_s = HORIZON_S if horizon_s is None else positive_time("horizon_s", horizon_s)
     n_steps = max(int(round(horizon_s / DT_S)), 1)
 
     def design() -> tuple[dict[str, VarianceDesign], dict[str, Any]]:
@@ -111,9 +110,8 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         "proof_disk": {"center": float(np.real(disk.center)), "radius": disk.radius}})
     result["claims"] = claims_json(claims(result))
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
-                  plot=lambda path: _plot(result, s, sample, path),
-                  runs=lambda: [episode_run(sample, NAME, f"t in s (dt = {DT_S:g} s).")],
-                  application_id="testbed-" + NAME, degrees=False)
+                  plot=lambda path: _plot(result, s, sample, path), degrees=False,
+                  runs=lambda: [episode_run(sample, NAME, f"t in s (dt = {DT_S:g} s).")])
     return result
 
 

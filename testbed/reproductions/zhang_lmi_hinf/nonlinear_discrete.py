@@ -163,8 +163,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
                   units={"state": "1 (dimensionless system)", "time": "steps"},
                   plot=lambda path: _plot(result, sum_z, sums["curve_v"], loop, x, xh, gamma,
                                           s, path),
-                  runs=lambda: _runs(loop, result),
-                  application_id="testbed-" + NAME, degrees=False)
+                  runs=lambda: _runs(loop, result), degrees=False)
     return result
 
 

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from filters import positive_time
 from filters.lmi_hinf import (
     LMIHInfFilter,
     StochasticLinearSystem,
@@ -253,9 +254,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         if not (np.isfinite(gamma_factor) and gamma_factor > 1.0):
             raise ValueError(f"gamma_factor must be > 1, got {gamma_factor}")
         s = VehicleRollLMIScenario(gamma_factor=float(gamma_factor))
-    horizon_s = s.horizon_s if horizon_s is None else float(horizon_s)
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise ValueError(f"horizon_s must be positive, got {horizon_s}")
+    horizon_s = s.horizon_s if horizon_s is None else positive_time("horizon_s", horizon_s)
     runs = s.runs if runs is None else int(runs)
     if runs < 2:
         raise ValueError(f"runs must be >= 2, got {runs}")
@@ -309,7 +308,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     write_outputs(result, json_path=json_path, plot_path=plot_path, rrd_path=rrd_path,
                   plot=lambda path: _plot(curves, result, s, path),
                   units={"time": "s", "roll": "rad", "roll_rate": "rad/s"},
-                  runs=lambda: _runs(curves, result, s), application_id="testbed-" + NAME)
+                  runs=lambda: _runs(curves, result, s))
     return result
 
 
