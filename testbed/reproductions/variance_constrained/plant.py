@@ -52,14 +52,11 @@ class Transition:
     S : ndarray, shape (n + p, r_eff)
         Noise factor: ``[x(k+1); y[k]]`` gets ``S xi``, ``xi ~ N(0, I)``. Discrete:
         ``S = [D1; D2]`` and ``xi = w(k)``; continuous: a factor of the Van Loan covariance.
-    noise_cov : ndarray, shape (n + p, n + p)
-        ``S S^T``.
     """
 
     Phi: np.ndarray
     Gu: np.ndarray
     S: np.ndarray
-    noise_cov: np.ndarray
 
 
 def _noise_factor(Q: np.ndarray) -> np.ndarray:
@@ -130,10 +127,8 @@ class UncertainLinearPlant:
         n, p, k = m.n, m.p, self.B.shape[1]
         Dz = np.vstack([m.D1, m.D2])
         Bz = np.vstack([self.B, np.zeros((p, k))])
-        if m.discrete:
-            Phi = np.vstack([A_F, C_F])
-            Gu = Bz
-            Q = Dz @ Dz.T
+        if m.discrete:  # xi is w(k) itself
+            Phi, Gu, S = np.vstack([A_F, C_F]), Bz, Dz
         else:
             dt = self.dt_s
             nz = n + p
@@ -152,10 +147,8 @@ class UncertainLinearPlant:
             scale = np.concatenate([np.ones(n), np.full(p, 1.0 / dt)])
             Phi = Phi_z[:, :n] * scale[:, None]
             Gu = Gu * scale[:, None]
-            Q = Q * np.outer(scale, scale)
-        Q = 0.5 * (Q + Q.T)
-        S = Dz if m.discrete else _noise_factor(Q)  # discrete: xi is w(k) itself
-        out = Transition(Phi=Phi, Gu=Gu, S=S, noise_cov=Q)
+            S = _noise_factor(Q * np.outer(scale, scale))  # which symmetrizes it
+        out = Transition(Phi=Phi, Gu=Gu, S=S)
         self._cache[key] = out
         return out
 
