@@ -281,32 +281,26 @@ RRD_RUNS = {
 }
 
 
-def _trajectory(sim: dict[str, Any], key: str, stride: int = 10) -> Trajectory:
-    """Truth, the filter ``sim["runs"][key]`` (estimate and ``P``) and the measured ``y``
-    (interval average), while that filter exists (every ``stride``-th row). The system is
-    dimensionless (no units)."""
-    t, run = sim["t"], sim["runs"][key]
-    rows = np.arange(0, run.last + 1, stride)
-    y = np.concatenate([sim["y"][:1], sim["y"]])[:, 0]  # row j: average over [t_j-1, t_j]
-    return Trajectory(t_s=t[rows], state=sim["x"][rows], state_names=["x1", "x2"],
-                      measurement=y[rows, None], measurement_names=["y"],
-                      measured_state_index=[0], action=np.zeros((len(rows), 0)),
-                      action_names=[], estimate=run.est[rows], covariance=run.P[rows],
-                      meta={"scenario": NAME, "filter": RRD_RUNS[key][1],
-                            "escaped": run.escaped})
-
-
 def _runs(sim: dict[str, Any], result: dict[str, Any]) -> list[Run]:
-    """One run per filter (:data:`RRD_RUNS`) on the same plant data, each until it escapes."""
-    out = []
+    """One run per filter (:data:`RRD_RUNS`) on the same plant data, each until it escapes:
+    truth, the filter's estimate and ``P`` and the measured ``y`` (interval average), every
+    10th row. The system is dimensionless (no units)."""
+    t, out = sim["t"], []
+    y = np.concatenate([sim["y"][:1], sim["y"]])[:, 0]  # row j: average over [t_j-1, t_j]
     for key, (prefix, what) in RRD_RUNS.items():
         run = sim["runs"][key]
-        out.append(Run(_trajectory(sim, key), prefix, (
+        rows = np.arange(0, run.last + 1, 10)
+        traj = Trajectory(t_s=t[rows], state=sim["x"][rows], state_names=["x1", "x2"],
+                          measurement=y[rows, None], measurement_names=["y"],
+                          measured_state_index=[0], action=np.zeros((len(rows), 0)),
+                          action_names=[], estimate=run.est[rows], covariance=run.P[rows],
+                          meta={"scenario": NAME, "filter": what, "escaped": run.escaped})
+        out.append(Run(traj, prefix, (
             f"# {what}\n\nThe plant (22)-(24) with the printed L2 disturbances w1 = "
             "1/(1+t)^2, w2 = 2/(2+t)^2 (no noise, deterministic), x(0) = "
             f"{list(result['x0'])}; the filter from x_f(0) = 0, P(0) = I, gamma = "
             f"{result['gamma']}, on the interval averages of y. State: truth x1, x2 and the "
-            f"filter's estimate with +-3 sqrt(P). Until t = {sim['t'][run.last]:.4f} s: "
+            f"filter's estimate with +-3 sqrt(P). Until t = {t[run.last]:.4f} s: "
             f"{_esc(run.escaped)}. Dimensionless system (no units).")))
     return out
 

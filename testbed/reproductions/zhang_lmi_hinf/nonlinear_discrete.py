@@ -167,17 +167,14 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     return result
 
 
-def _trajectory(run: dict[str, np.ndarray]) -> Trajectory:
-    """The in-the-loop run; the system is dimensionless (no units), ``t_s`` counts steps."""
-    return Trajectory(t_s=run["t"], state=run["x"], state_names=list(plant.STATE_NAMES),
+def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
+    """The run of the ``.rrd``: one episode with the filter (50) in the loop; the system is
+    dimensionless (no units), ``t_s`` counts steps."""
+    traj = Trajectory(t_s=run["t"], state=run["x"], state_names=list(plant.STATE_NAMES),
                       measurement=run["y"], measurement_names=list(plant.MEASUREMENT_NAMES),
                       action=run["v"][:, None], action_names=["v"], estimate=run["xhat"],
                       meta={"scenario": NAME, "filter": "(50)"})
-
-
-def _runs(run: dict[str, np.ndarray], result: dict[str, Any]) -> list[Run]:
-    """The run of the ``.rrd``: one episode with the filter (50) in the loop."""
-    return [Run(_trajectory(run), "filter_in_loop", (
+    return [Run(traj, "filter_in_loop", (
         f"# System (49) with the filter (50) in the loop (seed {result['seed']})\n\n"
         "One run of (49) with the filter (50) in the loop (its noise seeded as "
         "testbed/NonlinearDiscrete-v0's): "
