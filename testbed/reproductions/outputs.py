@@ -224,13 +224,14 @@ def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int 
 DIMENSIONLESS = {"state": "1 (dimensionless system)", "time": "s"}
 
 
-def legend_below(ax: Any, ncols: int = 2, offset: float = 0.2) -> None:
-    """The legend of ``ax`` below it, outside the data (font :data:`testbed.outputs.plots.
-    FONT_PT`)."""
+def legend_below(ax: Any, ncols: int = 2, offset: float = 0.2, title: str | None = None
+                 ) -> None:
+    """The legend of ``ax`` below it, outside the data, with an optional ``title`` (font
+    :data:`testbed.outputs.plots.FONT_PT`)."""
     from testbed.outputs.plots import FONT_PT
 
     ax.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -offset),
-              ncols=ncols, frameon=False)
+              ncols=ncols, frameon=False, title=title, title_fontsize=FONT_PT)
 
 
 def claims_figure(claims: Sequence[Claim | dict[str, str]], width_in: float, height_in: float,

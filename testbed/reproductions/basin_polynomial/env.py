@@ -63,8 +63,6 @@ class PolynomialCubicEnv(PlantEnv):
         growth_rtol: float = 0.1,
         render_mode: str | None = None,
     ):
-        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer):
-            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         q = real_array(noise_intensity, "noise_intensity", finite=False)
         if q.shape != (2,) or not np.all(np.isfinite(q)) or np.any(q < 0):
             raise ValueError(f"noise_intensity must be two finite non-negative intensities "
@@ -80,7 +78,7 @@ class PolynomialCubicEnv(PlantEnv):
         self.model = paper_model(E=np.array([[0.0], [1.0]]))
         system = PolynomialPlant(self.model, EscapeTest(bound=escape_bound,
                                                         growth_rtol=growth_rtol),
-                                 dt_s=dt_s, substeps=substeps, w=w,  # checks dt_s
+                                 dt_s=dt_s, substeps=substeps, w=w,  # checks both
                                  noise_intensity=q if white else None)
         sensors = PlantSensors(["y"], np.array([[1.0, 0.0]]),
                                np.array([[q[1] if white and q[1] > 0 else 1.0]]),

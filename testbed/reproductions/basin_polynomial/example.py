@@ -47,6 +47,7 @@ from testbed.reproductions.outputs import (
     claims_figure,
     claims_json,
     finish_figure,
+    legend_below,
     write_outputs,
 )
 
@@ -307,8 +308,6 @@ def _runs(sim: dict[str, Any], result: dict[str, Any]) -> list[Run]:
 
 def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario,
           path: str | Path) -> None:
-    from testbed.outputs.plots import FONT_PT
-
     t, x, r = sim["t"], sim["x"], sim["runs"]
     fig, grid = claims_figure(result["claims"], 11, 9.5, [4.0, 4.6], wrap=120)
     top = fig.add_subplot(grid[0])
@@ -338,9 +337,7 @@ def _plot(sim: dict[str, Any], result: dict[str, Any], s: PolynomialHinfScenario
     top.set_yscale("log")
     bottom.set(title="Fig. 1 (below): noise-output ratio T(t) = ||z - z_f||_2 / (||w||_2^2 + "
                      "x0' R x0)^1/2", xlabel="t [s]", ylabel="T (dimensionless)")
-    bottom.legend(fontsize=FONT_PT, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=3,
-                  frameon=False, title="both panels (dash-dot lines: escape detected)",
-                  title_fontsize=FONT_PT)
+    legend_below(bottom, 3, 0.16, title="both panels (dash-dot lines: escape detected)")
     finish_figure(fig, grid, result["claims"], [
         f"{PAPER.authors} ({PAPER.year}): central H-infinity filters, gamma = {s.gamma}"],
         path, wrap=120)

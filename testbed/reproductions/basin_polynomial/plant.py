@@ -69,8 +69,8 @@ class PolynomialPlant:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
         dt_s = positive_time("dt_s", dt_s)
-        if int(substeps) != substeps or substeps < 1:
-            raise ValueError(f"substeps must be a positive integer, got {substeps}")
+        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         self.model = model
         self.escape = escape or EscapeTest()
         self.n, self.m, self.p, self.k = model.n, model.m, model.p, model.k
