@@ -14,13 +14,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
 from filters import zoh
-from filters.analysis import (
-    PoleRegion,
-    UncertainPlant,
-    error_covariance,
-    error_system,
-    robust_filter_analysis,
-)
+from filters.analysis import error_covariance, error_system, robust_filter_analysis
 from filters.variance_constrained import (
     DesignSearchRecord,
     LinearFilter,
@@ -45,10 +39,9 @@ SEARCH_EVALUATIONS = 300
 SEARCHED = "searched design"
 
 
-def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.ndarray, *,
-                       region: PoleRegion, gamma: float, sigma2: np.ndarray,
-                       n_grid: int = 21) -> dict[str, Any]:
-    """The three requirements of a given filter for all ``F``, and ``P`` at ``F = 1, 0, -1``.
+def evaluate_published(s: Any, name: str, K: Any, G: Any, n_grid: int = 21) -> dict[str, Any]:
+    """The three requirements of a given filter for all ``F`` on the scenario ``s``
+    (``plant``, ``region``, ``gamma``, ``sigma2``), and ``P`` at ``F = 1, 0, -1``.
 
     Returns
     -------
@@ -56,7 +49,8 @@ def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.nd
         ``name, K, G, hinf_worst, variance_worst, poles_in_region, worst_F, covariance``
         (``{"1", "0", "-1"}``), ``pole_margin_worst``, ``meets``, ``analysis``.
     """
-    ra = robust_filter_analysis(plant, G, K, region=region, gamma=gamma, sigma2=sigma2,
+    plant, K, G = s.plant, np.array(K), np.array(G)
+    ra = robust_filter_analysis(plant, G, K, region=s.region, gamma=s.gamma, sigma2=s.sigma2,
                                 n_grid=n_grid)
     summary = ra.to_dict()
     cov = {}
@@ -65,7 +59,7 @@ def evaluate_published(plant: UncertainPlant, name: str, K: np.ndarray, G: np.nd
             cov[f"{F:g}"] = error_covariance(plant, G, K, F).tolist()
         except Exception:  # unstable for this F: no steady state
             cov[f"{F:g}"] = None
-    return {"name": name, "K": np.asarray(K).tolist(), "G": np.asarray(G).tolist(),
+    return {"name": name, "K": K.tolist(), "G": G.tolist(),
             **{key: summary[key] for key in ("hinf_worst", "variance_worst", "poles_in_region",
                                              "worst_F", "pole_margin_worst", "meets")},
             "covariance": cov, "analysis": summary,
@@ -239,12 +233,13 @@ def _fmt(v: Any) -> str:
     return "[" + ", ".join(f"{float(x):.3g}" for x in v) + "]"
 
 
-def design_entry(d: VarianceDesign, plant: UncertainPlant, s: Any) -> dict[str, Any]:
-    """A design's JSON with its a-posteriori verification (``None`` when not solved)."""
+def design_entry(d: VarianceDesign, s: Any) -> dict[str, Any]:
+    """A design's JSON with its a-posteriori verification on the scenario ``s`` (``None``
+    when not solved)."""
     out = d.to_dict()
     out["verification"] = None
     if d.solved:
-        out["verification"] = verify_design(plant, d.G, d.K, region=s.region, gamma=s.gamma,
+        out["verification"] = verify_design(s.plant, d.G, d.K, region=s.region, gamma=s.gamma,
                                             sigma2=s.sigma2).to_dict()
     return out
 
@@ -298,20 +293,15 @@ def run_example(name: str, s: Any,
         if int(value) != value or value < 1:
             raise ValueError(f"{label} must be a positive integer, got {value!r}")
     start = time.perf_counter()
-    plant = s.plant
     designs, diagnostics = design()
     t_design = time.perf_counter() - start
     record = search(int(search_starts), int(search_evaluations))
     summary = search_summary(record)
     t_search = time.perf_counter() - start - t_design
-
-    def evaluate(name: str, K: Any, G: Any) -> dict[str, Any]:
-        return evaluate_published(plant, name, np.array(K), np.array(G), region=s.region,
-                                  gamma=s.gamma, sigma2=s.sigma2)
-
-    published = [evaluate(name, K, G) for name, (K, G) in s.published().items()]
-    searched = None if summary is None else evaluate(SEARCHED, summary["K"], summary["G"])
-    sim = UncertainLinearPlant(plant, dt_s)
+    published = [evaluate_published(s, name, K, G) for name, (K, G) in s.published().items()]
+    searched = (None if summary is None
+                else evaluate_published(s, SEARCHED, summary["K"], summary["G"]))
+    sim = UncertainLinearPlant(s.plant, dt_s)
     mc = monte_carlo_block(sim, published + ([searched] if searched else []),
                            n_runs=int(n_runs), n_steps=n_steps, burn_in=burn_in, seed=seed)
     first = published[0]
@@ -321,7 +311,7 @@ def run_example(name: str, s: Any,
     search_dict["summary"] = summary
     return {
         "scenario": name,
-        "design": {k: design_entry(d, plant, s) for k, d in designs.items()},
+        "design": {k: design_entry(d, s) for k, d in designs.items()},
         "design_diagnostics": diagnostics, "design_search": search_dict,
         "published": published, "searched": searched, "monte_carlo": mc,
         "env": {"id": ENV_ID, "episode": {"filter": sample["filter"], "F": sample["F"],
