@@ -180,8 +180,8 @@ class LateralAccelerometer(Sensor):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``a_y cos(roll) + g sin(roll)``, shape (k, 1)."""
-        roll = sample.x[:, 0]
-        return (sample.u[:, 0] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll))[:, None]
+        roll = sample.x[:, :1]
+        return sample.u[:, :1] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll)
 
     def linear_model(self) -> SensorModel:
         """``y = g roll + a_y``."""
