@@ -482,7 +482,9 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     ``common``: the caller knows that every entry of ``t`` is the same time (not looked at).
     """
     if len(t) and (common or t.min() == t.max()):
-        return np.broadcast_to(np.asarray(fn(float(t[0])), dtype=float), (len(t), dim))
+        out = np.empty((len(t), dim))
+        out[...] = np.asarray(fn(float(t[0])), dtype=float)  # broadcast, as np.broadcast_to
+        return out
     values, inverse = np.unique(t, return_inverse=True)
     table = np.array([fn(float(v)) for v in values], dtype=float).reshape(len(values), dim)
     return table[inverse]
@@ -772,8 +774,8 @@ class Simulator:
             if len(t) == 1 or (common and len(t)):  # the same row as below, looked up once
                 # without numpy's per-call overhead
                 row = bisect.bisect_right(self._table_times, float(t[0])) - 1
-                ref = table[max(row, 0), 1:]
-                return ref[None] if len(t) == 1 else np.broadcast_to(ref, (len(t), len(ref)))
+                ref = table[max(row, 0), 1:][None]
+                return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
             return table[np.maximum(rows, 0), 1:]
         groups = self._table_of[sel]
@@ -788,8 +790,10 @@ class Simulator:
     def setpoints_at(self, t_s: float | np.ndarray, members: Any = slice(None)) -> np.ndarray:
         """References of the members at time(s) ``t_s``, shape (k, r)."""
         groups = self._table_of[members]
-        return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members,
-                               common=np.ndim(t_s) == 0)
+        t = np.asarray(t_s, float)
+        if t.ndim == 0:  # one time for every member
+            return self._reference(np.full(groups.shape, t), members, common=True)
+        return self._reference(np.broadcast_to(t, groups.shape), members)
 
     def _manoeuvre(self, t: np.ndarray, sel: Any, common: bool = False) -> np.ndarray:
         """The input profiles (k, nu) of the members ``sel`` at their times ``t`` (k,);
@@ -901,6 +905,10 @@ class Simulator:
 
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
+        if (type(actions) is np.ndarray and actions.dtype == np.float64
+                and actions.shape == (k, self._nu)
+                and np.count_nonzero(np.isfinite(actions)) == actions.size):
+            return actions  # used as it is: a step keeps none of it
         u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
             raise ValueError(f"actions must have shape ({k}, {self._nu}) "
