@@ -230,7 +230,9 @@ def imu(dt_s: float = 0.01, gyro_noise_density: float = GYRO_NOISE_DENSITY,
                                          density=gyro_noise_density, dt_s=dt_s),
                               walk=gyro_bias_walk, dt_s=dt_s, initial_std=gyro_bias0_std)
 
-    accel: Sensor = Bias(scaled(LateralAccelerometer(), scale_factor_std), accel_bias)
+    accel = scaled(LateralAccelerometer(), scale_factor_std)
+    if accel_bias:  # a zero offset is no decorator (one fewer per sample)
+        accel = Bias(accel, accel_bias)
     if accel_bias0_std:
         accel = BiasRandomWalk(accel, walk=0.0, dt_s=dt_s, initial_std=accel_bias0_std)
     accel = WhiteNoise(accel, density=accel_noise_density, dt_s=dt_s)
