@@ -574,6 +574,7 @@ class Simulator:
         self._tables = [rig.validate_setpoints(table) if table is not None
                         else np.zeros((1, 1 + r))]
         self._table_times = self._tables[0][:, 0].tolist()
+        self._table_rows = [row[None, 1:] for row in self._tables[0]]  # (1, r) views
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
@@ -598,6 +599,12 @@ class Simulator:
         self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
         # fixed for the simulator's life: read once, not per step
         self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
+        dist = self.disturbance
+        #: The disturbance's velocity rows of G and b (None without), sqrt(dt) and the rig's
+        #: dof addresses: what a step turns into joint accelerations.
+        self._dist_rows = (None if dist.G is None else dist.G[self._j:],
+                           None if dist.b is None else dist.b[self._j:], np.sqrt(self.dt_s),
+                           rig.dof_adr)
         self.steps = np.zeros(n, dtype=np.int64)
         #: The step count of every member when they all have the same (the common case of a
         #: batch reset and stepped together), else None: the references, input profiles and
@@ -771,10 +778,10 @@ class Simulator:
         every entry of ``t`` is the same time."""
         if len(self._tables) == 1:  # one schedule for every member
             table = self._tables[0]
-            if len(t) == 1 or (common and len(t)):  # the same row as below, looked up once
-                # without numpy's per-call overhead
+            if len(t) == 1 or (common and len(t)):  # one time: the row searchsorted finds
+                # below for each member, looked up once without numpy's per-call overhead
                 row = bisect.bisect_right(self._table_times, float(t[0])) - 1
-                ref = table[max(row, 0), 1:][None]
+                ref = self._table_rows[max(row, 0)]
                 return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
             return table[np.maximum(rows, 0), 1:]
@@ -967,16 +974,16 @@ class Simulator:
             info["step_noise"][sel] = step_noise
         qfrc = None
         if dist_active:
-            dist = self.disturbance
+            G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
             w = self._signal(t, index, common) if has_signal else info["disturbance"][sel]
             accel: Any = zero_accel
-            if dist.G is not None:
-                accel = accel + np.matvec(dist.G[self._j:], w)
-            if dist.b is not None:
+            if G_rows is not None:
+                accel = accel + np.matvec(G_rows, w)
+            if b_rows is not None:
                 drawn = xi[:, n_step:n_step + self._dist_draws]
-                accel = accel + np.matvec(dist.b[self._j:], drawn) / np.sqrt(self.dt_s)
+                accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
             a = np.zeros((k, physics.nv))
-            a[:, rig.dof_adr] = accel
+            a[:, dof_adr] = accel
             qfrc = np.matvec(physics.mass[sel], a)
         elif has_signal:
             w = self._signal(t, index, common)
