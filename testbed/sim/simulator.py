@@ -606,10 +606,10 @@ class Simulator:
                            None if dist.b is None else dist.b[self._j:], np.sqrt(self.dt_s),
                            rig.dof_adr)
         self.steps = np.zeros(n, dtype=np.int64)
-        #: The step count of every member when they all have the same (the common case of a
-        #: batch reset and stepped together), else None: the references, input profiles and
-        #: disturbance signals are then looked up once per step, not per member.
-        self._common_step: int | None = None
+        #: Whether every member has the same step count (the common case of a batch reset and
+        #: stepped together): the references, input profiles and disturbance signals are then
+        #: looked up once per step, not per member.
+        self._same_steps = False
         self._ready = np.zeros(n, dtype=bool)
         self._all_ready = False
         self._terminates = type(rig).terminated is not Rig.terminated
@@ -888,7 +888,7 @@ class Simulator:
         self._ready[index] = True
         self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
-        self._common_step = None if np.count_nonzero(self.steps) else 0
+        self._same_steps = not np.count_nonzero(self.steps)
         self.x0[index] = x0
         t = np.zeros(k)
         info = self.info
@@ -938,7 +938,7 @@ class Simulator:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
             index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self._whole
-            common = self._common_step is not None
+            common = self._same_steps
         else:
             index = sel = np.asarray(members, int)
             k = len(index)
@@ -994,13 +994,11 @@ class Simulator:
             steps = self.steps + self._one_rows
             self.steps[...] = steps
             t = steps * self._dt_rows
-            if common:
-                self._common_step += 1
         else:
             steps = self.steps[sel] + 1
             self.steps[sel] = steps
             t = steps * self.dt_s
-            self._common_step = None
+            self._same_steps = False
         x = physics.states(sel)
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
