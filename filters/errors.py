@@ -137,7 +137,7 @@ def check_covariance(
         Ps = P + P.T
         Ps *= 0.5
     else:
-        Ps = 0.5 * (P + np.swapaxes(P, -1, -2))
+        Ps = 0.5 * (P + P.mT)
     check_symmetric_covariance(Ps, time=time, quantity=quantity, escape_bound=escape_bound)
     return Ps
 

@@ -466,12 +466,12 @@ class KalmanFilter(_SampledFilter):
             PHT = P @ self._HT
             S = H @ PHT + R
             try:
-                K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHT, -1, -2)), -1, -2)
+                K = np.linalg.solve(S, PHT.mT).mT  # .mT: swapaxes(-1, -2), no Python call
             except np.linalg.LinAlgError:
                 self._raise_innovation_cov(S, steps)
             x = x + (K @ innov[..., None])[..., 0]
             IKH = self._I - K @ H
-            P = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+            P = IKH @ P @ IKH.mT + K @ R @ K.mT
         P = check_covariance(P, time=self._time(steps), quantity="P")
         self._check_state(x, steps)
         self.innovation, self.innovation_cov, self.gain = innov, S, K

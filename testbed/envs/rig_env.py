@@ -38,6 +38,7 @@ factors). ``reset(seed=, options={"x0", "params", "setpoints",
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -127,9 +128,10 @@ class RigEnv(gym.Env):
         """Apply one action for one control period."""
         u = action
         # a finite float64 array of the action's shape is used as it is (the simulator
-        # keeps none of it); anything else is converted and checked by real_array
+        # keeps none of it); anything else is converted and checked by real_array (the
+        # finiteness of a few entries: faster on Python floats than with a numpy call)
         if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
-                and np.count_nonzero(np.isfinite(u)) == self._shape[0]):
+                and all(map(math.isfinite, u.tolist()))):
             u = real_array(action, self._action_label, shape=self._shape)
         self.sim.step(u[None], checked=True)
         sim = self.sim

@@ -92,16 +92,15 @@ class LQRTracker:
 
     def __call__(self, x_hat: np.ndarray, t_s: float) -> np.ndarray:
         """Inputs (N, nu) for the estimates ``x_hat`` (N, n) at time ``t_s``."""
-        num, n = x_hat.shape
-        ref = np.broadcast_to(self._setpoint(t_s), (num, len(self.tracked)))
-        x_ref = np.zeros((num, n))
-        x_ref[:, self.tracked] = ref
+        x_ref = np.zeros(x_hat.shape)
+        x_ref[:, self.tracked] = self._setpoint(t_s)  # (N, r) or (r,), broadcast
         err = x_hat - x_ref
         z = np.concatenate([err, self._xi], axis=1) if self.integral else err
         u = self._feedforward(x_hat) - np.matvec(self.K, z)
-        u_sat = np.clip(u, self.low, self.high)
+        # np.clip(u, low, high), bitwise (NaN stays NaN), without its Python wrappers
+        u_sat = np.minimum(np.maximum(u, self.low), self.high)
         if self.integral:
-            free = np.all(u_sat == u, axis=1)
+            free = np.logical_and.reduce(u_sat == u, axis=1)
             self._xi = np.where(free[:, None], self._xi + self.dt_s * err[:, self.tracked],
                                 self._xi)
         return u_sat

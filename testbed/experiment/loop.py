@@ -195,7 +195,7 @@ class EstimatorStage:
             time_s = (self.metrics.count + 1) * self.metrics.dt_s
             raise EstimatorFailed(f"the estimator's step raised {describe(exc)} at "
                                   f"t = {time_s:g} s", time_s) from exc
-        if not np.all(np.isfinite(x_hat)):
+        if np.count_nonzero(np.isfinite(x_hat)) != x_hat.size:
             raise FiniteEscapeError("the estimator returned a non-finite estimate",
                                     time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",
                                     value=x_hat.copy())

@@ -421,7 +421,7 @@ class Physics:
                 state[sel, cols] = substep(command, act[sel], constants)
                 batch.step(ids, 1)
             state[sel, cols] = command
-        bad = self._bad[sel]
+        bad = self._bad if whole else self._bad[sel]
         warned = bool(np.count_nonzero(bad))
         if warned:  # rare: mark the members and clear their counters
             unstable = np.any(bad, axis=1)
@@ -475,10 +475,16 @@ def _model_field(model: mujoco.MjModel, name: str) -> np.ndarray:
     return np.asarray(getattr(model, name))
 
 
-def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int) -> np.ndarray:
-    """``fn(t_i)`` for every entry of ``t`` (k,), evaluated once per distinct time: (k, dim)."""
-    if len(t) and t.min() == t.max():
-        return np.broadcast_to(np.asarray(fn(float(t[0])), dtype=float), (len(t), dim))
+def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
+              common: bool = False) -> np.ndarray:
+    """``fn(t_i)`` for every entry of ``t`` (k,), evaluated once per distinct time: (k, dim).
+
+    ``common``: the caller knows that every entry of ``t`` is the same time (not looked at).
+    """
+    if len(t) and (common or t.min() == t.max()):
+        out = np.empty((len(t), dim))
+        out[...] = np.asarray(fn(float(t[0])), dtype=float)  # broadcast, as np.broadcast_to
+        return out
     values, inverse = np.unique(t, return_inverse=True)
     table = np.array([fn(float(v)) for v in values], dtype=float).reshape(len(values), dim)
     return table[inverse]
@@ -568,6 +574,7 @@ class Simulator:
         self._tables = [rig.validate_setpoints(table) if table is not None
                         else np.zeros((1, 1 + r))]
         self._table_times = self._tables[0][:, 0].tolist()
+        self._table_rows = [row[None, 1:] for row in self._tables[0]]  # (1, r) views
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
@@ -592,7 +599,17 @@ class Simulator:
         self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
         # fixed for the simulator's life: read once, not per step
         self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
+        dist = self.disturbance
+        #: The disturbance's velocity rows of G and b (None without), sqrt(dt) and the rig's
+        #: dof addresses: what a step turns into joint accelerations.
+        self._dist_rows = (None if dist.G is None else dist.G[self._j:],
+                           None if dist.b is None else dist.b[self._j:], np.sqrt(self.dt_s),
+                           rig.dof_adr)
         self.steps = np.zeros(n, dtype=np.int64)
+        #: Whether every member has the same step count (the common case of a batch reset and
+        #: stepped together): the references, input profiles and disturbance signals are then
+        #: looked up once per step, not per member.
+        self._same_steps = False
         self._ready = np.zeros(n, dtype=bool)
         self._all_ready = False
         self._terminates = type(rig).terminated is not Rig.terminated
@@ -613,6 +630,10 @@ class Simulator:
         for a in (self._all, self._zero_input, self._zero_accel, self._zero_w, self._low_rows,
                   self._high_rows, self._envelope_rows, self._dt_rows, self._one_rows):
             a.flags.writeable = False
+        #: What a step of the whole batch reads for its members: their indices, selection,
+        #: number, action limits, envelope and zero input, acceleration and signal rows.
+        self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
+                       self._envelope_rows, self._zero_input, self._zero_accel, self._zero_w)
         widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
                   "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
                   "step_noise": rig.step_noise_dim}
@@ -752,12 +773,16 @@ class Simulator:
         return len(registry) - 1
 
     # ------------------------------------------------------------------ signals
-    def _reference(self, t: np.ndarray, sel: Any) -> np.ndarray:
+    def _reference(self, t: np.ndarray, sel: Any, common: bool = False) -> np.ndarray:
+        """References (k, r) of the members ``sel`` at their times ``t`` (k,); ``common``:
+        every entry of ``t`` is the same time."""
         if len(self._tables) == 1:  # one schedule for every member
             table = self._tables[0]
-            if len(t) == 1:  # the same row as below, without numpy's per-call overhead
+            if len(t) == 1 or (common and len(t)):  # one time: the row searchsorted finds
+                # below for each member, looked up once without numpy's per-call overhead
                 row = bisect.bisect_right(self._table_times, float(t[0])) - 1
-                return table[max(row, 0), 1:][None]
+                ref = self._table_rows[max(row, 0)]
+                return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
             return table[np.maximum(rows, 0), 1:]
         groups = self._table_of[sel]
@@ -772,28 +797,39 @@ class Simulator:
     def setpoints_at(self, t_s: float | np.ndarray, members: Any = slice(None)) -> np.ndarray:
         """References of the members at time(s) ``t_s``, shape (k, r)."""
         groups = self._table_of[members]
-        return self._reference(np.broadcast_to(np.asarray(t_s, float), groups.shape), members)
+        t = np.asarray(t_s, float)
+        if t.ndim == 0:  # one time for every member
+            return self._reference(np.full(groups.shape, t), members, common=True)
+        return self._reference(np.broadcast_to(t, groups.shape), members)
 
-    def _manoeuvre(self, t: np.ndarray, sel: Any) -> np.ndarray:
+    def _manoeuvre(self, t: np.ndarray, sel: Any, common: bool = False) -> np.ndarray:
+        """The input profiles (k, nu) of the members ``sel`` at their times ``t`` (k,);
+        ``common``: every entry of ``t`` is the same time."""
         if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
-        groups = self._schedule_of[sel]
-        out = np.zeros((len(t), self._nu))
-        for g in (0,) if len(self._schedules) == 1 else np.unique(groups):
-            fn = self._schedules[g]
-            if fn is None:
-                continue
-            mask = groups == g
-            out[mask] = _per_time(lambda s, fn=fn: np.atleast_1d(fn(s)), t[mask], self._nu)
-        if not np.all(np.isfinite(out)):
+        if len(self._schedules) == 1:  # every member's profile (one, not None)
+            fn = self._schedules[0]
+            out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu, common)
+        else:
+            groups = self._schedule_of[sel]
+            out = np.zeros((len(t), self._nu))
+            for g in np.unique(groups):
+                fn = self._schedules[g]
+                if fn is None:
+                    continue
+                mask = groups == g
+                out[mask] = _per_time(lambda s, fn=fn: np.atleast_1d(fn(s)), t[mask], self._nu)
+        if np.count_nonzero(np.isfinite(out)) != out.size:
             raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
         return out
 
-    def _signal(self, t: np.ndarray, index: np.ndarray) -> np.ndarray:
+    def _signal(self, t: np.ndarray, index: np.ndarray, common: bool = False) -> np.ndarray:
+        """The disturbance signal (k, s) of the members ``index`` at their times ``t`` (k,);
+        ``common``: every entry of ``t`` is the same time."""
         member_signal = getattr(self.disturbance, "member_signal", None)
         if member_signal is not None:  # one sequence per member (SampledDisturbance)
             return member_signal(t, index)
-        return _per_time(self.disturbance.signal, t, self._w_dim)
+        return _per_time(self.disturbance.signal, t, self._w_dim, common)
 
     # ------------------------------------------------------------------ API
     def reset(self, members: np.ndarray | None = None,
@@ -852,15 +888,16 @@ class Simulator:
         self._ready[index] = True
         self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
+        self._same_steps = not np.count_nonzero(self.steps)
         self.x0[index] = x0
         t = np.zeros(k)
         info = self.info
-        w = self._signal(t, index)
+        w = self._signal(t, index, common=True)
         x = self.physics.states(index)
         info["state"][index] = x
         info["t"][index] = 0.0
         info["disturbance"][index] = w
-        info["setpoint"][index] = self._reference(t, index)
+        info["setpoint"][index] = self._reference(t, index, common=True)
         for key in ("action_applied", "action_clipped", "manoeuvre", "process_accel",
                     "step_noise"):
             info[key][index] = 0
@@ -875,6 +912,10 @@ class Simulator:
 
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
+        if (type(actions) is np.ndarray and actions.dtype == np.float64
+                and actions.shape == (k, self._nu)
+                and np.count_nonzero(np.isfinite(actions)) == actions.size):
+            return actions  # used as it is: a step keeps none of it
         u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
             raise ValueError(f"actions must have shape ({k}, {self._nu}) "
@@ -896,14 +937,17 @@ class Simulator:
         if members is None:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
-            index, sel, k = self._all, slice(None), self.num
-            low, high, envelope = self._low_rows, self._high_rows, self._envelope_rows
+            index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self._whole
+            common = self._same_steps
         else:
             index = sel = np.asarray(members, int)
             k = len(index)
             if np.count_nonzero(self._ready[index]) != k:
                 raise RuntimeError("reset() every member before stepping it")
             low, high, envelope = self._low, self._high, self._envelope
+            zero_u, zero_accel = self._zero_input[:k], self._zero_accel[:k]
+            zero_w = self._zero_w[:k]
+            common = False
         u = actions if checked else self.check_actions(actions, k)
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
@@ -912,11 +956,11 @@ class Simulator:
         # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
         clipped_u = np.minimum(np.maximum(u, low), high)
         if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
-            profile = self._zero_input[:k]
+            profile = zero_u
             applied = clipped_u + profile
             clipped = clipped_u != u
         else:
-            profile = self._manoeuvre(t, sel)
+            profile = self._manoeuvre(t, sel, common)
             total = clipped_u + profile
             applied = np.minimum(np.maximum(total, low), high)
             clipped = (clipped_u != u) | (applied != total)
@@ -930,19 +974,19 @@ class Simulator:
             info["step_noise"][sel] = step_noise
         qfrc = None
         if dist_active:
-            dist = self.disturbance
-            w = self._signal(t, index) if has_signal else info["disturbance"][sel]
-            accel: Any = self._zero_accel[:k]
-            if dist.G is not None:
-                accel = accel + np.matvec(dist.G[self._j:], w)
-            if dist.b is not None:
+            G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
+            w = self._signal(t, index, common) if has_signal else info["disturbance"][sel]
+            accel: Any = zero_accel
+            if G_rows is not None:
+                accel = accel + np.matvec(G_rows, w)
+            if b_rows is not None:
                 drawn = xi[:, n_step:n_step + self._dist_draws]
-                accel = accel + np.matvec(dist.b[self._j:], drawn) / np.sqrt(self.dt_s)
+                accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
             a = np.zeros((k, physics.nv))
-            a[:, rig.dof_adr] = accel
+            a[:, dof_adr] = accel
             qfrc = np.matvec(physics.mass[sel], a)
         elif has_signal:
-            w = self._signal(t, index)
+            w = self._signal(t, index, common)
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
@@ -954,16 +998,17 @@ class Simulator:
             steps = self.steps[sel] + 1
             self.steps[sel] = steps
             t = steps * self.dt_s
+            self._same_steps = False
         x = physics.states(sel)
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        ref = self._reference(t, sel)
+        ref = self._reference(t, sel, common)
         e = x[:, self._tracked_cols] - ref
         self.reward[sel] = -np.add.reduce(e * e, axis=1)
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
-        w_now = self._signal(t, index) if has_signal else self._zero_w[:k]
+        w_now = self._signal(t, index, common) if has_signal else zero_w
         sample = Sample(x, t, applied, w_now, sel)
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
             self.obs[sel] = self.sensors.measure(sample, noise)

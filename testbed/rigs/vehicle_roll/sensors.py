@@ -180,8 +180,8 @@ class LateralAccelerometer(Sensor):
 
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``a_y cos(roll) + g sin(roll)``, shape (k, 1)."""
-        roll = sample.x[:, 0]
-        return (sample.u[:, 0] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll))[:, None]
+        roll = sample.x[:, :1]
+        return sample.u[:, :1] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll)
 
     def linear_model(self) -> SensorModel:
         """``y = g roll + a_y``."""
@@ -230,7 +230,9 @@ def imu(dt_s: float = 0.01, gyro_noise_density: float = GYRO_NOISE_DENSITY,
                                          density=gyro_noise_density, dt_s=dt_s),
                               walk=gyro_bias_walk, dt_s=dt_s, initial_std=gyro_bias0_std)
 
-    accel: Sensor = Bias(scaled(LateralAccelerometer(), scale_factor_std), accel_bias)
+    accel = scaled(LateralAccelerometer(), scale_factor_std)
+    if accel_bias:  # a zero offset is no decorator (one fewer per sample)
+        accel = Bias(accel, accel_bias)
     if accel_bias0_std:
         accel = BiasRandomWalk(accel, walk=0.0, dt_s=dt_s, initial_std=accel_bias0_std)
     accel = WhiteNoise(accel, density=accel_noise_density, dt_s=dt_s)
