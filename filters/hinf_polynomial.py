@@ -97,7 +97,7 @@ from filters._linalg import FloatArray, positive_time, readonly, to_float_array
 from filters.errors import check_symmetric_covariance
 from filters.kalman import _IntegratedFilter
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
-from filters.stiff import rosenbrock2
+from filters.stiff import difference_solver, rosenbrock2
 
 __all__ = [
     "LinearizedHInfFilter",
@@ -585,7 +585,7 @@ class _CentralHInfFilter(_IntegratedFilter):
                             (*batch, n * n))], axis=-1) * 1e-3
         with np.errstate(over="ignore", invalid="ignore"):
             rosenbrock2(rhs, np.concatenate([x, P.reshape(*batch, n * n)], axis=-1), t0, h,
-                        ns, typical, after)
+                        ns, difference_solver(rhs, typical), after)
         self._commit(x, P, self._steps + 1)
         self.innovation = innovation
         self._magnitudes = None

@@ -27,8 +27,8 @@ The continuous filter integrates over each control period with ``y`` and ``u`` h
 current ``P``: accurate sensors make the first periods stiff, e.g. 4080 RK4 substeps on the
 helicopter's encoders at ``P0 = 1e-4 I``, 3 once ``P`` has settled, about 170 on the
 hardware profile's encoders throughout; periods that would need more than
-:data:`RK4_MAX_SUBSTEPS` are integrated by the L-stable ROS2 method instead, see
-:func:`integration`).
+:data:`filters.stiff.RK4_MAX_SUBSTEPS` are integrated by the L-stable ROS2 method instead,
+see :func:`filters.stiff.integrator_for`).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from scipy.linalg import solve_continuous_are
 
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
+from filters.stiff import integrator_for
 
 
 @dataclass(frozen=True)
@@ -187,36 +188,6 @@ def suggested_substeps(A: np.ndarray, CtC: np.ndarray, P: np.ndarray, dt_s: floa
     return max(1, math.ceil(dt_s * rate / limit))
 
 
-#: Most RK4 substeps per period before a period is integrated by the stiff method instead.
-RK4_MAX_SUBSTEPS = 16
-
-
-def integration(rk4_substeps: int) -> tuple[str, int]:
-    """Integrator and substeps of one period, from the RK4 substeps it would need.
-
-    Up to :data:`RK4_MAX_SUBSTEPS`: RK4 with that many. Beyond (a stiff period): the
-    L-stable ROS2 (:mod:`filters.stiff`) with ``ceil(sqrt(rk4_substeps))`` substeps, one
-    Jacobian each. Measured on the helicopters (10 runs x 20 s, poly-hinf): hardware profile
-    (~170 RK4 substeps per settled period) 4.2 times faster, RMSE within 0.1 % of the RK4
-    integration; paper profile (ROS2 only in the first, stiffest periods) RMSE within 2e-5
-    relative. A fixed number of ROS2 substeps is not enough: with 2 per period the paper
-    helicopter's pitch RMSE is 21 % off (order 2 at ``h * rate ~ 1``).
-
-    Parameters
-    ----------
-    rk4_substeps : int
-        :func:`suggested_substeps` of the period.
-
-    Returns
-    -------
-    method : {"rk4", "rosenbrock"}
-    substeps : int
-    """
-    if rk4_substeps <= RK4_MAX_SUBSTEPS:
-        return "rk4", rk4_substeps
-    return "rosenbrock", math.ceil(math.sqrt(rk4_substeps))
-
-
 class PolynomialHInfEstimator:
     """The testbed estimator around a batched :class:`PolynomialHInfFilter`.
 
@@ -237,8 +208,9 @@ class PolynomialHInfEstimator:
         :attr:`CubicExpansion.input_offset`.
     design_meta : dict
     auto_substeps : (A, C^T C), optional
-        Before every step, set the filter's integrator and substeps by :func:`integration`
-        of :func:`suggested_substeps` at the current ``P``.
+        Before every step, set the filter's integrator and substeps by
+        :func:`filters.stiff.integrator_for` of :func:`suggested_substeps` at the current
+        ``P``.
     """
 
     batched = True
@@ -282,8 +254,8 @@ class PolynomialHInfEstimator:
                 u = u + (self._offset(x[None])[0] if x.ndim == 1 else self._offset(x))
         if self._auto is not None:
             A, CtC = self._auto
-            method, substeps = integration(suggested_substeps(A, CtC, self.filter.P,
-                                                              self.filter.dt_s))
+            method, substeps = integrator_for(suggested_substeps(A, CtC, self.filter.P,
+                                                                 self.filter.dt_s))
             self.filter.method, self.filter.substeps = method, substeps
         return self.filter.step(y @ self._whiten_T, u)
 
