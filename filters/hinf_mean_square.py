@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -46,6 +47,7 @@ from filters._linalg import (
 )
 from filters.errors import FilterError, FiniteEscapeError, check_covariance
 from filters.kalman import _IntegratedFilter
+from filters.stiff import integrator_for, rosenbrock2
 
 __all__ = ["AssumptionWarning", "MeanSquareHInfFilter"]
 
@@ -207,6 +209,12 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         Initial time in seconds (time-varying matrices are evaluated at ``t0 + ...``).
     noise_intensities : bool
         Interpret ``b`` and ``h`` as the intensities ``b b^T`` and ``h h^T``.
+    method : {"rk4", "rosenbrock", "auto"}
+        Integrator of every interval: RK4, or the L-stable ROS2 of :mod:`filters.stiff`
+        (``substeps`` of it) with the analytic block-triangular Jacobian, for stiff
+        equations; ``"auto"`` (with ``substeps="auto"``) chooses both per interval by
+        :func:`filters.stiff.integrator_for` (no :data:`~filters.kalman.MAX_AUTO_SUBSTEPS`
+        cap: a stiff interval goes to ROS2).
 
     Attributes
     ----------
@@ -301,8 +309,15 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         t0: float = 0.0,
         *,
         noise_intensities: bool = False,
+        method: str = "rk4",
     ) -> None:
         self._auto_substeps = isinstance(substeps, str) and substeps == "auto"
+        if method not in ("rk4", "rosenbrock", "auto"):
+            raise ValueError(f"method must be 'rk4', 'rosenbrock' or 'auto', got {method!r}")
+        if method == "auto" and not self._auto_substeps:
+            raise ValueError("method='auto' needs substeps='auto' (it chooses both per "
+                             "interval)")
+        self._method = method
         if self._auto_substeps:
             substeps = 1
         elif (isinstance(substeps, bool) or not isinstance(substeps, int | np.integer)
@@ -555,9 +570,23 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         u = self._input(u)
         if not self._constant:
             self._coef_cache.clear()
-        if self._auto_substeps:
+        method = self._method
+        if self._auto_substeps and method == "auto":
+            method, self._substeps = integrator_for(self.suggested_substeps())
+        elif self._auto_substeps:
             self._substeps = self._auto_substeps_now()
-        if self._Z is not None:
+        if method == "rosenbrock":
+            m, P, S = self._step_rosenbrock(y, u)
+            if self._Z is not None:
+                X = self._pack(m, P, S)
+                X.flags.writeable = False
+                self._set_fast_state(X)
+                m = self._x
+            else:
+                for X in (m, P, S):
+                    X.flags.writeable = False
+                self._x, self._P, self._S = m, P, S
+        elif self._Z is not None:
             try:
                 X = self._step_fast(y, u)
             except _FastPathFailure:
@@ -645,6 +674,105 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         self._innovation_data = (y.copy(), X0[n2, :n], f.Cstack)  # evaluated on access
         return X
 
+    @staticmethod
+    def _rhs(c: _Coefficients, y1: FloatArray, y2: FloatArray, u: FloatArray | None,
+             m: FloatArray, P: FloatArray, S: FloatArray
+             ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Right-hand sides of (7)-(9): ``(dm, dP, dS)``, broadcasting over leading axes."""
+        e1 = np.vecmat(y1, c.W1) - np.vecmat(m, c.M1)  # (..., n); M1, N2 symmetric
+        e2 = np.vecmat(y2, c.W2) - np.vecmat(m, c.N2)
+        dm = (np.vecmat(m, c.A.T) + (P @ e1[..., None])[..., 0]
+              + np.vecmat(e2, S))
+        if u is not None and c.B is not None:
+            dm = dm + np.vecmat(u, c.B.T)
+        TP = (c.A - 0.5 * (P @ c.M1)) @ P
+        dP = TP + np.swapaxes(TP, -1, -2) + c.Q1
+        TS = (c.A - 0.5 * (S @ c.M2)) @ S
+        dS = TS + np.swapaxes(TS, -1, -2) + c.Q2
+        return dm, dP, dS
+
+    def _step_rosenbrock(
+        self, y: FloatArray, u: FloatArray | None
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """ROS2 substeps (:func:`filters.stiff.rosenbrock2`) on the stacked
+        ``s = [m, vec(P), vec(S)]`` (``S`` broadcast to the batch: every member's copy is
+        the same), with the analytic, block upper triangular Jacobian (``W^-1`` by blocks:
+        ``P`` and ``S`` through the inverse of their Lyapunov operators, ``m`` through
+        ``I - gamma h (A - P M1 - S N2)``) and the checks of the RK4 paths after every
+        substep."""
+        n, m1, batch = self._n, self._m1, self._batch
+        m = np.broadcast_to(self._x, (*batch, n))
+        P = np.broadcast_to(self._P, (*batch, n, n))
+        S = np.broadcast_to(self._S, (*batch, n, n))
+        ns = self._substeps
+        h = self._dt / ns  # type: ignore[operator]
+        t_start = self.t_s
+        C = np.vstack([self._C1(t_start), self._C2(t_start)])
+        innovation = y - np.vecmat(m, C.T)
+        y = np.broadcast_to(y, (*batch, self._m))
+        u = None if u is None else np.broadcast_to(u, (*batch, self._k))
+        nn = n * n
+
+        def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+            return (s[..., :n], s[..., n:n + nn].reshape(*batch, n, n),
+                    s[..., n + nn:].reshape(*batch, n, n))
+
+        def rhs(t: float, s: FloatArray) -> FloatArray:
+            dm, dP, dS = self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u,
+                                   *split(s))
+            return np.concatenate([dm, dP.reshape(*batch, nn), dS.reshape(*batch, nn)], -1)
+
+        eye_n = np.eye(n)
+
+        def lyapunov(T: FloatArray, gh: float) -> FloatArray:
+            """``(I - gh (T (x) I + I (x) T))^-1``: the Riccati block of ``W`` (row-major
+            ``vec(T X + X T^T)``)."""
+            K = (np.einsum("...ik,jl->...ijkl", T, eye_n)
+                 + np.einsum("ik,...jl->...ijkl", eye_n, T)).reshape(*T.shape[:-2], nn, nn)
+            return np.linalg.inv(np.eye(nn) - gh * K)
+
+        def solver(t: float, s: FloatArray, f: FloatArray, gh: float
+                   ) -> Callable[[FloatArray], FloatArray]:
+            # J is block upper triangular: P and S do not depend on m, nor on each other;
+            # dm = (A - P M1 - S N2) m + P W1^T y1 + S W2^T y2 + B u
+            c = self._coefficients(t)
+            mm, PP, SS = split(s)
+            e1 = np.vecmat(y[..., :m1], c.W1) - np.vecmat(mm, c.M1)
+            e2 = np.vecmat(y[..., m1:], c.W2) - np.vecmat(mm, c.N2)
+            Wm = np.linalg.inv(eye_n - gh * (c.A - PP @ c.M1 - SS @ c.N2))
+            WP = lyapunov(c.A - PP @ c.M1, gh)
+            WS = lyapunov(c.A - SS[(0,) * len(batch)] @ c.M2, gh)  # the same for all
+
+            def solve(v: FloatArray) -> FloatArray:
+                kP = (WP @ v[..., n:n + nn, None])[..., 0]
+                kS = np.vecmat(v[..., n + nn:], WS.T)
+                coupling = ((kP.reshape(*batch, n, n) @ e1[..., None])[..., 0]
+                            + np.vecmat(e2, kS.reshape(*batch, n, n)))
+                km = ((Wm @ (v[..., :n] + gh * coupling)[..., None])[..., 0])
+                return np.concatenate([km, kP, kS], -1)
+
+            return solve
+
+        def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
+            nonlocal m, P, S
+            m = s[..., :n]
+            P = check_covariance(s[..., n:n + nn].reshape(*batch, n, n), time=t_end,
+                                 quantity="P")
+            S = check_covariance(s[..., n + nn:].reshape(*batch, n, n), time=t_end,
+                                 quantity="S")
+            return np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)], -1)
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            rosenbrock2(rhs, np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)],
+                                            -1), t_start, h, ns, solver, after)
+        m = np.array(m)
+        if not np.isfinite(m).all():
+            raise FiniteEscapeError("state estimate became non-finite",
+                                    time=self._time(self._steps + 1), quantity="x", value=m)
+        S = np.array(S[(0,) * len(batch)])
+        self.innovation = innovation
+        return m, np.array(P), S
+
     def _step_generic(
         self, y: FloatArray, u: FloatArray | None
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -660,18 +788,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
         def rhs(t: float, m: FloatArray, P: FloatArray,
                 S: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-            c = self._coefficients(t)
-            e1 = np.vecmat(y1, c.W1) - np.vecmat(m, c.M1)  # (..., n); M1, N2 symmetric
-            e2 = np.vecmat(y2, c.W2) - np.vecmat(m, c.N2)
-            dm = (np.vecmat(m, c.A.T) + (P @ e1[..., None])[..., 0]
-                  + np.vecmat(e2, S))
-            if u is not None and c.B is not None:
-                dm = dm + np.vecmat(u, c.B.T)
-            TP = (c.A - 0.5 * (P @ c.M1)) @ P
-            dP = TP + np.swapaxes(TP, -1, -2) + c.Q1
-            TS = (c.A - 0.5 * (S @ c.M2)) @ S
-            dS = TS + TS.T + c.Q2
-            return dm, dP, dS
+            return self._rhs(self._coefficients(t), y1, y2, u, m, P, S)
 
         for i in range(ns):
             t = t_start + i * h

@@ -75,7 +75,7 @@ Misprints of the paper corrected here
 Finite escape
 -------------
 Remark 2: with an unstable top-degree term, ``x_f`` and ``P`` escape in finite time. After
-every RK4 substep ``x_f`` and ``P`` are tested by an
+every substep (RK4, or ROS2 with ``method="rosenbrock"``) ``x_f`` and ``P`` are tested by an
 :class:`~filters.polynomial_model.EscapeTest` (a bound and a growth test, never NaN) and
 ``P`` for positive semidefiniteness; failures raise
 :class:`~filters.errors.FiniteEscapeError` (quantity ``"x"`` or ``"P"``) or
@@ -97,6 +97,7 @@ from filters._linalg import FloatArray, positive_time, readonly, to_float_array
 from filters.errors import check_symmetric_covariance
 from filters.kalman import _IntegratedFilter
 from filters.polynomial_model import EscapeTest, PolynomialCoefficients, PolynomialModel
+from filters.stiff import difference_solver, rosenbrock2
 
 __all__ = [
     "LinearizedHInfFilter",
@@ -109,6 +110,8 @@ __all__ = [
 
 #: Relative tolerance of the orthonormality check (C3).
 _C3_RTOL = 1e-9
+#: Integrators of :attr:`PolynomialHInfFilter.method`.
+METHODS = ("rk4", "rosenbrock")
 
 
 def _outer(x: FloatArray) -> FloatArray:
@@ -251,10 +254,12 @@ class _CentralHInfFilter(_IntegratedFilter):
         substeps: int = 1,
         t0: float = 0.0,
         escape: EscapeTest | None = None,
+        method: str = "rk4",
     ) -> None:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
         self._model = model
+        self.method = method
         if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) \
                 or substeps < 1:
             raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
@@ -335,8 +340,8 @@ class _CentralHInfFilter(_IntegratedFilter):
 
     @property
     def substeps(self) -> int:
-        """RK4 substeps per sample interval (may be changed between steps, e.g. as the
-        Riccati equation's stiffness falls with ``P``)."""
+        """Substeps of :attr:`method` per sample interval (may be changed between steps, e.g.
+        as the Riccati equation's stiffness falls with ``P``)."""
         return self._substeps
 
     @substeps.setter
@@ -344,6 +349,20 @@ class _CentralHInfFilter(_IntegratedFilter):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
             raise ValueError(f"substeps must be an integer >= 1, got {value!r}")
         self._substeps = int(value)
+
+    @property
+    def method(self) -> str:
+        """Integrator of each sample interval: ``"rk4"`` (classical Runge-Kutta, explicit:
+        about ``rate * dt`` substeps on stiff equations) or ``"rosenbrock"`` (ROS2 of
+        :mod:`filters.stiff`: L-stable, order 2, for stiff equations); may be changed
+        between steps."""
+        return self._method
+
+    @method.setter
+    def method(self, value: str) -> None:
+        if value not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {value!r}")
+        self._method = value
 
     @property
     def escape(self) -> EscapeTest:
@@ -492,6 +511,8 @@ class _CentralHInfFilter(_IntegratedFilter):
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
+        if self._method == "rosenbrock":
+            return self._step_rosenbrock(y, u)
         if self._cubic is not None:
             x, P = self._step_cubic(self._cubic, y, u)
             self._commit(x, P, self._steps + 1)
@@ -525,6 +546,50 @@ class _CentralHInfFilter(_IntegratedFilter):
         self.innovation = innovation
         return x
 
+
+    def _step_rosenbrock(self, y: FloatArray, u: FloatArray | None) -> FloatArray:
+        """:meth:`step` with ROS2 substeps (:func:`filters.stiff.rosenbrock2`) on the stacked
+        ``s = [x_f, vec(P)]``, with the same tests after every substep."""
+        x, P = self._x, self._P
+        n = self._n
+        batch = x.shape[:-1]
+        ns = self._substeps
+        h = self._dt / ns  # type: ignore[operator]
+        t0 = self._time(self._steps)
+        esc = self._escape
+        qx, qP = esc.magnitude(x, 1), esc.magnitude(P, 2)
+        innovation = y - x @ self._terms(t0).CT
+
+        def rhs(t: float, s: FloatArray) -> FloatArray:
+            extra = s.ndim - 1 - len(batch)  # 1 for the Jacobian's perturbed states
+            yy = y[..., None, :] if extra and y.ndim > 1 else y
+            uu = u[..., None, :] if extra and u is not None and u.ndim > 1 else u
+            dx, dP = self._rhs(self._terms(t), s[..., :n],
+                               s[..., n:].reshape(*s.shape[:-1], n, n), yy, uu)
+            return np.concatenate([dx, dP.reshape(*dP.shape[:-2], n * n)], axis=-1)
+
+        def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
+            nonlocal x, P, qx, qP
+            Pq = s[..., n:].reshape(*batch, n, n)
+            P = 0.5 * (Pq + _swap(Pq))
+            x = np.ascontiguousarray(s[..., :n])
+            qP = esc.check("P", qP, P, time=t_end, step_s=h, core_ndim=2)
+            qx = esc.check("x", qx, x, time=t_end, step_s=h, core_ndim=1)
+            check_symmetric_covariance(P, time=t_end, quantity="P", escape_bound=esc.bound)
+            return np.concatenate([x, P.reshape(*batch, n * n)], axis=-1)
+
+        typical = np.concatenate([
+            np.broadcast_to(np.maximum(np.abs(x).max(axis=-1, keepdims=True), 1e-8),
+                            (*batch, n)),
+            np.broadcast_to(np.maximum(np.abs(P).max(axis=(-2, -1))[..., None], 1e-12),
+                            (*batch, n * n))], axis=-1) * 1e-3
+        with np.errstate(over="ignore", invalid="ignore"):
+            rosenbrock2(rhs, np.concatenate([x, P.reshape(*batch, n * n)], axis=-1), t0, h,
+                        ns, difference_solver(rhs, typical), after)
+        self._commit(x, P, self._steps + 1)
+        self.innovation = innovation
+        self._magnitudes = None
+        return x
 
     def _step_cubic(self, fz: CubicForm, y: FloatArray, u: FloatArray | None
                     ) -> tuple[FloatArray, FloatArray]:
@@ -625,12 +690,15 @@ class PolynomialHInfFilter(_CentralHInfFilter):
     x0 : array_like, shape (n,) or (..., n), optional
         Initial estimate (default 0, the central filter); leading axes are a batch.
     substeps : int
-        Classical RK4 steps per sample interval on the joint ``(x_f, P)`` system
+        Steps of ``method`` per sample interval on the joint ``(x_f, P)`` system
         (coefficients evaluated at the stage times).
     t0 : float
         Initial time in s.
     escape : EscapeTest, optional
         Finite-escape test applied after every substep (default :class:`EscapeTest()`).
+    method : {"rk4", "rosenbrock"}
+        Classical RK4, or the L-stable ROS2 of :mod:`filters.stiff` for stiff equations
+        (accurate sensors); see :attr:`method`.
 
     Attributes
     ----------

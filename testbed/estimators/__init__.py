@@ -266,7 +266,8 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     est = MeanSquareHInfFilter(plant.A, plant.B, plant.C, plant.R, design.sensors.C[det],
                                design.sensors.Hw[det], design.disturbance_matrix, plant.Q,
                                design.output_matrix, gamma, R0, design.x0, design.P0,
-                               design.dt_s, substeps="auto", noise_intensities=True)
+                               design.dt_s, substeps="auto", noise_intensities=True,
+                               method="auto")
     est.batched = True
     # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
     est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",

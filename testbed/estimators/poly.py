@@ -24,8 +24,11 @@ bound is a necessary level, not a sufficient one.
 
 The continuous filter integrates over each control period with ``y`` and ``u`` held (RK4,
 ``substeps`` per period; by default chosen before every period from the Riccati rate at the
-current ``P``: accurate sensors make the first periods stiff, e.g. 4080 substeps on the
-helicopter's encoders at ``P0 = 1e-4 I``, 3 once ``P`` has settled).
+current ``P``: accurate sensors make the first periods stiff, e.g. 4080 RK4 substeps on the
+helicopter's encoders at ``P0 = 1e-4 I``, 3 once ``P`` has settled, about 170 on the
+hardware profile's encoders throughout; periods that would need more than
+:data:`filters.stiff.RK4_MAX_SUBSTEPS` are integrated by the L-stable ROS2 method instead,
+see :func:`filters.stiff.integrator_for`).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from scipy.linalg import solve_continuous_are
 
 from filters.hinf_polynomial import PolynomialHInfFilter
 from filters.polynomial_model import PolynomialModel
+from filters.stiff import integrator_for
 
 
 @dataclass(frozen=True)
@@ -204,8 +208,9 @@ class PolynomialHInfEstimator:
         :attr:`CubicExpansion.input_offset`.
     design_meta : dict
     auto_substeps : (A, C^T C), optional
-        Before every step, set the filter's substeps by :func:`suggested_substeps` at the
-        current ``P``.
+        Before every step, set the filter's integrator and substeps by
+        :func:`filters.stiff.integrator_for` of :func:`suggested_substeps` at the current
+        ``P``.
     """
 
     batched = True
@@ -249,8 +254,9 @@ class PolynomialHInfEstimator:
                 u = u + (self._offset(x[None])[0] if x.ndim == 1 else self._offset(x))
         if self._auto is not None:
             A, CtC = self._auto
-            self.filter.substeps = suggested_substeps(A, CtC, self.filter.P,
-                                                      self.filter.dt_s)
+            method, substeps = integrator_for(suggested_substeps(A, CtC, self.filter.P,
+                                                                 self.filter.dt_s))
+            self.filter.method, self.filter.substeps = method, substeps
         return self.filter.step(y @ self._whiten_T, u)
 
 

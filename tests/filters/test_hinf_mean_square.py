@@ -638,3 +638,89 @@ def test_noise_output_ratio_closed_forms() -> None:
         noise_output_ratio(t[::-1], z, w, x0, R)
     with pytest.raises(ValueError):
         noise_output_ratio(t, z[:-1], w, x0, R)
+
+
+# ================================================================ ROS2 (filters.stiff)
+def stiff_filter(batch: tuple[int, ...] = (), **kw: object) -> MeanSquareHInfFilter:
+    """The example with h h^T = 1e-4: the first intervals need ~1e3 RK4 substeps."""
+    x0 = np.broadcast_to(M0_EX, (*batch, 4))
+    return MeanSquareHInfFilter(A_EX, B_EX, C_EX, 1e-2 * h_EX, C_EX, H_EX, G_EX, b_EX, C_EX,
+                                GAMMA_EX, R_EX, x0, P0_EX, 0.01, **kw)  # type: ignore[arg-type]
+
+
+def test_rosenbrock_stiff_interval_converges_to_radau() -> None:
+    """The stiff interval of the test above (P falls from 10 to 0.01 within it) with ROS2
+    and the analytic block Jacobian: converges to Radau, with order 2 on the non-stiff S and
+    a reduced order (about 1.3, the known order reduction of Rosenbrock-W methods in a stiff
+    nonlinear transient) on m and P; at 40 substeps P is within 0.5 % of its size."""
+    y = np.array([0.1, -0.2, 0.0, 0.0])
+
+    def mats(_t: float) -> dict[str, np.ndarray]:
+        return {**paper_mats(0.0), "h": 1e-2 * h_EX}
+
+    ref = solve_ivp(joint_rhs(mats, y, U_EX, GAMMA_EX, 4), (0.0, 0.01),
+                    np.concatenate([M0_EX, P0_EX.ravel(), np.linalg.inv(R_EX).ravel()]),
+                    method="Radau", rtol=1e-10, atol=1e-12).y[:, -1]
+    errors = []
+    for substeps in (40, 80, 160):
+        f = stiff_filter(substeps=substeps, method="rosenbrock")
+        f.step(y, U_EX)
+        errors.append([np.abs(f.x - ref[:4]).max(),
+                       np.abs(f.P - ref[4:20].reshape(4, 4)).max(),
+                       np.abs(f.S - ref[20:].reshape(4, 4)).max()])
+    e = np.array(errors)
+    assert e[0, 1] < 5e-3 * np.abs(ref[4:20]).max()
+    ratios = e[1:] / e[:-1]
+    assert np.all(ratios[:, :2] < 0.5)  # m and P: order > 1
+    assert np.all((ratios[:, 2] > 0.2) & (ratios[:, 2] < 0.3))  # S: order 2
+
+
+def test_rosenbrock_analytic_jacobian_equals_differences(monkeypatch) -> None:
+    """The block-triangular analytic Jacobian gives what forward differences of the joint
+    right-hand side give (a wrong block would change every ROS2 step), batched."""
+    import filters.hinf_mean_square as module
+    from filters.stiff import difference_solver, rosenbrock2
+
+    rng = np.random.default_rng(3)
+    ys = rng.normal(size=(20, 3, 4))
+    analytic = stiff_filter((3,), substeps=6, method="rosenbrock")
+    for y in ys:
+        analytic.step(y, U_EX)
+
+    def with_differences(rhs, s, t0, h, ns, solver, after):
+        typical = 1e-3 * np.maximum(np.abs(s).max(axis=-1, keepdims=True), 1e-12)
+        return rosenbrock2(rhs, s, t0, h, ns, difference_solver(rhs_batched(rhs), typical),
+                           after)
+
+    def rhs_batched(rhs):  # the filter's rhs takes (..., d); differences add an axis
+        return lambda t, S: np.stack([rhs(t, S[..., j, :]) for j in range(S.shape[-2])], -2)
+
+    monkeypatch.setattr(module, "rosenbrock2", with_differences)
+    fd = stiff_filter((3,), substeps=6, method="rosenbrock")
+    for y in ys:
+        fd.step(y, U_EX)
+    np.testing.assert_allclose(analytic.x, fd.x, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(analytic.P, fd.P, rtol=1e-6, atol=1e-9)
+
+
+def test_rosenbrock_batch_equals_single_and_auto_switches() -> None:
+    rng = np.random.default_rng(4)
+    ys = rng.normal(size=(30, 2, 4))
+    batch = stiff_filter((2,), substeps="auto", method="auto")
+    singles = [stiff_filter(substeps="auto", method="auto") for _ in range(2)]
+    used = set()
+    for y in ys:
+        batch.step(y, U_EX)
+        used.add(batch.substeps)
+        for i, f in enumerate(singles):
+            f.step(y[i], U_EX)
+    for i, f in enumerate(singles):
+        np.testing.assert_allclose(batch.x[i], f.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(batch.P[i], f.P, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(batch.S[0], batch.S[1])
+    assert batch.S.shape == (2, 4, 4)
+    assert max(used) > 1  # stiff first intervals on ROS2, then fewer substeps
+    with pytest.raises(ValueError, match="method must be"):
+        stiff_filter(method="euler")
+    with pytest.raises(ValueError, match="needs substeps='auto'"):
+        stiff_filter(substeps=3, method="auto")
