@@ -212,9 +212,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
     method : {"rk4", "rosenbrock", "auto"}
         Integrator of every interval: RK4, or the L-stable ROS2 of :mod:`filters.stiff`
         (``substeps`` of it) with the analytic block-triangular Jacobian, for stiff
-        equations; ``"auto"`` (with ``substeps="auto"``) chooses both per interval by
-        :func:`filters.stiff.integrator_for` (no :data:`~filters.kalman.MAX_AUTO_SUBSTEPS`
-        cap: a stiff interval goes to ROS2).
+        equations; ``"auto"`` (with ``substeps="auto"``) chooses both, and how often ROS2
+        evaluates its Jacobian, per interval by :func:`filters.stiff.integrator_for` (no
+        :data:`~filters.kalman.MAX_AUTO_SUBSTEPS` cap: a stiff interval goes to ROS2).
 
     Attributes
     ----------
@@ -570,13 +570,13 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         u = self._input(u)
         if not self._constant:
             self._coef_cache.clear()
-        method = self._method
+        method, every = self._method, 1
         if self._auto_substeps and method == "auto":
-            method, self._substeps = integrator_for(self.suggested_substeps())
+            method, self._substeps, every = integrator_for(self.suggested_substeps())
         elif self._auto_substeps:
             self._substeps = self._auto_substeps_now()
         if method == "rosenbrock":
-            m, P, S = self._step_rosenbrock(y, u)
+            m, P, S = self._step_rosenbrock(y, u, every)
             if self._Z is not None:
                 X = self._pack(m, P, S)
                 X.flags.writeable = False
@@ -692,7 +692,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         return dm, dP, dS
 
     def _step_rosenbrock(
-        self, y: FloatArray, u: FloatArray | None
+        self, y: FloatArray, u: FloatArray | None, jacobian_every: int = 1
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """ROS2 substeps (:func:`filters.stiff.rosenbrock2`) on the stacked
         ``s = [m, vec(P), vec(S)]`` (``S`` broadcast to the batch: every member's copy is
@@ -764,7 +764,8 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
         with np.errstate(over="ignore", invalid="ignore"):
             rosenbrock2(rhs, np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)],
-                                            -1), t_start, h, ns, solver, after)
+                                            -1), t_start, h, ns, solver, after,
+                        jacobian_every)
         m = np.array(m)
         if not np.isfinite(m).all():
             raise FiniteEscapeError("state estimate became non-finite",

@@ -255,11 +255,13 @@ class _CentralHInfFilter(_IntegratedFilter):
         t0: float = 0.0,
         escape: EscapeTest | None = None,
         method: str = "rk4",
+        jacobian_every: int = 1,
     ) -> None:
         if not isinstance(model, PolynomialModel):
             raise TypeError(f"model must be a PolynomialModel, got {type(model).__name__}")
         self._model = model
         self.method = method
+        self.jacobian_every = jacobian_every
         if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) \
                 or substeps < 1:
             raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
@@ -363,6 +365,18 @@ class _CentralHInfFilter(_IntegratedFilter):
         if value not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {value!r}")
         self._method = value
+
+    @property
+    def jacobian_every(self) -> int:
+        """``"rosenbrock"``: substeps between Jacobian evaluations (1: every substep; at
+        least :attr:`substeps`: one per interval)."""
+        return self._jacobian_every
+
+    @jacobian_every.setter
+    def jacobian_every(self, value: int) -> None:
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"jacobian_every must be an integer >= 1, got {value!r}")
+        self._jacobian_every = int(value)
 
     @property
     def escape(self) -> EscapeTest:
@@ -585,7 +599,7 @@ class _CentralHInfFilter(_IntegratedFilter):
                             (*batch, n * n))], axis=-1) * 1e-3
         with np.errstate(over="ignore", invalid="ignore"):
             rosenbrock2(rhs, np.concatenate([x, P.reshape(*batch, n * n)], axis=-1), t0, h,
-                        ns, difference_solver(rhs, typical), after)
+                        ns, difference_solver(rhs, typical), after, self._jacobian_every)
         self._commit(x, P, self._steps + 1)
         self.innovation = innovation
         self._magnitudes = None
@@ -699,6 +713,8 @@ class PolynomialHInfFilter(_CentralHInfFilter):
     method : {"rk4", "rosenbrock"}
         Classical RK4, or the L-stable ROS2 of :mod:`filters.stiff` for stiff equations
         (accurate sensors); see :attr:`method`.
+    jacobian_every : int
+        ROS2's substeps between Jacobian evaluations (see :attr:`jacobian_every`).
 
     Attributes
     ----------

@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
 from filters._linalg import FloatArray
 
-__all__ = ["GAMMA", "RK4_MAX_SUBSTEPS", "Solver", "difference_solver", "integrator_for",
-           "rosenbrock2"]
+__all__ = ["GAMMA", "RK4_MAX_SUBSTEPS", "TRANSIENT_SUBSTEPS", "Integration", "Solver",
+           "difference_solver", "integrator_for", "rosenbrock2"]
 
 #: ``gamma`` of ROS2 (L-stable; ``1 - 1/sqrt(2)`` is A-stable only).
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
@@ -46,22 +47,37 @@ GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 FD_STEP = 1.5e-8
 #: Most RK4 substeps per interval before :func:`integrator_for` switches to ROS2.
 RK4_MAX_SUBSTEPS = 16
+#: RK4 substeps beyond which an interval is a stiff transient (e.g. the first periods from a
+#: large initial covariance): ROS2 then evaluates its Jacobian at every substep.
+TRANSIENT_SUBSTEPS = 256
 
 
-def integrator_for(rk4_substeps: int) -> tuple[str, int]:
-    """Integrator and substeps of one interval, from the RK4 substeps its stiffness needs.
+class Integration(NamedTuple):
+    """How to integrate one interval: ``method`` ``"rk4"`` or ``"rosenbrock"``, its
+    ``substeps``, and (ROS2) the substeps between Jacobian evaluations."""
 
-    Up to :data:`RK4_MAX_SUBSTEPS`: ``("rk4", rk4_substeps)``. Beyond (a stiff interval):
-    ``("rosenbrock", ceil(sqrt(rk4_substeps)))``, one Jacobian per substep. Measured on the
-    helicopter rigs (10 runs x 20 s, the polynomial H-infinity filter): on the hardware
-    profile (about 170 RK4 substeps per settled period) 4.2 times faster with RMSE within
-    0.1 % of the RK4 integration; on the paper profile (ROS2 only in the first, stiffest
-    periods) RMSE within 2e-5 relative. The mean-square filter (4 runs x 4 s): within 0.4 %
-    of an RK4 integration with 8 times the suggested substeps on both profiles (the RK4 of
-    ``"auto"``: within 0.9 % on the paper profile). Less accurate than RK4 inside a stiff
-    initial transient (order about 1.3 there; the Riccati equation forgets it within a few
-    periods). A fixed small number of ROS2 substeps is not enough: with 2 per period the
-    paper helicopter's pitch RMSE is 21 % off (order 2 at ``h * rate ~ 1``).
+    method: str
+    substeps: int
+    jacobian_every: int = 1
+
+
+def integrator_for(rk4_substeps: int) -> Integration:
+    """Integrator of one interval, from the RK4 substeps its stiffness needs.
+
+    Up to :data:`RK4_MAX_SUBSTEPS`: RK4 with that many. Beyond: ROS2 with
+    ``ceil(sqrt(rk4_substeps))`` substeps and one Jacobian for the interval (a W-method keeps
+    its order with a frozen Jacobian), or, beyond :data:`TRANSIENT_SUBSTEPS` (a stiff
+    transient, where the frozen Jacobian of the interval's start is far from the end's),
+    one Jacobian per substep.
+
+    Measured on the helicopter rigs (10 runs x 20 s, the polynomial H-infinity filter,
+    against its RK4 integration): hardware profile (about 170 RK4 substeps per settled
+    period: 13 ROS2 substeps, one Jacobian) 11 times faster, RMSE within 0.1 %; paper profile
+    (ROS2 only in the first, stiffest periods) RMSE within 2e-5 relative. One Jacobian per
+    interval also in the transients moves the hardware yaw RMSE by 0.4 %; a fixed small
+    number of ROS2 substeps is not enough (2 per period: the paper helicopter's pitch RMSE
+    21 % off, order 2 at ``h * rate ~ 1``). The mean-square filter: see
+    :class:`~filters.hinf_mean_square.MeanSquareHInfFilter`.
 
     Parameters
     ----------
@@ -70,12 +86,13 @@ def integrator_for(rk4_substeps: int) -> tuple[str, int]:
 
     Returns
     -------
-    method : {"rk4", "rosenbrock"}
-    substeps : int
+    Integration
     """
     if rk4_substeps <= RK4_MAX_SUBSTEPS:
-        return "rk4", int(rk4_substeps)
-    return "rosenbrock", math.ceil(math.sqrt(rk4_substeps))
+        return Integration("rk4", int(rk4_substeps))
+    substeps = math.ceil(math.sqrt(rk4_substeps))
+    return Integration("rosenbrock", substeps,
+                       1 if rk4_substeps > TRANSIENT_SUBSTEPS else substeps)
 
 
 #: ``solver(t, s, f, gamma_h) -> solve``: ``solve(v) = (I - gamma_h J)^-1 v`` for states
@@ -112,8 +129,8 @@ def difference_solver(rhs: Callable[[float, FloatArray], FloatArray],
 
 def rosenbrock2(rhs: Callable[[float, FloatArray], FloatArray], s: FloatArray, t0_s: float,
                 h_s: float, substeps: int, solver: Solver,
-                after_substep: Callable[[int, float, FloatArray], FloatArray] | None = None
-                ) -> FloatArray:
+                after_substep: Callable[[int, float, FloatArray], FloatArray] | None = None,
+                jacobian_every: int = 1) -> FloatArray:
     """Integrate ``ds/dt = rhs(t, s)`` over ``substeps`` ROS2 steps of ``h_s`` (see module).
 
     Parameters
@@ -131,16 +148,21 @@ def rosenbrock2(rhs: Callable[[float, FloatArray], FloatArray], s: FloatArray, t
     after_substep : callable ``(i, t_end_s, s) -> s``, optional
         Called after substep ``i`` (ending at ``t_end_s``) with the new state; returns the
         state to continue from (e.g. symmetrized), may raise to stop.
+    jacobian_every : int
+        Substeps between evaluations of the ``solver`` (1: every substep; ``substeps``: one
+        for the call). Any ``J`` keeps the order; a stale one costs stability margin.
 
     Returns
     -------
     ndarray, shape (..., d)
         The state at ``t0_s + substeps * h_s``.
     """
+    solve = None
     for i in range(substeps):
         t = t0_s + i * h_s
         f = rhs(t, s)
-        solve = solver(t, s, f, GAMMA * h_s)
+        if solve is None or i % jacobian_every == 0:
+            solve = solver(t, s, f, GAMMA * h_s)
         k1 = solve(f)
         k2 = solve(rhs(t + h_s, s + h_s * k1) - 2.0 * k1)
         s = s + (1.5 * h_s) * k1 + (0.5 * h_s) * k2

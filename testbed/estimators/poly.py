@@ -254,9 +254,9 @@ class PolynomialHInfEstimator:
                 u = u + (self._offset(x[None])[0] if x.ndim == 1 else self._offset(x))
         if self._auto is not None:
             A, CtC = self._auto
-            method, substeps = integrator_for(suggested_substeps(A, CtC, self.filter.P,
-                                                                 self.filter.dt_s))
-            self.filter.method, self.filter.substeps = method, substeps
+            how = integrator_for(suggested_substeps(A, CtC, self.filter.P, self.filter.dt_s))
+            self.filter.method, self.filter.substeps = how.method, how.substeps
+            self.filter.jacobian_every = how.jacobian_every
         return self.filter.step(y @ self._whiten_T, u)
 
 

@@ -10,7 +10,9 @@ keys of :data:`RESULT_KEYS`. ``nees_test``/``nis_test`` are
 the paired comparison of each state's per-run MSE with the reference's
 (:mod:`testbed.score.paired`, Holm over the estimators compared). ``worst_case_search`` is
 :meth:`testbed.score.worst_case.SearchResult.describe` (the linear prediction, the probe
-sensors and the channels measured without quantization). Gains are in the output's unit per
+sensors and the channels measured without quantization). ``cpu_s`` is the pair's CPU seconds
+per stage (:attr:`~testbed.score.harness.PairResult.cpu_s`: where the time goes; not
+deterministic). Gains are in the output's unit per
 unit of the scenario's ``w``; RMSE in the states' units (SI; the leaderboard, the Markdown
 and the PNG show angles in degrees).
 """
@@ -36,14 +38,14 @@ RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "a
                "certified_gamma", "gamma_kind", "sampled_loop_gain", "certificate",
                "step_us", "step_vs_kalman", "mismatch_rmse_ratio",
                "nees_test", "nis_test", "whiteness", "versus_reference", "worst_case_search",
-               "skipped")
+               "cpu_s", "skipped")
 
 
 def _entry_result(pair: PairResult, reference: PairResult | None,
                   nominal: PairResult | None) -> dict[str, Any]:
     out: dict[str, Any] = dict.fromkeys(RESULT_KEYS)
     out.update(estimator=pair.estimator, scenario=pair.scenario, runs=pair.runs,
-               skipped=pair.skipped)
+               skipped=pair.skipped, cpu_s={k: round(v, 3) for k, v in pair.cpu_s.items()})
     if pair.skipped:
         return out
     rmse, ci = {}, {}
@@ -144,7 +146,7 @@ def results(run: ScoreRun) -> dict[str, Any]:
                                 None if nominal_pairs is None else nominal_pairs.get(name))
             res["versus_reference"] = versus.get(name)
             entries_out.append(res)
-    units.update({"rmse": "state units", "step_us": "us",
+    units.update({"rmse": "state units", "step_us": "us", "cpu_s": "s (CPU, per stage)",
                   "worst_case_gain": "output unit per unit of w",
                   "random_gain": "output unit per unit of w",
                   "linear_gain": "output unit per unit of w",

@@ -687,10 +687,10 @@ def test_rosenbrock_analytic_jacobian_equals_differences(monkeypatch) -> None:
     for y in ys:
         analytic.step(y, U_EX)
 
-    def with_differences(rhs, s, t0, h, ns, solver, after):
+    def with_differences(rhs, s, t0, h, ns, solver, after, every):
         typical = 1e-3 * np.maximum(np.abs(s).max(axis=-1, keepdims=True), 1e-12)
         return rosenbrock2(rhs, s, t0, h, ns, difference_solver(rhs_batched(rhs), typical),
-                           after)
+                           after, every)
 
     def rhs_batched(rhs):  # the filter's rhs takes (..., d); differences add an axis
         return lambda t, S: np.stack([rhs(t, S[..., j, :]) for j in range(S.shape[-2])], -2)

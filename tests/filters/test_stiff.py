@@ -151,3 +151,30 @@ def test_filter_method_is_validated():
     model = PolynomialModel(a1=[[0.0]], B=[[1.0, 0.0]], C=[[1.0]], D=[[0.0, 1.0]], L=[[1.0]])
     with pytest.raises(ValueError, match="method must be one of"):
         PolynomialHInfFilter(model, 1.0, [[1.0]], 1e-3, method="euler")
+    with pytest.raises(ValueError, match="jacobian_every must be"):
+        PolynomialHInfFilter(model, 1.0, [[1.0]], 1e-3, jacobian_every=0)
+
+
+def test_a_frozen_jacobian_keeps_order_two(rng):
+    """jacobian_every = substeps (one Jacobian for the call, a W-method): still order 2 on
+    a linear system (any J keeps the order), and exact J = same result as every substep."""
+    A = rng.normal(size=(3, 3)) - 2.0 * np.eye(3)
+    s0 = rng.normal(size=3)
+    exact = expm(A) @ s0
+
+    def frozen(steps):
+        return rosenbrock2(linear(A), s0, 0.0, 1.0 / steps, steps,
+                           difference_solver(linear(A), np.ones(3)), None, steps)
+
+    errors = [np.abs(frozen(k) - exact).max() for k in (64, 128)]
+    assert 3.5 < errors[0] / errors[1] < 4.5
+    np.testing.assert_allclose(frozen(64), ros(A, s0, 1.0 / 64, 64), rtol=1e-6)
+
+
+def test_integrator_for_switches_at_the_stated_limits():
+    from filters.stiff import RK4_MAX_SUBSTEPS, TRANSIENT_SUBSTEPS, integrator_for
+
+    assert integrator_for(3) == ("rk4", 3, 1)
+    assert integrator_for(RK4_MAX_SUBSTEPS) == ("rk4", RK4_MAX_SUBSTEPS, 1)
+    assert integrator_for(170) == ("rosenbrock", 14, 14)  # one Jacobian per interval
+    assert integrator_for(TRANSIENT_SUBSTEPS + 1) == ("rosenbrock", 17, 1)

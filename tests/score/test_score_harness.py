@@ -167,7 +167,7 @@ def test_same_seed_same_scores():
     def scores(seed: int) -> list[dict]:
         run = score(["kalman"], "quick", seed=seed, runs=3, scenarios=["calibration"],
                     worst_case=False)
-        return [{k: v for k, v in r.items() if k not in ("step_us", "step_vs_kalman")}
+        return [{k: v for k, v in r.items() if k not in ("step_us", "step_vs_kalman", "cpu_s")}
                 for r in report.results(run)["results"]]
 
     first = scores(5)
