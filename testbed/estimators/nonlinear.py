@@ -55,6 +55,7 @@ This module imports no rig module: the designer's rig class comes with the desig
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -127,6 +128,16 @@ def differences(values: np.ndarray, eps: float, centered: bool) -> np.ndarray:
     return np.swapaxes(J, 1, 2)
 
 
+def can_touch(model: mujoco.MjModel) -> bool:
+    """Whether any two geoms of ``model`` may collide: an explicit contact pair, or a geom
+    pair whose ``contype`` and ``conaffinity`` bits meet (MuJoCo's filter)."""
+    if model.npair:
+        return True
+    contype = np.asarray(model.geom_contype)
+    conaffinity = np.asarray(model.geom_conaffinity)
+    return bool(np.any((contype[:, None] & conaffinity[None, :]) != 0))
+
+
 class MujocoProcessModel:
     """``x_{k+1} = f(x_k, u_k)``: a rig's MuJoCo model over one control period.
 
@@ -189,6 +200,11 @@ class MujocoProcessModel:
         if (isinstance(nthread, bool) or not isinstance(nthread, int | float | np.integer)
                 or not float(nthread).is_integer() or nthread < 0):
             raise ValueError(f"nthread must be an integer >= 0, got {nthread!r}")
+        if not can_touch(model):
+            # no geom pair can collide: skip the collision phase of every rollout (the same
+            # states bitwise, about 19 % less physics time on the helicopter)
+            model = copy.deepcopy(model)
+            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.rig, self.model, self.frame_skip, self.eps = rig, model, frame_skip, float(eps)
         self.centered, self.method, self.nthread = bool(centered), jacobian, int(nthread)
         self.n, self.k = rig.n_states, rig.n_actions
