@@ -48,7 +48,8 @@ FD_STEP = 1.5e-8
 #: Most RK4 substeps per interval before :func:`integrator_for` switches to ROS2.
 RK4_MAX_SUBSTEPS = 16
 #: RK4 substeps beyond which an interval is a stiff transient (e.g. the first periods from a
-#: large initial covariance): ROS2 then evaluates its Jacobian at every substep.
+#: large initial covariance, where the covariance changes by orders of magnitude within one
+#: interval): RK4 again, whose small steps follow it and keep the covariance definite.
 TRANSIENT_SUBSTEPS = 256
 
 
@@ -64,20 +65,19 @@ class Integration(NamedTuple):
 def integrator_for(rk4_substeps: int) -> Integration:
     """Integrator of one interval, from the RK4 substeps its stiffness needs.
 
-    Up to :data:`RK4_MAX_SUBSTEPS`: RK4 with that many. Beyond: ROS2 with
-    ``ceil(sqrt(rk4_substeps))`` substeps and one Jacobian for the interval (a W-method keeps
-    its order with a frozen Jacobian), or, beyond :data:`TRANSIENT_SUBSTEPS` (a stiff
-    transient, where the frozen Jacobian of the interval's start is far from the end's),
-    one Jacobian per substep.
+    Up to :data:`RK4_MAX_SUBSTEPS`, and beyond :data:`TRANSIENT_SUBSTEPS` (a stiff
+    transient: a few periods), RK4 with that many. In between (stiff, settled: accurate
+    sensors): ROS2 with ``ceil(sqrt(rk4_substeps))`` substeps and one Jacobian for the
+    interval (a W-method keeps its order with a frozen Jacobian).
 
-    Measured on the helicopter rigs (10 runs x 20 s, the polynomial H-infinity filter,
-    against its RK4 integration): hardware profile (about 170 RK4 substeps per settled
-    period: 13 ROS2 substeps, one Jacobian) 11 times faster, RMSE within 0.1 %; paper profile
-    (ROS2 only in the first, stiffest periods) RMSE within 2e-5 relative. One Jacobian per
-    interval also in the transients moves the hardware yaw RMSE by 0.4 %; a fixed small
-    number of ROS2 substeps is not enough (2 per period: the paper helicopter's pitch RMSE
-    21 % off, order 2 at ``h * rate ~ 1``). The mean-square filter: see
-    :class:`~filters.hinf_mean_square.MeanSquareHInfFilter`.
+    Measured on the helicopter rigs (10 runs x 20 s, against the RK4 integration): the
+    polynomial H-infinity filter on the hardware profile (about 170 RK4 substeps per settled
+    period: 13 ROS2 substeps) 10 times faster, RMSE within 0.1 %; the mean-square filter 4
+    times faster, within 0.15 %; on the paper profile (3 RK4 substeps once settled) both
+    unchanged. ROS2 also in the transients was less accurate there (order about 1.3) and let
+    the covariance lose definiteness by 2e-8 of its largest eigenvalue; a fixed small number
+    of ROS2 substeps is not enough (2 per period: the paper helicopter's pitch RMSE 21 % off,
+    order 2 at ``h * rate ~ 1``).
 
     Parameters
     ----------
@@ -88,11 +88,10 @@ def integrator_for(rk4_substeps: int) -> Integration:
     -------
     Integration
     """
-    if rk4_substeps <= RK4_MAX_SUBSTEPS:
+    if rk4_substeps <= RK4_MAX_SUBSTEPS or rk4_substeps > TRANSIENT_SUBSTEPS:
         return Integration("rk4", int(rk4_substeps))
     substeps = math.ceil(math.sqrt(rk4_substeps))
-    return Integration("rosenbrock", substeps,
-                       1 if rk4_substeps > TRANSIENT_SUBSTEPS else substeps)
+    return Integration("rosenbrock", substeps, substeps)
 
 
 #: ``solver(t, s, f, gamma_h) -> solve``: ``solve(v) = (I - gamma_h J)^-1 v`` for states

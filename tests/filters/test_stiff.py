@@ -177,4 +177,5 @@ def test_integrator_for_switches_at_the_stated_limits():
     assert integrator_for(3) == ("rk4", 3, 1)
     assert integrator_for(RK4_MAX_SUBSTEPS) == ("rk4", RK4_MAX_SUBSTEPS, 1)
     assert integrator_for(170) == ("rosenbrock", 14, 14)  # one Jacobian per interval
-    assert integrator_for(TRANSIENT_SUBSTEPS + 1) == ("rosenbrock", 17, 1)
+    assert integrator_for(TRANSIENT_SUBSTEPS) == ("rosenbrock", 16, 16)
+    assert integrator_for(TRANSIENT_SUBSTEPS + 1) == ("rk4", TRANSIENT_SUBSTEPS + 1, 1)
