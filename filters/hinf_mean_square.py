@@ -213,8 +213,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         Integrator of every interval: RK4, or the L-stable ROS2 of :mod:`filters.stiff`
         (``substeps`` of it) with the analytic block-triangular Jacobian, for stiff
         equations; ``"auto"`` (with ``substeps="auto"``) chooses both, and how often ROS2
-        evaluates its Jacobian, per interval by :func:`filters.stiff.integrator_for` (no
-        :data:`~filters.kalman.MAX_AUTO_SUBSTEPS` cap: a stiff interval goes to ROS2).
+        evaluates its Jacobian, per interval by :func:`filters.stiff.integrator_for` (ROS2
+        for settled stiff intervals; :data:`~filters.kalman.MAX_AUTO_SUBSTEPS` still caps
+        RK4's).
 
     Attributes
     ----------
@@ -572,7 +573,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
             self._coef_cache.clear()
         method, every = self._method, 1
         if self._auto_substeps and method == "auto":
-            method, self._substeps, every = integrator_for(self.suggested_substeps())
+            method, self._substeps, every = integrator_for(self._auto_substeps_now())
         elif self._auto_substeps:
             self._substeps = self._auto_substeps_now()
         if method == "rosenbrock":

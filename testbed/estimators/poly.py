@@ -26,9 +26,8 @@ The continuous filter integrates over each control period with ``y`` and ``u`` h
 ``substeps`` per period; by default chosen before every period from the Riccati rate at the
 current ``P``: accurate sensors make the first periods stiff, e.g. 4080 RK4 substeps on the
 helicopter's encoders at ``P0 = 1e-4 I``, 3 once ``P`` has settled, about 170 on the
-hardware profile's encoders throughout; periods that would need more than
-:data:`filters.stiff.RK4_MAX_SUBSTEPS` are integrated by the L-stable ROS2 method instead,
-see :func:`filters.stiff.integrator_for`).
+hardware profile's encoders throughout; settled periods that would need 17 to 256 are
+integrated by the L-stable ROS2 method instead, see :func:`filters.stiff.integrator_for`).
 """
 
 from __future__ import annotations
