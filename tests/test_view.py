@@ -102,7 +102,10 @@ def test_cli_web_view_serves_the_file_and_leaves_nothing_behind(rrd, tmp_path, s
     cli = subprocess.Popen([sys.executable, "-m", "testbed.cli", "view", str(rrd), "--web",
                             "--grpc-port", str(grpc), "--web-port", str(web)],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                           env=ENV, start_new_session=True)
+                           env=ENV, start_new_session=True,
+                           # a Ctrl-C as from a terminal even when the test runner itself was
+                           # started in the background (SIGINT ignored, inherited)
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     client = None
     try:
         line = cli.stdout.readline()
