@@ -114,6 +114,13 @@ _C3_RTOL = 1e-9
 METHODS = ("rk4", "rosenbrock")
 
 
+def _count(name: str, value: object) -> int:
+    """``value`` as an integer >= 1, else ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
 def _outer(x: FloatArray) -> FloatArray:
     return x[..., :, None] * x[..., None, :]
 
@@ -262,10 +269,7 @@ class _CentralHInfFilter(_IntegratedFilter):
         self._model = model
         self.method = method
         self.jacobian_every = jacobian_every
-        if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) \
-                or substeps < 1:
-            raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
-        self._substeps = int(substeps)
+        self.substeps = substeps
         self._dt = positive_time("dt_s", dt_s)
         t0 = float(t0)
         if not math.isfinite(t0):
@@ -348,9 +352,7 @@ class _CentralHInfFilter(_IntegratedFilter):
 
     @substeps.setter
     def substeps(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"substeps must be an integer >= 1, got {value!r}")
-        self._substeps = int(value)
+        self._substeps = _count("substeps", value)
 
     @property
     def method(self) -> str:
@@ -374,9 +376,7 @@ class _CentralHInfFilter(_IntegratedFilter):
 
     @jacobian_every.setter
     def jacobian_every(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"jacobian_every must be an integer >= 1, got {value!r}")
-        self._jacobian_every = int(value)
+        self._jacobian_every = _count("jacobian_every", value)
 
     @property
     def escape(self) -> EscapeTest:
