@@ -330,8 +330,11 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     if dist is None:
         raise ValueError("the entry has no disturbance channel")
     s = dist.values.shape[2]
-    num = max(3 + spec.random_draws, members + 1, s + 1)
+    # candidates per closed-loop run: +-v_1 and the random draws, or a DE population; the
+    # run without w is member 0 of the impulse response's (s + 1 members), run once
+    num = max(2 + spec.random_draws, members, 1)
     dist = _sampled(entry, scenario, num, K, nominal=False)
+    impulse_dist = _sampled(entry, scenario, s + 1, K, nominal=False)
 
     def copy_factory(design, **options):
         return copy.deepcopy(template)
@@ -347,10 +350,13 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     if removed:
         sc = sc.replace(sensors=probe_sensors, sensor_options={})
     wc = runner.build(sc, num, num_threads=1)
-    wc.loop.truth_feedback = entry.feedback == "truth"
+    impulse = None
     try:
+        impulse = runner.build(sc.replace(disturbance=impulse_dist), s + 1, num_threads=1)
+        for probe in (wc, impulse):
+            probe.loop.truth_feedback = entry.feedback == "truth"
         # an augmented (matched) design's physical states: the loop records those
-        evaluator = LoopEvaluator(wc, dist, seed, K,
+        evaluator = LoopEvaluator(wc, dist, impulse, impulse_dist, seed, K,
                                   wc.design.output_matrix[:, wc.design.physical])
         # impulses of 1e-3 of the candidates' mean amplitude, after a quarter of the horizon
         eps = 1e-3 * np.sqrt(spec.energy / (K * dt_s * s))
@@ -363,6 +369,8 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
         return result
     finally:
         wc.close()
+        if impulse is not None:
+            impulse.close()
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
@@ -400,8 +408,9 @@ def entry_cost(entry: SuiteEntry) -> float:
     scheduling the entries over workers longest first (:func:`run_entries`).
 
     Member-steps of the Monte Carlo and of the worst-case search's closed-loop runs (the
-    impulse response over ``K / 4 + K`` steps, then ``2 + generations`` runs of ``K`` steps)
-    plus :data:`STEP_OVERHEAD` per step, times :data:`ENTRY_COST_FACTORS`.
+    impulse response over ``K / 4 + K`` steps with the baseline and, typically, one channel,
+    then ``2 + generations`` runs of ``K`` steps of the candidates) plus
+    :data:`STEP_OVERHEAD` per step, times :data:`ENTRY_COST_FACTORS`.
     """
     if entry.unavailable():
         return 0.0
@@ -413,8 +422,9 @@ def entry_cost(entry: SuiteEntry) -> float:
     spec = entry.worst_case
     if spec is not None:
         K = (spec.horizon_s or scenario.duration_s) / dt_s
-        members = max(3 + spec.random_draws, population(spec.basis - 1) + 1)
-        cost += (2.25 + spec.generations + 1) * K * (members + STEP_OVERHEAD)
+        members = max(2 + spec.random_draws, population(spec.basis - 1))
+        cost += K * (1.25 * (2 + STEP_OVERHEAD)
+                     + (2 + spec.generations) * (members + STEP_OVERHEAD))
     return cost * ENTRY_COST_FACTORS.get((rig, entry.profile), 1.0)
 
 

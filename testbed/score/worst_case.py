@@ -364,45 +364,75 @@ class SearchResult:
 class LoopEvaluator:
     """Measured gains of candidate disturbances on a built closed loop (batched).
 
-    Member 0 of every batch runs without ``w`` (the baseline); all members share one seed.
+    Two builds of the same probe loop: ``candidates``, whose every member runs a candidate
+    disturbance, and ``impulse``, with ``s + 1`` members (member 0 without ``w``, the
+    baseline; member ``1 + j`` an impulse on channel ``j``). Every member of both has the same
+    seed, so the baseline's run is the one a member without ``w`` would have in any batch (a
+    member's run does not depend on the batch): it is simulated once, in the impulse response,
+    and every candidate's ``dz`` is taken against it.
 
     Parameters
     ----------
-    experiment : testbed.experiment.runner.Experiment
+    candidates : testbed.experiment.runner.Experiment
         Its simulator's disturbance must be ``disturbance``.
     disturbance : SampledDisturbance
         Values (num, >= K, s), rewritten per batch.
+    impulse : testbed.experiment.runner.Experiment
+        The same loop with ``s + 1`` members; its simulator's disturbance must be
+        ``impulse_disturbance``.
+    impulse_disturbance : SampledDisturbance
+        Values (s + 1, >= 1, s).
     seed : int
     steps : int
         Horizon K.
     output_matrix : ndarray, shape (q, n)
     """
 
-    def __init__(self, experiment: Any, disturbance: SampledDisturbance, seed: int,
-                 steps: int, output_matrix: np.ndarray):
-        self.loop = experiment.loop
-        self.dist = disturbance
+    def __init__(self, candidates: Any, disturbance: SampledDisturbance, impulse: Any,
+                 impulse_disturbance: SampledDisturbance, seed: int, steps: int,
+                 output_matrix: np.ndarray):
+        self.loop, self.dist = candidates.loop, disturbance
+        self.impulse_loop, self.impulse_dist = impulse.loop, impulse_disturbance
+        s = disturbance.values.shape[2]
+        if self.impulse_loop.sim.num != s + 1 or impulse_disturbance.values.shape[2] != s:
+            raise ValueError(f"the impulse loop needs {s + 1} members and {s} channels, got "
+                             f"{self.impulse_loop.sim.num} and "
+                             f"{impulse_disturbance.values.shape[2]}")
         self.seed, self.K = int(seed), int(steps)
         self.L = np.asarray(output_matrix, float)
         self.num = self.loop.sim.num
         self.dt_s = self.loop.sim.dt_s
         self.evaluations = 0
+        #: The baseline's output error, (steps, q) from step 1 (set by the impulse response).
+        self._baseline: np.ndarray | None = None
+
+    def _errors(self, loop: Any, steps: int) -> np.ndarray:
+        """Output errors ``z`` (members, steps run, q) of one run of ``loop``, from step 1."""
+        result = loop.run(np.full(loop.sim.num, self.seed), steps * self.dt_s, record=True)
+        rec = result.trajectory
+        return np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
+
+    def baseline(self) -> np.ndarray:
+        """The output error of the run without ``w``, (K, q) (or fewer steps, if the episode
+        ended): member 0 of the impulse response's run, run now without impulses if that has
+        not run yet."""
+        if self._baseline is None or len(self._baseline) < self.K:  # none, or cut short
+            self.impulse_dist.values[:] = 0.0
+            self._baseline = self._errors(self.impulse_loop, self.K)[0]
+        return self._baseline[: self.K]
 
     def run(self, W: np.ndarray) -> np.ndarray:
-        """Gains of the candidates ``W`` (B, K, s), in batches of ``num - 1``."""
+        """Gains of the candidates ``W`` (B, K, s), in batches of ``num``."""
         W = np.asarray(W, dtype=float)
         gains = np.empty(len(W))
-        per = self.num - 1
-        for start in range(0, len(W), per):
-            chunk = W[start:start + per]
+        z0 = self.baseline()
+        for start in range(0, len(W), self.num):
+            chunk = W[start:start + self.num]
             self.dist.values[:] = 0.0
-            self.dist.values[1:1 + len(chunk), : self.K] = chunk
-            result = self.loop.run(np.full(self.num, self.seed), self.K * self.dt_s,
-                                   record=True)
-            rec = result.trajectory
-            z = np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
-            dz = z[1:1 + len(chunk)] - z[0]
-            steps = dz.shape[1]  # shorter if a member terminated the episode
+            self.dist.values[: len(chunk), : self.K] = chunk
+            z = self._errors(self.loop, self.K)
+            steps = min(z.shape[1], len(z0))  # shorter if a member terminated the episode
+            dz = z[: len(chunk), :steps] - z0[:steps]
             w_energy = np.sum(chunk[:, :steps] ** 2, axis=(1, 2))
             gains[start:start + len(chunk)] = np.sqrt(np.sum(dz**2, axis=(1, 2))
                                                       / np.maximum(w_energy, 1e-300))
@@ -414,28 +444,23 @@ class LoopEvaluator:
     def impulse_response(self, k0: int, eps: float) -> np.ndarray:
         """The loop's error system measured: ``t_l`` for ``l = 0..K``, shape (K + 1, q, s).
 
-        One batched closed-loop run of ``k0 + K`` steps: member 0 without ``w``, member
-        ``1 + j`` with ``w_(k0) = eps e_j`` (one step, channel ``j``);
-        ``t_l[:, j] = dz_(k0 + l) / eps`` (the timing of :class:`ErrorOperator`). The
-        controller's reaction to the disturbed truth (or estimate), the estimator's response
-        to the measurements and to the inputs, the sensors' delays and holds are all in it;
-        for a linear loop it is exact, otherwise the linearization about the run (``eps``
-        small) at step ``k0`` (an estimator whose gains still move after ``k0`` is taken as
-        time-invariant).
+        One batched closed-loop run of ``k0 + K`` steps of the impulse loop: member 0 without
+        ``w`` (the baseline, kept for :meth:`run`), member ``1 + j`` with ``w_(k0) = eps e_j``
+        (one step, channel ``j``); ``t_l[:, j] = dz_(k0 + l) / eps`` (the timing of
+        :class:`ErrorOperator`). The controller's reaction to the disturbed truth (or
+        estimate), the estimator's response to the measurements and to the inputs, the
+        sensors' delays and holds are all in it; for a linear loop it is exact, otherwise the
+        linearization about the run (``eps`` small) at step ``k0`` (an estimator whose gains
+        still move after ``k0`` is taken as time-invariant).
         """
-        s = self.dist.values.shape[2]
-        if self.num < s + 1:
-            raise ValueError(f"the loop has {self.num} members; the impulse response of "
-                             f"{s} channels needs {s + 1}")
+        s = self.impulse_dist.values.shape[2]
         if not 1 <= k0 <= self.K:
             raise ValueError(f"k0 must be in [1, {self.K}], got {k0}")
-        self.dist.values[:] = 0.0
-        self.dist.values[1 + np.arange(s), k0, np.arange(s)] = eps
-        result = self.loop.run(np.full(self.num, self.seed), (k0 + self.K) * self.dt_s,
-                               record=True)
-        self.dist.values[:] = 0.0
-        rec = result.trajectory
-        z = np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
+        self.impulse_dist.values[:] = 0.0
+        self.impulse_dist.values[1 + np.arange(s), k0, np.arange(s)] = eps
+        z = self._errors(self.impulse_loop, k0 + self.K)
+        self.impulse_dist.values[:] = 0.0
+        self._baseline = z[0]
         dz = (z[1:1 + s] - z[0]) / eps  # (s, steps, q), row k - 1 is step k
         t = np.zeros((self.K + 1, self.L.shape[0], s))
         rows = dz[:, k0 - 1:k0 + self.K].transpose(1, 2, 0)  # l = 0..K

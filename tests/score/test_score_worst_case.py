@@ -189,3 +189,42 @@ def test_worst_case_search_ranks_the_helicopter_filters_like_their_error_systems
     for name in found:
         assert found[name] == pytest.approx(linear[name], rel=0.05)
     assert found["kalman"] < 1e-4
+
+
+def test_loop_evaluator_baseline_run_once_equals_a_baseline_in_the_batch(rng):
+    """The candidates' gains against the impulse run's baseline (member 0, simulated once)
+    equal those against a member without ``w`` in the candidates' own batch, bitwise."""
+    from testbed.score.suite import get_suite
+    from testbed.score.worst_case import LoopEvaluator
+
+    entry = next(e for e in get_suite("quick") if e.name == "calibration")
+    scenario = entry.scenario.replace(estimator="ekf", process_noise=0.0)
+    K, seed, G = 40, 5, np.array([[0.0], [1.0]])
+
+    def probe(num):
+        dist = SampledDisturbance(G, np.zeros((num, K + 1, 1)), 0.01, n_positions=1)
+        return build(scenario.replace(disturbance=dist), num, num_threads=1), dist
+
+    (cand, dist), (imp, imp_dist), (ref, ref_dist) = probe(3), probe(2), probe(4)
+    try:
+        L = cand.design.output_matrix
+        evaluator = LoopEvaluator(cand, dist, imp, imp_dist, seed, K, L)
+        W = rng.standard_normal((5, K, 1))
+        gains = evaluator.run(W)  # the baseline run on its own (no impulse response yet)
+        evaluator.impulse_response(K // 4, 1e-3)  # and again as the impulse run's member 0
+        assert np.array_equal(evaluator.run(W), gains)
+        expected = []
+        for start in range(0, len(W), 3):  # member 0 without w, the candidates after it
+            chunk = W[start:start + 3]
+            ref_dist.values[:] = 0.0
+            ref_dist.values[1:1 + len(chunk), :K] = chunk
+            rec = ref.loop.run(np.full(4, seed), K * 0.01, record=True).trajectory
+            z = np.einsum("qn,btn->btq", L, rec["estimate"] - rec["state"])[:, 1:]
+            dz = z[1:1 + len(chunk)] - z[0]
+            expected += list(np.sqrt(np.sum(dz**2, axis=(1, 2))
+                                     / np.sum(chunk**2, axis=(1, 2))))
+        assert np.array_equal(gains, np.array(expected))
+        assert evaluator.evaluations == 10
+    finally:
+        for experiment in (cand, imp, ref):
+            experiment.close()
