@@ -45,6 +45,7 @@ from filters.lmi_hinf import (
     design_on_grid,
     minimal_gamma,
 )
+from testbed.estimators import memo
 
 
 def _factor(M: np.ndarray) -> np.ndarray:
@@ -224,7 +225,6 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
     ValueError
         LMI (48) infeasible for every gamma, or no verified design (the solver status named).
     """
-    gamma_min = None
     if not plant_block:
         modes = undetectable_modes(system.A, system.C_y)
         if modes:
@@ -232,17 +232,11 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
                              f"the modes {[_mode(m) for m in modes]} of F are not stable and "
                              "not seen by the measurements: no gain makes the error system "
                              "stable")
-    if gamma is None:
-        search = minimal_gamma(system, plant_block=plant_block)
-        if search.gamma_min is None:
-            what = "LMI (48)" if plant_block else "the error block of LMI (48)"
-            raise ValueError(f"{what} infeasible for every gamma up to 1e8 ({search.status})")
-        gamma_min = search.gamma_min
-        lmi, _ = design_on_grid(system, gamma_factor * gamma_min, objective=objective,
-                                max_steps=max_steps, plant_block=plant_block)
-    else:
-        lmi = design_lmi_hinf(system, float(gamma), objective=objective,
-                              plant_block=plant_block)
+    digest = memo.key(*(getattr(system, name) for name in _SYSTEM_FIELDS), gamma,
+                      gamma_factor, objective, max_steps, plant_block)
+    gamma_min, lmi = memo.memoized("lmi-hinf", digest, lambda: _search(
+        system, gamma=gamma, gamma_factor=gamma_factor, objective=objective,
+        max_steps=max_steps, plant_block=plant_block))
     if not lmi.feasible:
         raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
                          f"{lmi.status} (solver: {lmi.solver_status})")
@@ -255,6 +249,26 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
     if not plant_block:
         meta["error_hinf_norm"] = lmi.check.error_hinf_norm
     return estimator, meta
+
+
+#: The fields of a :class:`filters.lmi_hinf.StochasticLinearSystem` a design depends on.
+_SYSTEM_FIELDS = ("A", "B", "C_y", "C_z", "A_w", "B_w", "D_y", "D_z")
+
+
+def _search(system: StochasticLinearSystem, *, gamma: float | None, gamma_factor: float,
+            objective: str, max_steps: int, plant_block: bool) -> tuple[float | None, Any]:
+    """``(gamma_min, design)`` of :func:`verified_estimator` (``gamma_min`` None when
+    ``gamma`` is given); memoized there (:mod:`testbed.estimators.memo`)."""
+    if gamma is not None:
+        return None, design_lmi_hinf(system, float(gamma), objective=objective,
+                                     plant_block=plant_block)
+    search = minimal_gamma(system, plant_block=plant_block)
+    if search.gamma_min is None:
+        what = "LMI (48)" if plant_block else "the error block of LMI (48)"
+        raise ValueError(f"{what} infeasible for every gamma up to 1e8 ({search.status})")
+    lmi, _ = design_on_grid(system, gamma_factor * search.gamma_min, objective=objective,
+                            max_steps=max_steps, plant_block=plant_block)
+    return search.gamma_min, lmi
 
 
 def sampled_two_channel_system(design: Any) -> tuple[StochasticLinearSystem, np.ndarray,

@@ -124,7 +124,6 @@ filter has no covariance (``P`` is None); the design's bound ``diag(P2)`` is in
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from dataclasses import dataclass, replace
@@ -145,6 +144,7 @@ from filters.variance_discrete import (
     solve_equation11,
     solve_equation12r,
 )
+from testbed.estimators import memo
 from testbed.estimators.lmi import design_system
 
 #: Name of the family in the estimator registry (error messages).
@@ -463,18 +463,9 @@ class VCDesign:
         return out
 
 
-_CACHE: dict[str, VCDesign] = {}
-_CACHE_SIZE = 16
-
-
 def _key(plant: UncertainPlant, *options: Any) -> str:
-    h = hashlib.sha256()
-    for name in ("A", "C", "D1", "D2", "M1", "M2", "N", "L"):
-        arr = np.ascontiguousarray(getattr(plant, name))
-        h.update(repr(arr.shape).encode())
-        h.update(arr.tobytes())
-    h.update(repr(options).encode())
-    return h.hexdigest()
+    return memo.key(*(getattr(plant, name) for name in ("A", "C", "D1", "D2", "M1", "M2", "N",
+                                                         "L")), *options)
 
 
 def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor: float = 2.0,
@@ -482,8 +473,8 @@ def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor:
                        n_grid: int = 21, output_injection: bool | None = None) -> VCDesign:
     """The vc-discrete design of a design model by the rules of the module docstring.
 
-    Designs are cached in-process (by the plant's matrices and the options): the search is
-    deterministic, so a cached design equals a new one.
+    Designs are memoized by the plant's matrices and the options (:mod:`testbed.estimators.memo`):
+    the search is deterministic, so a memoized design equals a new one.
 
     Parameters
     ----------
@@ -555,9 +546,18 @@ def _design(design: Any, injection: np.ndarray | None, injection_scale: float | 
     """:func:`design_vc_discrete` for one output injection ``L0`` (None: none)."""
     uncertainty = mismatch_uncertainty(design)
     plant, scenario_channel = uncertain_plant(design, uncertainty, injection)
-    key = _key(plant, gamma, gamma_factor, sigma_factor, max_evaluations, n_grid)
-    if key in _CACHE:
-        return _CACHE[key]
+    return memo.memoized(FAMILY, _key(plant, gamma, gamma_factor, sigma_factor,
+                                      max_evaluations, n_grid),
+                         lambda: _search(plant, uncertainty, scenario_channel, injection,
+                                         injection_scale, rho, start, gamma, gamma_factor,
+                                         sigma_factor, max_evaluations, n_grid))
+
+
+def _search(plant: UncertainPlant, uncertainty: Any, scenario_channel: bool,
+            injection: np.ndarray | None, injection_scale: float | None, rho: float,
+            start: float, gamma: float | None, gamma_factor: float,
+            sigma_factor: float | None, max_evaluations: int, n_grid: int) -> VCDesign:
+    """The design search of :func:`_design` (not memoized)."""
     P_ref = reference_covariance(plant)
     ref = np.diag(P_ref).copy()
     T = np.sqrt(ref)
@@ -625,9 +625,6 @@ def _design(design: Any, injection: np.ndarray | None, injection_scale: float | 
                        scenario_channel=scenario_channel,
                        wall_s=time.perf_counter() - start, injection=injection,
                        plant_spectral_radius=rho, injection_scale=injection_scale)
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = out
         return out
     raise ValueError(f"filter {FAMILY!r}: no verified design at gamma = {level:.4g}: "
                      + "; ".join(failures))

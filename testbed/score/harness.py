@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import json
+import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from filters import FilterError
-from testbed.estimators import EstimatorWrapper, PerMember, paper_design_only
+from testbed.estimators import EstimatorWrapper, PerMember, memo, paper_design_only
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
@@ -429,9 +430,10 @@ def entry_cost(entry: SuiteEntry) -> float:
 
 
 def _job(args: tuple) -> dict[str, PairResult]:
-    entry, estimators, seed, worst_case, num_threads, reference = args
-    return score_entry(entry, estimators, seed, worst_case=worst_case, num_threads=num_threads,
-                       reference=reference)
+    entry, estimators, seed, worst_case, num_threads, reference, designs = args
+    with memo.shared_directory(designs):
+        return score_entry(entry, estimators, seed, worst_case=worst_case,
+                           num_threads=num_threads, reference=reference)
 
 
 def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
@@ -442,16 +444,20 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
 
     Entries are the unit of work (one job each: its estimators share its simulated
     episodes); they start longest first (:func:`entry_cost`) so that the workers finish
-    together. Results do not depend on the backend or the number of workers (apart from
+    together. The jobs share their estimators' designs through a temporary directory
+    (:func:`testbed.estimators.memo.shared_directory`; a worker that cannot reach it designs
+    on its own). Results do not depend on the backend or the number of workers (apart from
     timings).
     """
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
-    jobs = [(e, estimators, seed, worst_case, 1, reference) for e in entries]
-    return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
-                    on_done=None if progress is None else lambda i: progress(jobs[i][0].name),
-                    costs=[entry_cost(e) for e in entries])
+    with tempfile.TemporaryDirectory(prefix="testbed-designs-") as designs:
+        jobs = [(e, estimators, seed, worst_case, 1, reference, designs) for e in entries]
+        return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
+                        on_done=None if progress is None else lambda i: progress(
+                            jobs[i][0].name),
+                        costs=[entry_cost(e) for e in entries])
 
 
 @dataclass
