@@ -311,7 +311,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         if worst_case and entry.worst_case is not None:
             try:
                 out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
-                                        seeds[0])
+                                        seeds[0], tapes)
             except (ValueError, FilterError, FloatingPointError,
                     SimulationDiverged) as err:
                 out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
@@ -322,7 +322,7 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
 
 
 def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, experiment: Any,
-                seed: int):
+                seed: int, tapes: dict[str, Any] | None = None):
     spec = entry.worst_case
     dt_s = experiment.loop.sim.dt_s
     K = int(round((spec.horizon_s or scenario.duration_s) / dt_s))
@@ -361,7 +361,12 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
                                   wc.design.output_matrix[:, wc.design.physical])
         # impulses of 1e-3 of the candidates' mean amplitude, after a quarter of the horizon
         eps = 1e-3 * np.sqrt(spec.energy / (K * dt_s * s))
-        t = evaluator.impulse_response(max(1, K // 4), eps)
+        k0 = max(1, K // 4)
+        # the impulse run does not depend on the estimator when the controller acts on the
+        # truth: simulated for the entry's first estimator, replayed for the others
+        key = json.dumps(["worst-case impulse", _tape_key(impulse, np.full(s + 1, seed), None),
+                          k0, K, float(eps)])
+        t = evaluator.impulse_response(k0, eps, tapes=tapes, key=key)
         rng = np.random.default_rng([int(seed), 16])
         result = search(evaluator, t, energy=spec.energy, random_draws=spec.random_draws,
                         basis=spec.basis, generations=spec.generations, rng=rng)

@@ -408,7 +408,11 @@ class LoopEvaluator:
 
     def _errors(self, loop: Any, steps: int) -> np.ndarray:
         """Output errors ``z`` (members, steps run, q) of one run of ``loop``, from step 1."""
-        result = loop.run(np.full(loop.sim.num, self.seed), steps * self.dt_s, record=True)
+        return self._output_errors(loop.run(np.full(loop.sim.num, self.seed),
+                                            steps * self.dt_s, record=True))
+
+    def _output_errors(self, result: Any) -> np.ndarray:
+        """Output errors ``z`` (members, steps, q) of a recorded run, from step 1."""
         rec = result.trajectory
         return np.einsum("qn,btn->btq", self.L, rec["estimate"] - rec["state"])[:, 1:]
 
@@ -441,7 +445,8 @@ class LoopEvaluator:
             raise FloatingPointError("a worst-case candidate gave a non-finite gain")
         return gains
 
-    def impulse_response(self, k0: int, eps: float) -> np.ndarray:
+    def impulse_response(self, k0: int, eps: float, *, tapes: dict[str, Any] | None = None,
+                         key: str = "") -> np.ndarray:
         """The loop's error system measured: ``t_l`` for ``l = 0..K``, shape (K + 1, q, s).
 
         One batched closed-loop run of ``k0 + K`` steps of the impulse loop: member 0 without
@@ -452,13 +457,26 @@ class LoopEvaluator:
         sensors' delays and holds are all in it; for a linear loop it is exact, otherwise the
         linearization about the run (``eps`` small) at step ``k0`` (an estimator whose gains
         still move after ``k0`` is taken as time-invariant).
+
+        With ``tapes`` and a loop whose controller acts on the truth, the run is simulated
+        once per ``key`` (the caller's: everything the run depends on but the estimator) and
+        replayed for every further estimator (:meth:`ClosedLoop.replay`, bitwise the same).
         """
         s = self.impulse_dist.values.shape[2]
         if not 1 <= k0 <= self.K:
             raise ValueError(f"k0 must be in [1, {self.K}], got {k0}")
         self.impulse_dist.values[:] = 0.0
         self.impulse_dist.values[1 + np.arange(s), k0, np.arange(s)] = eps
-        z = self._errors(self.impulse_loop, k0 + self.K)
+        loop = self.impulse_loop
+        if tapes is not None and loop.truth_feedback and key in tapes:
+            z = self._output_errors(loop.replay(tapes[key], record=True))
+        else:
+            shared = tapes is not None and loop.truth_feedback
+            result = loop.run(np.full(loop.sim.num, self.seed), (k0 + self.K) * self.dt_s,
+                              record=True, tape=shared)
+            if shared:
+                tapes[key] = result.tape  # type: ignore[index]
+            z = self._output_errors(result)
         self.impulse_dist.values[:] = 0.0
         self._baseline = z[0]
         dz = (z[1:1 + s] - z[0]) / eps  # (s, steps, q), row k - 1 is step k

@@ -65,3 +65,29 @@ def test_the_hardware_helicopter_entries_start_first():
     costs = {e.name: entry_cost(e) for e in get_suite("standard")}
     assert max(costs, key=costs.get) == "helicopter-hardware"
     assert all(c > 0 for c in costs.values())
+
+
+def test_replayed_impulse_responses_equal_simulated_ones(monkeypatch):
+    """The worst-case search's impulse run is simulated for the entry's first estimator and
+    replayed for the others; every search equals its own simulated one, bitwise."""
+    import dataclasses
+
+    from testbed.experiment.loop import ClosedLoop
+
+    entry = _entry("vehicle-dlc")
+    entry = entry.replace(worst_case=dataclasses.replace(entry.worst_case, horizon_s=0.4))
+    replays = []
+    replay = ClosedLoop.replay
+
+    def counted(self, tape, *args, **kwargs):
+        replays.append(tape.state.shape[1])  # members: the MC's runs or the impulse's s + 1
+        return replay(self, tape, *args, **kwargs)
+
+    monkeypatch.setattr(ClosedLoop, "replay", counted)
+    shared = score_entry(entry, ["kalman", "kalman-bucy"], 0)
+    assert sorted(replays) == [2, entry.runs]  # kalman-bucy's Monte Carlo and impulse run
+    for estimator, pair in shared.items():
+        single = score_pair(entry, estimator, 0)
+        _assert_same(pair, single)
+        assert (pair.worst.random_gain, pair.worst.linear_gain) == \
+            (single.worst.random_gain, single.worst.linear_gain)
