@@ -1,0 +1,279 @@
+"""A :class:`~testbed.sensors.Suite`'s decorators applied across channels, one kind at a time.
+
+A suite such as the vehicle's IMU (``biasrandomwalk(whitenoise(roll_rate)) +
+whitenoise(lateral_accel) + tap(quantize(whitenoise(speed)) + ...)``) measured sensor by
+sensor makes one Python call and a few numpy calls per decorator and channel. A
+:class:`FusedPlan` measures the suite's leaf channels into one (k, m) array, then applies
+the decorators level by level (level = how many decorators lie between a decorator and its
+leaves): at each level, the decorators of one kind (white noise, bias random walk,
+quantization) act on all their columns in one vectorized operation; the other known kinds
+(:class:`~testbed.sensors.Bias`, :class:`~testbed.sensors.ScaleFactor`,
+:class:`~testbed.sensors.Delay`, :class:`~testbed.sensors.Tap`) run their own ``apply`` on
+their columns.
+
+The values are bitwise those of the sensor-by-sensor measurement: every element sees the
+same floating-point operations in the same order (the decorators of a channel still apply
+inner to outer), and every decorator gets the standard normals it would have drawn itself,
+taken from one draw of the suite's ``draws_per_sample()`` values at the offsets of the
+sequential order (:class:`~testbed.sensors.base.NoiseStreams`: a stream's values do not
+depend on how its draws are split).
+
+A suite is fused only when every sensor in it declares its draws per sample, every
+decorator is one of the kinds above (exact type: a subclass may change ``apply``) and no
+decorator measures its inner sensor itself (:class:`~testbed.sensors.SampleAndHold`
+measures it at its own instants only); otherwise :func:`build_plan` returns None and the
+suite measures sensor by sensor.
+
+Parameters (noise levels, walks, resolutions) are read when the plan is built, at the
+suite's ``allocate``; the per-member state of the fused random walks (``bias``) lives in one
+array of the plan, which each decorator's ``bias`` attribute views.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from testbed.sensors.base import Drawn, Noise, Sample, Sensor, Suite
+from testbed.sensors.decorators import (
+    Bias,
+    BiasRandomWalk,
+    Decorator,
+    Delay,
+    Quantize,
+    ScaleFactor,
+    Tap,
+    WhiteNoise,
+)
+
+#: Decorators that run their own ``apply`` on their columns inside a plan.
+_OWN_APPLY = (Bias, ScaleFactor, Delay, Tap)
+#: Every decorator type a plan handles (exact types).
+_KNOWN = (WhiteNoise, BiasRandomWalk, Quantize, *_OWN_APPLY)
+
+
+class _NotFusable(Exception):
+    """The suite has a sensor a plan cannot apply across channels."""
+
+
+def _columns(cols: list[int]) -> Any:
+    """Column indices as a basic slice when consecutive (a view, no copy), else an array."""
+    lo = cols[0]
+    if cols == list(range(lo, lo + len(cols))):
+        return slice(lo, lo + len(cols))
+    return np.array(cols)
+
+
+class _Tiled:
+    """A per-column parameter (c,) repeated for k rows, remade when k changes (numpy's
+    ufuncs between arrays of one shape skip the broadcasting machinery)."""
+
+    __slots__ = ("values", "rows")
+
+    def __init__(self, values: np.ndarray):
+        self.values = values
+        self.rows = np.zeros((0, len(values)))
+
+    def of(self, k: int) -> np.ndarray:
+        """``values`` as a read-only (k, c) array."""
+        rows = self.rows
+        if len(rows) != k:
+            rows = np.tile(self.values, (k, 1))
+            rows.flags.writeable = False
+            self.rows = rows
+        return rows
+
+
+class _NoiseGroup:
+    """White noise with a per-channel std on columns ``cols``: ``y + std xi``."""
+
+    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]]):
+        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
+        self.xcols = _columns([o + j for d, _, o in decorators for j in range(d.dim)])
+        self.std = _Tiled(np.concatenate([d._std for d, _, _ in decorators]))
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> None:
+        cols = self.cols
+        y[:, cols] = y[:, cols] + self.std.of(len(y)) * xi[:, self.xcols]
+
+
+class _QuantizeGroup:
+    """Quantization on columns ``cols``: ``round(y / step) step``."""
+
+    def __init__(self, decorators: list[tuple[Quantize, int, int]]):
+        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
+        self.step = _Tiled(np.concatenate([d.step for d, _, _ in decorators]))
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> None:
+        cols = self.cols
+        step = self.step.of(len(y))
+        y[:, cols] = np.rint(y[:, cols] / step) * step
+
+
+class _WalkGroup:
+    """Bias random walks on columns ``cols``: ``y + b_k``, then ``b_{k+1} = b_k + walk
+    sqrt(dt_s) xi`` (walking decorators) in one (num, c) bias array the decorators view."""
+
+    def __init__(self, decorators: list[tuple[BiasRandomWalk, int, int]], walks: bool):
+        self.decorators = [d for d, _, _ in decorators]
+        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
+        self.xcols = _columns([o + j for d, _, o in decorators for j in range(d.dim)])
+        self.walks = walks
+        self.step = (_Tiled(np.concatenate([d.walk * np.sqrt(d.dt_s) for d in self.decorators]))
+                     if walks else None)
+        num = len(self.decorators[0].bias)
+        self.bias = np.zeros((num, sum(d.dim for d in self.decorators)))
+        self.views: list[np.ndarray] = []
+        c = 0
+        for d in self.decorators:  # the decorators' state moves into the shared array
+            view = self.bias[:, c:c + d.dim]
+            view[...] = d.bias
+            d.bias = view
+            self.views.append(view)
+            c += d.dim
+
+    def current(self) -> bool:
+        """Whether every decorator still keeps its bias in this group's array (a decorator
+        allocated again since, fused by another suite or copied has its own)."""
+        bias = self.bias
+        for d, v in zip(self.decorators, self.views, strict=True):
+            if d.bias is not v or v.base is not bias:
+                return False
+        return True
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> None:
+        cols = self.cols
+        bias = self.bias[members]
+        y[:, cols] = y[:, cols] + bias
+        if self.walks:
+            self.bias[members] = bias + self.step.of(len(y)) * xi[:, self.xcols]
+
+
+class _OwnApply:
+    """One decorator's own ``apply`` on its columns, with its normals (if any)."""
+
+    def __init__(self, decorator: Decorator, c0: int, offset: int, draws: int):
+        self.decorator, self.cols = decorator, slice(c0, c0 + decorator.dim)
+        self.draws = slice(offset, offset + draws) if draws else None
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> None:
+        drawn = noise if self.draws is None else Drawn(xi[:, self.draws])
+        view = y[:, self.cols]
+        out = self.decorator.apply(view, sample, drawn)
+        if out is not view:  # (a Tap returns its input)
+            view[...] = out
+
+
+class FusedPlan:
+    """How to measure a suite with its decorators applied across channels (module docstring).
+
+    Build it with :func:`build_plan`; :meth:`measure` equals ``Suite.measure`` bitwise.
+
+    Parameters
+    ----------
+    suite : Suite
+        The (allocated) suite.
+    leaves : list of (Sensor, int, int, int)
+        Leaf sensors with their first column, draw offset and draws per sample.
+    decorators : list of (int, Decorator, int, int, int)
+        Decorators with their level, first column, draw offset and own draws per sample.
+    """
+
+    def __init__(self, suite: Suite, leaves: list[tuple[Sensor, int, int, int]],
+                 decorators: list[tuple[int, Decorator, int, int, int]]):
+        self.dim = suite.dim
+        self.draws = suite.draws_per_sample() or 0
+        self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
+                       for s, c0, o, d in leaves]
+        self.levels: list[list[Any]] = []
+        self.walk_groups: list[_WalkGroup] = []
+        for level in sorted({lv for lv, *_ in decorators}):
+            kinds: dict[Any, list[tuple[Any, int, int]]] = {}
+            steps: list[Any] = []
+            for lv, dec, c0, offset, draws in decorators:
+                if lv != level:
+                    continue
+                kind = type(dec)
+                if kind is WhiteNoise:
+                    if dec._std is None:  # correlated noise: its own apply
+                        steps.append(_OwnApply(dec, c0, offset, draws))
+                    elif draws:  # (zero noise draws nothing and changes nothing)
+                        kinds.setdefault("noise", []).append((dec, c0, offset))
+                elif kind is BiasRandomWalk:
+                    kinds.setdefault(("walk", bool(draws)), []).append((dec, c0, offset))
+                elif kind is Quantize:
+                    kinds.setdefault("quantize", []).append((dec, c0, offset))
+                else:
+                    steps.append(_OwnApply(dec, c0, offset, draws))
+            for key, members in kinds.items():
+                if key == "noise":
+                    steps.append(_NoiseGroup(members))
+                elif key == "quantize":
+                    steps.append(_QuantizeGroup(members))
+                else:
+                    group = _WalkGroup(members, walks=key[1])
+                    self.walk_groups.append(group)
+                    steps.append(group)
+            self.levels.append(steps)
+        #: The levels' steps in order.
+        self.steps = [step for steps in self.levels for step in steps]
+
+    def current(self) -> bool:
+        """Whether the plan's state arrays are still the decorators' own."""
+        for group in self.walk_groups:
+            if not group.current():
+                return False
+        return True
+
+    def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
+        """The suite's measurement of ``sample``, shape (k, m)."""
+        xi = noise.normal(self.draws) if self.draws else None
+        y = np.empty((len(sample.x), self.dim))
+        for sensor, cols, draws in self.leaves:
+            y[:, cols] = sensor.measure(sample, noise if draws is None else Drawn(xi[:, draws]))
+        members = sample.members
+        for step in self.steps:
+            step.apply(y, xi, members, sample, noise)
+        return y
+
+
+def build_plan(suite: Suite) -> FusedPlan | None:
+    """The :class:`FusedPlan` of an allocated suite, or None when it has a sensor a plan
+    cannot fuse or no decorator to fuse (module docstring)."""
+    leaves: list[tuple[Sensor, int, int, int]] = []
+    decorators: list[tuple[int, Decorator, int, int, int]] = []
+
+    def visit(sensor: Sensor, c0: int, offset: int) -> tuple[int, int]:
+        """Record ``sensor`` at column ``c0`` and draw offset ``offset``; its level and the
+        draw offset after it."""
+        if isinstance(sensor, Suite):
+            level, c = 0, c0
+            for part in sensor.sensors:
+                lv, offset = visit(part, c, offset)
+                level, c = max(level, lv), c + part.dim
+            return level, offset
+        total = sensor.draws_per_sample()
+        if total is None:
+            raise _NotFusable
+        if isinstance(sensor, Decorator):
+            if type(sensor) not in _KNOWN:
+                raise _NotFusable
+            level, offset = visit(sensor.inner, c0, offset)
+            own = total - sensor.inner.draws_per_sample()
+            decorators.append((level + 1, sensor, c0, offset, own))
+            return level + 1, offset + own
+        leaves.append((sensor, c0, offset, total))
+        return 0, offset + total
+
+    try:
+        visit(suite, 0, 0)
+    except _NotFusable:
+        return None
+    if not decorators:
+        return None
+    return FusedPlan(suite, leaves, decorators)
