@@ -96,7 +96,12 @@ class _NoiseGroup:
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> None:
         cols = self.cols
-        y[:, cols] = y[:, cols] + self.std.of(len(y)) * xi[:, self.xcols]
+        v = self.std.of(len(y)) * xi[:, self.xcols]
+        if type(cols) is slice:  # in place on the view (the same sums)
+            view = y[:, cols]
+            np.add(view, v, out=view)
+        else:
+            y[:, cols] = y[:, cols] + v
 
 
 class _QuantizeGroup:
@@ -110,7 +115,13 @@ class _QuantizeGroup:
               noise: Noise) -> None:
         cols = self.cols
         step = self.step.of(len(y))
-        y[:, cols] = np.rint(y[:, cols] / step) * step
+        if type(cols) is slice:  # in place on the view (the same operations)
+            view = y[:, cols]
+            np.divide(view, step, out=view)
+            np.rint(view, out=view)
+            np.multiply(view, step, out=view)
+        else:
+            y[:, cols] = np.rint(y[:, cols] / step) * step
 
 
 class _WalkGroup:
@@ -190,6 +201,10 @@ class FusedPlan:
         self.draws = suite.draws_per_sample() or 0
         self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
                        for s, c0, o, d in leaves]
+        #: The only leaf when it is a suite of bare state channels covering every column
+        #: (whose measurement, a gather, is a new array the decorators may change in place).
+        self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
+                      and leaves[0][0].dim == self.dim else None)
         self.levels: list[list[Any]] = []
         self.walk_groups: list[_WalkGroup] = []
         for level in sorted({lv for lv, *_ in decorators}):
@@ -233,9 +248,13 @@ class FusedPlan:
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """The suite's measurement of ``sample``, shape (k, m)."""
         xi = noise.normal(self.draws) if self.draws else None
-        y = np.empty((len(sample.x), self.dim))
-        for sensor, cols, draws in self.leaves:
-            y[:, cols] = sensor.measure(sample, noise if draws is None else Drawn(xi[:, draws]))
+        if self.whole is not None:  # one suite of state channels: its gather is a new array
+            y = self.whole.measure(sample, noise)
+        else:
+            y = np.empty((len(sample.x), self.dim))
+            for sensor, cols, draws in self.leaves:
+                y[:, cols] = sensor.measure(sample,
+                                            noise if draws is None else Drawn(xi[:, draws]))
         members = sample.members
         for step in self.steps:
             step.apply(y, xi, members, sample, noise)
@@ -251,7 +270,7 @@ def build_plan(suite: Suite) -> FusedPlan | None:
     def visit(sensor: Sensor, c0: int, offset: int) -> tuple[int, int]:
         """Record ``sensor`` at column ``c0`` and draw offset ``offset``; its level and the
         draw offset after it."""
-        if isinstance(sensor, Suite):
+        if isinstance(sensor, Suite) and sensor._state_index is None:
             level, c = 0, c0
             for part in sensor.sensors:
                 lv, offset = visit(part, c, offset)
@@ -267,8 +286,8 @@ def build_plan(suite: Suite) -> FusedPlan | None:
             own = total - sensor.inner.draws_per_sample()
             decorators.append((level + 1, sensor, c0, offset, own))
             return level + 1, offset + own
-        leaves.append((sensor, c0, offset, total))
-        return 0, offset + total
+        leaves.append((sensor, c0, offset, total))  # (a suite of bare state channels: one
+        return 0, offset + total                      # gather)
 
     try:
         visit(suite, 0, 0)
