@@ -57,12 +57,33 @@ class _NotFusable(Exception):
     """The suite has a sensor a plan cannot apply across channels."""
 
 
-def _columns(cols: list[int]) -> Any:
-    """Column indices as a basic slice when consecutive (a view, no copy), else an array."""
-    lo = cols[0]
-    if cols == list(range(lo, lo + len(cols))):
-        return slice(lo, lo + len(cols))
-    return np.array(cols)
+class _Columns:
+    """Reading and writing a set of columns of (k, c) arrays at the least cost: all of them
+    (the array itself), consecutive ones (a basic slice, a view) or others (``take`` and a
+    fancy assignment)."""
+
+    __slots__ = ("index", "all")
+
+    def __init__(self, cols: list[int], width: int):
+        lo = cols[0]
+        self.all = cols == list(range(width))
+        self.index: Any = (slice(lo, lo + len(cols)) if cols == list(range(lo, lo + len(cols)))
+                           else np.array(cols))
+
+    def get(self, a: np.ndarray) -> np.ndarray:
+        """The columns of ``a`` (a view for a slice)."""
+        index = self.index
+        if self.all:
+            return a
+        return a[:, index] if type(index) is slice else a.take(index, axis=1)
+
+    def put(self, a: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``a`` with the columns set to ``values``: a itself, or ``values`` when they are all
+        of its columns."""
+        if self.all:
+            return values
+        a[:, self.index] = values
+        return a
 
 
 class _Tiled:
@@ -85,53 +106,50 @@ class _Tiled:
         return rows
 
 
-class _NoiseGroup:
-    """White noise with a per-channel std on columns ``cols``: ``y + std xi``."""
+def _where(decorators: list[tuple[Decorator, int, int]], width: int,
+           draws: int) -> tuple[_Columns, _Columns]:
+    """The columns of ``decorators`` (decorator, first column, draw offset) in the (k, width)
+    measurement and in the (k, draws) normals."""
+    cols = [c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)]
+    xcols = [o + j for d, _, o in decorators for j in range(d.dim)]
+    return _Columns(cols, width), _Columns(xcols, draws)
 
-    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]]):
-        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
-        self.xcols = _columns([o + j for d, _, o in decorators for j in range(d.dim)])
+
+class _NoiseGroup:
+    """White noise with a per-channel std on its columns: ``y + std xi``."""
+
+    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]], width: int, draws: int):
+        self.cols, self.xcols = _where(decorators, width, draws)
         self.std = _Tiled(np.concatenate([d._std for d, _, _ in decorators]))
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
-              noise: Noise) -> None:
+              noise: Noise) -> np.ndarray:
         cols = self.cols
-        v = self.std.of(len(y)) * xi[:, self.xcols]
-        if type(cols) is slice:  # in place on the view (the same sums)
-            view = y[:, cols]
-            np.add(view, v, out=view)
-        else:
-            y[:, cols] = y[:, cols] + v
+        return cols.put(y, cols.get(y) + self.std.of(len(y)) * self.xcols.get(xi))
 
 
 class _QuantizeGroup:
-    """Quantization on columns ``cols``: ``round(y / step) step``."""
+    """Quantization on its columns: ``round(y / step) step``."""
 
-    def __init__(self, decorators: list[tuple[Quantize, int, int]]):
-        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
+    def __init__(self, decorators: list[tuple[Quantize, int, int]], width: int, draws: int):
+        self.cols, _ = _where(decorators, width, draws)
         self.step = _Tiled(np.concatenate([d.step for d, _, _ in decorators]))
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
-              noise: Noise) -> None:
+              noise: Noise) -> np.ndarray:
         cols = self.cols
         step = self.step.of(len(y))
-        if type(cols) is slice:  # in place on the view (the same operations)
-            view = y[:, cols]
-            np.divide(view, step, out=view)
-            np.rint(view, out=view)
-            np.multiply(view, step, out=view)
-        else:
-            y[:, cols] = np.rint(y[:, cols] / step) * step
+        return cols.put(y, np.rint(cols.get(y) / step) * step)
 
 
 class _WalkGroup:
-    """Bias random walks on columns ``cols``: ``y + b_k``, then ``b_{k+1} = b_k + walk
-    sqrt(dt_s) xi`` (walking decorators) in one (num, c) bias array the decorators view."""
+    """Bias random walks on its columns: ``y + b_k``, then ``b_{k+1} = b_k + walk sqrt(dt_s)
+    xi`` (walking decorators), in one (num, c) bias array the decorators view."""
 
-    def __init__(self, decorators: list[tuple[BiasRandomWalk, int, int]], walks: bool):
+    def __init__(self, decorators: list[tuple[BiasRandomWalk, int, int]], width: int,
+                 draws: int, walks: bool):
         self.decorators = [d for d, _, _ in decorators]
-        self.cols = _columns([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)])
-        self.xcols = _columns([o + j for d, _, o in decorators for j in range(d.dim)])
+        self.cols, self.xcols = _where(decorators, width, draws)
         self.walks = walks
         self.step = (_Tiled(np.concatenate([d.walk * np.sqrt(d.dt_s) for d in self.decorators]))
                      if walks else None)
@@ -156,12 +174,13 @@ class _WalkGroup:
         return True
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
-              noise: Noise) -> None:
+              noise: Noise) -> np.ndarray:
         cols = self.cols
         bias = self.bias[members]
-        y[:, cols] = y[:, cols] + bias
+        y = cols.put(y, cols.get(y) + bias)
         if self.walks:
-            self.bias[members] = bias + self.step.of(len(y)) * xi[:, self.xcols]
+            self.bias[members] = bias + self.step.of(len(y)) * self.xcols.get(xi)
+        return y
 
 
 class _OwnApply:
@@ -172,12 +191,13 @@ class _OwnApply:
         self.draws = slice(offset, offset + draws) if draws else None
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
-              noise: Noise) -> None:
+              noise: Noise) -> np.ndarray:
         drawn = noise if self.draws is None else Drawn(xi[:, self.draws])
         view = y[:, self.cols]
         out = self.decorator.apply(view, sample, drawn)
         if out is not view:  # (a Tap returns its input)
-            view[...] = out
+            y[:, self.cols] = out
+        return y
 
 
 class FusedPlan:
@@ -225,13 +245,14 @@ class FusedPlan:
                     kinds.setdefault("quantize", []).append((dec, c0, offset))
                 else:
                     steps.append(_OwnApply(dec, c0, offset, draws))
+            width, total = self.dim, self.draws
             for key, members in kinds.items():
                 if key == "noise":
-                    steps.append(_NoiseGroup(members))
+                    steps.append(_NoiseGroup(members, width, total))
                 elif key == "quantize":
-                    steps.append(_QuantizeGroup(members))
+                    steps.append(_QuantizeGroup(members, width, total))
                 else:
-                    group = _WalkGroup(members, walks=key[1])
+                    group = _WalkGroup(members, width, total, walks=key[1])
                     self.walk_groups.append(group)
                     steps.append(group)
             self.levels.append(steps)
@@ -257,7 +278,7 @@ class FusedPlan:
                                             noise if draws is None else Drawn(xi[:, draws]))
         members = sample.members
         for step in self.steps:
-            step.apply(y, xi, members, sample, noise)
+            y = step.apply(y, xi, members, sample, noise)
         return y
 
 
