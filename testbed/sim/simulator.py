@@ -563,6 +563,7 @@ class Simulator:
         self._nu, self._nx = rig.n_actions, rig.n_states
         self._j = len(rig.joints)
         self._tracked = rig.tracked_index
+        self._r = len(self._tracked)  # tracked states (reward terms)
         lo, hi = (int(self._tracked[0]), int(self._tracked[-1]) + 1) if len(self._tracked) \
             else (0, 0)
         #: The tracked columns as a slice when contiguous (a view instead of a gather).
@@ -646,6 +647,7 @@ class Simulator:
             self._info_columns[key] = slice(start, start + width)
             start += width
         self._info_items = tuple(self._info_columns.items())
+        self._t_column = self._info_columns["t"].start
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -687,7 +689,7 @@ class Simulator:
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
         out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
-        out["t"] = float(row[self._info_columns["t"].start])
+        out["t"] = row.item(self._t_column)  # a float
         out["action_clipped"] = self.info["action_clipped"][i].copy()
         return out
 
@@ -991,8 +993,8 @@ class Simulator:
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
         if members is None:
-            steps = self.steps + self._one_rows
-            self.steps[...] = steps
+            steps = self.steps
+            np.add(steps, self._one_rows, out=steps)  # (contiguous: no buffering)
             t = steps * self._dt_rows
         else:
             steps = self.steps[sel] + 1
@@ -1005,7 +1007,16 @@ class Simulator:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel, common)
         e = x[:, self._tracked_cols] - ref
-        self.reward[sel] = -np.add.reduce(e * e, axis=1)
+        sq = e * e
+        r = self._r
+        if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
+            total = sq[:, 0] + sq[:, 1]
+        else:
+            total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
+        if members is None:
+            np.negative(total, out=self.reward)
+        else:
+            self.reward[sel] = -total
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index, common) if has_signal else zero_w
