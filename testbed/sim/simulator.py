@@ -66,6 +66,12 @@ _BAD_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
                                        mujoco.mjtWarning.mjWARN_BADQACC))
 
 
+#: The whole batch as a selection, and the types of an integer index (module constants: not
+#: rebuilt per step).
+_ALL = slice(None)
+_INTEGERS = (int, np.integer)
+
+
 class SimulationDiverged(RuntimeError):
     """The simulation left what the rig can physically do; its results would be meaningless.
 
@@ -356,7 +362,8 @@ class Physics:
     def states(self, members: Any = slice(None)) -> np.ndarray:
         """Rig states of the members (a slice or int indices), shape (k, n)."""
         if isinstance(members, slice):
-            return self.state[members].take(self._gather, axis=1)
+            state = self.state if members == _ALL else self.state[members]
+            return state.take(self._gather, axis=1)
         return self.state[np.asarray(members)[:, None], self._gather]
 
     def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
@@ -376,7 +383,7 @@ class Physics:
             field = self._fields.get(name)
             if field is None:
                 field = self._fields[name] = self.batch.expand(name)
-            field[(sel, where) if isinstance(where, int | np.integer)
+            field[(sel, where) if isinstance(where, _INTEGERS)
                   else (sel, *np.atleast_1d(where).tolist())] = values
 
     def step(self, members: np.ndarray, need_mass: bool = False,
