@@ -31,6 +31,7 @@ array of the plan, which each decorator's ``bias`` attribute views.
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -57,33 +58,21 @@ class _NotFusable(Exception):
     """The suite has a sensor a plan cannot apply across channels."""
 
 
-class _Columns:
-    """Reading and writing a set of columns of (k, c) arrays at the least cost: all of them
-    (the array itself), consecutive ones (a basic slice, a view) or others (``take`` and a
-    fancy assignment)."""
+def _index(cols: list[int], width: int | None = None) -> Any:
+    """Columns as an index: None for all ``width`` of them (the array itself), a basic slice
+    when consecutive (a view), else an int array (``take`` and a fancy assignment)."""
+    if width is not None and cols == list(range(width)):
+        return None
+    lo = cols[0]
+    return (slice(lo, lo + len(cols)) if cols == list(range(lo, lo + len(cols)))
+            else np.array(cols))
 
-    __slots__ = ("index", "all")
 
-    def __init__(self, cols: list[int], width: int):
-        lo = cols[0]
-        self.all = cols == list(range(width))
-        self.index: Any = (slice(lo, lo + len(cols)) if cols == list(range(lo, lo + len(cols)))
-                           else np.array(cols))
-
-    def get(self, a: np.ndarray) -> np.ndarray:
-        """The columns of ``a`` (a view for a slice)."""
-        index = self.index
-        if self.all:
-            return a
-        return a[:, index] if type(index) is slice else a.take(index, axis=1)
-
-    def put(self, a: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """``a`` with the columns set to ``values``: a itself, or ``values`` when they are all
-        of its columns."""
-        if self.all:
-            return values
-        a[:, self.index] = values
+def _get(a: np.ndarray, index: Any) -> np.ndarray:
+    """The columns ``index`` (:func:`_index`) of ``a``."""
+    if index is None:
         return a
+    return a[:, index] if type(index) is slice else a.take(index, axis=1)
 
 
 class _Tiled:
@@ -106,80 +95,95 @@ class _Tiled:
         return rows
 
 
-def _where(decorators: list[tuple[Decorator, int, int]], width: int,
-           draws: int) -> tuple[_Columns, _Columns]:
-    """The columns of ``decorators`` (decorator, first column, draw offset) in the (k, width)
-    measurement and in the (k, draws) normals."""
-    cols = [c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)]
-    xcols = [o + j for d, _, o in decorators for j in range(d.dim)]
-    return _Columns(cols, width), _Columns(xcols, draws)
+class _Group:
+    """Decorators of one kind and level applied on all their columns at once.
+
+    Parameters
+    ----------
+    decorators : list of (Decorator, int, int)
+        The decorators with their first column and first normal in the plan's layout.
+    width : int
+        The plan's columns.
+    values : list of ndarray, optional
+        Each decorator's per-channel parameter (std, resolution, walk step), tiled for the k
+        rows of a sample (:class:`_Tiled`).
+    """
+
+    def __init__(self, decorators: list[tuple[Any, int, int]], width: int,
+                 values: list[np.ndarray] | None = None):
+        self.cols = _index([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)],
+                           width)
+        self.xcols = _index([o + j for d, _, o in decorators for j in range(d.dim)])
+        self.values = None if values is None else _Tiled(np.concatenate(values))
+
+    def _put(self, y: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``y`` with the group's columns set to ``values`` (``values`` for all of them)."""
+        cols = self.cols
+        if cols is None:
+            return values
+        y[:, cols] = values
+        return y
 
 
-class _NoiseGroup:
+class _NoiseGroup(_Group):
     """White noise with a per-channel std on its columns: ``y + std xi``."""
 
-    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]], width: int, draws: int):
-        self.cols, self.xcols = _where(decorators, width, draws)
-        self.std = _Tiled(np.concatenate([d._std for d, _, _ in decorators]))
+    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]], width: int):
+        super().__init__(decorators, width, [d._std for d, _, _ in decorators])
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
-        cols = self.cols
-        return cols.put(y, cols.get(y) + self.std.of(len(y)) * self.xcols.get(xi))
+        return self._put(y, _get(y, self.cols)
+                         + self.values.of(len(y)) * _get(xi, self.xcols))
 
 
-class _QuantizeGroup:
+class _QuantizeGroup(_Group):
     """Quantization on its columns: ``round(y / step) step``."""
 
-    def __init__(self, decorators: list[tuple[Quantize, int, int]], width: int, draws: int):
-        self.cols, _ = _where(decorators, width, draws)
-        self.step = _Tiled(np.concatenate([d.step for d, _, _ in decorators]))
+    def __init__(self, decorators: list[tuple[Quantize, int, int]], width: int):
+        super().__init__(decorators, width, [d.step for d, _, _ in decorators])
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
-        cols = self.cols
-        step = self.step.of(len(y))
-        return cols.put(y, np.rint(cols.get(y) / step) * step)
+        step = self.values.of(len(y))
+        return self._put(y, np.rint(_get(y, self.cols) / step) * step)
 
 
-class _WalkGroup:
+class _WalkGroup(_Group):
     """Bias random walks on its columns: ``y + b_k``, then ``b_{k+1} = b_k + walk sqrt(dt_s)
     xi`` (walking decorators), in one (num, c) bias array the decorators view."""
 
     def __init__(self, decorators: list[tuple[BiasRandomWalk, int, int]], width: int,
-                 draws: int, walks: bool):
-        self.decorators = [d for d, _, _ in decorators]
-        self.cols, self.xcols = _where(decorators, width, draws)
-        self.walks = walks
-        self.step = (_Tiled(np.concatenate([d.walk * np.sqrt(d.dt_s) for d in self.decorators]))
-                     if walks else None)
-        num = len(self.decorators[0].bias)
-        self.bias = np.zeros((num, sum(d.dim for d in self.decorators)))
-        self.views: list[np.ndarray] = []
+                 walks: bool):
+        super().__init__(decorators, width,
+                         [d.walk * np.sqrt(d.dt_s) for d, _, _ in decorators] if walks
+                         else None)
+        num = len(decorators[0][0].bias)
+        self.bias = np.zeros((num, sum(d.dim for d, _, _ in decorators)))
+        self.views: list[tuple[BiasRandomWalk, np.ndarray]] = []
         c = 0
-        for d in self.decorators:  # the decorators' state moves into the shared array
+        for d, _, _ in decorators:  # the decorators' state moves into the shared array
             view = self.bias[:, c:c + d.dim]
             view[...] = d.bias
             d.bias = view
-            self.views.append(view)
+            self.views.append((d, view))
             c += d.dim
 
     def current(self) -> bool:
         """Whether every decorator still keeps its bias in this group's array (a decorator
         allocated again since, fused by another suite or copied has its own)."""
         bias = self.bias
-        for d, v in zip(self.decorators, self.views, strict=True):
+        for d, v in self.views:
             if d.bias is not v or v.base is not bias:
                 return False
         return True
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
-        cols = self.cols
         bias = self.bias[members]
-        y = cols.put(y, cols.get(y) + bias)
-        if self.walks:
-            self.bias[members] = bias + self.step.of(len(y)) * self.xcols.get(xi)
+        y = self._put(y, _get(y, self.cols) + bias)
+        if self.values is not None:  # the walk
+            self.bias[members] = bias + self.values.of(len(y)) * _get(xi, self.xcols)
         return y
 
 
@@ -219,45 +223,54 @@ class FusedPlan:
                  decorators: list[tuple[int, Decorator, int, int, int]]):
         self.dim = suite.dim
         self.draws = suite.draws_per_sample() or 0
-        self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
-                       for s, c0, o, d in leaves]
+        # what applies each decorator: a group of its kind and level, or its own apply
+        groups: dict[tuple[int, Any], list[tuple[Any, int, int]]] = {}
+        owns: list[tuple[int, Decorator, int, int, int]] = []
+        for lv, dec, c0, offset, draws in decorators:
+            kind = type(dec)
+            if kind is WhiteNoise and dec._std is not None:
+                if draws:  # (zero noise draws nothing and changes nothing)
+                    groups.setdefault((lv, "noise"), []).append((dec, c0, offset))
+            elif kind is BiasRandomWalk:
+                groups.setdefault((lv, ("walk", bool(draws))), []).append((dec, c0, offset))
+            elif kind is Quantize:
+                groups.setdefault((lv, "quantize"), []).append((dec, c0, offset))
+            else:  # (correlated white noise too)
+                owns.append((lv, dec, c0, offset, draws))
+        col, draw, out = _layout(leaves, decorators, groups, self.dim, self.draws)
+        #: Output column j is column ``out[j]`` of the internal layout (None: the same).
+        self.out = out
+        #: The normals in the internal order (None: as drawn).
+        self.draw_order = (None if draw == list(range(self.draws))
+                           else np.argsort(np.array(draw)))
+        self.leaves = [(s, slice(col[c0], col[c0] + s.dim),
+                        slice(draw[o], draw[o] + d) if d else None) for s, c0, o, d in leaves]
         #: The only leaf when it is a suite of bare state channels covering every column
         #: (whose measurement, a gather, is a new array the decorators may change in place).
         self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
                       and leaves[0][0].dim == self.dim else None)
-        self.levels: list[list[Any]] = []
+        width, total = self.dim, self.draws
         self.walk_groups: list[_WalkGroup] = []
+        #: The steps, level by level.
+        self.steps: list[Any] = []
         for level in sorted({lv for lv, *_ in decorators}):
-            kinds: dict[Any, list[tuple[Any, int, int]]] = {}
-            steps: list[Any] = []
-            for lv, dec, c0, offset, draws in decorators:
+            for lv, dec, c0, offset, draws in owns:
+                if lv == level:
+                    self.steps.append(_OwnApply(dec, col[c0], draw[offset] if draws else 0,
+                                                draws))
+            for (lv, key), members in groups.items():
                 if lv != level:
                     continue
-                kind = type(dec)
-                if kind is WhiteNoise:
-                    if dec._std is None:  # correlated noise: its own apply
-                        steps.append(_OwnApply(dec, c0, offset, draws))
-                    elif draws:  # (zero noise draws nothing and changes nothing)
-                        kinds.setdefault("noise", []).append((dec, c0, offset))
-                elif kind is BiasRandomWalk:
-                    kinds.setdefault(("walk", bool(draws)), []).append((dec, c0, offset))
-                elif kind is Quantize:
-                    kinds.setdefault("quantize", []).append((dec, c0, offset))
-                else:
-                    steps.append(_OwnApply(dec, c0, offset, draws))
-            width, total = self.dim, self.draws
-            for key, members in kinds.items():
+                placed = sorted(((d, col[c0], draw[o] if o < total else o)
+                                 for d, c0, o in members), key=lambda m: m[1])
                 if key == "noise":
-                    steps.append(_NoiseGroup(members, width, total))
+                    self.steps.append(_NoiseGroup(placed, width))
                 elif key == "quantize":
-                    steps.append(_QuantizeGroup(members, width, total))
+                    self.steps.append(_QuantizeGroup(placed, width))
                 else:
-                    group = _WalkGroup(members, width, total, walks=key[1])
+                    group = _WalkGroup(placed, width, walks=key[1])
                     self.walk_groups.append(group)
-                    steps.append(group)
-            self.levels.append(steps)
-        #: The levels' steps in order.
-        self.steps = [step for steps in self.levels for step in steps]
+                    self.steps.append(group)
 
     def current(self) -> bool:
         """Whether the plan's state arrays are still the decorators' own."""
@@ -269,6 +282,8 @@ class FusedPlan:
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """The suite's measurement of ``sample``, shape (k, m)."""
         xi = noise.normal(self.draws) if self.draws else None
+        if self.draw_order is not None:
+            xi = xi.take(self.draw_order, axis=1)
         if self.whole is not None:  # one suite of state channels: its gather is a new array
             y = self.whole.measure(sample, noise)
         else:
@@ -279,7 +294,54 @@ class FusedPlan:
         members = sample.members
         for step in self.steps:
             y = step.apply(y, xi, members, sample, noise)
-        return y
+        return y if self.out is None else y.take(self.out, axis=1)
+
+
+def _layout(leaves: list[tuple[Sensor, int, int, int]],
+            decorators: list[tuple[int, Decorator, int, int, int]],
+            groups: dict[tuple[int, Any], list[tuple[Any, int, int]]], width: int,
+            draws: int) -> tuple[list[int], list[int], np.ndarray | None]:
+    """Where the plan keeps each column and each normal: the order of the leaves (of up to
+    six; else as given) in which the most groups have consecutive columns (a slice, not a
+    gather and a fancy assignment), and the normals in the groups' order.
+
+    Every decorator's columns stay consecutive and in order. Returns the internal column of
+    each output column, the internal position of each normal (in draw order) and the output
+    gather (None when the columns keep their order).
+    """
+    blocks = [(c0, s.dim) for s, c0, _, _ in leaves]
+    identity = tuple(range(len(blocks)))
+    orders = itertools.permutations(identity) if len(blocks) <= 6 else [identity]
+    best: tuple[int, list[int], list[int]] | None = None
+    for order in orders:
+        col = [0] * width
+        c = 0
+        for j in order:
+            c0, dim = blocks[j]
+            for i in range(dim):
+                col[c0 + i] = c + i
+            c += dim
+        if any(col[c0:c0 + dec.dim] != list(range(col[c0], col[c0] + dec.dim))
+               for _, dec, c0, _, _ in decorators):
+            continue  # a decorator's columns apart or out of order
+        drawn: list[int] = []  # the normals of the drawing groups, in their columns' order
+        gaps = 0
+        for (_, key), members in groups.items():
+            cols = sorted(col[c0] + i for d, c0, _ in members for i in range(d.dim))
+            gaps += cols != list(range(cols[0], cols[0] + len(cols)))
+            if key == "noise" or key == ("walk", True):
+                for d, _c0, o in sorted(members, key=lambda m: col[m[1]]):
+                    drawn.extend(range(o, o + d.dim))
+        order_of = drawn + [o for o in range(draws) if o not in set(drawn)]
+        draw = [0] * draws
+        for position, o in enumerate(order_of):
+            draw[o] = position
+        cost = 2 * gaps + (order != identity) + (order_of != list(range(draws)))
+        if best is None or cost < best[0]:
+            best = (cost, col, draw)
+    assert best is not None  # the given order always keeps the decorators' columns
+    _, col, draw = best
+    return col, draw, None if col == list(range(width)) else np.array(col)
 
 
 def build_plan(suite: Suite) -> FusedPlan | None:
