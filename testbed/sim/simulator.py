@@ -789,7 +789,8 @@ class Simulator:
             table = self._tables[0]
             if len(t) == 1 or (common and len(t)):  # one time: the row searchsorted finds
                 # below for each member, looked up once without numpy's per-call overhead
-                row = bisect.bisect_right(self._table_times, float(t[0])) - 1
+                times = self._table_times  # (one row, a constant reference: that row)
+                row = 0 if len(times) == 1 else bisect.bisect_right(times, float(t[0])) - 1
                 ref = self._table_rows[max(row, 0)]
                 return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
