@@ -133,9 +133,10 @@ class RigEnv(gym.Env):
         if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
                 and all(map(math.isfinite, u.tolist()))):
             u = real_array(action, self._action_label, shape=self._shape)
-        self.sim.step(u[None], checked=True)
         sim = self.sim
-        return (sim.obs[0].copy(), float(sim.reward[0]), bool(sim.terminated[0]), False,
+        sim.step(u[None], checked=True)
+        # item(): the Python float and bool of the entries, without numpy scalars between
+        return (sim.obs[0].copy(), sim.reward.item(0), sim.terminated.item(0), False,
                 sim.member_info(0))
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:

@@ -337,11 +337,18 @@ class Suite(Sensor):
             self._state_index = (slice(lo, lo + len(direct))
                                  if direct == list(range(lo, lo + len(direct)))
                                  else np.array(direct))
+        #: The decorators applied across channels (:mod:`testbed.sensors.fused`), made at
+        #: :meth:`allocate`; None: measured sensor by sensor.
+        self._plan: Any = None
 
     def allocate(self, num: int) -> None:
-        """Allocate every member sensor."""
+        """Allocate every member sensor; then fuse their decorators across channels where
+        they allow it (:func:`testbed.sensors.fused.build_plan`)."""
+        from testbed.sensors.fused import build_plan
+
         for s in self.sensors:
             s.allocate(num)
+        self._plan = None if self._state_index is not None else build_plan(self)
 
     def reset(self, sample: Sample, noise: Noise) -> None:
         """Reset every member sensor, in order."""
@@ -354,6 +361,14 @@ class Suite(Sensor):
         if index is not None:  # what the channels return, in one gather
             return (sample.x[:, index].copy() if isinstance(index, slice)
                     else sample.x.take(index, axis=1))
+        plan = self._plan
+        if plan is not None:  # the decorators across channels, bitwise the same values
+            if not plan.current():  # a decorator's state was replaced: fuse it again
+                from testbed.sensors.fused import build_plan
+
+                plan = self._plan = build_plan(self)
+            if plan is not None:
+                return plan.measure(sample, noise)
         if len(self.sensors) == 1:
             return self.sensors[0].measure(sample, noise)
         parts = [s.measure(sample, noise) for s in self.sensors]

@@ -66,6 +66,12 @@ _BAD_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
                                        mujoco.mjtWarning.mjWARN_BADQACC))
 
 
+#: The whole batch as a selection, and the types of an integer index (module constants: not
+#: rebuilt per step).
+_ALL = slice(None)
+_INTEGERS = (int, np.integer)
+
+
 class SimulationDiverged(RuntimeError):
     """The simulation left what the rig can physically do; its results would be meaningless.
 
@@ -356,7 +362,8 @@ class Physics:
     def states(self, members: Any = slice(None)) -> np.ndarray:
         """Rig states of the members (a slice or int indices), shape (k, n)."""
         if isinstance(members, slice):
-            return self.state[members].take(self._gather, axis=1)
+            state = self.state if members == _ALL else self.state[members]
+            return state.take(self._gather, axis=1)
         return self.state[np.asarray(members)[:, None], self._gather]
 
     def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
@@ -376,7 +383,7 @@ class Physics:
             field = self._fields.get(name)
             if field is None:
                 field = self._fields[name] = self.batch.expand(name)
-            field[(sel, where) if isinstance(where, int | np.integer)
+            field[(sel, where) if isinstance(where, _INTEGERS)
                   else (sel, *np.atleast_1d(where).tolist())] = values
 
     def step(self, members: np.ndarray, need_mass: bool = False,
@@ -563,6 +570,7 @@ class Simulator:
         self._nu, self._nx = rig.n_actions, rig.n_states
         self._j = len(rig.joints)
         self._tracked = rig.tracked_index
+        self._r = len(self._tracked)  # tracked states (reward terms)
         lo, hi = (int(self._tracked[0]), int(self._tracked[-1]) + 1) if len(self._tracked) \
             else (0, 0)
         #: The tracked columns as a slice when contiguous (a view instead of a gather).
@@ -646,6 +654,7 @@ class Simulator:
             self._info_columns[key] = slice(start, start + width)
             start += width
         self._info_items = tuple(self._info_columns.items())
+        self._t_column = self._info_columns["t"].start
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -687,7 +696,7 @@ class Simulator:
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
         out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
-        out["t"] = float(row[self._info_columns["t"].start])
+        out["t"] = row.item(self._t_column)  # a float
         out["action_clipped"] = self.info["action_clipped"][i].copy()
         return out
 
@@ -780,7 +789,8 @@ class Simulator:
             table = self._tables[0]
             if len(t) == 1 or (common and len(t)):  # one time: the row searchsorted finds
                 # below for each member, looked up once without numpy's per-call overhead
-                row = bisect.bisect_right(self._table_times, float(t[0])) - 1
+                times = self._table_times  # (one row, a constant reference: that row)
+                row = 0 if len(times) == 1 else bisect.bisect_right(times, float(t[0])) - 1
                 ref = self._table_rows[max(row, 0)]
                 return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
@@ -991,7 +1001,7 @@ class Simulator:
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
         if members is None:
-            steps = self.steps + self._one_rows
+            steps = self.steps + self._one_rows  # (faster than an in-place np.add(out=))
             self.steps[...] = steps
             t = steps * self._dt_rows
         else:
@@ -1005,7 +1015,16 @@ class Simulator:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         ref = self._reference(t, sel, common)
         e = x[:, self._tracked_cols] - ref
-        self.reward[sel] = -np.add.reduce(e * e, axis=1)
+        sq = e * e
+        r = self._r
+        if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
+            total = sq[:, 0] + sq[:, 1]
+        else:
+            total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
+        if members is None:
+            np.negative(total, self.reward)
+        else:
+            self.reward[sel] = -total
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index, common) if has_signal else zero_w

@@ -1,0 +1,381 @@
+"""A :class:`~testbed.sensors.Suite`'s decorators applied across channels, one kind at a time.
+
+A suite such as the vehicle's IMU (``biasrandomwalk(whitenoise(roll_rate)) +
+whitenoise(lateral_accel) + tap(quantize(whitenoise(speed)) + ...)``) measured sensor by
+sensor makes one Python call and a few numpy calls per decorator and channel. A
+:class:`FusedPlan` measures the suite's leaf channels into one (k, m) array, then applies
+the decorators level by level (level = how many decorators lie between a decorator and its
+leaves): at each level, the decorators of one kind (white noise, bias random walk,
+quantization) act on all their columns in one vectorized operation; the other known kinds
+(:class:`~testbed.sensors.Bias`, :class:`~testbed.sensors.ScaleFactor`,
+:class:`~testbed.sensors.Delay`, :class:`~testbed.sensors.Tap`) run their own ``apply`` on
+their columns.
+
+The values are bitwise those of the sensor-by-sensor measurement: every element sees the
+same floating-point operations in the same order (the decorators of a channel still apply
+inner to outer), and every decorator gets the standard normals it would have drawn itself,
+taken from one draw of the suite's ``draws_per_sample()`` values at the offsets of the
+sequential order (:class:`~testbed.sensors.base.NoiseStreams`: a stream's values do not
+depend on how its draws are split).
+
+A suite is fused only when every sensor in it declares its draws per sample, every
+decorator is one of the kinds above (exact type: a subclass may change ``apply``) and no
+decorator measures its inner sensor itself (:class:`~testbed.sensors.SampleAndHold`
+measures it at its own instants only); otherwise :func:`build_plan` returns None and the
+suite measures sensor by sensor.
+
+Parameters (noise levels, walks, resolutions) are read when the plan is built, at the
+suite's ``allocate``; the per-member state of the fused random walks (``bias``) lives in one
+array of the plan, which each decorator's ``bias`` attribute views.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+
+from testbed.sensors.base import Drawn, Noise, Sample, Sensor, Suite
+from testbed.sensors.decorators import (
+    Bias,
+    BiasRandomWalk,
+    Decorator,
+    Delay,
+    Quantize,
+    ScaleFactor,
+    Tap,
+    WhiteNoise,
+)
+
+#: Decorators that run their own ``apply`` on their columns inside a plan.
+_OWN_APPLY = (Bias, ScaleFactor, Delay, Tap)
+#: Every decorator type a plan handles (exact types).
+_KNOWN = (WhiteNoise, BiasRandomWalk, Quantize, *_OWN_APPLY)
+
+
+class _NotFusable(Exception):
+    """The suite has a sensor a plan cannot apply across channels."""
+
+
+def _index(cols: list[int], width: int | None = None) -> Any:
+    """Columns as an index: None for all ``width`` of them (the array itself), a basic slice
+    when consecutive (a view), else an int array (``take`` and a fancy assignment)."""
+    if width is not None and cols == list(range(width)):
+        return None
+    lo = cols[0]
+    return (slice(lo, lo + len(cols)) if cols == list(range(lo, lo + len(cols)))
+            else np.array(cols))
+
+
+def _get(a: np.ndarray, index: Any) -> np.ndarray:
+    """The columns ``index`` (:func:`_index`) of ``a``."""
+    if index is None:
+        return a
+    return a[:, index] if type(index) is slice else a.take(index, axis=1)
+
+
+class _Tiled:
+    """A per-column parameter (c,) repeated for k rows, remade when k changes (numpy's
+    ufuncs between arrays of one shape skip the broadcasting machinery)."""
+
+    __slots__ = ("values", "rows")
+
+    def __init__(self, values: np.ndarray):
+        self.values = values
+        self.rows = np.zeros((0, len(values)))
+
+    def of(self, k: int) -> np.ndarray:
+        """``values`` as a read-only (k, c) array."""
+        rows = self.rows
+        if len(rows) != k:
+            rows = np.tile(self.values, (k, 1))
+            rows.flags.writeable = False
+            self.rows = rows
+        return rows
+
+
+class _Group:
+    """Decorators of one kind and level applied on all their columns at once.
+
+    Parameters
+    ----------
+    decorators : list of (Decorator, int, int)
+        The decorators with their first column and first normal in the plan's layout.
+    width : int
+        The plan's columns.
+    values : list of ndarray, optional
+        Each decorator's per-channel parameter (std, resolution, walk step), tiled for the k
+        rows of a sample (:class:`_Tiled`).
+    """
+
+    def __init__(self, decorators: list[tuple[Any, int, int]], width: int,
+                 values: list[np.ndarray] | None = None):
+        self.cols = _index([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)],
+                           width)
+        self.xcols = _index([o + j for d, _, o in decorators for j in range(d.dim)])
+        self.values = None if values is None else _Tiled(np.concatenate(values))
+
+    def _put(self, y: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``y`` with the group's columns set to ``values`` (``values`` for all of them)."""
+        cols = self.cols
+        if cols is None:
+            return values
+        y[:, cols] = values
+        return y
+
+
+class _NoiseGroup(_Group):
+    """White noise with a per-channel std on its columns: ``y + std xi``."""
+
+    def __init__(self, decorators: list[tuple[WhiteNoise, int, int]], width: int):
+        super().__init__(decorators, width, [d._std for d, _, _ in decorators])
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> np.ndarray:
+        return self._put(y, _get(y, self.cols)
+                         + self.values.of(len(y)) * _get(xi, self.xcols))
+
+
+class _QuantizeGroup(_Group):
+    """Quantization on its columns: ``round(y / step) step``."""
+
+    def __init__(self, decorators: list[tuple[Quantize, int, int]], width: int):
+        super().__init__(decorators, width, [d.step for d, _, _ in decorators])
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> np.ndarray:
+        step = self.values.of(len(y))
+        return self._put(y, np.rint(_get(y, self.cols) / step) * step)
+
+
+class _WalkGroup(_Group):
+    """Bias random walks on its columns: ``y + b_k``, then ``b_{k+1} = b_k + walk sqrt(dt_s)
+    xi`` (walking decorators), in one (num, c) bias array the decorators view."""
+
+    def __init__(self, decorators: list[tuple[BiasRandomWalk, int, int]], width: int,
+                 walks: bool):
+        super().__init__(decorators, width,
+                         [d.walk * np.sqrt(d.dt_s) for d, _, _ in decorators] if walks
+                         else None)
+        num = len(decorators[0][0].bias)
+        self.bias = np.zeros((num, sum(d.dim for d, _, _ in decorators)))
+        self.views: list[tuple[BiasRandomWalk, np.ndarray]] = []
+        c = 0
+        for d, _, _ in decorators:  # the decorators' state moves into the shared array
+            view = self.bias[:, c:c + d.dim]
+            view[...] = d.bias
+            d.bias = view
+            self.views.append((d, view))
+            c += d.dim
+
+    def current(self) -> bool:
+        """Whether every decorator still keeps its bias in this group's array (a decorator
+        allocated again since, fused by another suite or copied has its own)."""
+        bias = self.bias
+        for d, v in self.views:
+            if d.bias is not v or v.base is not bias:
+                return False
+        return True
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> np.ndarray:
+        bias = self.bias[members]
+        y = self._put(y, _get(y, self.cols) + bias)
+        if self.values is not None:  # the walk
+            self.bias[members] = bias + self.values.of(len(y)) * _get(xi, self.xcols)
+        return y
+
+
+class _OwnApply:
+    """One decorator's own ``apply`` on its columns, with its normals (if any)."""
+
+    def __init__(self, decorator: Decorator, c0: int, offset: int, draws: int):
+        self.decorator, self.cols = decorator, slice(c0, c0 + decorator.dim)
+        self.draws = slice(offset, offset + draws) if draws else None
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> np.ndarray:
+        drawn = noise if self.draws is None else Drawn(xi[:, self.draws])
+        view = y[:, self.cols]
+        out = self.decorator.apply(view, sample, drawn)
+        if out is not view:  # (a Tap returns its input)
+            y[:, self.cols] = out
+        return y
+
+
+class FusedPlan:
+    """How to measure a suite with its decorators applied across channels (module docstring).
+
+    Build it with :func:`build_plan`; :meth:`measure` equals ``Suite.measure`` bitwise.
+
+    Parameters
+    ----------
+    suite : Suite
+        The (allocated) suite.
+    leaves : list of (Sensor, int, int, int)
+        Leaf sensors with their first column, draw offset and draws per sample.
+    decorators : list of (int, Decorator, int, int, int)
+        Decorators with their level, first column, draw offset and own draws per sample.
+    """
+
+    def __init__(self, suite: Suite, leaves: list[tuple[Sensor, int, int, int]],
+                 decorators: list[tuple[int, Decorator, int, int, int]]):
+        self.dim = suite.dim
+        self.draws = suite.draws_per_sample() or 0
+        # what applies each decorator: a group of its kind and level, or its own apply
+        groups: dict[tuple[int, Any], list[tuple[Any, int, int]]] = {}
+        owns: list[tuple[int, Decorator, int, int, int]] = []
+        for lv, dec, c0, offset, draws in decorators:
+            kind = type(dec)
+            if kind is WhiteNoise and dec._std is not None:
+                if draws:  # (zero noise draws nothing and changes nothing)
+                    groups.setdefault((lv, "noise"), []).append((dec, c0, offset))
+            elif kind is BiasRandomWalk:
+                groups.setdefault((lv, ("walk", bool(draws))), []).append((dec, c0, offset))
+            elif kind is Quantize:
+                groups.setdefault((lv, "quantize"), []).append((dec, c0, offset))
+            else:  # (correlated white noise too)
+                owns.append((lv, dec, c0, offset, draws))
+        col, draw, out = _layout(leaves, decorators, groups, self.dim, self.draws)
+        #: Output column j is column ``out[j]`` of the internal layout (None: the same).
+        self.out = out
+        #: The normals in the internal order (None: as drawn).
+        self.draw_order = (None if draw == list(range(self.draws))
+                           else np.argsort(np.array(draw)))
+        self.leaves = [(s, slice(col[c0], col[c0] + s.dim),
+                        slice(draw[o], draw[o] + d) if d else None) for s, c0, o, d in leaves]
+        #: The only leaf when it is a suite of bare state channels covering every column
+        #: (whose measurement, a gather, is a new array the decorators may change in place).
+        self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
+                      and leaves[0][0].dim == self.dim else None)
+        width, total = self.dim, self.draws
+        self.walk_groups: list[_WalkGroup] = []
+        #: The steps, level by level.
+        self.steps: list[Any] = []
+        for level in sorted({lv for lv, *_ in decorators}):
+            for lv, dec, c0, offset, draws in owns:
+                if lv == level:
+                    self.steps.append(_OwnApply(dec, col[c0], draw[offset] if draws else 0,
+                                                draws))
+            for (lv, key), members in groups.items():
+                if lv != level:
+                    continue
+                placed = sorted(((d, col[c0], draw[o] if o < total else o)
+                                 for d, c0, o in members), key=lambda m: m[1])
+                if key == "noise":
+                    self.steps.append(_NoiseGroup(placed, width))
+                elif key == "quantize":
+                    self.steps.append(_QuantizeGroup(placed, width))
+                else:
+                    group = _WalkGroup(placed, width, walks=key[1])
+                    self.walk_groups.append(group)
+                    self.steps.append(group)
+
+    def current(self) -> bool:
+        """Whether the plan's state arrays are still the decorators' own."""
+        for group in self.walk_groups:
+            if not group.current():
+                return False
+        return True
+
+    def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
+        """The suite's measurement of ``sample``, shape (k, m)."""
+        xi = noise.normal(self.draws) if self.draws else None
+        if self.draw_order is not None:
+            xi = xi.take(self.draw_order, axis=1)
+        if self.whole is not None:  # one suite of state channels: its gather is a new array
+            y = self.whole.measure(sample, noise)
+        else:
+            y = np.empty((len(sample.x), self.dim))
+            for sensor, cols, draws in self.leaves:
+                y[:, cols] = sensor.measure(sample,
+                                            noise if draws is None else Drawn(xi[:, draws]))
+        members = sample.members
+        for step in self.steps:
+            y = step.apply(y, xi, members, sample, noise)
+        return y if self.out is None else y.take(self.out, axis=1)
+
+
+def _layout(leaves: list[tuple[Sensor, int, int, int]],
+            decorators: list[tuple[int, Decorator, int, int, int]],
+            groups: dict[tuple[int, Any], list[tuple[Any, int, int]]], width: int,
+            draws: int) -> tuple[list[int], list[int], np.ndarray | None]:
+    """Where the plan keeps each column and each normal: the order of the leaves (of up to
+    six; else as given) in which the most groups have consecutive columns (a slice, not a
+    gather and a fancy assignment), and the normals in the groups' order.
+
+    Every decorator's columns stay consecutive and in order. Returns the internal column of
+    each output column, the internal position of each normal (in draw order) and the output
+    gather (None when the columns keep their order).
+    """
+    blocks = [(c0, s.dim) for s, c0, _, _ in leaves]
+    identity = tuple(range(len(blocks)))
+    orders = itertools.permutations(identity) if len(blocks) <= 6 else [identity]
+    best: tuple[int, list[int], list[int]] | None = None
+    for order in orders:
+        col = [0] * width
+        c = 0
+        for j in order:
+            c0, dim = blocks[j]
+            for i in range(dim):
+                col[c0 + i] = c + i
+            c += dim
+        if any(col[c0:c0 + dec.dim] != list(range(col[c0], col[c0] + dec.dim))
+               for _, dec, c0, _, _ in decorators):
+            continue  # a decorator's columns apart or out of order
+        drawn: list[int] = []  # the normals of the drawing groups, in their columns' order
+        gaps = 0
+        for (_, key), members in groups.items():
+            cols = sorted(col[c0] + i for d, c0, _ in members for i in range(d.dim))
+            gaps += cols != list(range(cols[0], cols[0] + len(cols)))
+            if key == "noise" or key == ("walk", True):
+                for d, _c0, o in sorted(members, key=lambda m: col[m[1]]):
+                    drawn.extend(range(o, o + d.dim))
+        order_of = drawn + [o for o in range(draws) if o not in set(drawn)]
+        draw = [0] * draws
+        for position, o in enumerate(order_of):
+            draw[o] = position
+        cost = 2 * gaps + (order != identity) + (order_of != list(range(draws)))
+        if best is None or cost < best[0]:
+            best = (cost, col, draw)
+    assert best is not None  # the given order always keeps the decorators' columns
+    _, col, draw = best
+    return col, draw, None if col == list(range(width)) else np.array(col)
+
+
+def build_plan(suite: Suite) -> FusedPlan | None:
+    """The :class:`FusedPlan` of an allocated suite, or None when it has a sensor a plan
+    cannot fuse or no decorator to fuse (module docstring)."""
+    leaves: list[tuple[Sensor, int, int, int]] = []
+    decorators: list[tuple[int, Decorator, int, int, int]] = []
+
+    def visit(sensor: Sensor, c0: int, offset: int) -> tuple[int, int]:
+        """Record ``sensor`` at column ``c0`` and draw offset ``offset``; its level and the
+        draw offset after it."""
+        if isinstance(sensor, Suite) and sensor._state_index is None:
+            level, c = 0, c0
+            for part in sensor.sensors:
+                lv, offset = visit(part, c, offset)
+                level, c = max(level, lv), c + part.dim
+            return level, offset
+        total = sensor.draws_per_sample()
+        if total is None:
+            raise _NotFusable
+        if isinstance(sensor, Decorator):
+            if type(sensor) not in _KNOWN:
+                raise _NotFusable
+            level, offset = visit(sensor.inner, c0, offset)
+            own = total - sensor.inner.draws_per_sample()
+            decorators.append((level + 1, sensor, c0, offset, own))
+            return level + 1, offset + own
+        leaves.append((sensor, c0, offset, total))  # (a suite of bare state channels: one
+        return 0, offset + total                      # gather)
+
+    try:
+        visit(suite, 0, 0)
+    except _NotFusable:
+        return None
+    if not decorators:
+        return None
+    return FusedPlan(suite, leaves, decorators)
