@@ -41,11 +41,18 @@ from filters._linalg import (
     TimeArg,
     TimeFunction,
     checked_array,
+    max_abs_eigenvalue,
     positive_time,
     readonly,
+    shared_member,
     to_float_array,
 )
-from filters.errors import FilterError, FiniteEscapeError, check_covariance
+from filters.errors import (
+    FilterError,
+    FiniteEscapeError,
+    check_covariance,
+    check_shared_covariance,
+)
 from filters.kalman import _IntegratedFilter
 from filters.stiff import integrator_for, rosenbrock2
 
@@ -719,9 +726,14 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                     s[..., n + nn:].reshape(*batch, n, n))
 
         def rhs(t: float, s: FloatArray) -> FloatArray:
-            dm, dP, dS = self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u,
-                                   *split(s))
-            return np.concatenate([dm, dP.reshape(*batch, nn), dS.reshape(*batch, nn)], -1)
+            mm, PP, SS = split(s)
+            # shared P and S (see solver): their equations once, broadcast to the members
+            dm, dP, dS = self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u, mm,
+                                   _first_if_shared(PP), _first_if_shared(SS))
+            return np.concatenate([dm, np.broadcast_to(dP.reshape(*dP.shape[:-2], nn),
+                                                       (*batch, nn)),
+                                   np.broadcast_to(dS.reshape(*dS.shape[:-2], nn),
+                                                   (*batch, nn))], -1)
 
         eye_n = np.eye(n)
 
@@ -740,6 +752,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
             mm, PP, SS = split(s)
             e1 = np.vecmat(y[..., :m1], c.W1) - np.vecmat(mm, c.M1)
             e2 = np.vecmat(y[..., m1:], c.W2) - np.vecmat(mm, c.N2)
+            # P and S do not depend on m: members that share P0 share P (and S), and the
+            # blocks of W^-1 from them
+            PP, SS = _first_if_shared(PP), _first_if_shared(SS)
             Wm = np.linalg.inv(eye_n - gh * (c.A - PP @ c.M1 - SS @ c.N2))
             WP = lyapunov(c.A - PP @ c.M1, gh)
             WS = lyapunov(c.A - SS[(0,) * len(batch)] @ c.M2, gh)  # the same for all
@@ -757,10 +772,8 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
             nonlocal m, P, S
             m = s[..., :n]
-            P = check_covariance(s[..., n:n + nn].reshape(*batch, n, n), time=t_end,
-                                 quantity="P")
-            S = check_covariance(s[..., n + nn:].reshape(*batch, n, n), time=t_end,
-                                 quantity="S")
+            P = _check_stack(s[..., n:n + nn].reshape(*batch, n, n), time=t_end, quantity="P")
+            S = _check_stack(s[..., n + nn:].reshape(*batch, n, n), time=t_end, quantity="S")
             return np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)], -1)
 
         with np.errstate(over="ignore", invalid="ignore"):
@@ -773,7 +786,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                                     time=self._time(self._steps + 1), quantity="x", value=m)
         S = np.array(S[(0,) * len(batch)])
         self.innovation = innovation
-        return m, np.array(P), S
+        return m, np.array(P, order="C"), S
 
     def _step_generic(
         self, y: FloatArray, u: FloatArray | None
@@ -787,6 +800,10 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         t_start = self.t_s
         C = np.vstack([self._C1(t_start), self._C2(t_start)])
         innovation = y - np.vecmat(m, C.T)
+        # P does not depend on m: members that share P0 share P, integrated once
+        shared = shared_member(P)
+        if shared is not None:
+            P = shared
 
         def rhs(t: float, m: FloatArray, P: FloatArray,
                 S: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -803,10 +820,13 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                 X + (h / 6.0) * (a + 2.0 * (b_ + c_) + d)
                 for X, a, b_, c_, d in zip((m, P, S), k1, k2, k3, k4, strict=True)
             )
-            P = check_covariance(P, time=te, quantity="P")
+            if shared is None:
+                P = check_covariance(P, time=te, quantity="P")
+            else:
+                P = check_shared_covariance(P, self._batch, time=te, quantity="P")
             S = check_covariance(S, time=te, quantity="S")
         m = np.array(np.broadcast_to(m, (*self._batch, self._n)))
-        P = np.array(np.broadcast_to(P, (*self._batch, self._n, self._n)))
+        P = np.array(np.broadcast_to(P, (*self._batch, self._n, self._n)), order="C")
         if not np.isfinite(m).all():
             raise FiniteEscapeError("state estimate became non-finite",
                                     time=self._time(self._steps + 1), quantity="x", value=m)
@@ -843,9 +863,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         S_arr = self._S if S is None else to_float_array("S", S)
         PM1 = P_arr @ c.M1
         rates = (
-            2.0 * float(np.abs(np.linalg.eigvals(c.A - PM1)).max()),
-            2.0 * float(np.abs(np.linalg.eigvals(c.A - S_arr @ c.M2)).max()),
-            float(np.abs(np.linalg.eigvals(c.A - PM1 - S_arr @ c.N2)).max()),
+            2.0 * max_abs_eigenvalue(c.A - PM1),
+            2.0 * max_abs_eigenvalue(c.A - S_arr @ c.M2),
+            max_abs_eigenvalue(c.A - PM1 - S_arr @ c.N2),
         )
         if not all(math.isfinite(r) for r in rates):
             return self._substeps
@@ -962,6 +982,23 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
 class _FastPathFailure(Exception):
     """Internal: the block integrator saw a failed check; redo with the generic one."""
+
+
+def _first_if_shared(X: FloatArray) -> FloatArray:
+    """:func:`~filters._linalg.shared_member` of a stack of matrices, else ``X`` itself."""
+    first = shared_member(X)
+    return X if first is None else first
+
+
+def _check_stack(X: FloatArray, *, time: float, quantity: str) -> FloatArray:
+    """:func:`~filters.errors.check_covariance` of ``X``, shape (..., n, n); a stack of equal
+    matrices is checked on one (:func:`~filters.errors.check_shared_covariance`) and returned
+    as a read-only broadcast of it."""
+    first = shared_member(X)
+    if first is None:
+        return check_covariance(X, time=time, quantity=quantity)
+    return np.broadcast_to(check_shared_covariance(first, X.shape[:-2], time=time,
+                                                   quantity=quantity), X.shape)
 
 
 def _sym(X: FloatArray) -> FloatArray:
