@@ -720,20 +720,30 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         y = np.broadcast_to(y, (*batch, self._m))
         u = None if u is None else np.broadcast_to(u, (*batch, self._k))
         nn = n * n
+        # P and S do not depend on m: members that share P0 share P (S is shared), and every
+        # substep keeps them shared (the same operations on the same numbers). Their
+        # equations, the blocks of W^-1 and the checks are then evaluated on the first
+        # member (shape (1, ..., 1, n, n)), broadcast against the means.
+        first = (slice(0, 1),) * len(batch)
+        P_shared = shared_member(P) is not None
+        S_shared = bool(batch)
 
         def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-            return (s[..., :n], s[..., n:n + nn].reshape(*batch, n, n),
-                    s[..., n + nn:].reshape(*batch, n, n))
+            Ps = s[..., n:n + nn].reshape(*batch, n, n)
+            Ss = s[..., n + nn:].reshape(*batch, n, n)
+            return (s[..., :n], Ps[first] if P_shared else Ps, Ss[first] if S_shared else Ss)
+
+        def stack(m: FloatArray, P: FloatArray, S: FloatArray) -> FloatArray:
+            """``[m, vec(P), vec(S)]`` of the members (shared ``P``, ``S`` broadcast)."""
+            s = np.empty((*batch, n + 2 * nn))
+            s[..., :n] = m
+            s[..., n:n + nn] = P.reshape(*P.shape[:-2], nn)
+            s[..., n + nn:] = S.reshape(*S.shape[:-2], nn)
+            return s
 
         def rhs(t: float, s: FloatArray) -> FloatArray:
-            mm, PP, SS = split(s)
-            # shared P and S (see solver): their equations once, broadcast to the members
-            dm, dP, dS = self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u, mm,
-                                   _first_if_shared(PP), _first_if_shared(SS))
-            return np.concatenate([dm, np.broadcast_to(dP.reshape(*dP.shape[:-2], nn),
-                                                       (*batch, nn)),
-                                   np.broadcast_to(dS.reshape(*dS.shape[:-2], nn),
-                                                   (*batch, nn))], -1)
+            return stack(*self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u,
+                                    *split(s)))
 
         eye_n = np.eye(n)
 
@@ -752,29 +762,31 @@ class MeanSquareHInfFilter(_IntegratedFilter):
             mm, PP, SS = split(s)
             e1 = np.vecmat(y[..., :m1], c.W1) - np.vecmat(mm, c.M1)
             e2 = np.vecmat(y[..., m1:], c.W2) - np.vecmat(mm, c.N2)
-            # P and S do not depend on m: members that share P0 share P (and S), and the
-            # blocks of W^-1 from them
-            PP, SS = _first_if_shared(PP), _first_if_shared(SS)
             Wm = np.linalg.inv(eye_n - gh * (c.A - PP @ c.M1 - SS @ c.N2))
             WP = lyapunov(c.A - PP @ c.M1, gh)
             WS = lyapunov(c.A - SS[(0,) * len(batch)] @ c.M2, gh)  # the same for all
 
             def solve(v: FloatArray) -> FloatArray:
-                kP = (WP @ v[..., n:n + nn, None])[..., 0]
-                kS = np.vecmat(v[..., n + nn:], WS.T)
-                coupling = ((kP.reshape(*batch, n, n) @ e1[..., None])[..., 0]
-                            + np.vecmat(e2, kS.reshape(*batch, n, n)))
+                _, vP, vS = split(v)  # the P and S blocks of v are shared as P and S
+                kP = (WP @ vP.reshape(*vP.shape[:-2], nn, 1))[..., 0].reshape(vP.shape)
+                kS = np.vecmat(vS.reshape(*vS.shape[:-2], nn), WS.T).reshape(vS.shape)
+                coupling = (kP @ e1[..., None])[..., 0] + np.vecmat(e2, kS)
                 km = ((Wm @ (v[..., :n] + gh * coupling)[..., None])[..., 0])
-                return np.concatenate([km, kP, kS], -1)
+                return stack(km, kP, kS)
 
             return solve
 
+        def check(X: FloatArray, shared: bool, t_end: float, quantity: str) -> FloatArray:
+            if shared:
+                return check_shared_covariance(X, batch, time=t_end, quantity=quantity)
+            return check_covariance(X, time=t_end, quantity=quantity)
+
         def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
             nonlocal m, P, S
-            m = s[..., :n]
-            P = _check_stack(s[..., n:n + nn].reshape(*batch, n, n), time=t_end, quantity="P")
-            S = _check_stack(s[..., n + nn:].reshape(*batch, n, n), time=t_end, quantity="S")
-            return np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)], -1)
+            m, PP, SS = split(s)
+            P = check(PP, P_shared, t_end, "P")
+            S = check(SS, S_shared, t_end, "S")
+            return stack(m, P, S)
 
         with np.errstate(over="ignore", invalid="ignore"):
             rosenbrock2(rhs, np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)],
@@ -786,7 +798,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                                     time=self._time(self._steps + 1), quantity="x", value=m)
         S = np.array(S[(0,) * len(batch)])
         self.innovation = innovation
-        return m, np.array(P, order="C"), S
+        return m, np.array(np.broadcast_to(P, (*batch, n, n)), order="C"), S
 
     def _step_generic(
         self, y: FloatArray, u: FloatArray | None
@@ -982,23 +994,6 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
 class _FastPathFailure(Exception):
     """Internal: the block integrator saw a failed check; redo with the generic one."""
-
-
-def _first_if_shared(X: FloatArray) -> FloatArray:
-    """:func:`~filters._linalg.shared_member` of a stack of matrices, else ``X`` itself."""
-    first = shared_member(X)
-    return X if first is None else first
-
-
-def _check_stack(X: FloatArray, *, time: float, quantity: str) -> FloatArray:
-    """:func:`~filters.errors.check_covariance` of ``X``, shape (..., n, n); a stack of equal
-    matrices is checked on one (:func:`~filters.errors.check_shared_covariance`) and returned
-    as a read-only broadcast of it."""
-    first = shared_member(X)
-    if first is None:
-        return check_covariance(X, time=time, quantity=quantity)
-    return np.broadcast_to(check_shared_covariance(first, X.shape[:-2], time=time,
-                                                   quantity=quantity), X.shape)
 
 
 def _sym(X: FloatArray) -> FloatArray:
