@@ -544,6 +544,10 @@ class KalmanBucyFilter(_IntegratedFilter):
     unstable step size surfaces as :class:`LossOfDefinitenessError` or
     :class:`FiniteEscapeError`. A non-finite mean raises ``FiniteEscapeError``
     with ``quantity="x"``.
+
+    ``P`` does not depend on the data: a batch whose members share one covariance (one
+    ``P0``) integrates the Riccati equation once, on one member broadcast against the means
+    (the same operations on the same numbers as member by member, the same checks).
     """
 
     name: ClassVar[str] = "kalman-bucy"
