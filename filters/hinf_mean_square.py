@@ -720,18 +720,14 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         y = np.broadcast_to(y, (*batch, self._m))
         u = None if u is None else np.broadcast_to(u, (*batch, self._k))
         nn = n * n
-        # P and S do not depend on m: members that share P0 share P (S is shared), and every
-        # substep keeps them shared (the same operations on the same numbers). Their
-        # equations, the blocks of W^-1 and the checks are then evaluated on the first
-        # member (shape (1, ..., 1, n, n)), broadcast against the means.
-        first = (slice(0, 1),) * len(batch)
-        P_shared = shared_member(P) is not None
-        S_shared = bool(batch)
+        # P and S do not depend on m: members that share P0 share P (S is shared). Blocks
+        # shared by all members (the filter's own substeps keep them so: the same operations
+        # on the same numbers) are evaluated on the first member, shape (1, ..., 1, n, n),
+        # broadcast against the means: equations, blocks of W^-1 and checks.
 
         def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-            Ps = s[..., n:n + nn].reshape(*batch, n, n)
-            Ss = s[..., n + nn:].reshape(*batch, n, n)
-            return (s[..., :n], Ps[first] if P_shared else Ps, Ss[first] if S_shared else Ss)
+            return (s[..., :n], _first_if_shared(s[..., n:n + nn].reshape(*batch, n, n)),
+                    _first_if_shared(s[..., n + nn:].reshape(*batch, n, n)))
 
         def stack(m: FloatArray, P: FloatArray, S: FloatArray) -> FloatArray:
             """``[m, vec(P), vec(S)]`` of the members (shared ``P``, ``S`` broadcast)."""
@@ -776,16 +772,16 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
             return solve
 
-        def check(X: FloatArray, shared: bool, t_end: float, quantity: str) -> FloatArray:
-            if shared:
+        def check(X: FloatArray, t_end: float, quantity: str) -> FloatArray:
+            if X.shape[:-2] != batch:  # shared
                 return check_shared_covariance(X, batch, time=t_end, quantity=quantity)
             return check_covariance(X, time=t_end, quantity=quantity)
 
         def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
             nonlocal m, P, S
             m, PP, SS = split(s)
-            P = check(PP, P_shared, t_end, "P")
-            S = check(SS, S_shared, t_end, "S")
+            P = check(PP, t_end, "P")
+            S = check(SS, t_end, "S")
             return stack(m, P, S)
 
         with np.errstate(over="ignore", invalid="ignore"):
@@ -994,6 +990,12 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
 class _FastPathFailure(Exception):
     """Internal: the block integrator saw a failed check; redo with the generic one."""
+
+
+def _first_if_shared(X: FloatArray) -> FloatArray:
+    """:func:`~filters._linalg.shared_member` of a stack of matrices, else ``X`` itself."""
+    first = shared_member(X)
+    return X if first is None else first
 
 
 def _sym(X: FloatArray) -> FloatArray:
