@@ -180,12 +180,16 @@ def check_shared_covariance(
     P: npt.NDArray[np.float64], batch: tuple[int, ...], *, time: float, quantity: str = "P",
     escape_bound: float = 1e12
 ) -> npt.NDArray[np.float64]:
-    """:func:`check_covariance` of a stack whose members are all ``P``, on ``P`` alone.
+    """:func:`check_covariance` of the stack ``P`` broadcast to the batch, evaluated on ``P``.
+
+    For a batch of filters whose members share one covariance, ``P`` is that member (a
+    length-1 axis per batch axis) and only it is symmetrized and factored; the stack itself
+    (shape ``(*batch, n, n)``) is also accepted.
 
     Parameters
     ----------
-    P : numpy.ndarray, shape (1, ..., 1, n, n)
-        The one member, with a length-1 axis per batch axis.
+    P : numpy.ndarray, shape (..., n, n)
+        Broadcasts to ``(*batch, n, n)``.
     batch : tuple of int
         The batch shape of the stack.
     time, quantity, escape_bound

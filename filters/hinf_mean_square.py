@@ -772,16 +772,11 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
             return solve
 
-        def check(X: FloatArray, t_end: float, quantity: str) -> FloatArray:
-            if X.shape[:-2] != batch:  # shared
-                return check_shared_covariance(X, batch, time=t_end, quantity=quantity)
-            return check_covariance(X, time=t_end, quantity=quantity)
-
         def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
             nonlocal m, P, S
             m, PP, SS = split(s)
-            P = check(PP, t_end, "P")
-            S = check(SS, t_end, "S")
+            P = check_shared_covariance(PP, batch, time=t_end, quantity="P")
+            S = check_shared_covariance(SS, batch, time=t_end, quantity="S")
             return stack(m, P, S)
 
         with np.errstate(over="ignore", invalid="ignore"):
@@ -828,10 +823,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                 X + (h / 6.0) * (a + 2.0 * (b_ + c_) + d)
                 for X, a, b_, c_, d in zip((m, P, S), k1, k2, k3, k4, strict=True)
             )
-            if shared is None:
-                P = check_covariance(P, time=te, quantity="P")
-            else:
-                P = check_shared_covariance(P, self._batch, time=te, quantity="P")
+            P = check_shared_covariance(P, self._batch, time=te, quantity="P")
             S = check_covariance(S, time=te, quantity="S")
         m = np.array(np.broadcast_to(m, (*self._batch, self._n)))
         P = np.array(np.broadcast_to(P, (*self._batch, self._n, self._n)), order="C")

@@ -643,11 +643,7 @@ class KalmanBucyFilter(_IntegratedFilter):
             k4m, k4P = self._rhs(m + h * k3m, P + h * k3P, ybar, Bu)
             m = m + (h / 6.0) * (k1m + 2.0 * (k2m + k3m) + k4m)
             P = P + (h / 6.0) * (k1P + 2.0 * (k2P + k3P) + k4P)
-            if shared is None:
-                P = check_covariance(P, time=t0 + (i + 1) * h, quantity="P")
-            else:
-                P = check_shared_covariance(P, self._batch, time=t0 + (i + 1) * h,
-                                            quantity="P")
+            P = check_shared_covariance(P, self._batch, time=t0 + (i + 1) * h, quantity="P")
         steps = self._steps + 1
         self._check_state(m, steps)
         if shared is not None:
