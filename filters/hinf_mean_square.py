@@ -726,8 +726,12 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         # broadcast against the means: equations, blocks of W^-1 and checks.
 
         def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-            return (s[..., :n], _first_if_shared(s[..., n:n + nn].reshape(*batch, n, n)),
-                    _first_if_shared(s[..., n + nn:].reshape(*batch, n, n)))
+            PS = shared_member(s[..., n:], core_ndim=1)  # P and S shared: one comparison
+            if PS is None:
+                return (s[..., :n], _first_if_shared(s[..., n:n + nn].reshape(*batch, n, n)),
+                        _first_if_shared(s[..., n + nn:].reshape(*batch, n, n)))
+            return (s[..., :n], PS[..., :nn].reshape(*PS.shape[:-1], n, n),
+                    PS[..., nn:].reshape(*PS.shape[:-1], n, n))
 
         def stack(m: FloatArray, P: FloatArray, S: FloatArray) -> FloatArray:
             """``[m, vec(P), vec(S)]`` of the members (shared ``P``, ``S`` broadcast)."""
