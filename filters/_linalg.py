@@ -96,6 +96,49 @@ def to_float_array(name: str, value: object) -> FloatArray:
     return real_array(value, name, finite=False)
 
 
+def shared_member(X: FloatArray, core_ndim: int = 2) -> FloatArray | None:
+    """The first member of a stack whose members are all equal, else ``None``.
+
+    Parameters
+    ----------
+    X : numpy.ndarray, shape (..., *core)
+        A stack of ``core_ndim``-dimensional members (a batch of filters' covariances).
+    core_ndim : int
+        Number of trailing axes of one member.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        A view of shape ``(1, ..., 1, *core)`` (broadcasts against the stack) when ``X`` has
+        batch axes and every member equals the first (NaN compares unequal), else ``None``.
+    """
+    lead = X.ndim - core_ndim
+    if lead <= 0:
+        return None
+    first = X[(slice(0, 1),) * lead]
+    return first if (X == first).all() else None
+
+
+def max_abs_eigenvalue(M: FloatArray) -> float:
+    """``max |lambda|`` over the eigenvalues of a matrix or of every matrix of a stack.
+
+    A stack whose matrices are all equal (a batch of filters sharing one covariance) costs
+    one eigenvalue computation (:func:`shared_member`): the same LAPACK call on the same
+    numbers, hence the same value as the whole stack's.
+
+    Parameters
+    ----------
+    M : numpy.ndarray, shape (n, n) or (..., n, n)
+
+    Returns
+    -------
+    float
+        The largest eigenvalue magnitude (NaN if an eigenvalue is NaN).
+    """
+    first = shared_member(M)
+    return float(np.abs(np.linalg.eigvals(M if first is None else first)).max())
+
+
 def readonly(arr: FloatArray) -> FloatArray:
     """Mark ``arr`` read-only in place and return it."""
     arr.flags.writeable = False

@@ -18,6 +18,7 @@ __all__ = [
     "LossOfDefinitenessError",
     "SubstepLimitError",
     "check_covariance",
+    "check_shared_covariance",
     "check_symmetric_covariance",
 ]
 
@@ -163,8 +164,8 @@ def check_symmetric_covariance(
     """
     v = Ps.ravel()
     if v.dot(v) <= escape_bound * escape_bound:  # all entries bounded (False for NaN)
-        if Ps.ndim == 2:
-            if _dpotrf(Ps)[1] == 0:
+        if Ps.ndim == 2 or 0 < Ps.size == Ps.shape[-1] ** 2:  # one matrix
+            if _dpotrf(Ps.reshape(Ps.shape[-2:]))[1] == 0:
                 return
         elif Ps.size:
             try:  # positive definite stack: nothing more to check
@@ -173,6 +174,44 @@ def check_symmetric_covariance(
             except np.linalg.LinAlgError:
                 pass
     _check_exact(Ps, time=time, quantity=quantity, escape_bound=escape_bound)
+
+
+def check_shared_covariance(
+    P: npt.NDArray[np.float64], batch: tuple[int, ...], *, time: float, quantity: str = "P",
+    escape_bound: float = 1e12
+) -> npt.NDArray[np.float64]:
+    """:func:`check_covariance` of the stack ``P`` broadcast to the batch, evaluated on ``P``.
+
+    For a batch of filters whose members share one covariance, ``P`` is that member (a
+    length-1 axis per batch axis) and only it is symmetrized and factored; the stack itself
+    (shape ``(*batch, n, n)``) is also accepted.
+
+    Parameters
+    ----------
+    P : numpy.ndarray, shape (..., n, n)
+        Broadcasts to ``(*batch, n, n)``.
+    batch : tuple of int
+        The batch shape of the stack.
+    time, quantity, escape_bound
+        As in :func:`check_covariance`.
+
+    Returns
+    -------
+    numpy.ndarray, shape like ``P``
+        The symmetrized ``P``.
+
+    Raises
+    ------
+    FiniteEscapeError, LossOfDefinitenessError
+        The errors :func:`check_covariance` raises on the whole stack (same message, the
+        stack as ``value``).
+    """
+    try:
+        return check_covariance(P, time=time, quantity=quantity, escape_bound=escape_bound)
+    except FilterError:
+        check_covariance(np.broadcast_to(P, (*batch, *P.shape[-2:])), time=time,
+                         quantity=quantity, escape_bound=escape_bound)
+        raise
 
 
 def _check_exact(

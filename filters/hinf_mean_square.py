@@ -41,11 +41,18 @@ from filters._linalg import (
     TimeArg,
     TimeFunction,
     checked_array,
+    max_abs_eigenvalue,
     positive_time,
     readonly,
+    shared_member,
     to_float_array,
 )
-from filters.errors import FilterError, FiniteEscapeError, check_covariance
+from filters.errors import (
+    FilterError,
+    FiniteEscapeError,
+    check_covariance,
+    check_shared_covariance,
+)
 from filters.kalman import _IntegratedFilter
 from filters.stiff import integrator_for, rosenbrock2
 
@@ -713,15 +720,30 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         y = np.broadcast_to(y, (*batch, self._m))
         u = None if u is None else np.broadcast_to(u, (*batch, self._k))
         nn = n * n
+        # P and S do not depend on m: members that share P0 share P (S is shared). Blocks
+        # shared by all members (the filter's own substeps keep them so: the same operations
+        # on the same numbers) are evaluated on the first member, shape (1, ..., 1, n, n),
+        # broadcast against the means: equations, blocks of W^-1 and checks.
 
         def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-            return (s[..., :n], s[..., n:n + nn].reshape(*batch, n, n),
-                    s[..., n + nn:].reshape(*batch, n, n))
+            PS = shared_member(s[..., n:], core_ndim=1)  # P and S shared: one comparison
+            if PS is None:
+                return (s[..., :n], _first_if_shared(s[..., n:n + nn].reshape(*batch, n, n)),
+                        _first_if_shared(s[..., n + nn:].reshape(*batch, n, n)))
+            return (s[..., :n], PS[..., :nn].reshape(*PS.shape[:-1], n, n),
+                    PS[..., nn:].reshape(*PS.shape[:-1], n, n))
+
+        def stack(m: FloatArray, P: FloatArray, S: FloatArray) -> FloatArray:
+            """``[m, vec(P), vec(S)]`` of the members (shared ``P``, ``S`` broadcast)."""
+            s = np.empty((*batch, n + 2 * nn))
+            s[..., :n] = m
+            s[..., n:n + nn] = P.reshape(*P.shape[:-2], nn)
+            s[..., n + nn:] = S.reshape(*S.shape[:-2], nn)
+            return s
 
         def rhs(t: float, s: FloatArray) -> FloatArray:
-            dm, dP, dS = self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u,
-                                   *split(s))
-            return np.concatenate([dm, dP.reshape(*batch, nn), dS.reshape(*batch, nn)], -1)
+            return stack(*self._rhs(self._coefficients(t), y[..., :m1], y[..., m1:], u,
+                                    *split(s)))
 
         eye_n = np.eye(n)
 
@@ -745,23 +767,21 @@ class MeanSquareHInfFilter(_IntegratedFilter):
             WS = lyapunov(c.A - SS[(0,) * len(batch)] @ c.M2, gh)  # the same for all
 
             def solve(v: FloatArray) -> FloatArray:
-                kP = (WP @ v[..., n:n + nn, None])[..., 0]
-                kS = np.vecmat(v[..., n + nn:], WS.T)
-                coupling = ((kP.reshape(*batch, n, n) @ e1[..., None])[..., 0]
-                            + np.vecmat(e2, kS.reshape(*batch, n, n)))
+                _, vP, vS = split(v)  # the P and S blocks of v are shared as P and S
+                kP = (WP @ vP.reshape(*vP.shape[:-2], nn, 1))[..., 0].reshape(vP.shape)
+                kS = np.vecmat(vS.reshape(*vS.shape[:-2], nn), WS.T).reshape(vS.shape)
+                coupling = (kP @ e1[..., None])[..., 0] + np.vecmat(e2, kS)
                 km = ((Wm @ (v[..., :n] + gh * coupling)[..., None])[..., 0])
-                return np.concatenate([km, kP, kS], -1)
+                return stack(km, kP, kS)
 
             return solve
 
         def after(i: int, t_end: float, s: FloatArray) -> FloatArray:
             nonlocal m, P, S
-            m = s[..., :n]
-            P = check_covariance(s[..., n:n + nn].reshape(*batch, n, n), time=t_end,
-                                 quantity="P")
-            S = check_covariance(s[..., n + nn:].reshape(*batch, n, n), time=t_end,
-                                 quantity="S")
-            return np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)], -1)
+            m, PP, SS = split(s)
+            P = check_shared_covariance(PP, batch, time=t_end, quantity="P")
+            S = check_shared_covariance(SS, batch, time=t_end, quantity="S")
+            return stack(m, P, S)
 
         with np.errstate(over="ignore", invalid="ignore"):
             rosenbrock2(rhs, np.concatenate([m, P.reshape(*batch, nn), S.reshape(*batch, nn)],
@@ -773,7 +793,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                                     time=self._time(self._steps + 1), quantity="x", value=m)
         S = np.array(S[(0,) * len(batch)])
         self.innovation = innovation
-        return m, np.array(P), S
+        return m, np.array(np.broadcast_to(P, (*batch, n, n)), order="C"), S
 
     def _step_generic(
         self, y: FloatArray, u: FloatArray | None
@@ -787,6 +807,10 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         t_start = self.t_s
         C = np.vstack([self._C1(t_start), self._C2(t_start)])
         innovation = y - np.vecmat(m, C.T)
+        # P does not depend on m: members that share P0 share P, integrated once
+        shared = shared_member(P)
+        if shared is not None:
+            P = shared
 
         def rhs(t: float, m: FloatArray, P: FloatArray,
                 S: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -803,10 +827,10 @@ class MeanSquareHInfFilter(_IntegratedFilter):
                 X + (h / 6.0) * (a + 2.0 * (b_ + c_) + d)
                 for X, a, b_, c_, d in zip((m, P, S), k1, k2, k3, k4, strict=True)
             )
-            P = check_covariance(P, time=te, quantity="P")
+            P = check_shared_covariance(P, self._batch, time=te, quantity="P")
             S = check_covariance(S, time=te, quantity="S")
         m = np.array(np.broadcast_to(m, (*self._batch, self._n)))
-        P = np.array(np.broadcast_to(P, (*self._batch, self._n, self._n)))
+        P = np.array(np.broadcast_to(P, (*self._batch, self._n, self._n)), order="C")
         if not np.isfinite(m).all():
             raise FiniteEscapeError("state estimate became non-finite",
                                     time=self._time(self._steps + 1), quantity="x", value=m)
@@ -843,9 +867,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         S_arr = self._S if S is None else to_float_array("S", S)
         PM1 = P_arr @ c.M1
         rates = (
-            2.0 * float(np.abs(np.linalg.eigvals(c.A - PM1)).max()),
-            2.0 * float(np.abs(np.linalg.eigvals(c.A - S_arr @ c.M2)).max()),
-            float(np.abs(np.linalg.eigvals(c.A - PM1 - S_arr @ c.N2)).max()),
+            2.0 * max_abs_eigenvalue(c.A - PM1),
+            2.0 * max_abs_eigenvalue(c.A - S_arr @ c.M2),
+            max_abs_eigenvalue(c.A - PM1 - S_arr @ c.N2),
         )
         if not all(math.isfinite(r) for r in rates):
             return self._substeps
@@ -962,6 +986,12 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
 class _FastPathFailure(Exception):
     """Internal: the block integrator saw a failed check; redo with the generic one."""
+
+
+def _first_if_shared(X: FloatArray) -> FloatArray:
+    """:func:`~filters._linalg.shared_member` of a stack of matrices, else ``X`` itself."""
+    first = shared_member(X)
+    return X if first is None else first
 
 
 def _sym(X: FloatArray) -> FloatArray:

@@ -449,10 +449,12 @@ class _CentralHInfFilter(_IntegratedFilter):
             innov = innov @ T.Li.T
         dx = F + (Kb @ innov[..., None])[..., 0]
         AP = A @ P
-        dP = AP + AP.swapaxes(-1, -2) + T.BBt - Kb @ Kb.swapaxes(-1, -2)
+        dP = AP + AP.swapaxes(-1, -2)  # then in place: + B B^T - Kb Kb^T, in that order
+        dP += T.BBt
+        dP -= Kb @ Kb.swapaxes(-1, -2)
         if self._gm2:
             PL = P @ T.LT
-            dP = dP + self._gm2 * (PL @ PL.swapaxes(-1, -2))
+            dP += self._gm2 * (PL @ PL.swapaxes(-1, -2))
         return dx, dP
 
     def _drift_terms(self, T: _Terms, x: FloatArray,

@@ -29,8 +29,10 @@ from scipy.linalg.lapack import dpotrs as _dpotrs
 from filters._linalg import (
     FloatArray,
     batch_symmetric_psd,
+    max_abs_eigenvalue,
     positive_time,
     readonly,
+    shared_member,
     to_float_array,
 )
 from filters.errors import (
@@ -38,6 +40,7 @@ from filters.errors import (
     LossOfDefinitenessError,
     SubstepLimitError,
     check_covariance,
+    check_shared_covariance,
     check_symmetric_covariance,
 )
 from filters.models import DiscreteLinearSystem, LinearSystem
@@ -541,6 +544,10 @@ class KalmanBucyFilter(_IntegratedFilter):
     unstable step size surfaces as :class:`LossOfDefinitenessError` or
     :class:`FiniteEscapeError`. A non-finite mean raises ``FiniteEscapeError``
     with ``quantity="x"``.
+
+    ``P`` does not depend on the data: a batch whose members share one covariance (one
+    ``P0``) integrates the Riccati equation once, on one member broadcast against the means
+    (the same operations on the same numbers as member by member, the same checks).
     """
 
     name: ClassVar[str] = "kalman-bucy"
@@ -624,6 +631,11 @@ class KalmanBucyFilter(_IntegratedFilter):
         h = self._dt / self._substeps  # type: ignore[operator]
         t0 = self.t_s
         innovation = ybar - np.vecmat(m, self._CT)
+        # P does not depend on the data: members that share it (one P0) keep sharing it, and
+        # its equation is integrated once, on the first member, broadcast against the means
+        shared = shared_member(P)
+        if shared is not None:
+            P = shared
         for i in range(self._substeps):
             k1m, k1P = self._rhs(m, P, ybar, Bu)
             k2m, k2P = self._rhs(m + 0.5 * h * k1m, P + 0.5 * h * k1P, ybar, Bu)
@@ -631,9 +643,11 @@ class KalmanBucyFilter(_IntegratedFilter):
             k4m, k4P = self._rhs(m + h * k3m, P + h * k3P, ybar, Bu)
             m = m + (h / 6.0) * (k1m + 2.0 * (k2m + k3m) + k4m)
             P = P + (h / 6.0) * (k1P + 2.0 * (k2P + k3P) + k4P)
-            P = check_covariance(P, time=t0 + (i + 1) * h, quantity="P")
+            P = check_shared_covariance(P, self._batch, time=t0 + (i + 1) * h, quantity="P")
         steps = self._steps + 1
         self._check_state(m, steps)
+        if shared is not None:
+            P = np.ascontiguousarray(np.broadcast_to(P, self._P.shape))  # as check_covariance
         self._commit(m, P, steps)
         self.innovation = innovation
         return m
@@ -663,7 +677,7 @@ class KalmanBucyFilter(_IntegratedFilter):
         """
         P_arr = self._P if P is None else to_float_array("P", P)
         M = self._A - P_arr @ self._CtLinvT @ np.swapaxes(self._CtLinvT, -1, -2)
-        rate = 2.0 * float(np.abs(np.linalg.eigvals(M)).max())
+        rate = 2.0 * max_abs_eigenvalue(M)
         return max(1, math.ceil(self._dt * rate / limit))  # type: ignore[operator]
 
     def steady_state_covariance(self) -> FloatArray:

@@ -1,0 +1,138 @@
+"""Batches of continuous filters whose members share one covariance (one ``P0``).
+
+The Kalman-Bucy and mean-square H-infinity filters integrate such a shared ``P`` once, on one
+member: the results must be bitwise those of the member-by-member integration, and the
+covariance checks must raise the errors of the whole stack.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import filters.hinf_mean_square as hms
+import filters.kalman as kalman
+from filters import (
+    FilterError,
+    FiniteEscapeError,
+    KalmanBucyFilter,
+    LinearSystem,
+    LossOfDefinitenessError,
+    MeanSquareHInfFilter,
+    check_covariance,
+)
+from filters._linalg import max_abs_eigenvalue, shared_member
+from filters.errors import check_shared_covariance
+
+
+def _spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:
+    X = rng.standard_normal((n, n))
+    return scale * (X @ X.T / n + 0.5 * np.eye(n))
+
+
+def test_shared_member() -> None:
+    rng = np.random.default_rng(0)
+    P = _spd(rng, 3)
+    stack = np.array(np.broadcast_to(P, (2, 4, 3, 3)))
+    first = shared_member(stack)
+    assert first is not None and first.shape == (1, 1, 3, 3)
+    assert np.array_equal(first[0, 0], P)
+    assert shared_member(P) is None  # no batch axes
+    stack[1, 2, 0, 0] += 1e-16 * P[0, 0] + 1e-300
+    assert shared_member(stack) is None
+    nan = np.full((2, 3, 3), np.nan)
+    assert shared_member(nan) is None
+    assert shared_member(np.zeros((3, 2)), core_ndim=1) is not None
+
+
+def test_max_abs_eigenvalue_of_a_shared_stack() -> None:
+    rng = np.random.default_rng(1)
+    M = rng.standard_normal((4, 4))
+    stack = np.array(np.broadcast_to(M, (5, 4, 4)))
+    assert max_abs_eigenvalue(stack) == float(np.abs(np.linalg.eigvals(stack)).max())
+    stack[3] *= 2.0
+    assert max_abs_eigenvalue(stack) == float(np.abs(np.linalg.eigvals(stack)).max())
+
+
+@pytest.mark.parametrize("bad", ["indefinite", "nan", "huge"])
+def test_check_shared_covariance_raises_the_stack_error(bad: str) -> None:
+    P = np.diag([1.0, 2.0, 3.0])
+    if bad == "indefinite":
+        P[2, 2] = -1.0
+    elif bad == "nan":
+        P[0, 1] = np.nan
+    else:
+        P[1, 1] = 1e13
+    batch = (4,)
+    with pytest.raises(FilterError) as expected:
+        check_covariance(np.broadcast_to(P, (*batch, 3, 3)), time=0.5, quantity="P")
+    with pytest.raises(FilterError) as got:
+        check_shared_covariance(P[None], batch, time=0.5, quantity="P")
+    assert type(got.value) is type(expected.value)
+    assert type(got.value) is (LossOfDefinitenessError if bad == "indefinite"
+                               else FiniteEscapeError)
+    assert str(got.value) == str(expected.value)
+    assert got.value.value.shape == expected.value.value.shape == (4, 3, 3)
+    assert np.array_equal(got.value.value, expected.value.value, equal_nan=True)
+
+
+def test_check_shared_covariance_returns_the_symmetrized_member() -> None:
+    P = np.array([[[2.0, 1.0], [0.0, 3.0]]])
+    assert np.array_equal(check_shared_covariance(P, (5,), time=0.0),
+                          check_covariance(P, time=0.0))
+
+
+def _without_sharing(monkeypatch: pytest.MonkeyPatch) -> None:
+    for module in (kalman, hms):
+        monkeypatch.setattr(module, "shared_member", lambda X, core_ndim=2: None)
+
+
+def _run(f, ys: np.ndarray, us: np.ndarray) -> list[np.ndarray]:
+    out = []
+    for y, u in zip(ys, us, strict=True):
+        f.step(y, u)
+        out += [np.array(f.x), np.array(f.P), np.array(f.substeps)]
+    return out
+
+
+@pytest.mark.parametrize("r", [1.0, 1e-4])
+def test_kalman_bucy_shared_p_is_bitwise_the_member_integration(
+        r: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(2)
+    n, m, k = 3, 2, 1
+    system = LinearSystem(A=rng.standard_normal((n, n)) - np.eye(n),
+                          B=rng.standard_normal((n, k)), C=rng.standard_normal((m, n)),
+                          Q=_spd(rng, n, 0.3), R=_spd(rng, m, r))
+    x0 = rng.standard_normal((5, n))
+    P0 = _spd(rng, n, 2.0)
+    ys, us = rng.standard_normal((12, 5, m)), rng.standard_normal((12, 5, k))
+    shared = _run(KalmanBucyFilter(system, x0, P0, 0.02, substeps="auto"), ys, us)
+    _without_sharing(monkeypatch)
+    members = _run(KalmanBucyFilter(system, x0, P0, 0.02, substeps="auto"), ys, us)
+    assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
+
+
+@pytest.mark.parametrize("method", ["rk4", "rosenbrock"])
+def test_mean_square_shared_p_is_bitwise_the_member_integration(
+        method: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(3)
+    n, m1, q2, k = 3, 2, 1, 1
+    A = rng.standard_normal((n, n)) - 1.5 * np.eye(n)
+    B = rng.standard_normal((n, k))
+    C1, C2 = rng.standard_normal((m1, n)), rng.standard_normal((q2, n))
+    G = np.hstack([rng.standard_normal((n, 2)), np.zeros((n, q2))])
+    H = np.hstack([np.zeros((q2, 2)), 2.0 * np.eye(q2)])
+    x0 = rng.standard_normal((4, n))
+    P0 = _spd(rng, n, 2.0)
+    ys, us = rng.standard_normal((8, 4, m1 + q2)), rng.standard_normal((8, 4, k))
+
+    def make() -> MeanSquareHInfFilter:
+        return MeanSquareHInfFilter(A, B, C1, _spd(np.random.default_rng(4), m1, 1e-3), C2, H,
+                                    G, _spd(np.random.default_rng(5), n, 0.3), np.eye(n),
+                                    10.0, np.eye(n), x0, P0, 0.02, substeps="auto",
+                                    noise_intensities=True, method=method)
+
+    shared = _run(make(), ys, us)
+    _without_sharing(monkeypatch)
+    members = _run(make(), ys, us)
+    assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
