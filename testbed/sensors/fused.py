@@ -31,7 +31,6 @@ array of the plan, which each decorator's ``bias`` attribute views.
 
 from __future__ import annotations
 
-import itertools
 from typing import Any
 
 import numpy as np
@@ -101,7 +100,7 @@ class _Group:
     Parameters
     ----------
     decorators : list of (Decorator, int, int)
-        The decorators with their first column and first normal in the plan's layout.
+        The decorators with their first column and first normal (the suite's own order).
     width : int
         The plan's columns.
     values : list of ndarray, optional
@@ -237,32 +236,24 @@ class FusedPlan:
                 groups.setdefault((lv, "quantize"), []).append((dec, c0, offset))
             else:  # (correlated white noise too)
                 owns.append((lv, dec, c0, offset, draws))
-        col, draw, out = _layout(leaves, decorators, groups, self.dim, self.draws)
-        #: Output column j is column ``out[j]`` of the internal layout (None: the same).
-        self.out = out
-        #: The normals in the internal order (None: as drawn).
-        self.draw_order = (None if draw == list(range(self.draws))
-                           else np.argsort(np.array(draw)))
-        self.leaves = [(s, slice(col[c0], col[c0] + s.dim),
-                        slice(draw[o], draw[o] + d) if d else None) for s, c0, o, d in leaves]
+        self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
+                       for s, c0, o, d in leaves]
         #: The only leaf when it is a suite of bare state channels covering every column
         #: (whose measurement, a gather, is a new array the decorators may change in place).
         self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
                       and leaves[0][0].dim == self.dim else None)
-        width, total = self.dim, self.draws
+        width = self.dim
         self.walk_groups: list[_WalkGroup] = []
         #: The steps, level by level.
         self.steps: list[Any] = []
         for level in sorted({lv for lv, *_ in decorators}):
             for lv, dec, c0, offset, draws in owns:
                 if lv == level:
-                    self.steps.append(_OwnApply(dec, col[c0], draw[offset] if draws else 0,
-                                                draws))
+                    self.steps.append(_OwnApply(dec, c0, offset, draws))
             for (lv, key), members in groups.items():
                 if lv != level:
                     continue
-                placed = sorted(((d, col[c0], draw[o] if o < total else o)
-                                 for d, c0, o in members), key=lambda m: m[1])
+                placed = sorted(members, key=lambda m: m[1])
                 if key == "noise":
                     self.steps.append(_NoiseGroup(placed, width))
                 elif key == "quantize":
@@ -282,8 +273,6 @@ class FusedPlan:
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """The suite's measurement of ``sample``, shape (k, m)."""
         xi = noise.normal(self.draws) if self.draws else None
-        if self.draw_order is not None:
-            xi = xi.take(self.draw_order, axis=1)
         if self.whole is not None:  # one suite of state channels: its gather is a new array
             y = self.whole.measure(sample, noise)
         else:
@@ -294,54 +283,7 @@ class FusedPlan:
         members = sample.members
         for step in self.steps:
             y = step.apply(y, xi, members, sample, noise)
-        return y if self.out is None else y.take(self.out, axis=1)
-
-
-def _layout(leaves: list[tuple[Sensor, int, int, int]],
-            decorators: list[tuple[int, Decorator, int, int, int]],
-            groups: dict[tuple[int, Any], list[tuple[Any, int, int]]], width: int,
-            draws: int) -> tuple[list[int], list[int], np.ndarray | None]:
-    """Where the plan keeps each column and each normal: the order of the leaves (of up to
-    six; else as given) in which the most groups have consecutive columns (a slice, not a
-    gather and a fancy assignment), and the normals in the groups' order.
-
-    Every decorator's columns stay consecutive and in order. Returns the internal column of
-    each output column, the internal position of each normal (in draw order) and the output
-    gather (None when the columns keep their order).
-    """
-    blocks = [(c0, s.dim) for s, c0, _, _ in leaves]
-    identity = tuple(range(len(blocks)))
-    orders = itertools.permutations(identity) if len(blocks) <= 6 else [identity]
-    best: tuple[int, list[int], list[int]] | None = None
-    for order in orders:
-        col = [0] * width
-        c = 0
-        for j in order:
-            c0, dim = blocks[j]
-            for i in range(dim):
-                col[c0 + i] = c + i
-            c += dim
-        if any(col[c0:c0 + dec.dim] != list(range(col[c0], col[c0] + dec.dim))
-               for _, dec, c0, _, _ in decorators):
-            continue  # a decorator's columns apart or out of order
-        drawn: list[int] = []  # the normals of the drawing groups, in their columns' order
-        gaps = 0
-        for (_, key), members in groups.items():
-            cols = sorted(col[c0] + i for d, c0, _ in members for i in range(d.dim))
-            gaps += cols != list(range(cols[0], cols[0] + len(cols)))
-            if key == "noise" or key == ("walk", True):
-                for d, _c0, o in sorted(members, key=lambda m: col[m[1]]):
-                    drawn.extend(range(o, o + d.dim))
-        order_of = drawn + [o for o in range(draws) if o not in set(drawn)]
-        draw = [0] * draws
-        for position, o in enumerate(order_of):
-            draw[o] = position
-        cost = 2 * gaps + (order != identity) + (order_of != list(range(draws)))
-        if best is None or cost < best[0]:
-            best = (cost, col, draw)
-    assert best is not None  # the given order always keeps the decorators' columns
-    _, col, draw = best
-    return col, draw, None if col == list(range(width)) else np.array(col)
+        return y
 
 
 def build_plan(suite: Suite) -> FusedPlan | None:
