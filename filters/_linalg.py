@@ -96,8 +96,8 @@ def to_float_array(name: str, value: object) -> FloatArray:
     return real_array(value, name, finite=False)
 
 
-def shared_member(X: FloatArray, core_ndim: int = 2) -> FloatArray | None:
-    """The first member of a stack whose members are all equal, else ``None``.
+def shared_member(X: FloatArray, core_ndim: int = 2) -> FloatArray:
+    """A stack reduced to its first member when all its members are equal.
 
     Parameters
     ----------
@@ -108,15 +108,16 @@ def shared_member(X: FloatArray, core_ndim: int = 2) -> FloatArray | None:
 
     Returns
     -------
-    numpy.ndarray or None
-        A view of shape ``(1, ..., 1, *core)`` (broadcasts against the stack) when ``X`` has
-        batch axes and every member equals the first (NaN compares unequal), else ``None``.
+    numpy.ndarray
+        A view of the first member, shape ``(1, ..., 1, *core)`` (it broadcasts against the
+        stack), when ``X`` has batch axes and every member equals the first (NaN compares
+        unequal); else ``X`` itself.
     """
     lead = X.ndim - core_ndim
     if lead <= 0:
-        return None
+        return X
     first = X[(slice(0, 1),) * lead]
-    return first if (X == first).all() else None
+    return first if (X == first).all() else X
 
 
 def max_abs_eigenvalue(M: FloatArray) -> float:
@@ -135,8 +136,7 @@ def max_abs_eigenvalue(M: FloatArray) -> float:
     float
         The largest eigenvalue magnitude (NaN if an eigenvalue is NaN).
     """
-    first = shared_member(M)
-    return float(np.abs(np.linalg.eigvals(M if first is None else first)).max())
+    return float(np.abs(np.linalg.eigvals(shared_member(M))).max())
 
 
 def readonly(arr: FloatArray) -> FloatArray:

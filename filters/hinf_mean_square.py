@@ -727,9 +727,9 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
         def split(s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
             PS = shared_member(s[..., n:], core_ndim=1)  # P and S shared: one comparison
-            if PS is None:
-                return (s[..., :n], _first_if_shared(s[..., n:n + nn].reshape(*batch, n, n)),
-                        _first_if_shared(s[..., n + nn:].reshape(*batch, n, n)))
+            if PS.shape[:-1] == s.shape[:-1]:  # not both shared (or one member)
+                return (s[..., :n], shared_member(s[..., n:n + nn].reshape(*batch, n, n)),
+                        shared_member(s[..., n + nn:].reshape(*batch, n, n)))
             return (s[..., :n], PS[..., :nn].reshape(*PS.shape[:-1], n, n),
                     PS[..., nn:].reshape(*PS.shape[:-1], n, n))
 
@@ -808,9 +808,7 @@ class MeanSquareHInfFilter(_IntegratedFilter):
         C = np.vstack([self._C1(t_start), self._C2(t_start)])
         innovation = y - np.vecmat(m, C.T)
         # P does not depend on m: members that share P0 share P, integrated once
-        shared = shared_member(P)
-        if shared is not None:
-            P = shared
+        P = shared_member(P)
 
         def rhs(t: float, m: FloatArray, P: FloatArray,
                 S: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -986,12 +984,6 @@ class MeanSquareHInfFilter(_IntegratedFilter):
 
 class _FastPathFailure(Exception):
     """Internal: the block integrator saw a failed check; redo with the generic one."""
-
-
-def _first_if_shared(X: FloatArray) -> FloatArray:
-    """:func:`~filters._linalg.shared_member` of a stack of matrices, else ``X`` itself."""
-    first = shared_member(X)
-    return X if first is None else first
 
 
 def _sym(X: FloatArray) -> FloatArray:

@@ -633,9 +633,7 @@ class KalmanBucyFilter(_IntegratedFilter):
         innovation = ybar - np.vecmat(m, self._CT)
         # P does not depend on the data: members that share it (one P0) keep sharing it, and
         # its equation is integrated once, on the first member, broadcast against the means
-        shared = shared_member(P)
-        if shared is not None:
-            P = shared
+        P = shared_member(P)
         for i in range(self._substeps):
             k1m, k1P = self._rhs(m, P, ybar, Bu)
             k2m, k2P = self._rhs(m + 0.5 * h * k1m, P + 0.5 * h * k1P, ybar, Bu)
@@ -646,8 +644,8 @@ class KalmanBucyFilter(_IntegratedFilter):
             P = check_shared_covariance(P, self._batch, time=t0 + (i + 1) * h, quantity="P")
         steps = self._steps + 1
         self._check_state(m, steps)
-        if shared is not None:
-            P = np.ascontiguousarray(np.broadcast_to(P, self._P.shape))  # as check_covariance
+        if P.shape != self._P.shape:  # shared: every member's, C-contiguous as before
+            P = np.ascontiguousarray(np.broadcast_to(P, self._P.shape))
         self._commit(m, P, steps)
         self.innovation = innovation
         return m

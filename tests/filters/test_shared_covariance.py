@@ -35,14 +35,14 @@ def test_shared_member() -> None:
     P = _spd(rng, 3)
     stack = np.array(np.broadcast_to(P, (2, 4, 3, 3)))
     first = shared_member(stack)
-    assert first is not None and first.shape == (1, 1, 3, 3)
+    assert first.shape == (1, 1, 3, 3)
     assert np.array_equal(first[0, 0], P)
-    assert shared_member(P) is None  # no batch axes
+    assert shared_member(P) is P  # no batch axes
     stack[1, 2, 0, 0] += 1e-16 * P[0, 0] + 1e-300
-    assert shared_member(stack) is None
+    assert shared_member(stack) is stack
     nan = np.full((2, 3, 3), np.nan)
-    assert shared_member(nan) is None
-    assert shared_member(np.zeros((3, 2)), core_ndim=1) is not None
+    assert shared_member(nan) is nan
+    assert shared_member(np.zeros((3, 2)), core_ndim=1).shape == (1, 2)
 
 
 def test_max_abs_eigenvalue_of_a_shared_stack() -> None:
@@ -84,7 +84,7 @@ def test_check_shared_covariance_returns_the_symmetrized_member() -> None:
 
 def _without_sharing(monkeypatch: pytest.MonkeyPatch) -> None:
     for module in (kalman, hms):
-        monkeypatch.setattr(module, "shared_member", lambda X, core_ndim=2: None)
+        monkeypatch.setattr(module, "shared_member", lambda X, core_ndim=2: X)
 
 
 def _run(f, ys: np.ndarray, us: np.ndarray) -> list[np.ndarray]:
