@@ -333,7 +333,7 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     s = dist.values.shape[2]
     # candidates per closed-loop run: +-v_1 and the random draws, or a DE population; the
     # run without w is member 0 of the impulse response's (s + 1 members), run once
-    num = max(2 + spec.random_draws, members, 1)
+    num = max(2 + spec.random_draws, members)
     dist = _sampled(entry, scenario, num, K, nominal=False)
     impulse_dist = _sampled(entry, scenario, s + 1, K, nominal=False)
 
