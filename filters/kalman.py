@@ -265,6 +265,12 @@ class KalmanFilter(_SampledFilter):
     plus symmetrization). Batched filters use broadcasting ``matmul``,
     ``numpy.linalg.solve`` and the explicit Joseph product, symmetrized. Both agree to
     rounding (~1e-15 relative).
+
+    ``P`` does not depend on the data: a batch whose members share one covariance (one
+    ``P0``) computes the covariance recursion, the gain and the covariance check once, on one
+    member broadcast against the means (the same operations on the same numbers as member
+    by member, hence the same results and errors); ``P``, ``gain`` and ``innovation_cov``
+    are still the stacks of all members.
     """
 
     name: ClassVar[str] = "kalman"
@@ -305,6 +311,7 @@ class KalmanFilter(_SampledFilter):
         super().reset(x0, P0)
         self.innovation_cov: FloatArray | None = None
         self.gain: FloatArray | None = None
+        self._P_shared = self._shared(self._P)
 
     # ------------------------------------------------------------- public API
     def predict(self, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -330,10 +337,14 @@ class KalmanFilter(_SampledFilter):
         x, P = self._predict(u)
         steps = self._steps + 1
         self._check_state(x, steps)
+        shared = P if P.shape != self._P.shape else None
+        if shared is not None:  # the escape test below reads the whole stack
+            P = self._members(shared)
         v = P.ravel()
         if not v.dot(v) <= _ESCAPE_BOUND_SQ:  # cheap escape test; NaN compares False
             check_covariance(P, time=self._time(steps), quantity="P", escape_bound=_ESCAPE_BOUND)
         self._commit(x, P, steps)
+        self._P_shared = shared
         return x
 
     def update(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -361,8 +372,9 @@ class KalmanFilter(_SampledFilter):
         """
         y = self._vector("y", y, self._m)
         u = self._input(u) if self._DT is not None else None
-        x, P = self._update(self._x, self._P, y, u, self._steps)
-        self._commit(x, P, self._steps)
+        P = self._P if self._P_shared is None else self._P_shared
+        x, P = self._update(self._x, P, y, u, self._steps)
+        self._commit_shared(x, P, self._steps)
         return x
 
     def step(self, y: npt.ArrayLike, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -393,7 +405,7 @@ class KalmanFilter(_SampledFilter):
         xp, Pp = self._predict(u)
         steps = self._steps + 1
         x, P = self._update(xp, Pp, y, u if self._DT is not None else None, steps)
-        self._commit(x, P, steps)
+        self._commit_shared(x, P, steps)
         return x
 
     def steady_state(self) -> tuple[FloatArray, FloatArray]:
@@ -413,7 +425,28 @@ class KalmanFilter(_SampledFilter):
         return P, K
 
     # -------------------------------------------------------------- internals
+    def _shared(self, P: FloatArray) -> FloatArray | None:
+        """The member every filter of a batch shares, shape ``(1, ..., 1, n, n)``, or None.
+
+        ``P`` does not depend on the data: the members of a batch that start from one ``P0``
+        keep one covariance, computed once on this member (a view of the stack).
+        """
+        if not self._batch:
+            return None
+        first = shared_member(P)
+        return None if first.shape == P.shape else first  # (a batch of one: the stack)
+
+    def _commit_shared(self, x: FloatArray, P: FloatArray, steps: int) -> None:
+        """:meth:`_commit` of a covariance that may be the batch's shared member."""
+        shared = None
+        if P.shape != self._P.shape:
+            shared = P
+            P = self._members(shared)
+        self._commit(x, P, steps)
+        self._P_shared = shared
+
     def _predict(self, u: FloatArray | None) -> tuple[FloatArray, FloatArray]:
+        """Pure time update; a batch's shared covariance stays its one member."""
         if not self._batch:  # fast path: ndarray.dot has far less overhead than matmul
             F, P = self._F, self._P
             x = F.dot(self._x)
@@ -424,7 +457,8 @@ class KalmanFilter(_SampledFilter):
             x = np.vecmat(self._x, self._FT)
             if u is not None:
                 x += np.vecmat(u, self._BT)
-            P = self._F @ self._P @ self._FT
+            P = self._P if self._P_shared is None else self._P_shared
+            P = self._F @ P @ self._FT
         P += self._Q
         return x, P
 
@@ -466,19 +500,38 @@ class KalmanFilter(_SampledFilter):
             innov = y - np.vecmat(x, self._HT)
             if u is not None:
                 innov -= np.vecmat(u, self._DT)  # type: ignore[operator]
+            # P is the stack, or the one member a batch shares (the same operations on
+            # the same numbers as member by member, hence the same results)
             PHT = P @ self._HT
             S = H @ PHT + R
             try:
                 K = np.linalg.solve(S, PHT.mT).mT  # .mT: swapaxes(-1, -2), no Python call
             except np.linalg.LinAlgError:
-                self._raise_innovation_cov(S, steps)
+                self._raise_innovation_cov(self._members(S), steps)
             x = x + (K @ innov[..., None])[..., 0]
             IKH = self._I - K @ H
             P = IKH @ P @ IKH.mT + K @ R @ K.mT
+            P = check_shared_covariance(P, self._batch, time=self._time(steps), quantity="P")
+            self._check_state(x, steps)
+            self.innovation, self.innovation_cov, self.gain = innov, self._members(S), \
+                self._members(K)
+            return x, P
         P = check_covariance(P, time=self._time(steps), quantity="P")
         self._check_state(x, steps)
         self.innovation, self.innovation_cov, self.gain = innov, S, K
         return x, P
+
+    def _members(self, M: FloatArray) -> FloatArray:
+        """``M``, a batch's stack or the member its filters share, as the stack.
+
+        Returns ``M`` itself when it is the stack, else a new C-contiguous stack of copies.
+        """
+        full = (*self._batch, *M.shape[-2:])
+        if M.shape == full:
+            return M
+        stack = np.empty(full)
+        stack[...] = M  # (faster than a copy of np.broadcast_to)
+        return stack
 
     def _raise_innovation_cov(self, S: FloatArray, steps: int) -> NoReturn:
         """Raise the typed error for an innovation covariance that cannot be factored."""

@@ -1,8 +1,9 @@
-"""Batches of continuous filters whose members share one covariance (one ``P0``).
+"""Batches of filters whose members share one covariance (one ``P0``).
 
 The Kalman-Bucy and mean-square H-infinity filters integrate such a shared ``P`` once, on one
-member: the results must be bitwise those of the member-by-member integration, and the
-covariance checks must raise the errors of the whole stack.
+member, and the discrete Kalman filter computes its covariance recursion and gain once: the
+results must be bitwise those of the member-by-member computation, and the covariance checks
+must raise the errors of the whole stack.
 """
 
 from __future__ import annotations
@@ -13,9 +14,11 @@ import pytest
 import filters.hinf_mean_square as hms
 import filters.kalman as kalman
 from filters import (
+    DiscreteLinearSystem,
     FilterError,
     FiniteEscapeError,
     KalmanBucyFilter,
+    KalmanFilter,
     LinearSystem,
     LossOfDefinitenessError,
     MeanSquareHInfFilter,
@@ -136,3 +139,102 @@ def test_mean_square_shared_p_is_bitwise_the_member_integration(
     _without_sharing(monkeypatch)
     members = _run(make(), ys, us)
     assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
+
+
+# ------------------------------------------------------------- the discrete Kalman filter
+def _discrete(rng: np.random.Generator, n: int, m: int = 2, k: int = 1) -> DiscreteLinearSystem:
+    return DiscreteLinearSystem(F=rng.standard_normal((n, n)) / np.sqrt(n),
+                                B=rng.standard_normal((n, k)), H=rng.standard_normal((m, n)),
+                                D=rng.standard_normal((m, k)), Q=_spd(rng, n, 0.1),
+                                R=_spd(rng, m, 0.5), dt_s=0.01)
+
+
+def _kalman_run(f: KalmanFilter, ys: np.ndarray, us: np.ndarray) -> list[np.ndarray]:
+    """Steps, and every third interval predict + update; everything public after each."""
+    out = []
+    for i, (y, u) in enumerate(zip(ys, us, strict=True)):
+        if i % 3 == 2:
+            f.predict(u)
+            out += [np.array(f.x), np.array(f.P)]
+            f.update(y, u)
+        else:
+            f.step(y, u)
+        assert not f.x.flags.writeable and not f.P.flags.writeable
+        assert f.P.flags.c_contiguous and f.P.shape == (*f.batch_shape, f.system.n, f.system.n)
+        out += [np.array(f.x), np.array(f.P), f.innovation, f.innovation_cov, f.gain,
+                np.array(f.t_s)]
+    return out
+
+
+def _member(out: list[np.ndarray], i: int) -> list[np.ndarray]:
+    return [a if a.ndim == 0 else a[i] for a in out]
+
+
+@pytest.mark.parametrize("n", [2, 4, 7])
+@pytest.mark.parametrize("priors", ["shared", "different"])
+def test_kalman_shared_p_is_bitwise_member_by_member(
+        n: int, priors: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(10 + n)
+    system = _discrete(rng, n)
+    N = 6
+    x0 = rng.standard_normal((N, n))
+    P0 = _spd(rng, n) if priors == "shared" else np.array([_spd(rng, n) for _ in range(N)])
+    ys, us = rng.standard_normal((10, N, 2)), rng.standard_normal((10, N, 1))
+    ys[4] = ys[4, 0]  # one measurement broadcast to the batch
+    f = KalmanFilter(system, x0, P0)
+    assert (f._P_shared is not None) == (priors == "shared")
+    batch = _kalman_run(f, ys, us)
+    assert (f._P_shared is not None) == (priors == "shared")
+    for i in range(N):  # each member alone, a batch of one
+        alone = _kalman_run(KalmanFilter(system, x0[i:i + 1], P0 if P0.ndim == 2 else P0[i]),
+                            ys[:, i:i + 1], us[:, i:i + 1])
+        assert all(np.array_equal(a, b) for a, b in zip(_member(batch, i), _member(alone, 0),
+                                                        strict=True))
+    _without_sharing(monkeypatch)
+    stack = _kalman_run(KalmanFilter(system, x0, P0), ys, us)
+    assert all(np.array_equal(a, b) and a.shape == b.shape
+               for a, b in zip(batch, stack, strict=True))
+
+
+def _kalman_failure(case: str, shared: bool) -> tuple[FilterError, list[np.ndarray]]:
+    """The error of a failing batched step and the filter's state after it."""
+    rng = np.random.default_rng(20)
+    n, N = 3, 4
+    system = _discrete(rng, n)
+    H = system.H
+    if case == "escape":  # unmeasured, exploding third state
+        system = DiscreteLinearSystem(F=np.diag([0.5, 0.5, 1e5]), B=system.B, H=np.eye(2, n),
+                                      Q=system.Q, R=system.R, dt_s=0.01)
+    f = KalmanFilter(system, rng.standard_normal((N, n)), _spd(rng, n))
+    assert (f._P_shared is not None) == shared
+    if case == "indefinite":
+        f._Q = -10.0 * np.eye(n)
+    elif case == "singular":  # S = H P H^T with a zero row
+        f._H = H * np.array([[1.0], [0.0]])
+        f._HT = np.ascontiguousarray(f._H.T)
+        f._R = np.zeros((2, 2))
+    before = [np.array(f.x), np.array(f.P)]
+    with pytest.raises(FilterError) as caught:
+        for _ in range(5):
+            before = [np.array(f.x), np.array(f.P)]
+            f.step(rng.standard_normal((N, 2)), rng.standard_normal((N, 1)))
+    assert all(np.array_equal(a, b) for a, b in zip(before, [f.x, f.P], strict=True))
+    return caught.value, [np.array(f.x), np.array(f.P)]
+
+
+@pytest.mark.parametrize(("case", "error", "quantity"), [
+    ("escape", FiniteEscapeError, "P"), ("indefinite", LossOfDefinitenessError, "P"),
+    ("singular", LossOfDefinitenessError, "innovation_cov")])
+def test_kalman_shared_p_failure_raises_the_stack_error(
+        case: str, error: type, quantity: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    got, state = _kalman_failure(case, shared=True)
+    _without_sharing(monkeypatch)
+    expected, expected_state = _kalman_failure(case, shared=False)
+    assert type(got) is type(expected) is error
+    assert got.quantity == expected.quantity == quantity
+    assert got.time == expected.time > 0.0
+    assert str(got) == str(expected)
+    assert got.value.shape == expected.value.shape == ((4, 3, 3) if quantity == "P"
+                                                       else (4, 2, 2))
+    assert np.array_equal(got.value, expected.value, equal_nan=True)
+    assert all(np.array_equal(a, b) for a, b in zip(state, expected_state, strict=True))
