@@ -84,25 +84,40 @@ class LQRTracker:
             self.K = discrete_lqr(Fd, Gd, np.diag(state_weight), np.diag(input_weight))
         self._feedforward, self._setpoint = feedforward, setpoint
         self.low, self.high = np.asarray(low, float), np.asarray(high, float)
+        # the tracked columns as a slice when consecutive (a view, not a fancy-index copy)
+        r0 = int(self.tracked[0]) if r else 0
+        self._cols = (slice(r0, r0 + r) if np.array_equal(self.tracked, np.arange(r0, r0 + r))
+                      else self.tracked)
         self.reset(1)
 
     def reset(self, num: int) -> None:
         """Clear the integrators of ``num`` members."""
         self._xi = np.zeros((num, len(self.tracked)))
+        self._z = np.empty((num, self.K.shape[1]))  # [x_hat - x_ref, xi] of a call
 
     def __call__(self, x_hat: np.ndarray, t_s: float) -> np.ndarray:
         """Inputs (N, nu) for the estimates ``x_hat`` (N, n) at time ``t_s``."""
+        cols = self._cols
         x_ref = np.zeros(x_hat.shape)
-        x_ref[:, self.tracked] = self._setpoint(t_s)  # (N, r) or (r,), broadcast
-        err = x_hat - x_ref
-        z = np.concatenate([err, self._xi], axis=1) if self.integral else err
+        x_ref[:, cols] = self._setpoint(t_s)  # (N, r) or (r,), broadcast
+        if self.integral:
+            z = self._z  # what np.concatenate([err, xi], axis=1) returned, without its wrapper
+            if z.shape[0] != len(x_hat):
+                z = self._z = np.empty((len(x_hat), self.K.shape[1]))
+            n = x_hat.shape[1]
+            err = np.subtract(x_hat, x_ref, out=z[:, :n])
+            z[:, n:] = self._xi
+        else:
+            z = err = x_hat - x_ref
         u = self._feedforward(x_hat) - np.matvec(self.K, z)
         # np.clip(u, low, high), bitwise (NaN stays NaN), without its Python wrappers
         u_sat = np.minimum(np.maximum(u, self.low), self.high)
         if self.integral:
-            free = np.logical_and.reduce(u_sat == u, axis=1)
-            self._xi = np.where(free[:, None], self._xi + self.dt_s * err[:, self.tracked],
-                                self._xi)
+            free = u_sat == u
+            xi = self._xi + self.dt_s * err[:, cols]
+            # (no member saturated, the usual case: np.where would pick every new value)
+            self._xi = xi if free.all() else np.where(
+                np.logical_and.reduce(free, axis=1)[:, None], xi, self._xi)
         return u_sat
 
 
