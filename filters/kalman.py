@@ -53,6 +53,9 @@ _ESCAPE_BOUND = 1e12  # default of check_covariance
 #: minutes on one interval (10,000 RK4 substeps of one 4-state filter take about 0.3 s).
 MAX_AUTO_SUBSTEPS = 10_000
 _ESCAPE_BOUND_SQ = _ESCAPE_BOUND * _ESCAPE_BOUND
+#: Steps of a shared covariance :meth:`KalmanFilter.step` remembers (a covariance that settles
+#: into a cycle of floating-point values of at most this period is then not recomputed).
+_MEMO_STEPS = 16
 
 
 class _SampledFilter:
@@ -312,6 +315,8 @@ class KalmanFilter(_SampledFilter):
         self.innovation_cov: FloatArray | None = None
         self.gain: FloatArray | None = None
         self._P_shared = self._shared(self._P)
+        # shared posterior covariance (bytes) -> the next step's S, K and posterior covariance
+        self._memo: dict[bytes, tuple[FloatArray, FloatArray, FloatArray]] = {}
 
     # ------------------------------------------------------------- public API
     def predict(self, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -402,9 +407,15 @@ class KalmanFilter(_SampledFilter):
         """
         y = self._vector("y", y, self._m)
         u = self._input(u)
-        xp, Pp = self._predict(u)
         steps = self._steps + 1
-        x, P = self._update(xp, Pp, y, u if self._DT is not None else None, steps)
+        shared = self._P_shared
+        if shared is None:
+            xp, Pp = self._predict(u)
+            x, P = self._update(xp, Pp, y, u if self._DT is not None else None, steps)
+        else:
+            S, K, P = self._shared_covariance_step(shared, steps)
+            x = self._correct(self._predict_state(u), y, u if self._DT is not None else None,
+                              S, K, steps)
         self._commit_shared(x, P, steps)
         return x
 
@@ -453,14 +464,44 @@ class KalmanFilter(_SampledFilter):
             if u is not None:
                 x += self._B.dot(u)
             P = F.dot(P).dot(self._FT)
-        else:
-            x = np.vecmat(self._x, self._FT)
-            if u is not None:
-                x += np.vecmat(u, self._BT)
-            P = self._P if self._P_shared is None else self._P_shared
-            P = self._F @ P @ self._FT
+            P += self._Q
+            return x, P
+        P = self._P if self._P_shared is None else self._P_shared
+        return self._predict_state(u), self._predict_covariance(P)
+
+    def _predict_state(self, u: FloatArray | None) -> FloatArray:
+        """``F x + B u`` of a batch."""
+        x = np.vecmat(self._x, self._FT)
+        if u is not None:
+            x += np.vecmat(u, self._BT)
+        return x
+
+    def _predict_covariance(self, P: FloatArray) -> FloatArray:
+        """``F P F^T + Q`` of a batch's stack or shared member."""
+        P = self._F @ P @ self._FT
         P += self._Q
-        return x, P
+        return P
+
+    def _shared_covariance_step(
+        self, P: FloatArray, steps: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Innovation covariance, gain and posterior covariance of one :meth:`step` from the
+        shared posterior covariance ``P`` (shape ``(1, ..., 1, n, n)``).
+
+        A function of ``P`` alone: the results for the last :data:`_MEMO_STEPS` values of
+        ``P`` are kept and returned for a bitwise equal ``P`` (the same numbers the
+        computation gives; only a computation that passed its checks is kept). The kept
+        arrays are never written: the public ``P``, ``gain`` and ``innovation_cov`` are
+        copies.
+        """
+        key = P.tobytes()
+        done = self._memo.get(key)
+        if done is None:
+            done = self._gain_and_covariance(self._predict_covariance(P), steps)
+            if len(self._memo) >= _MEMO_STEPS:
+                del self._memo[next(iter(self._memo))]  # the oldest
+            self._memo[key] = done
+        return done
 
     def _update(
         self, x: FloatArray, P: FloatArray, y: FloatArray, u: FloatArray | None, steps: int
@@ -497,29 +538,45 @@ class KalmanFilter(_SampledFilter):
             # singular prior: explicit Joseph form, symmetrized by check_covariance below
             P = IKH.dot(P).dot(IKH.T) + K.dot(R).dot(K.T)
         else:
-            innov = y - np.vecmat(x, self._HT)
-            if u is not None:
-                innov -= np.vecmat(u, self._DT)  # type: ignore[operator]
-            # P is the stack, or the one member a batch shares (the same operations on
-            # the same numbers as member by member, hence the same results)
-            PHT = P @ self._HT
-            S = H @ PHT + R
-            try:
-                K = np.linalg.solve(S, PHT.mT).mT  # .mT: swapaxes(-1, -2), no Python call
-            except np.linalg.LinAlgError:
-                self._raise_innovation_cov(self._members(S), steps)
-            x = x + (K @ innov[..., None])[..., 0]
-            IKH = self._I - K @ H
-            P = IKH @ P @ IKH.mT + K @ R @ K.mT
-            P = check_shared_covariance(P, self._batch, time=self._time(steps), quantity="P")
-            self._check_state(x, steps)
-            self.innovation, self.innovation_cov, self.gain = innov, self._members(S), \
-                self._members(K)
-            return x, P
+            S, K, P = self._gain_and_covariance(P, steps)
+            return self._correct(x, y, u, S, K, steps), P
         P = check_covariance(P, time=self._time(steps), quantity="P")
         self._check_state(x, steps)
         self.innovation, self.innovation_cov, self.gain = innov, S, K
         return x, P
+
+    def _gain_and_covariance(
+        self, P: FloatArray, steps: int
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Innovation covariance, gain and checked posterior covariance of a batch's update.
+
+        ``P`` (prior) is the stack, or the one member a batch shares (the same operations on
+        the same numbers as member by member, hence the same results); so are the results.
+        """
+        H, R = self._H, self._R
+        PHT = P @ self._HT
+        S = H @ PHT + R
+        try:
+            K = np.linalg.solve(S, PHT.mT).mT  # .mT: swapaxes(-1, -2), no Python call
+        except np.linalg.LinAlgError:
+            self._raise_innovation_cov(self._members(S), steps)
+        IKH = self._I - K @ H
+        P = IKH @ P @ IKH.mT + K @ R @ K.mT
+        P = check_shared_covariance(P, self._batch, time=self._time(steps), quantity="P")
+        return S, K, P
+
+    def _correct(self, x: FloatArray, y: FloatArray, u: FloatArray | None, S: FloatArray,
+                 K: FloatArray, steps: int) -> FloatArray:
+        """A batch's a-posteriori state from the prior ``x`` and the gain ``K`` (checked); sets
+        the diagnostics (``S`` and ``K`` may be the members' shared ones)."""
+        innov = y - np.vecmat(x, self._HT)
+        if u is not None:
+            innov -= np.vecmat(u, self._DT)  # type: ignore[operator]
+        x = x + (K @ innov[..., None])[..., 0]
+        self._check_state(x, steps)
+        self.innovation, self.innovation_cov, self.gain = innov, self._members(S), \
+            self._members(K)
+        return x
 
     def _members(self, M: FloatArray) -> FloatArray:
         """``M``, a batch's stack or the member its filters share, as the stack.

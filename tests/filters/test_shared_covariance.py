@@ -238,3 +238,38 @@ def test_kalman_shared_p_failure_raises_the_stack_error(
                                                        else (4, 2, 2))
     assert np.array_equal(got.value, expected.value, equal_nan=True)
     assert all(np.array_equal(a, b) for a, b in zip(state, expected_state, strict=True))
+
+
+def test_kalman_shared_p_settled_cycle_is_not_recomputed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A shared covariance settles into a short cycle of floating-point values: the steps
+    then reuse the kept results, bitwise what the computation gives (also after a reset)."""
+    rng = np.random.default_rng(30)
+    system = _discrete(rng, 3)
+    N, T = 5, 200
+    x0, P0 = rng.standard_normal((N, 3)), _spd(rng, 3)
+    ys, us = rng.standard_normal((2 * T, N, 2)), rng.standard_normal((2 * T, N, 1))
+    calls = []
+    compute = KalmanFilter._gain_and_covariance
+
+    def counted(self: KalmanFilter, P: np.ndarray, steps: int):
+        calls.append(steps)
+        return compute(self, P, steps)
+
+    def run() -> list[np.ndarray]:
+        f = KalmanFilter(system, x0, P0)
+        out = []
+        for i in range(2 * T):
+            if i == T:
+                f.reset(x0, P0)
+            f.step(ys[i], us[i])
+            out += [np.array(f.x), np.array(f.P), f.innovation, f.innovation_cov, f.gain]
+        return out
+
+    monkeypatch.setattr(KalmanFilter, "_gain_and_covariance", counted)
+    shared = run()
+    assert len(calls) < T  # computed until the cycle closed, twice
+    calls.clear()
+    _without_sharing(monkeypatch)
+    members = run()
+    assert len(calls) == 2 * T
+    assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
