@@ -273,7 +273,9 @@ class KalmanFilter(_SampledFilter):
     ``P0``) computes the covariance recursion, the gain and the covariance check once, on one
     member broadcast against the means (the same operations on the same numbers as member
     by member, hence the same results and errors); ``P``, ``gain`` and ``innovation_cov``
-    are still the stacks of all members.
+    are still the stacks of all members. Such a covariance usually settles into a fixed
+    point or a short cycle of floating-point values: :meth:`step` keeps its last 16 steps'
+    results and reuses them for a bitwise equal covariance instead of recomputing them.
     """
 
     name: ClassVar[str] = "kalman"
