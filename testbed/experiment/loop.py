@@ -108,6 +108,12 @@ class EstimatorStage:
         phys = None if physical_index is None else np.asarray(physical_index, dtype=int)
         self.physical_index = None if phys is None or np.array_equal(phys, np.arange(n)) \
             else phys
+        # consecutive physical states (the design's first ones): a slice, so that x and P
+        # below are views instead of fancy-index copies (the same values)
+        self._physical: slice | np.ndarray | None = self.physical_index
+        if phys is not None and self.physical_index is not None and len(phys) and \
+                np.array_equal(phys, np.arange(phys[0], phys[0] + len(phys))):
+            self._physical = slice(int(phys[0]), int(phys[0]) + len(phys))
         self.name = name
         self._checked = False
 
@@ -117,17 +123,21 @@ class EstimatorStage:
 
     @property
     def x(self) -> np.ndarray:
-        """The estimate of the rig's physical states, (N, n_rig)."""
+        """The estimate of the rig's physical states, (N, n_rig) (possibly a view of the
+        estimator's)."""
         x = np.asarray(self.estimator.x)
-        return x if self.physical_index is None else x[..., self.physical_index]
+        return x if self._physical is None else x[..., self._physical]
 
     @property
     def P(self) -> np.ndarray | None:
-        """The marginal covariance of the physical states, (N, n_rig, n_rig), or None."""
+        """The marginal covariance of the physical states, (N, n_rig, n_rig), or None
+        (possibly a view of the estimator's)."""
         P = self.estimator.P
-        if P is None or self.physical_index is None:
+        i = self._physical
+        if P is None or i is None:
             return P
-        i = self.physical_index
+        if isinstance(i, slice):
+            return np.asarray(P)[..., i, i]
         return np.asarray(P)[..., i[:, None], i]
 
     def check(self, when: str) -> None:
