@@ -35,6 +35,8 @@ from __future__ import annotations
 
 import bisect
 import copy
+import math
+import operator
 import os
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -497,6 +499,13 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     return table[inverse]
 
 
+def _joined(columns: dict[str, slice], first: str, second: str) -> slice:
+    """The columns of two adjacent blocks of ``columns`` as one slice."""
+    a, b = columns[first], columns[second]
+    assert a.stop == b.start
+    return slice(a.start, b.stop)
+
+
 class Simulator:
     """N members of one rig with sensors and a disturbance, stepped together.
 
@@ -577,12 +586,22 @@ class Simulator:
         self._tracked_cols = (slice(lo, hi) if np.array_equal(self._tracked, np.arange(lo, hi))
                               else self._tracked)
         self._envelope = rig.envelope
+        #: A one-member simulator steps on Python floats (:meth:`_step_single`): its limits,
+        #: envelope and tracked columns as lists.
+        self._single = n == 1
+        self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
+        self._envelope_list = self._envelope.tolist()
+        self._tracked_list = self._tracked.tolist()
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
                         else np.zeros((1, 1 + r))]
         self._table_times = self._tables[0][:, 0].tolist()
         self._table_rows = [row[None, 1:] for row in self._tables[0]]  # (1, r) views
+        self._table_lists = [row[1:].tolist() for row in self._tables[0]]
+        #: The default table's row found last and the times it holds for, ``lo <= t < hi``
+        #: (:meth:`_table_row`).
+        self._row_cache = (math.inf, -math.inf, 0)
         self._table_of = np.zeros(n, dtype=int)
         self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
         self._schedule_of = np.zeros(n, dtype=int)
@@ -655,6 +674,10 @@ class Simulator:
             start += width
         self._info_items = tuple(self._info_columns.items())
         self._t_column = self._info_columns["t"].start
+        #: Adjacent column blocks a one-member step writes at once: state and t, setpoint
+        #: and action_applied.
+        self._state_t_cols = _joined(self._info_columns, "state", "t")
+        self._setpoint_action_cols = _joined(self._info_columns, "setpoint", "action_applied")
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -665,6 +688,7 @@ class Simulator:
                           for key, cols in self._info_columns.items()})
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
         self.info["action_clipped"] = action_clipped
+        self._info_row = self._info_rows[0]  # (member 0's row, a view)
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Copies (``copy.deepcopy``, pickle) step on their own arrays: ``info`` is views of
@@ -789,9 +813,7 @@ class Simulator:
             table = self._tables[0]
             if len(t) == 1 or (common and len(t)):  # one time: the row searchsorted finds
                 # below for each member, looked up once without numpy's per-call overhead
-                times = self._table_times  # (one row, a constant reference: that row)
-                row = 0 if len(times) == 1 else bisect.bisect_right(times, float(t[0])) - 1
-                ref = self._table_rows[max(row, 0)]
+                ref = self._table_rows[self._table_row(float(t[0]))]
                 return ref if len(t) == 1 else ref.repeat(len(t), axis=0)
             rows = np.searchsorted(table[:, 0], t, side="right") - 1
             return table[np.maximum(rows, 0), 1:]
@@ -803,6 +825,19 @@ class Simulator:
             rows = np.searchsorted(table[:, 0], t[mask], side="right") - 1
             out[mask] = table[np.maximum(rows, 0), 1:]
         return out
+
+    def _table_row(self, t: float) -> int:
+        """The row of the default setpoint table in force at ``t``: what ``searchsorted(times,
+        t, side="right") - 1`` (at least 0) finds, looked up again only when ``t`` leaves the
+        times the last row holds for (a step is then a compare, not a search)."""
+        lo, hi, row = self._row_cache
+        if lo <= t < hi:
+            return row
+        times = self._table_times
+        row = max(bisect.bisect_right(times, t) - 1, 0)
+        self._row_cache = (times[row] if row else -math.inf,
+                           times[row + 1] if row + 1 < len(times) else math.inf, row)
+        return row
 
     def setpoints_at(self, t_s: float | np.ndarray, members: Any = slice(None)) -> np.ndarray:
         """References of the members at time(s) ``t_s``, shape (k, r)."""
@@ -947,6 +982,9 @@ class Simulator:
         if members is None:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
+            if self._single:  # one member: its few numbers on Python floats
+                self._step_single(actions if checked else self.check_actions(actions, 1))
+                return
             index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self._whole
             common = self._same_steps
         else:
@@ -984,17 +1022,7 @@ class Simulator:
             info["step_noise"][sel] = step_noise
         qfrc = None
         if dist_active:
-            G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
-            w = self._signal(t, index, common) if has_signal else info["disturbance"][sel]
-            accel: Any = zero_accel
-            if G_rows is not None:
-                accel = accel + np.matvec(G_rows, w)
-            if b_rows is not None:
-                drawn = xi[:, n_step:n_step + self._dist_draws]
-                accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
-            a = np.zeros((k, physics.nv))
-            a[:, dof_adr] = accel
-            qfrc = np.matvec(physics.mass[sel], a)
+            w, accel, qfrc = self._forces(t, index, sel, common, xi, zero_accel)
         elif has_signal:
             w = self._signal(t, index, common)
         physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
@@ -1028,18 +1056,7 @@ class Simulator:
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index, common) if has_signal else zero_w
-        sample = Sample(x, t, applied, w_now, sel)
-        if self._sensor_draws is None:  # the sensors draw from the streams themselves
-            self.obs[sel] = self.sensors.measure(sample, noise)
-        else:
-            drawn_ahead = (Drawn(xi[:, n_step + self._dist_draws:]) if self._sensor_draws
-                           else self._no_draws)
-            self.obs[sel] = self.sensors.measure(sample, drawn_ahead)
-            if drawn_ahead.position != self._sensor_draws:
-                self._no_draws.position = 0
-                raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
-                                   f"{drawn_ahead.position} normals per sample but declare "
-                                   f"{self._sensor_draws} (draws_per_sample)")
+        self.obs[sel] = self._measure(Sample(x, t, applied, w_now, sel), noise, xi)
         info["state"][sel] = x
         info["t"][sel] = t
         info["setpoint"][sel] = ref
@@ -1052,6 +1069,129 @@ class Simulator:
             info["manoeuvre"][sel] = profile
         if dist_active:
             info["process_accel"][sel] = accel
+
+    def _step_single(self, u: np.ndarray) -> None:
+        """:meth:`step` of a one-member simulator (``u`` checked, shape (1, nu)).
+
+        The same operations in the same order as the batch step, but the few numbers of the
+        bookkeeping (clipping, time, envelope check, reference, reward, info) are Python
+        floats: IEEE-754 doubles like numpy's, so bitwise the same values
+        (``min(max(v, lo), hi)`` is numpy's ``minimum(maximum(v, lo), hi)`` on finite
+        values, ``abs(v) <= bound`` is False for NaN like ``less_equal``), without numpy's
+        per-call overhead on arrays of one row. The rig, disturbance, physics and sensors
+        get the same arrays as in a batch step.
+        """
+        rig, physics, info = self.rig, self.physics, self.info
+        has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
+                                                 self._no_manoeuvre)
+        index, sel = self._all, _ALL
+        ul = u.tolist()[0]
+        clipped_u = list(map(min, map(max, ul, self._low_list), self._high_list))
+        t = None
+        if has_signal or not no_manoeuvre:  # the times as the batch step has them
+            t = np.array((self.steps.item(0) * self.dt_s,))
+        if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0)
+            profile = None
+            applied = [c + 0.0 for c in clipped_u]
+            clipped = list(map(operator.ne, clipped_u, ul))
+        else:
+            profile = self._manoeuvre(t, sel, True)
+            total = list(map(operator.add, clipped_u, profile.tolist()[0]))
+            applied = list(map(min, map(max, total, self._low_list), self._high_list))
+            clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
+                                                               strict=True)]
+        applied_rows = np.array((applied,))
+        xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
+        n_step = rig.step_noise_dim
+        step_noise = None
+        if n_step:
+            step_noise = xi[:, :n_step]
+            info["step_noise"][sel] = step_noise
+        qfrc = None
+        if dist_active:
+            w, accel, qfrc = self._forces(t, index, sel, True, xi, self._zero_accel)
+        elif has_signal:
+            w = self._signal(t, index, True)
+        physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), qfrc)
+        warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
+                              step_noise=step_noise)
+        steps = self.steps.item(0) + 1
+        self.steps[0] = steps
+        t_now = steps * self.dt_s
+        t = np.array((t_now,))
+        x = physics.states(sel)
+        xl = x.tolist()[0]
+        if warned or not all(map(operator.le, map(abs, xl), self._envelope_list)):
+            inside = np.less_equal(np.abs(x), self._envelope)
+            self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
+        ref = self._single_reference(t_now)
+        r = self._r
+        if r > 2:  # (as the batch step: numpy's sum of the squares)
+            e = x[:, self._tracked_cols] - np.array((ref,))
+            total = np.add.reduce(e * e, axis=1).item(0)
+        else:
+            total = 0.0
+            for j, c in enumerate(self._tracked_list):  # (0.0 + s is s: s >= +0)
+                e = xl[c] - ref[j]
+                total = e * e if j == 0 else total + e * e
+        self.reward[0] = -total
+        if self._terminates:
+            self.terminated[sel] = rig.terminated(x)
+        w_now = self._signal(t, index, True) if has_signal else self._zero_w
+        self.obs[sel] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
+                                      xi)
+        row = self._info_row
+        xl.append(t_now)
+        row[self._state_t_cols] = xl  # (state and t: adjacent columns, as setpoint and
+        ref.extend(applied)           # action_applied)
+        row[self._setpoint_action_cols] = ref
+        info["action_clipped"][0] = clipped
+        if has_signal:
+            info["disturbance"][sel] = w
+        if profile is not None:
+            info["manoeuvre"][sel] = profile
+        if dist_active:
+            info["process_accel"][sel] = accel
+
+    def _single_reference(self, t: float) -> list[float]:
+        """The reference of the one member at ``t``, a new list of floats (r,)."""
+        if len(self._tables) == 1:
+            return self._table_lists[self._table_row(t)].copy()
+        return self._reference(np.array((t,)), self._all).tolist()[0]
+
+    def _forces(self, t: np.ndarray | None, index: np.ndarray, sel: Any, common: bool,
+                xi: np.ndarray | None, zero_accel: np.ndarray
+                ) -> tuple[np.ndarray, Any, np.ndarray]:
+        """The disturbance of a step: the signal ``w`` (k, s) (the one reset wrote when
+        there is none), the joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the
+        generalized forces ``M(q) a`` (k, nv) of the members."""
+        G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
+        w = self._signal(t, index, common) if self._has_signal else self.info["disturbance"][sel]
+        accel: Any = zero_accel
+        if G_rows is not None:
+            accel = accel + np.matvec(G_rows, w)
+        if b_rows is not None:
+            n_step = self.rig.step_noise_dim
+            drawn = xi[:, n_step:n_step + self._dist_draws]
+            accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
+        a = np.zeros((len(index), self.physics.nv))
+        a[:, dof_adr] = accel
+        return w, accel, np.matvec(self.physics.mass[sel], a)
+
+    def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None) -> np.ndarray:
+        """The sensors' sample (k, m): with the normals drawn ahead ``xi`` when they declare
+        how many they draw (checked), else from the streams ``noise``."""
+        if self._sensor_draws is None:  # the sensors draw from the streams themselves
+            return self.sensors.measure(sample, noise)
+        drawn_ahead = (Drawn(xi[:, self.rig.step_noise_dim + self._dist_draws:])
+                       if self._sensor_draws else self._no_draws)
+        y = self.sensors.measure(sample, drawn_ahead)
+        if drawn_ahead.position != self._sensor_draws:
+            self._no_draws.position = 0
+            raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
+                               f"{drawn_ahead.position} normals per sample but declare "
+                               f"{self._sensor_draws} (draws_per_sample)")
+        return y
 
     def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,
                   x: np.ndarray, t: np.ndarray) -> None:
