@@ -147,7 +147,8 @@ def test_a_sensor_drawing_other_than_it_declares_is_named(declared, message):
 def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
     """A suite's decorators applied across channels (:mod:`testbed.sensors.fused`) give
     bitwise the values and the per-member state of measuring sensor by sensor, for the
-    whole batch and for a subset of members, also in a copy made mid-episode."""
+    whole batch, for a subset of members and for one member (a row of Python floats), also
+    in a copy made mid-episode."""
     import copy
 
     from testbed.rigs import resolve_rig
@@ -177,10 +178,10 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
     first = sample(slice(None))
     for suite, st in zip((fused, plain), streams, strict=True):
         suite.reset(first, st.view(slice(None)))
-    for step in range(6):
-        if step == 3:  # a copy mid-episode measures like the original
+    for step in range(9):
+        if step == 4:  # a copy mid-episode measures like the original
             fused = copy.deepcopy(fused)
-        members = slice(None) if step % 2 == 0 else np.array([1, 3])
+        members = (slice(None), np.array([1, 3]), np.array([2]))[step % 3]
         smp = sample(members)
         a = fused.measure(smp, streams[0].view(members))
         b = plain.measure(smp, streams[1].view(members))
@@ -189,3 +190,15 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
         for name in ("bias", "last"):
             if hasattr(x, name):
                 assert getattr(x, name).tobytes() == getattr(y, name).tobytes()
+
+
+def test_rint_of_a_python_float_is_numpys():
+    """The one-row path's rounding (:func:`testbed.sensors.fused._rint`) is ``np.rint``,
+    bitwise: ties to even, the sign of a zero kept, non-finite values unchanged."""
+    from testbed.sensors.fused import _rint
+
+    values = [0.0, -0.0, 0.3, -0.3, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 1e300, -1e300, 2.0**52 + 1,
+              4503599627370495.5, np.inf, -np.inf, np.nan, 5e-324, -5e-324]
+    values += np.random.default_rng(0).normal(0, 1e3, 200).tolist()
+    expected = np.rint(np.array(values))
+    assert np.array([_rint(v) for v in values]).tobytes() == expected.tobytes()

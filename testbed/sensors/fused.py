@@ -31,6 +31,7 @@ array of the plan, which each decorator's ``bias`` attribute views.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -110,10 +111,13 @@ class _Group:
 
     def __init__(self, decorators: list[tuple[Any, int, int]], width: int,
                  values: list[np.ndarray] | None = None):
-        self.cols = _index([c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)],
-                           width)
-        self.xcols = _index([o + j for d, _, o in decorators for j in range(d.dim)])
+        cols = [c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)]
+        xcols = [o + j for d, _, o in decorators for j in range(d.dim)]
+        self.cols, self.xcols = _index(cols, width), _index(xcols)
         self.values = None if values is None else _Tiled(np.concatenate(values))
+        #: For one row (:meth:`apply_row`): (column, normal, parameter) of each column.
+        self.row_terms = list(zip(cols, xcols, [0.0] * len(cols) if values is None
+                                  else np.concatenate(values).tolist(), strict=True))
 
     def _put(self, y: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``y`` with the group's columns set to ``values`` (``values`` for all of them)."""
@@ -135,6 +139,11 @@ class _NoiseGroup(_Group):
         return self._put(y, _get(y, self.cols)
                          + self.values.of(len(y)) * _get(xi, self.xcols))
 
+    def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
+        """:meth:`apply` on one row of Python floats, in place (the same operations)."""
+        for c, o, std in self.row_terms:
+            y[c] = y[c] + std * xi[o]
+
 
 class _QuantizeGroup(_Group):
     """Quantization on its columns: ``round(y / step) step``."""
@@ -146,6 +155,11 @@ class _QuantizeGroup(_Group):
               noise: Noise) -> np.ndarray:
         step = self.values.of(len(y))
         return self._put(y, np.rint(_get(y, self.cols) / step) * step)
+
+    def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
+        """:meth:`apply` on one row of Python floats, in place (the same operations)."""
+        for c, _, step in self.row_terms:
+            y[c] = _rint(y[c] / step) * step
 
 
 class _WalkGroup(_Group):
@@ -184,6 +198,21 @@ class _WalkGroup(_Group):
         if self.values is not None:  # the walk
             self.bias[members] = bias + self.values.of(len(y)) * _get(xi, self.xcols)
         return y
+
+    def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
+        """:meth:`apply` on one row of Python floats, in place (the same operations)."""
+        bias = self.bias[members].tolist()[0]
+        for (c, _, _), b in zip(self.row_terms, bias, strict=True):
+            y[c] = y[c] + b
+        if self.values is not None:
+            self.bias[members] = [[b + step * xi[o] for (_, o, step), b
+                                   in zip(self.row_terms, bias, strict=True)]]
+
+
+def _rint(q: float) -> float:
+    """``np.rint(q)`` of a Python float: to the nearest integer, ties to even (``round``),
+    with the sign of ``q`` on a zero; a non-finite ``q`` is its own rint."""
+    return math.copysign(float(round(q)), q) if math.isfinite(q) else q
 
 
 class _OwnApply:
@@ -273,6 +302,8 @@ class FusedPlan:
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """The suite's measurement of ``sample``, shape (k, m)."""
         xi = noise.normal(self.draws) if self.draws else None
+        if len(sample.x) == 1:
+            return self._measure_row(sample, noise, xi)
         if self.whole is not None:  # one suite of state channels: its gather is a new array
             y = self.whole.measure(sample, noise)
         else:
@@ -284,6 +315,32 @@ class FusedPlan:
         for step in self.steps:
             y = step.apply(y, xi, members, sample, noise)
         return y
+
+
+    def _measure_row(self, sample: Sample, noise: Noise, xi: np.ndarray | None) -> np.ndarray:
+        """:meth:`measure` of one member (k = 1): the leaves' values and the groups'
+        operations on a row of Python floats (IEEE-754 doubles: the same operations give
+        the same values, bitwise), an array only where a decorator runs its own ``apply``
+        (numpy's per-call overhead on arrays of one row is most of a group's time)."""
+        if self.whole is not None:
+            y: Any = self.whole.measure(sample, noise).tolist()[0]
+        else:
+            y = []
+            for sensor, _, draws in self.leaves:
+                y += sensor.measure(sample,
+                                    noise if draws is None else Drawn(xi[:, draws])).tolist()[0]
+        xl = None if xi is None else xi.tolist()[0]
+        members = sample.members
+        for step in self.steps:
+            if type(step) is _OwnApply:
+                if type(y) is list:
+                    y = np.array((y,), dtype=float)
+                y = step.apply(y, xi, members, sample, noise)
+            else:
+                if type(y) is not list:
+                    y = y.tolist()[0]
+                step.apply_row(y, xl, members)
+        return np.array((y,), dtype=float) if type(y) is list else y
 
 
 def build_plan(suite: Suite) -> FusedPlan | None:
