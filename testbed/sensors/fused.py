@@ -271,6 +271,9 @@ class FusedPlan:
         #: (whose measurement, a gather, is a new array the decorators may change in place).
         self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
                       and leaves[0][0].dim == self.dim else None)
+        #: The columns the whole suite gathers when a plain suite's slice (else None).
+        self.whole_index = (self.whole._state_index if type(self.whole) is Suite
+                            and type(self.whole._state_index) is slice else None)
         width = self.dim
         self.walk_groups: list[_WalkGroup] = []
         #: The steps, level by level.
@@ -323,7 +326,11 @@ class FusedPlan:
         the same values, bitwise), an array only where a decorator runs its own ``apply``
         (numpy's per-call overhead on arrays of one row is most of a group's time)."""
         if self.whole is not None:
-            y: Any = self.whole.measure(sample, noise).tolist()[0]
+            index = self.whole_index
+            if type(index) is slice:  # the state columns the whole suite gathers
+                y: Any = sample.x.tolist()[0][index]
+            else:
+                y = self.whole.measure(sample, noise).tolist()[0]
         else:
             y = []
             for sensor, _, draws in self.leaves:

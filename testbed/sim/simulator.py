@@ -431,7 +431,8 @@ class Physics:
                 batch.step(ids, 1)
             state[sel, cols] = command
         bad = self._bad if whole else self._bad[sel]
-        warned = bool(np.count_nonzero(bad))
+        # (one member: its three counters as Python ints, without numpy's call overhead)
+        warned = any(bad.tolist()[0]) if k == 1 else bool(np.count_nonzero(bad))
         if warned:  # rare: mark the members and clear their counters
             unstable = np.any(bad, axis=1)
             self.unstable[sel] = unstable

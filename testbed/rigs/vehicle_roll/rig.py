@@ -109,6 +109,7 @@ class VehicleRollRig(Rig):
         super().__init__(params, physics_dt_s, profile)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
         self._body_id = self.body_id("sprung_mass")
+        self._nbody, self._damping_dof = self.model.nbody, int(self.dof_adr[0])
         from testbed.rigs.vehicle_roll.manoeuvres import MANOEUVRES
 
         self.manoeuvres = MANOEUVRES
@@ -132,14 +133,14 @@ class VehicleRollRig(Rig):
 
     def actuation(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
         """``xfrc_applied[sprung_mass] = [0, -m_s a_y, 0, 0, 0, 0]`` for each member."""
-        xfrc = np.zeros((len(u), self.model.nbody, 6))
-        xfrc[:, self._body_id, 1] = -constants[:, 0] * u[:, 0]
+        xfrc = np.zeros((len(u), self._nbody, 6))
+        np.multiply(-constants[:, 0], u[:, 0], out=xfrc[:, self._body_id, 1])
         return {"xfrc": xfrc}
 
     def step_noise_model(self, constants: np.ndarray,
                          xi: np.ndarray) -> dict[str, tuple[int, np.ndarray]]:
         """Damping ``C_R + D_n w_k`` for the next step, shape (k,)."""
-        return {"dof_damping": (int(self.dof_adr[0]), constants[:, 1] + constants[:, 2] * xi[:, 0])}
+        return {"dof_damping": (self._damping_dof, constants[:, 1] + constants[:, 2] * xi[:, 0])}
 
     x0_draws = 2
 
