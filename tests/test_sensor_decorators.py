@@ -202,3 +202,25 @@ def test_rint_of_a_python_float_is_numpys():
     values += np.random.default_rng(0).normal(0, 1e3, 200).tolist()
     expected = np.rint(np.array(values))
     assert np.array([_rint(v) for v in values]).tobytes() == expected.tobytes()
+
+
+def test_one_member_reads_a_channel_subclass_through_its_own_measure():
+    """A channel subclass that changes ``measure`` only is read through it on the fused
+    one-row path (not through its parent's ``measure_row``)."""
+    from testbed.sensors import StateChannel, Suite
+
+    class Doubled(StateChannel):
+        def measure(self, sample, noise):
+            return 2.0 * super().measure(sample, noise)
+
+    suite = Suite(WhiteNoise(Doubled(0, 2, 1, "roll", "rad"), std=0.1),
+                  WhiteNoise(StateChannel(1, 2, 1, "roll_rate", "rad/s"), std=0.2))
+    suite.allocate(1)
+    assert suite._plan is not None
+    streams = NoiseStreams(1)
+    streams.seed(0, 3)
+    sample = Sample(np.array([[0.25, -0.5]]), np.zeros(1), np.zeros((1, 1)), np.zeros((1, 0)))
+    xi = NoiseStreams(1)
+    xi.seed(0, 3)
+    expected = np.array([[0.5, -0.5]]) + np.array([[0.1, 0.2]]) * xi.draw(2)
+    assert suite.measure(sample, streams.view(slice(None))).tobytes() == expected.tobytes()

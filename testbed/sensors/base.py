@@ -277,6 +277,13 @@ class Sensor:
         """One sample of every member in ``sample``, shape (k, m)."""
         raise NotImplementedError
 
+    def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
+        """:meth:`measure` of a one-member sample (k = 1) as a list of ``m`` Python floats:
+        what a fused suite's one-row path reads (:mod:`testbed.sensors.fused`). Default: the
+        row of :meth:`measure`; a channel may compute it without numpy, with the same
+        values, bitwise."""
+        return self.measure(sample, noise).tolist()[0]
+
     def linear_model(self) -> SensorModel:
         """The model a designer uses (see :class:`SensorModel`)."""
         raise NotImplementedError

@@ -31,6 +31,7 @@ array of the plan, which each decorator's ``bias`` attribute views.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -209,6 +210,17 @@ class _WalkGroup(_Group):
                                    in zip(self.row_terms, bias, strict=True)]]
 
 
+def _row_reader(sensor: Sensor) -> Any:
+    """``sensor.measure_row`` when the class defining its ``measure`` defines it too; else
+    the row of ``measure`` (a subclass that changes ``measure`` only is read through it)."""
+    for cls in type(sensor).__mro__:
+        if "measure" in cls.__dict__:
+            if "measure_row" in cls.__dict__:
+                return sensor.measure_row
+            break
+    return functools.partial(Sensor.measure_row, sensor)
+
+
 def _rint(q: float) -> float:
     """``np.rint(q)`` of a Python float: to the nearest integer, ties to even (``round``),
     with the sign of ``q`` on a zero; a non-finite ``q`` is its own rint."""
@@ -267,6 +279,8 @@ class FusedPlan:
                 owns.append((lv, dec, c0, offset, draws))
         self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
                        for s, c0, o, d in leaves]
+        #: The leaves' one-row readers (:func:`_row_reader`) with their normals.
+        self.row_leaves = [(_row_reader(s), draws) for s, _, draws in self.leaves]
         #: The only leaf when it is a suite of bare state channels covering every column
         #: (whose measurement, a gather, is a new array the decorators may change in place).
         self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
@@ -333,9 +347,8 @@ class FusedPlan:
                 y = self.whole.measure(sample, noise).tolist()[0]
         else:
             y = []
-            for sensor, _, draws in self.leaves:
-                y += sensor.measure(sample,
-                                    noise if draws is None else Drawn(xi[:, draws])).tolist()[0]
+            for read, draws in self.row_leaves:
+                y += read(sample, noise if draws is None else Drawn(xi[:, draws]))
         xl = None if xi is None else xi.tolist()[0]
         members = sample.members
         for step in self.steps:

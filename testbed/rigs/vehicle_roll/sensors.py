@@ -98,6 +98,10 @@ class SpeedYawRate(Sensor):
         np.divide(sample.u[:, 0], self.speed_m_s, out=out[:, 1])
         return out
 
+    def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
+        """:meth:`measure` of one member on Python floats (the same division)."""
+        return [self.speed_m_s, sample.u.item(0, 0) / self.speed_m_s]
+
     def linear_model(self) -> SensorModel:
         """``yaw_rate = a_y / v`` (``D``); ``speed`` is constant; both are input channels."""
         return SensorModel(C=np.zeros((2, 2)), D=np.array([[0.0], [1.0 / self.speed_m_s]]),
@@ -117,6 +121,10 @@ class SpeedChannel(SpeedYawRate):
         out.fill(self.speed_m_s)
         return out
 
+    def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
+        """``[v]``."""
+        return [self.speed_m_s]
+
     def linear_model(self) -> SensorModel:
         """This channel's row of :meth:`SpeedYawRate.linear_model`."""
         m, r = super().linear_model(), self._rows
@@ -133,6 +141,10 @@ class YawRateChannel(SpeedChannel):
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``a_y / v``, shape (k, 1)."""
         return sample.u[:, :1] / self.speed_m_s
+
+    def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
+        """``[a_y / v]`` of one member on Python floats (the same division)."""
+        return [sample.u.item(0, 0) / self.speed_m_s]
 
 
 def measured_lateral_acceleration(tap: Tap) -> np.ndarray:
