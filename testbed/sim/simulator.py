@@ -593,6 +593,7 @@ class Simulator:
         self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
         self._envelope_list = self._envelope.tolist()
         self._tracked_list = self._tracked.tolist()
+        self._zero_list = [0.0] * rig.n_actions
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
@@ -679,6 +680,9 @@ class Simulator:
         #: and action_applied.
         self._state_t_cols = _joined(self._info_columns, "state", "t")
         self._setpoint_action_cols = _joined(self._info_columns, "setpoint", "action_applied")
+        #: Both blocks as one when the disturbance's columns between them are none.
+        self._step_cols = (slice(self._state_t_cols.start, self._setpoint_action_cols.stop)
+                           if self._w_dim == 0 else None)
         self.info: dict[str, np.ndarray] = {}
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
@@ -1093,7 +1097,7 @@ class Simulator:
             t = np.array((self.steps.item(0) * self.dt_s,))
         if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0)
             profile = None
-            applied = [c + 0.0 for c in clipped_u]
+            applied = list(map(operator.add, clipped_u, self._zero_list))
             clipped = list(map(operator.ne, clipped_u, ul))
         else:
             profile = self._manoeuvre(t, sel, True)
@@ -1125,16 +1129,22 @@ class Simulator:
         if warned or not all(map(operator.le, map(abs, xl), self._envelope_list)):
             inside = np.less_equal(np.abs(x), self._envelope)
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        ref = self._single_reference(t_now)
-        r = self._r
-        if r > 2:  # (as the batch step: numpy's sum of the squares)
-            e = x[:, self._tracked_cols] - np.array((ref,))
-            total = np.add.reduce(e * e, axis=1).item(0)
+        lo, hi, table_row = self._row_cache
+        if lo <= t_now < hi and len(self._tables) == 1:  # the default table's row as before
+            ref = self._table_lists[table_row].copy()
         else:
-            total = 0.0
-            for j, c in enumerate(self._tracked_list):  # (0.0 + s is s: s >= +0)
-                e = xl[c] - ref[j]
-                total = e * e if j == 0 else total + e * e
+            ref = self._single_reference(t_now)
+        r = self._r
+        if r == 2:  # (the batch step's e * e summed, in the same order)
+            c0, c1 = self._tracked_list
+            e0, e1 = xl[c0] - ref[0], xl[c1] - ref[1]
+            total = e0 * e0 + e1 * e1
+        elif r == 1:
+            e0 = xl[self._tracked_list[0]] - ref[0]
+            total = e0 * e0
+        else:  # (numpy's sum of the squares, as the batch step)
+            e = x[:, self._tracked_cols] - np.array((ref,)).reshape(1, r)
+            total = np.add.reduce(e * e, axis=1).item(0)
         self.reward[0] = -total
         if self._terminates:
             self.terminated[sel] = rig.terminated(x)
@@ -1142,10 +1152,14 @@ class Simulator:
         self.obs[sel] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
                                       xi)
         row = self._info_row
-        xl.append(t_now)
-        row[self._state_t_cols] = xl  # (state and t: adjacent columns, as setpoint and
-        ref.extend(applied)           # action_applied)
-        row[self._setpoint_action_cols] = ref
+        xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
+        ref.extend(applied)
+        if self._step_cols is not None:  # no disturbance columns between: one write
+            xl.extend(ref)
+            row[self._step_cols] = xl
+        else:
+            row[self._state_t_cols] = xl
+            row[self._setpoint_action_cols] = ref
         info["action_clipped"][0] = clipped
         if has_signal:
             info["disturbance"][sel] = w
