@@ -416,6 +416,12 @@ class Rig:
         """Whether each state ends the episode (e.g. a rollover), shape (k,) bool."""
         return np.zeros(len(x), dtype=bool)
 
+    def terminated_row(self, x: list[float]) -> bool:
+        """:meth:`terminated` of one state given as a list of Python floats (a one-member
+        simulator's step). Default: :meth:`terminated` of it; a rig may decide it without
+        numpy, with the same result."""
+        return bool(self.terminated(np.array((x,), dtype=float))[0])
+
     # ------------------------------------------------------------------ inputs
     def actuation(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
         """MuJoCo inputs for applied actions ``u`` (k, nu) (default: ``ctrl = u``).

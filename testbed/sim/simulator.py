@@ -500,6 +500,14 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     return table[inverse]
 
 
+def _defines_with(cls: type, method: str, companion: str) -> bool:
+    """Whether the class in ``cls``'s MRO that defines ``method`` defines ``companion``."""
+    for klass in cls.__mro__:
+        if method in klass.__dict__:
+            return companion in klass.__dict__
+    return False
+
+
 def _joined(columns: dict[str, slice], first: str, second: str) -> slice:
     """The columns of two adjacent blocks of ``columns`` as one slice."""
     a, b = columns[first], columns[second]
@@ -642,6 +650,9 @@ class Simulator:
         self._ready = np.zeros(n, dtype=bool)
         self._all_ready = False
         self._terminates = type(rig).terminated is not Rig.terminated
+        #: Whether the rig's class that defines ``terminated`` defines ``terminated_row``
+        #: too (else a one-member step calls ``terminated``).
+        self._terminated_row = _defines_with(type(rig), "terminated", "terminated_row")
         self.x0 = np.zeros((n, self._nx))
         self.obs = np.zeros((n, self.sensors.dim))
         self.reward = np.zeros(n)
@@ -1147,7 +1158,8 @@ class Simulator:
             total = np.add.reduce(e * e, axis=1).item(0)
         self.reward[0] = -total
         if self._terminates:
-            self.terminated[sel] = rig.terminated(x)
+            self.terminated[0] = (rig.terminated_row(xl) if self._terminated_row
+                                  else rig.terminated(x)[0])
         w_now = self._signal(t, index, True) if has_signal else self._zero_w
         self.obs[sel] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
                                       xi)

@@ -165,6 +165,10 @@ class VehicleRollRig(Rig):
         """Rolled over: ``|roll| > 90 deg``."""
         return np.abs(x[:, 0]) > ROLLOVER_RAD
 
+    def terminated_row(self, x: list[float]) -> bool:
+        """:meth:`terminated` of one state on Python floats."""
+        return abs(x[0]) > ROLLOVER_RAD
+
     def sensors(self, preset: str | None = None, *, dt_s: float = 0.01, **options):
         """``imu`` (gyro, lateral accelerometer, optional roll sensor), ``hardware`` (the
         same with offsets, sensitivity errors and latency) or ``paper`` channels.
