@@ -195,6 +195,13 @@ class LateralAccelerometer(Sensor):
         roll = sample.x[:, :1]
         return sample.u[:, :1] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll)
 
+    def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
+        """:meth:`measure` of one member: numpy's cosine and sine of the roll (the same
+        functions), the products and the sum on Python floats (the same operations)."""
+        roll = sample.x[:, :1]
+        return [sample.u.item(0, 0) * np.cos(roll).item()
+                + GRAVITY_M_S2 * np.sin(roll).item()]
+
     def linear_model(self) -> SensorModel:
         """``y = g roll + a_y``."""
         return SensorModel(C=np.array([[GRAVITY_M_S2, 0.0]]), D=np.ones((1, 1)),
