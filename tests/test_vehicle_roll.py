@@ -510,3 +510,20 @@ def test_other_filters_and_suites_run(filter_name, sensors):
     assert np.rad2deg(summary["rmse"]["roll"]) < 0.5
     with pytest.raises(ValueError, match="expected one of"):
         run(vehicle_scenario("hinf", duration_s=0.1), record=False, progress=False)
+
+
+def test_double_lane_change_at_one_time_equals_its_numpy_scalar_evaluation():
+    """The double lane change at one time runs on Python floats (``_at``): bitwise the
+    value of the same formula on numpy scalars (what a 0-d time computed before)."""
+    from testbed.rigs.vehicle_roll.manoeuvres import MANOEUVRES
+
+    f = MANOEUVRES["double-lane-change"]()
+    times = np.concatenate([np.linspace(-1.0, 12.0, 1301),
+                            np.random.default_rng(0).uniform(0.0, 10.0, 500)])
+    fast = np.array([f(float(t)) for t in times])
+    slow = []
+    for t in times:
+        _, k1, k2, a, b = f._terms(np.float64(t))
+        ypp = 0.5 * f.offset_m * (-2 * k1**2 * a * (1 - a**2) + 2 * k2**2 * b * (1 - b**2))
+        slow.append(float(f.speed_m_s**2 * ypp))
+    assert fast.tobytes() == np.array(slow).tobytes()
