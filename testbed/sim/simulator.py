@@ -201,6 +201,8 @@ class Physics:
         # the dense mass matrix from MuJoCo's sparse lower triangle (rows, columns)
         rows = np.repeat(np.arange(self.nv), model.M_rownnz)
         self._m_rows, self._m_cols = rows, np.asarray(model.M_colind)
+        #: Their flat positions in a member's (nv, nv) matrix, below and above the diagonal.
+        self._m_flat = (rows * self.nv + self._m_cols, self._m_cols * self.nv + rows)
         #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
         #: columns of the state rows holding [flag, command, c, r].
         self._native: tuple[int, slice, slice] | None = None
@@ -354,12 +356,14 @@ class Physics:
         """Dense mass matrices of the members from MuJoCo's sparse ``M`` (a copy of the
         values, as ``mj_fullM``)."""
         m = self._mass_bound[sel]
+        flat = self.mass.reshape(self.num, -1)  # (a view: one index per entry, not two)
+        lower, upper = self._m_flat
         if isinstance(sel, slice):
-            self.mass[:, self._m_rows, self._m_cols] = m
-            self.mass[:, self._m_cols, self._m_rows] = m
+            flat[:, lower] = m
+            flat[:, upper] = m
         else:
-            self.mass[sel[:, None], self._m_rows, self._m_cols] = m
-            self.mass[sel[:, None], self._m_cols, self._m_rows] = m
+            flat[sel[:, None], lower] = m
+            flat[sel[:, None], upper] = m
 
     def states(self, members: Any = slice(None)) -> np.ndarray:
         """Rig states of the members (a slice or int indices), shape (k, n)."""
