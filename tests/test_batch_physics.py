@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 
 from testbed.sim import build_simulator
 
@@ -77,15 +78,58 @@ def test_the_c_callback_stays_installed_and_is_used():
     sim.close()
 
 
-def test_simulator_pickles_mid_episode_and_continues_identically():
+@pytest.mark.parametrize("num", [1, 3])
+def test_simulator_pickles_mid_episode_and_continues_identically(num):
     import pickle
 
     for rig, profile in (("vehicle-roll", "paper"), ("helicopter", "hardware")):
-        sim = build_simulator(rig, 3, num_threads=2, profile=profile)
-        sim.reset(None, [0, 1, 2], options={"params": [None, {"mass_kg": 1.1}, None]}
+        sim = build_simulator(rig, num, num_threads=2, profile=profile)
+        sim.reset(None, list(range(num)),
+                  options={"params": [None, {"mass_kg": 1.1}, None][:num]}
                   if rig == "helicopter" else None)
         _drive(sim, 20)
         copy = pickle.loads(pickle.dumps(sim))
         np.testing.assert_array_equal(_drive(sim, 30, seed=5), _drive(copy, 30, seed=5))
         sim.close()
         copy.close()
+
+
+@pytest.mark.parametrize("rig, options", [
+    ("helicopter", {"profile": "paper"}),
+    ("helicopter", {"profile": "hardware"}),
+    ("helicopter", {"disturbance": "basin-helicopter", "process_noise": 1.0,
+                    "sensors": "paper", "sensor_kwargs": {"disturbance_channel": True}}),
+    ("helicopter", {"setpoints": [[0.0, 0.1, 0.2], [0.05, -0.1, 0.4], [0.12, 0.0, 0.0]]}),
+    ("vehicle-roll", {"profile": "paper"}),
+    ("vehicle-roll", {"profile": "hardware", "manoeuvre": "double-lane-change"}),
+])
+def test_one_member_step_equals_a_member_of_a_batch(rig, options):
+    """A one-member simulator steps on Python floats (``Simulator._step_single``, the
+    fused sensors' one-row path): bitwise the observation, reward, termination and every
+    info entry of the same member in a batch, with clipped actions, the ambient
+    disturbance, setpoint switches, a manoeuvre or a disturbance signal."""
+    one = build_simulator(rig, 1, num_threads=1, **options)
+    many = build_simulator(rig, 3, num_threads=2, **options)
+    assert one._single and not many._single
+    one.reset(None, [7], None)
+    many.reset(None, [5, 7, 9], None)
+    rng = np.random.default_rng(1)
+    high = np.asarray(one.rig.action_high)
+    for k in range(40):
+        u = rng.uniform(-1.3, 1.3, (3, one.rig.n_actions)) * high
+        if k % 5 == 0:
+            u[1, -1] = -0.0  # (a signed zero: applied as +0.0, as clipped + 0)
+        one.step(u[1:2])
+        many.step(u)
+        assert one.obs.tobytes() == many.obs[1:2].tobytes()
+        assert one.reward.tobytes() == many.reward[1:2].tobytes()
+        assert one.terminated.tobytes() == many.terminated[1:2].tobytes()
+        assert one.steps.tobytes() == many.steps[1:2].tobytes()
+        for key, value in one.info.items():
+            assert value.tobytes() == many.info[key][1:2].tobytes(), key
+        got, expected = one.member_info(0), many.member_info(1)
+        assert list(got) == list(expected)
+        for key, value in got.items():
+            assert np.asarray(value).tobytes() == np.asarray(expected[key]).tobytes(), key
+    one.close()
+    many.close()
