@@ -482,3 +482,21 @@ def test_cli_json_of_a_run_is_finite(tmp_path):
     assert main(["run", "helicopter", "--duration", "0.5", "--json", str(out),
                  "--no-progress"]) == 0
     assert json.loads(out.read_text())["steps"] == 50
+
+
+@pytest.mark.parametrize("num", [1, 3])
+def test_a_non_finite_manoeuvre_input_is_refused_before_the_step(num):
+    """A manoeuvre returning NaN stops the step with a ValueError, the state unchanged (one
+    member or a batch on one time, where only one row of the profile is checked)."""
+    from testbed.sim import build_simulator
+
+    sim = build_simulator("vehicle-roll", num, num_threads=1,
+                          manoeuvre=lambda t: float("nan") if t >= 0.05 else 0.0)
+    sim.reset(None, list(range(num)), None)
+    for _ in range(5):
+        sim.step(np.zeros((num, 1)))
+    before = sim.physics.state.copy(), sim.steps.copy()
+    with pytest.raises(ValueError, match="non-finite input"):
+        sim.step(np.zeros((num, 1)))
+    assert np.array_equal(sim.physics.state, before[0]) and np.array_equal(sim.steps, before[1])
+    sim.close()

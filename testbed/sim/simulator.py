@@ -872,9 +872,12 @@ class Simulator:
         ``common``: every entry of ``t`` is the same time."""
         if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
+        checked: np.ndarray | None = None  # (the rows to check for a non-finite input)
         if len(self._schedules) == 1:  # every member's profile (one, not None)
             fn = self._schedules[0]
             out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu, common)
+            if common:  # one time: every row is the first one
+                checked = out[:1]
         else:
             groups = self._schedule_of[sel]
             out = np.zeros((len(t), self._nu))
@@ -884,7 +887,8 @@ class Simulator:
                     continue
                 mask = groups == g
                 out[mask] = _per_time(lambda s, fn=fn: np.atleast_1d(fn(s)), t[mask], self._nu)
-        if np.count_nonzero(np.isfinite(out)) != out.size:
+        checked = out if checked is None else checked
+        if np.count_nonzero(np.isfinite(checked)) != checked.size:
             raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
         return out
 
