@@ -333,7 +333,6 @@ class FusedPlan:
             y = step.apply(y, xi, members, sample, noise)
         return y
 
-
     def _measure_row(self, sample: Sample, noise: Noise, xi: np.ndarray | None) -> np.ndarray:
         """:meth:`measure` of one member (k = 1): the leaves' values and the groups'
         operations on a row of Python floats (IEEE-754 doubles: the same operations give
