@@ -71,6 +71,7 @@ _BAD_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS,
 #: The whole batch as a selection, and the types of an integer index (module constants: not
 #: rebuilt per step).
 _ALL = slice(None)
+_STAGE_NONE = int(mujoco.mjtStage.mjSTAGE_NONE)
 _INTEGERS = (int, np.integer)
 
 
@@ -231,10 +232,17 @@ class Physics:
         #: The counters of MuJoCo's instability warnings, (N, 3), a view.
         self._bad = self._warning[:, lo:hi, 1]
         self._act = self.batch.bind("act") if self.rig.needs_substep else None
+        #: Whether a step sets ``ctrl`` before each physics step (the rig's substep_ctrl).
+        self.substeps = self._act is not None
         self.models = _MemberModels(self)
+        #: ``Batch.step(None, frame_skip)``'s C call (the same call without the wrapper's
+        #: id check, which ``None`` skips): its number of failed simulations, or None when
+        #: this MuJoCo's batch has no such call (then :meth:`step_plain` is ``Batch.step``).
+        core = getattr(self.batch, "_b", None)
+        self._c_step = getattr(core, "step", None)
 
     _UNPICKLED = ("batch", "state", "_fields", "_mass_bound", "_poses_bound", "_warning", "_bad",
-                  "_act", "models")
+                  "_act", "models", "_c_step")
 
     def __getstate__(self) -> dict[str, Any]:
         """Picklable (and deep-copyable): the batch's rows, warning counters and
@@ -449,6 +457,27 @@ class Physics:
             self._store_mass(sel)
         if need_poses:
             self._store_poses(sel)
+        return warned
+
+    def step_plain(self) -> bool:
+        """:meth:`step` of every member of a one-member physics without step noise, mass,
+        poses or per-substep ctrl (no ``needs_substep``): the batch's step and the warning
+        check, without the general path's branches (the same calls, the same values)."""
+        c_step = self._c_step
+        if c_step is None:
+            self.batch.step(None, self.frame_skip)
+        else:
+            failed = c_step(None, self.frame_skip, _STAGE_NONE)
+            if failed:  # the wrapper's error (SimulationError)
+                self.batch._check(None, failed)
+        warned = any(self._bad.tolist()[0])
+        if warned:  # rare: mark the member and clear its counters
+            self.unstable[0] = True
+            self._warning[0] = 0
+            self._any_unstable = True
+        elif self._any_unstable:  # clear the mark of an earlier step
+            self.unstable[0] = False
+            self._any_unstable = False
         return warned
 
     def _store_poses(self, sel: Any) -> None:
@@ -1137,8 +1166,11 @@ class Simulator:
         elif has_signal:
             w = self._signal(t, index, True)
         physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), qfrc)
-        warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
-                              step_noise=step_noise)
+        if step_noise is None and not (dist_active or self.record_poses or physics.substeps):
+            warned = physics.step_plain()
+        else:
+            warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
+                                  step_noise=step_noise)
         steps = self.steps.item(0) + 1
         self.steps[0] = steps
         t_now = steps * self.dt_s
