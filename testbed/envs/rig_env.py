@@ -127,14 +127,15 @@ class RigEnv(gym.Env):
     def step(self, action):
         """Apply one action for one control period."""
         u = action
-        # a finite float64 array of the action's shape is used as it is (the simulator
-        # keeps none of it); anything else is converted and checked by real_array (the
-        # finiteness of a few entries: faster on Python floats than with a numpy call)
+        # a finite float64 array of the action's shape is read as Python floats (the
+        # simulator's one-member step works on them); anything else is converted and
+        # checked by real_array (the finiteness of a few entries: faster on Python floats
+        # than with a numpy call)
         if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
-                and all(map(math.isfinite, u.tolist()))):
-            u = real_array(action, self._action_label, shape=self._shape)
+                and all(map(math.isfinite, values := u.tolist()))):
+            values = real_array(action, self._action_label, shape=self._shape).tolist()
         sim = self.sim
-        sim.step(u[None], checked=True)
+        sim.step_row(values)
         # item(): the Python float and bool of the entries, without numpy scalars between
         return (sim.obs[0].copy(), sim.reward.item(0), sim.terminated.item(0), False,
                 sim.member_info(0))

@@ -1036,7 +1036,8 @@ class Simulator:
             if not self._all_ready:
                 raise RuntimeError("reset() every member before stepping it")
             if self._single:  # one member: its few numbers on Python floats
-                self._step_single(actions if checked else self.check_actions(actions, 1))
+                self._step_single((actions if checked
+                                   else self.check_actions(actions, 1)).tolist()[0])
                 return
             index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self._whole
             common = self._same_steps
@@ -1123,8 +1124,18 @@ class Simulator:
         if dist_active:
             info["process_accel"][sel] = accel
 
-    def _step_single(self, u: np.ndarray) -> None:
-        """:meth:`step` of a one-member simulator (``u`` checked, shape (1, nu)).
+    def step_row(self, action: list[float]) -> None:
+        """:meth:`step` of a one-member simulator with its action as Python floats (nu,),
+        the caller's checked finite values (the Gymnasium env's check)."""
+        if not self._all_ready:
+            raise RuntimeError("reset() every member before stepping it")
+        if not self._single:
+            raise RuntimeError("step_row steps a one-member simulator")
+        self._step_single(action)
+
+    def _step_single(self, ul: list[float]) -> None:
+        """:meth:`step` of a one-member simulator (``ul`` its checked action, Python floats
+        of shape (nu,)).
 
         The same operations in the same order as the batch step, but the few numbers of the
         bookkeeping (clipping, time, envelope check, reference, reward, info) are Python
@@ -1138,7 +1149,6 @@ class Simulator:
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
         index, sel = self._all, _ALL
-        ul = u.tolist()[0]
         clipped_u = list(map(min, map(max, ul, self._low_list), self._high_list))
         t = None
         if has_signal or not no_manoeuvre:  # the times as the batch step has them
