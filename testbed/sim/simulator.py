@@ -375,6 +375,8 @@ class Physics:
 
     def states(self, members: Any = slice(None)) -> np.ndarray:
         """Rig states of the members (a slice or int indices), shape (k, n)."""
+        if members is _ALL:  # (the common case, without the comparison)
+            return self.state.take(self._gather, axis=1)
         if isinstance(members, slice):
             state = self.state if members == _ALL else self.state[members]
             return state.take(self._gather, axis=1)
@@ -719,6 +721,9 @@ class Simulator:
             self._info_columns[key] = slice(start, start + width)
             start += width
         self._info_items = tuple(self._info_columns.items())
+        #: The info's keys and their column blocks of a row in one call (member_info).
+        self._info_keys = tuple(self._info_columns)
+        self._info_blocks = operator.itemgetter(*self._info_columns.values())
         self._t_column = self._info_columns["t"].start
         #: Adjacent column blocks a one-member step writes at once: state and t, setpoint
         #: and action_applied.
@@ -768,7 +773,7 @@ class Simulator:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
-        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
+        out: dict[str, Any] = dict(zip(self._info_keys, self._info_blocks(row), strict=True))
         out["t"] = row.item(self._t_column)  # a float
         out["action_clipped"] = self.info["action_clipped"][i].copy()
         return out
@@ -1211,7 +1216,7 @@ class Simulator:
             self.terminated[0] = (rig.terminated_row(xl) if self._terminated_row
                                   else rig.terminated(x)[0])
         w_now = self._signal(t, index, True) if has_signal else self._zero_w
-        self.obs[sel] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
+        self.obs[...] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
                                       xi)
         row = self._info_row
         xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
