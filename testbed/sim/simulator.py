@@ -743,6 +743,7 @@ class Simulator:
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
         self.info["action_clipped"] = action_clipped
         self._info_row = self._info_rows[0]  # (member 0's row, a view)
+        self._clipped_row = action_clipped[0]  # (member 0's flags, a view)
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Copies (``copy.deepcopy``, pickle) step on their own arrays: ``info`` is views of
@@ -775,7 +776,8 @@ class Simulator:
         row = self._info_rows[i].copy()
         out: dict[str, Any] = dict(zip(self._info_keys, self._info_blocks(row), strict=True))
         out["t"] = row.item(self._t_column)  # a float
-        out["action_clipped"] = self.info["action_clipped"][i].copy()
+        out["action_clipped"] = (self._clipped_row if i == 0
+                                 else self.info["action_clipped"][i]).copy()
         return out
 
     def units(self) -> dict[str, str]:
@@ -1227,7 +1229,7 @@ class Simulator:
         else:
             row[self._state_t_cols] = xl
             row[self._setpoint_action_cols] = ref
-        info["action_clipped"][0] = clipped
+        self._clipped_row[:] = clipped
         if has_signal:
             info["disturbance"][sel] = w
         if profile is not None:
