@@ -147,12 +147,14 @@ def test_a_sensor_drawing_other_than_it_declares_is_named(declared, message):
 def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
     """A suite's decorators applied across channels (:mod:`testbed.sensors.fused`) give
     bitwise the values and the per-member state of measuring sensor by sensor, for the
-    whole batch, for a subset of members and for one member (a row of Python floats), also
-    in a copy made mid-episode."""
+    whole batch, for a subset of members and for one member (a row of Python floats, also
+    through :func:`~testbed.sensors.fused.measure_one`, the one-member simulator's call),
+    also in a copy made mid-episode."""
     import copy
 
     from testbed.rigs import resolve_rig
     from testbed.sensors import Suite
+    from testbed.sensors.fused import measure_one
 
     sensors = resolve_rig(rig)().sensors(preset, **options)
     fused = sensors if isinstance(sensors, Suite) else Suite(sensors)
@@ -183,7 +185,11 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
             fused = copy.deepcopy(fused)
         members = (slice(None), np.array([1, 3]), np.array([2]))[step % 3]
         smp = sample(members)
-        a = fused.measure(smp, streams[0].view(members))
+        if step in (2, 8):  # one member through measure_one: its row, list or array
+            a = np.asarray(measure_one(fused, smp, streams[0].view(members)),
+                           dtype=float).reshape(1, -1)
+        else:
+            a = fused.measure(smp, streams[0].view(members))
         b = plain.measure(smp, streams[1].view(members))
         assert a.tobytes() == b.tobytes()
     for x, y in zip(fused.sensors, plain.sensors, strict=True):

@@ -333,11 +333,15 @@ class FusedPlan:
             y = step.apply(y, xi, members, sample, noise)
         return y
 
-    def _measure_row(self, sample: Sample, noise: Noise, xi: np.ndarray | None) -> np.ndarray:
+    def _measure_row(self, sample: Sample, noise: Noise, xi: np.ndarray | None,
+                     as_list: bool = False) -> Any:
         """:meth:`measure` of one member (k = 1): the leaves' values and the groups'
         operations on a row of Python floats (IEEE-754 doubles: the same operations give
         the same values, bitwise), an array only where a decorator runs its own ``apply``
-        (numpy's per-call overhead on arrays of one row is most of a group's time)."""
+        (numpy's per-call overhead on arrays of one row is most of a group's time).
+
+        ``as_list``: the row as it ends, the list of floats (m,) when no decorator ran its
+        own ``apply``, else the (1, m) array (no array made for a list)."""
         if self.whole is not None:
             index = self.whole_index
             if type(index) is slice:  # the state columns the whole suite gathers
@@ -359,7 +363,22 @@ class FusedPlan:
                 if type(y) is not list:
                     y = y.tolist()[0]
                 step.apply_row(y, xl, members)
+        if as_list:
+            return y
         return np.array((y,), dtype=float) if type(y) is list else y
+
+
+def measure_one(suite: Sensor, sample: Sample, noise: Noise) -> Any:
+    """``suite.measure(sample, noise)`` of one member (k = 1), the same values: a plain
+    :class:`Suite` whose fused plan is current gives its row as the plan ends it (a list of
+    floats (m,), or a (1, m) array when a decorator ran its own ``apply``), without the
+    (1, m) array of :meth:`Suite.measure`; any other sensor its ``measure`` (1, m)."""
+    if type(suite) is Suite and suite._state_index is None:
+        plan = suite._plan
+        if plan is not None and plan.current():  # (Suite.measure's steps on this path)
+            xi = noise.normal(plan.draws) if plan.draws else None
+            return plan._measure_row(sample, noise, xi, as_list=True)
+    return suite.measure(sample, noise)
 
 
 def build_plan(suite: Suite) -> FusedPlan | None:

@@ -49,6 +49,7 @@ from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
+from testbed.sensors.fused import measure_one
 from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
@@ -1219,7 +1220,7 @@ class Simulator:
                                   else rig.terminated(x)[0])
         w_now = self._signal(t, index, True) if has_signal else self._zero_w
         self.obs[...] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
-                                      xi)
+                                      xi, one=True)
         row = self._info_row
         xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
         ref.extend(applied)
@@ -1262,14 +1263,19 @@ class Simulator:
         a[:, dof_adr] = accel
         return w, accel, np.matvec(self.physics.mass[sel], a)
 
-    def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None) -> np.ndarray:
+    def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None,
+                 one: bool = False) -> Any:
         """The sensors' sample (k, m): with the normals drawn ahead ``xi`` when they declare
-        how many they draw (checked), else from the streams ``noise``."""
+        how many they draw (checked), else from the streams ``noise``. ``one``: of one
+        member, the row as :func:`~testbed.sensors.fused.measure_one` gives it (a list of
+        floats (m,) or a (1, m) array: the same values)."""
+        sensors = self.sensors
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
-            return self.sensors.measure(sample, noise)
+            return measure_one(sensors, sample, noise) if one else sensors.measure(sample, noise)
         drawn_ahead = (Drawn(xi[:, self.rig.step_noise_dim + self._dist_draws:])
                        if self._sensor_draws else self._no_draws)
-        y = self.sensors.measure(sample, drawn_ahead)
+        y = (measure_one(sensors, sample, drawn_ahead) if one
+             else sensors.measure(sample, drawn_ahead))
         if drawn_ahead.position != self._sensor_draws:
             self._no_draws.position = 0
             raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
