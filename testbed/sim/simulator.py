@@ -637,7 +637,6 @@ class Simulator:
         self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
         self._envelope_list = self._envelope.tolist()
         self._tracked_list = self._tracked.tolist()
-        self._zero_list = [0.0] * rig.n_actions
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
         r = len(self._tracked)
         self._tables = [rig.validate_setpoints(table) if table is not None
@@ -1157,13 +1156,16 @@ class Simulator:
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
         index, sel = self._all, _ALL
-        clipped_u = list(map(min, map(max, ul, self._low_list), self._high_list))
+        # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
+        # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
+        clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
+                     for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
         t = None
         if has_signal or not no_manoeuvre:  # the times as the batch step has them
             t = np.array((self.steps.item(0) * self.dt_s,))
         if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0)
             profile = None
-            applied = list(map(operator.add, clipped_u, self._zero_list))
+            applied = [c + 0.0 for c in clipped_u]
             clipped = list(map(operator.ne, clipped_u, ul))
         else:
             profile = self._manoeuvre(t, sel, True)
