@@ -721,9 +721,6 @@ class Simulator:
             self._info_columns[key] = slice(start, start + width)
             start += width
         self._info_items = tuple(self._info_columns.items())
-        #: The info's keys and their column blocks of a row in one call (member_info).
-        self._info_keys = tuple(self._info_columns)
-        self._info_blocks = operator.itemgetter(*self._info_columns.values())
         self._t_column = self._info_columns["t"].start
         #: Adjacent column blocks a one-member step writes at once: state and t, setpoint
         #: and action_applied.
@@ -774,7 +771,7 @@ class Simulator:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
-        out: dict[str, Any] = dict(zip(self._info_keys, self._info_blocks(row), strict=True))
+        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
         out["t"] = row.item(self._t_column)  # a float
         out["action_clipped"] = (self._clipped_row if i == 0
                                  else self.info["action_clipped"][i]).copy()
