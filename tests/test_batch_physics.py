@@ -133,3 +133,36 @@ def test_one_member_step_equals_a_member_of_a_batch(rig, options):
             assert np.asarray(value).tobytes() == np.asarray(expected[key]).tobytes(), key
     one.close()
     many.close()
+
+
+def test_plain_step_with_and_without_the_batch_private_c_call():
+    """``Physics.step_plain`` calls the batch's C step (``Batch._b.step``) where MuJoCo has
+    it, else the public ``Batch.step``: the same states, and the same warning handling
+    (``_mark_unstable``, shared with the general step)."""
+    from testbed.sim.simulator import SimulationDiverged
+
+    sims = [build_simulator("helicopter", 1, num_threads=1, ambient_noise=0.0)
+            for _ in range(2)]
+    sims[1].physics._c_step = None  # a MuJoCo without the private call
+    rng = np.random.default_rng(3)
+    us = rng.uniform(-1.2, 1.2, (25, 1, 2)) * np.asarray(sims[0].rig.action_high)
+    states = []
+    for sim in sims:
+        sim.reset(None, [0])
+
+        def general(*args, **kwargs):
+            raise AssertionError("the one-member step took the general physics step")
+
+        sim.physics.step = general  # (the plain path must be the one taken)
+        for u in us:
+            sim.step(u)
+        states.append(sim.info["state"].copy())
+        sim.physics.state[0, sim.physics._gather[2]] = 1e30  # a huge pitch rate: bad qacc
+        with pytest.raises(SimulationDiverged, match="mujoco warning|MuJoCo"):
+            sim.step(np.zeros((1, 2)))
+        assert sim.physics.unstable[0] and not sim.physics._bad.any()
+        sim.reset(None, [0])
+        sim.step(np.zeros((1, 2)))
+        assert not sim.physics.unstable[0]
+        sim.close()
+    assert states[0].tobytes() == states[1].tobytes()

@@ -418,7 +418,7 @@ class Physics:
         if not k:
             return False
         whole = k == self.num
-        sel: Any = slice(None) if whole else members
+        sel: Any = _ALL if whole else members
         ids = None if whole else members
         batch = self.batch
         if need_poses and self._poses_bound is None:
@@ -445,7 +445,36 @@ class Physics:
                 state[sel, cols] = substep(command, act[sel], constants)
                 batch.step(ids, 1)
             state[sel, cols] = command
-        bad = self._bad if whole else self._bad[sel]
+        warned = self._mark_unstable(sel, k)
+        if need_mass:
+            self._store_mass(sel)
+        if need_poses:
+            self._store_poses(sel)
+        return warned
+
+    def step_plain(self) -> bool:
+        """:meth:`step` of every member of a one-member physics without step noise, mass,
+        poses or per-substep ctrl (no ``needs_substep``): the batch's step and the warning
+        check, without the general path's branches (the same calls, the same values).
+
+        The step is the batch's C call (``Batch.step``'s ``_b.step``, the wrapper's id
+        conversion and status check skipped: about 0.6 us of a one-member step) where this
+        MuJoCo has it (4.0), else the public ``Batch.step``; tests run both.
+        """
+        c_step = self._c_step
+        if c_step is None:
+            self.batch.step(None, self.frame_skip)
+        else:
+            failed = c_step(None, self.frame_skip, _STAGE_NONE)
+            if failed:  # the wrapper's error (SimulationError)
+                self.batch._check(None, failed)
+        return self._mark_unstable(_ALL, 1)
+
+    def _mark_unstable(self, sel: Any, k: int) -> bool:
+        """Whether any of the ``k`` stepped members ``sel`` (a slice or int indices) reported
+        one of MuJoCo's instability warnings in its step: marks them in :attr:`unstable` and
+        clears their counters (and the marks of an earlier step when none did)."""
+        bad = self._bad if sel is _ALL else self._bad[sel]
         # (one member: its three counters as Python ints, without numpy's call overhead)
         warned = any(bad.tolist()[0]) if k == 1 else bool(np.count_nonzero(bad))
         if warned:  # rare: mark the members and clear their counters
@@ -456,31 +485,6 @@ class Physics:
         elif self._any_unstable:  # clear the marks of an earlier step
             self.unstable[sel] = False
             self._any_unstable = bool(np.count_nonzero(self.unstable))
-        if need_mass:
-            self._store_mass(sel)
-        if need_poses:
-            self._store_poses(sel)
-        return warned
-
-    def step_plain(self) -> bool:
-        """:meth:`step` of every member of a one-member physics without step noise, mass,
-        poses or per-substep ctrl (no ``needs_substep``): the batch's step and the warning
-        check, without the general path's branches (the same calls, the same values)."""
-        c_step = self._c_step
-        if c_step is None:
-            self.batch.step(None, self.frame_skip)
-        else:
-            failed = c_step(None, self.frame_skip, _STAGE_NONE)
-            if failed:  # the wrapper's error (SimulationError)
-                self.batch._check(None, failed)
-        warned = any(self._bad.tolist()[0])
-        if warned:  # rare: mark the member and clear its counters
-            self.unstable[0] = True
-            self._warning[0] = 0
-            self._any_unstable = True
-        elif self._any_unstable:  # clear the mark of an earlier step
-            self.unstable[0] = False
-            self._any_unstable = False
         return warned
 
     def _store_poses(self, sel: Any) -> None:
