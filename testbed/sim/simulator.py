@@ -548,6 +548,11 @@ def _defines_with(cls: type, method: str, companion: str) -> bool:
     return False
 
 
+#: The float entries of :attr:`Simulator.info`, in its order (``action_clipped`` follows).
+_INFO_KEYS = ("state", "t", "disturbance", "setpoint", "action_applied", "manoeuvre",
+              "process_accel", "step_noise")
+
+
 def _joined(columns: dict[str, slice], first: str, second: str) -> slice:
     """The columns of two adjacent blocks of ``columns`` as one slice."""
     a, b = columns[first], columns[second]
@@ -724,8 +729,11 @@ class Simulator:
         for key, width in widths.items():
             self._info_columns[key] = slice(start, start + width)
             start += width
-        self._info_items = tuple(self._info_columns.items())
-        self._t_column = self._info_columns["t"].start
+        #: The column blocks in the order of :meth:`member_info`'s dict display (``t`` its
+        #: column index: the entry is a float, no block is sliced for it).
+        assert tuple(widths) == _INFO_KEYS
+        self._info_slices = tuple(cols.start if key == "t" else cols
+                                  for key, cols in self._info_columns.items())
         #: Adjacent column blocks a one-member step writes at once: state and t, setpoint
         #: and action_applied.
         self._state_t_cols = _joined(self._info_columns, "state", "t")
@@ -775,11 +783,16 @@ class Simulator:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
         row = self._info_rows[i].copy()
-        out: dict[str, Any] = {key: row[cols] for key, cols in self._info_items}
-        out["t"] = row.item(self._t_column)  # a float
-        out["action_clipped"] = (self._clipped_row if i == 0
-                                 else self.info["action_clipped"][i]).copy()
-        return out
+        # a dict display with the keys of _INFO_KEYS (fixed): no loop over the blocks. The
+        # entries are new views of the copy, zero-width ones too (one shared empty array
+        # would be visible: a user may set its shape, flags or dtype)
+        state, t, w, setpoint, applied, manoeuvre, accel, step_noise = self._info_slices
+        return {"state": row[state], "t": row.item(t), "disturbance": row[w],
+                "setpoint": row[setpoint], "action_applied": row[applied],
+                "manoeuvre": row[manoeuvre], "process_accel": row[accel],
+                "step_noise": row[step_noise],
+                "action_clipped": (self._clipped_row if i == 0
+                                   else self.info["action_clipped"][i]).copy()}
 
     def units(self) -> dict[str, str]:
         """Units of states, actions and measurement channels."""
