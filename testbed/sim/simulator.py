@@ -745,14 +745,22 @@ class Simulator:
         self._info_views(np.zeros((n, self._nu), dtype=bool))
 
     def _info_views(self, action_clipped: np.ndarray) -> None:
-        """``info``: views of the column blocks of ``_info_rows`` (rebuilt in copies)."""
+        """``info``: views of the column blocks of ``_info_rows``; and the views of member 0's
+        rows the one-member step writes through (rebuilt in copies)."""
         self.info.clear()
         self.info.update({key: self._info_rows[:, cols]
                           for key, cols in self._info_columns.items()})
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
         self.info["action_clipped"] = action_clipped
-        self._info_row = self._info_rows[0]  # (member 0's row, a view)
-        self._clipped_row = action_clipped[0]  # (member 0's flags, a view)
+        row = self._info_rows[0]
+        # 1-D views of member 0's columns: a list of floats assigned to a whole 1-D view
+        # (``view[...] = values``) costs less than to a slice or a row of a 2-D array
+        self._clipped_row = action_clipped[0]
+        self._obs_row = self.obs[0]
+        #: State and t, setpoint and action_applied (adjacent blocks) as one view when the
+        #: disturbance's columns between them are none (:meth:`_step_single`), else two.
+        self._step_views = ((row[self._step_cols],) if self._step_cols is not None
+                            else (row[self._state_t_cols], row[self._setpoint_action_cols]))
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Copies (``copy.deepcopy``, pickle) step on their own arrays: ``info`` is views of
@@ -1235,18 +1243,22 @@ class Simulator:
             self.terminated[0] = (rig.terminated_row(xl) if self._terminated_row
                                   else rig.terminated(x)[0])
         w_now = self._signal(t, index, True) if has_signal else self._zero_w
-        self.obs[...] = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all,
-                                      xi, one=True)
-        row = self._info_row
+        y = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all, xi,
+                          one=True)
+        if type(y) is list:  # (the plan's row of floats, into the 1-D view of the row)
+            self._obs_row[...] = y
+        else:
+            self.obs[...] = y
         xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
         ref.extend(applied)
-        if self._step_cols is not None:  # no disturbance columns between: one write
+        views = self._step_views
+        if len(views) == 1:  # no disturbance columns between: one write
             xl.extend(ref)
-            row[self._step_cols] = xl
+            views[0][...] = xl
         else:
-            row[self._state_t_cols] = xl
-            row[self._setpoint_action_cols] = ref
-        self._clipped_row[:] = clipped
+            views[0][...] = xl
+            views[1][...] = ref
+        self._clipped_row[...] = clipped
         if has_signal:
             info["disturbance"][sel] = w
         if profile is not None:
