@@ -1180,16 +1180,20 @@ class Simulator:
         index, sel = self._all, _ALL
         # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
         # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
-        clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
-                     for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
         t = None
         if has_signal or not no_manoeuvre:  # the times as the batch step has them
             t = np.array((self.steps.item(0) * self.dt_s,))
-        if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0)
+        if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0), in
+            # the clip's pass; the flags compare it with the action: c + 0.0 != v is
+            # c != v (only a zero's sign changes, and -0.0 == 0.0)
             profile = None
-            applied = [c + 0.0 for c in clipped_u]
-            clipped = list(map(operator.ne, clipped_u, ul))
+            applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
+                       for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
+            clipped = list(map(operator.ne, applied, ul))
         else:
+            clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
+                         for v, lo, hi in zip(ul, self._low_list, self._high_list,
+                                              strict=True)]
             profile = self._manoeuvre(t, sel, True)
             total = list(map(operator.add, clipped_u, profile.tolist()[0]))
             applied = list(map(min, map(max, total, self._low_list), self._high_list))
