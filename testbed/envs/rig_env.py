@@ -129,16 +129,14 @@ class RigEnv(gym.Env):
         u = action
         # a finite float64 array of the action's shape is read as Python floats (the
         # simulator's one-member step works on them); anything else is converted and
-        # checked by real_array (the finiteness of a few entries: faster on Python floats
-        # than with a numpy call)
+        # checked by real_array. Finite: the sum of the entries is (a NaN or an infinity
+        # makes it NaN or infinite); a sum that overflows takes real_array's full check
         if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
-                and all(map(math.isfinite, values := u.tolist()))):
+                and math.isfinite(sum(values := u.tolist()))):
             values = real_array(action, self._action_label, shape=self._shape).tolist()
         sim = self.sim
-        sim.step_row(values)
-        # item(): the Python float and bool of the entries, without numpy scalars between
-        return (sim.obs[0].copy(), sim.reward.item(0), sim.terminated.item(0), False,
-                sim.member_info(0))
+        obs, reward, terminated = sim.step_row(values)
+        return obs, reward, terminated, False, sim.member_info(0)
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """World positions (nbody, 3) and orientations (nbody, 4, wxyz) of all bodies."""

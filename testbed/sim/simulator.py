@@ -1153,14 +1153,25 @@ class Simulator:
         if dist_active:
             info["process_accel"][sel] = accel
 
-    def step_row(self, action: list[float]) -> None:
+    def step_row(self, action: list[float]) -> tuple[np.ndarray, float, bool]:
         """:meth:`step` of a one-member simulator with its action as Python floats (nu,),
-        the caller's checked finite values (the Gymnasium env's check)."""
+        the caller's checked finite values (the Gymnasium env's check).
+
+        Returns
+        -------
+        obs : ndarray, shape (m,)
+            A copy of the member's observation.
+        reward : float
+        terminated : bool
+            The member's entries of :attr:`reward` and :attr:`terminated` (Python scalars,
+            without numpy scalars between).
+        """
         if not self._all_ready:
             raise RuntimeError("reset() every member before stepping it")
         if not self._single:
             raise RuntimeError("step_row steps a one-member simulator")
         self._step_single(action)
+        return self._obs_row.copy(), self.reward.item(0), self.terminated.item(0)
 
     def _step_single(self, ul: list[float]) -> None:
         """:meth:`step` of a one-member simulator (``ul`` its checked action, Python floats
