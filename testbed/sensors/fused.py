@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import math
+from math import copysign, isfinite
 from typing import Any
 
 import numpy as np
@@ -160,7 +161,8 @@ class _QuantizeGroup(_Group):
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
         for c, _, step in self.row_terms:
-            y[c] = _rint(y[c] / step) * step
+            q = y[c] / step  # (_rint(q) written out: no call per column)
+            y[c] = (copysign(float(round(q)), q) if isfinite(q) else q) * step
 
 
 class _WalkGroup(_Group):
@@ -308,6 +310,10 @@ class FusedPlan:
                     group = _WalkGroup(placed, width, walks=key[1])
                     self.walk_groups.append(group)
                     self.steps.append(group)
+        #: The steps when none runs its own ``apply`` (one row then stays a list of floats
+        #: through every step, :meth:`_measure_row`), else None.
+        self.row_steps = (None if any(type(step) is _OwnApply for step in self.steps)
+                          else tuple(self.steps))
 
     def current(self) -> bool:
         """Whether the plan's state arrays are still the decorators' own."""
@@ -354,6 +360,11 @@ class FusedPlan:
                 y += read(sample, noise if draws is None else Drawn(xi[:, draws]))
         xl = None if xi is None else xi.tolist()[0]
         members = sample.members
+        row_steps = self.row_steps
+        if row_steps is not None:  # every step on the list (no type checks between)
+            for step in row_steps:
+                step.apply_row(y, xl, members)
+            return y if as_list else np.array((y,), dtype=float)
         for step in self.steps:
             if type(step) is _OwnApply:
                 if type(y) is list:
@@ -375,7 +386,8 @@ def measure_one(suite: Sensor, sample: Sample, noise: Noise) -> Any:
     (1, m) array of :meth:`Suite.measure`; any other sensor its ``measure`` (1, m)."""
     if type(suite) is Suite and suite._state_index is None:
         plan = suite._plan
-        if plan is not None and plan.current():  # (Suite.measure's steps on this path)
+        # (Suite.measure's steps on this path; current() is True without walk groups)
+        if plan is not None and (not plan.walk_groups or plan.current()):
             xi = noise.normal(plan.draws) if plan.draws else None
             return plan._measure_row(sample, noise, xi, as_list=True)
     return suite.measure(sample, noise)
