@@ -53,6 +53,9 @@ from testbed.envs.common import check_seed
 from testbed.sim import build_simulator
 from testbed.sim.simulator import positive_int
 
+#: (a dtype compares with a dtype faster than with the type ``np.float64``)
+_FLOAT64 = np.dtype(np.float64)
+
 
 class RigEnv(gym.Env):
     """Any registered rig as a Gymnasium environment (the simulator with N = 1).
@@ -131,7 +134,7 @@ class RigEnv(gym.Env):
         # simulator's one-member step works on them); anything else is converted and
         # checked by real_array. Finite: the sum of the entries is (a NaN or an infinity
         # makes it NaN or infinite); a sum that overflows takes real_array's full check
-        if not (type(u) is np.ndarray and u.dtype == np.float64 and u.shape == self._shape
+        if not (type(u) is np.ndarray and u.dtype == _FLOAT64 and u.shape == self._shape
                 and math.isfinite(sum(values := u.tolist()))):
             values = real_array(action, self._action_label, shape=self._shape).tolist()
         sim = self.sim

@@ -752,7 +752,7 @@ class Simulator:
                           for key, cols in self._info_columns.items()})
         self.info["t"] = self._info_rows[:, self._info_columns["t"].start]
         self.info["action_clipped"] = action_clipped
-        row = self._info_rows[0]
+        row = self._info_row = self._info_rows[0]
         # 1-D views of member 0's columns: a list of floats assigned to a whole 1-D view
         # (``view[...] = values``) costs less than to a slice or a row of a 2-D array
         self._clipped_row = action_clipped[0]
@@ -790,7 +790,7 @@ class Simulator:
     def member_info(self, i: int) -> dict[str, Any]:
         """A copy of member ``i``'s entries of :attr:`info` (arrays without the member axis,
         ``t`` a float): the Gymnasium ``info`` of a step."""
-        row = self._info_rows[i].copy()
+        row = (self._info_row if i == 0 else self._info_rows[i]).copy()
         # a dict display with the keys of _INFO_KEYS (fixed): no loop over the blocks. The
         # entries are new views of the copy, zero-width ones too (one shared empty array
         # would be visible: a user may set its shape, flags or dtype)
@@ -1183,17 +1183,18 @@ class Simulator:
         (``min(max(v, lo), hi)`` is numpy's ``minimum(maximum(v, lo), hi)`` on finite
         values, ``abs(v) <= bound`` is False for NaN like ``less_equal``), without numpy's
         per-call overhead on arrays of one row. The rig, disturbance, physics and sensors
-        get the same arrays as in a batch step.
+        get the same arrays as in a batch step (new ones each step: a rig or sensor may
+        keep them).
         """
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
         index, sel = self._all, _ALL
-        # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
-        # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
         t = None
         if has_signal or not no_manoeuvre:  # the times as the batch step has them
             t = np.array((self.steps.item(0) * self.dt_s,))
+        # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
+        # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
         if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0), in
             # the clip's pass; the flags compare it with the action: c + 0.0 != v is
             # c != v (only a zero's sign changes, and -0.0 == 0.0)
@@ -1210,7 +1211,8 @@ class Simulator:
             applied = list(map(min, map(max, total, self._low_list), self._high_list))
             clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
                                                                strict=True)]
-        applied_rows = np.array((applied,))
+        # (1, nu): a view of the new (nu,) array (one numpy call less than from ((applied,)))
+        applied_rows = np.array(applied)[None]
         xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
         n_step = rig.step_noise_dim
         step_noise = None
@@ -1239,7 +1241,7 @@ class Simulator:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
         lo, hi, table_row = self._row_cache
         if lo <= t_now < hi and len(self._tables) == 1:  # the default table's row as before
-            ref = self._table_lists[table_row].copy()
+            ref = self._table_lists[table_row]  # (read only: the info list is built anew)
         else:
             ref = self._single_reference(t_now)
         r = self._r
@@ -1265,14 +1267,14 @@ class Simulator:
         else:
             self.obs[...] = y
         xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
-        ref.extend(applied)
         views = self._step_views
         if len(views) == 1:  # no disturbance columns between: one write
-            xl.extend(ref)
+            xl += ref
+            xl += applied
             views[0][...] = xl
         else:
             views[0][...] = xl
-            views[1][...] = ref
+            views[1][...] = ref + applied
         self._clipped_row[...] = clipped
         if has_signal:
             info["disturbance"][sel] = w
@@ -1282,9 +1284,10 @@ class Simulator:
             info["process_accel"][sel] = accel
 
     def _single_reference(self, t: float) -> list[float]:
-        """The reference of the one member at ``t``, a new list of floats (r,)."""
+        """The reference of the one member at ``t``, a list of floats (r,) (read only: the
+        default table's may be returned)."""
         if len(self._tables) == 1:
-            return self._table_lists[self._table_row(t)].copy()
+            return self._table_lists[self._table_row(t)]
         return self._reference(np.array((t,)), self._all).tolist()[0]
 
     def _forces(self, t: np.ndarray | None, index: np.ndarray, sel: Any, common: bool,
