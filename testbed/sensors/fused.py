@@ -339,6 +339,21 @@ class FusedPlan:
             y = step.apply(y, xi, members, sample, noise)
         return y
 
+    def measure_state_row(self, suite: Suite, x: list[float], xi: list[float] | None,
+                          members: Any) -> list[float] | None:
+        """:func:`measure_one` of a plan from :func:`state_row_plan`, from one member's state
+        ``x`` (n,) and the plan's normals ``xi`` (``draws``, None without) as Python floats
+        (``members``: the sample's, the walks' rows):
+        the same steps on the same values as :meth:`_measure_row` (which reads only
+        ``sample.x`` and the normals on such a plan), without a :class:`Sample`. None
+        when the plan is no longer the suite's current one (measure the sample then)."""
+        if suite._plan is not self or (self.walk_groups and not self.current()):
+            return None
+        y = x[self.whole_index]  # (a new list: the steps change it in place)
+        for step in self.row_steps:
+            step.apply_row(y, xi, members)
+        return y
+
     def _measure_row(self, sample: Sample, noise: Noise, xi: np.ndarray | None,
                      as_list: bool = False) -> Any:
         """:meth:`measure` of one member (k = 1): the leaves' values and the groups'
@@ -377,6 +392,19 @@ class FusedPlan:
         if as_list:
             return y
         return np.array((y,), dtype=float) if type(y) is list else y
+
+
+def state_row_plan(suite: Sensor) -> FusedPlan | None:
+    """The fused plan of ``suite`` when it measures one member from the state alone: a plain
+    :class:`Suite` whose plan gathers a slice of state columns (:attr:`FusedPlan.whole`)
+    and whose steps all run on a row of floats (no decorator's own ``apply``, which may
+    read the sample); else None. See :meth:`FusedPlan.measure_state_row`."""
+    if type(suite) is not Suite or suite._state_index is not None:
+        return None
+    plan = suite._plan
+    if plan is None or plan.row_steps is None or type(plan.whole_index) is not slice:
+        return None
+    return plan
 
 
 def measure_one(suite: Sensor, sample: Sample, noise: Noise) -> Any:

@@ -49,7 +49,7 @@ from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
-from testbed.sensors.fused import measure_one
+from testbed.sensors.fused import measure_one, state_row_plan
 from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
@@ -673,6 +673,12 @@ class Simulator:
         #: (when declared) the sensors'.
         self._step_draws = (rig.step_noise_dim + self._dist_draws
                             + (self._sensor_draws or 0))
+        #: A one-member simulator's sensors measured from the state list alone (a fused
+        #: plan's steps on a row, :func:`~testbed.sensors.fused.state_row_plan`), with the
+        #: offset of the plan's normals in the step's draw; else None.
+        plan = state_row_plan(self.sensors) if n == 1 else None
+        self._row_plan = plan if plan is not None and plan.draws == self._sensor_draws else None
+        self._sensor_offset = rig.step_noise_dim + self._dist_draws
         self.noise = NoiseStreams(n, max(64 * max(self._dist_draws + rig.step_noise_dim
                                                   + self.sensors.dim + rig.x0_draws, 4),
                                          self._step_draws))
@@ -1184,7 +1190,9 @@ class Simulator:
         values, ``abs(v) <= bound`` is False for NaN like ``less_equal``), without numpy's
         per-call overhead on arrays of one row. The rig, disturbance, physics and sensors
         get the same arrays as in a batch step (new ones each step: a rig or sensor may
-        keep them).
+        keep them); sensors whose fused plan reads the state only
+        (:func:`~testbed.sensors.fused.state_row_plan`) run the plan's steps on the state
+        list, the operations the sample's measurement runs, without the sample.
         """
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
@@ -1233,12 +1241,12 @@ class Simulator:
         steps = self.steps.item(0) + 1
         self.steps[0] = steps
         t_now = steps * self.dt_s
-        t = np.array((t_now,))
         x = physics.states(sel)
         xl = x.tolist()[0]
         if warned or not all(map(operator.le, map(abs, xl), self._envelope_list)):
             inside = np.less_equal(np.abs(x), self._envelope)
-            self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
+            self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x,
+                           np.array((t_now,)))
         lo, hi, table_row = self._row_cache
         if lo <= t_now < hi and len(self._tables) == 1:  # the default table's row as before
             ref = self._table_lists[table_row]  # (read only: the info list is built anew)
@@ -1259,9 +1267,22 @@ class Simulator:
         if self._terminates:
             self.terminated[0] = (rig.terminated_row(xl) if self._terminated_row
                                   else rig.terminated(x)[0])
-        w_now = self._signal(t, index, True) if has_signal else self._zero_w
-        y = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all, xi,
-                          one=True)
+        row_plan = self._row_plan
+        y = None
+        if row_plan is not None and not has_signal:  # sensors that read the state only: the
+            # plan's steps on the state list, without the sample (times, signal) made for them
+            y = row_plan.measure_state_row(
+                self.sensors, xl, None if xi is None else xi.tolist()[0][self._sensor_offset:],
+                sel)
+        if y is None:
+            t = np.array((t_now,))
+            w_now = self._signal(t, index, True) if has_signal else self._zero_w
+            y = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all, xi,
+                              one=True)
+            if row_plan is not None and not has_signal:  # (the suite was fused again)
+                plan = state_row_plan(self.sensors)
+                self._row_plan = (plan if plan is not None and plan.draws == self._sensor_draws
+                                  else None)
         if type(y) is list:  # (the plan's row of floats, into the 1-D view of the row)
             self._obs_row[...] = y
         else:
