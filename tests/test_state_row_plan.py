@@ -48,3 +48,22 @@ def test_state_row_path_equals_a_member_of_a_batch(rig):
     assert one._row_plan is one.sensors._plan  # (looked up again after the refusion)
     one.close()
     many.close()
+
+
+def test_rint_near_the_integer_range_is_numpys():
+    """``fused._rint`` (``(|q| + 2**52) - 2**52`` with q's sign below 2**52) is ``np.rint``
+    bitwise: ties to even up to 2**52, half-ulp neighbours of ties, signed zeros,
+    subnormals, huge and non-finite values."""
+    from testbed.sensors.fused import _rint
+
+    rng = np.random.default_rng(3)
+    k = rng.integers(-2**53, 2**53, 20000)
+    ties = np.arange(-2000, 2000) + 0.5
+    values = np.concatenate([
+        k / 2.0, k + 0.5, ties, np.nextafter(ties, np.inf), np.nextafter(ties, -np.inf),
+        rng.uniform(-2.0**53, 2.0**53, 20000), rng.normal(0, 1e3, 20000),
+        [2.0**51 + 0.5, 2.0**52 - 1.5, 2.0**52 - 0.5, -2.0**52 + 0.5, 2.0**52, 2.0**53,
+         np.nextafter(2.0**52, 0), 0.49999999999999994, -0.49999999999999994, 0.0, -0.0,
+         5e-324, -5e-324, 1e300, -1e300, np.inf, -np.inf, np.nan]])
+    got = np.array([_rint(v) for v in values.tolist()])
+    assert got.tobytes() == np.rint(values).tobytes()

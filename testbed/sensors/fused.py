@@ -32,8 +32,7 @@ array of the plan, which each decorator's ``bias`` attribute views.
 from __future__ import annotations
 
 import functools
-import math
-from math import copysign, isfinite
+from math import copysign
 from typing import Any
 
 import numpy as np
@@ -162,7 +161,7 @@ class _QuantizeGroup(_Group):
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
         for c, _, step in self.row_terms:
             q = y[c] / step  # (_rint(q) written out: no call per column)
-            y[c] = (copysign(float(round(q)), q) if isfinite(q) else q) * step
+            y[c] = (copysign((a + _TWO52) - _TWO52, q) if (a := abs(q)) < _TWO52 else q) * step
 
 
 class _WalkGroup(_Group):
@@ -223,10 +222,21 @@ def _row_reader(sensor: Sensor) -> Any:
     return functools.partial(Sensor.measure_row, sensor)
 
 
+#: 2**52: from here on every double is an integer.
+_TWO52 = 4503599627370496.0
+
+
 def _rint(q: float) -> float:
-    """``np.rint(q)`` of a Python float: to the nearest integer, ties to even (``round``),
-    with the sign of ``q`` on a zero; a non-finite ``q`` is its own rint."""
-    return math.copysign(float(round(q)), q) if math.isfinite(q) else q
+    """``np.rint(q)`` of a Python float: to the nearest integer, ties to even, with the
+    sign of ``q`` on a zero; an integer-valued or non-finite ``q`` is its own rint.
+
+    For ``a = |q| < 2**52``, ``a + 2**52`` lies in ``[2**52, 2**53)``, where the doubles
+    are the integers: the addition rounds ``a`` to an integer, to nearest with ties to
+    even (``2**52`` is even), as ``rint`` does, and subtracting ``2**52`` is exact;
+    ``copysign`` gives a zero the sign of ``q``. ``|q| >= 2**52`` (and inf) is an integer
+    already; NaN fails the comparison. (The default rounding mode, as numpy's.)
+    """
+    return copysign((a + _TWO52) - _TWO52, q) if (a := abs(q)) < _TWO52 else q
 
 
 class _OwnApply:
