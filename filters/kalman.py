@@ -132,8 +132,10 @@ class _SampledFilter:
         if x.ndim == 1:  # fast: Python float sum (overflow of finite entries falls through)
             if math.isfinite(sum(x.tolist())) or np.isfinite(x).all():
                 return
-        elif np.isfinite(x).all():
-            return
+        else:  # a finite sum of squares has finite entries (BLAS ddot: one call); an
+            w = x.ravel()  # overflowing one falls through to the exact test
+            if math.isfinite(w.dot(w)) or np.isfinite(x).all():
+                return
         raise FiniteEscapeError("state estimate became non-finite", time=self._time(steps),
                                 quantity="x", value=np.array(x))
 
@@ -169,7 +171,8 @@ class _SampledFilter:
                     f"{name} must have shape ({dim},) or {full} for batch shape {self._batch}, "
                     f"got shape {v.shape}"
                 )
-        if not np.isfinite(v).all():
+        w = v.ravel()  # finite sum of squares: finite entries (else the exact test)
+        if not math.isfinite(w.dot(w)) and not np.isfinite(v).all():
             raise ValueError(f"{name} must be finite, got non-finite entries")
         return v
 
@@ -305,6 +308,33 @@ class KalmanFilter(_SampledFilter):
         """The filter model."""
         return self._system
 
+    # A batch whose members share one covariance keeps the gain and innovation covariance as
+    # that one member and makes the stack of copies only when it is read (most loops never
+    # read them): the same values, without two stack copies per step.
+    @property
+    def gain(self) -> FloatArray | None:
+        """Kalman gain of the last update, shape ``(..., n, m)``, or None."""
+        K = self._gain
+        if K is not None and K.shape[:-2] != self._batch:
+            K = self._gain = self._members(K)
+        return K
+
+    @gain.setter
+    def gain(self, K: FloatArray | None) -> None:
+        self._gain = K
+
+    @property
+    def innovation_cov(self) -> FloatArray | None:
+        """``H P_prior H^T + R`` of the last update, shape ``(..., m, m)``, or None."""
+        S = self._innovation_cov
+        if S is not None and S.shape[:-2] != self._batch:
+            S = self._innovation_cov = self._members(S)
+        return S
+
+    @innovation_cov.setter
+    def innovation_cov(self, S: FloatArray | None) -> None:
+        self._innovation_cov = S
+
     def reset(self, x0: npt.ArrayLike, P0: npt.ArrayLike) -> None:
         """Re-initialize ``x``, ``P`` and ``t_s = 0`` (see :meth:`_SampledFilter.reset`).
 
@@ -314,8 +344,8 @@ class KalmanFilter(_SampledFilter):
         P0 : array_like, shape (n, n) or (..., n, n)
         """
         super().reset(x0, P0)
-        self.innovation_cov: FloatArray | None = None
-        self.gain: FloatArray | None = None
+        self._innovation_cov: FloatArray | None = None
+        self._gain: FloatArray | None = None
         self._P_shared = self._shared(self._P)
         # shared posterior covariance (bytes) -> the next step's S, K and posterior covariance
         self._memo: dict[bytes, tuple[FloatArray, FloatArray, FloatArray]] = {}
@@ -576,8 +606,8 @@ class KalmanFilter(_SampledFilter):
             innov -= np.vecmat(u, self._DT)  # type: ignore[operator]
         x = x + (K @ innov[..., None])[..., 0]
         self._check_state(x, steps)
-        self.innovation, self.innovation_cov, self.gain = innov, self._members(S), \
-            self._members(K)
+        # the shared S and K (never written) as they are: stacked when read (the properties)
+        self.innovation, self._innovation_cov, self._gain = innov, S, K
         return x
 
     def _members(self, M: FloatArray) -> FloatArray:

@@ -273,3 +273,25 @@ def test_kalman_shared_p_settled_cycle_is_not_recomputed(monkeypatch: pytest.Mon
     members = run()
     assert len(calls) == 2 * T
     assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
+
+
+def test_kalman_shared_gain_is_stacked_when_read() -> None:
+    """A shared batch keeps the gain and innovation covariance as its one member and stacks
+    them when read: new C-contiguous stacks of the member, never the kept arrays."""
+    rng = np.random.default_rng(42)
+    system = _discrete(rng, 3)
+    f = KalmanFilter(system, rng.standard_normal((4, 3)), _spd(rng, 3))
+    assert f.gain is None and f.innovation_cov is None
+    y, u = rng.standard_normal((4, 2)), rng.standard_normal((4, 1))
+    f.step(y, u)
+    K, S = f.gain, f.innovation_cov
+    assert K.shape == (4, 3, 2) and S.shape == (4, 2, 2)
+    assert K.flags.c_contiguous and S.flags.c_contiguous
+    assert f.gain is K  # stacked once
+    kept = f._memo[next(iter(f._memo))]
+    assert all(K is not a and S is not a for a in kept)
+    K[...] = np.nan  # the caller's copy: the kept results are untouched
+    g = KalmanFilter(system, f.x, f.P[0])
+    f.step(y, u)
+    g.step(y, u)
+    assert np.array_equal(f.gain, g.gain) and np.array_equal(f.P, g.P)
