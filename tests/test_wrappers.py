@@ -232,3 +232,18 @@ def test_from_design_on_the_vehicle_equals_the_runner(estimator):
     traj, _ = run(Scenario(rig="vehicle-roll", estimator=estimator, duration_s=0.5, seed=4),
                   progress=False)
     np.testing.assert_array_equal(np.array(estimates), traj.estimate[1:])
+
+
+def test_open_loop_returns_a_read_only_view_of_its_action() -> None:
+    """The open-loop controller's (N, nu) input: the action broadcast, read-only, the same
+    view while the action and N are, a new one when either changes."""
+    from testbed.experiment.control import OpenLoop
+
+    ctrl = OpenLoop(np.array([0.5, -1.0]))
+    u = ctrl(np.zeros((3, 4)), 0.0)
+    assert u.shape == (3, 2) and not u.flags.writeable
+    assert np.array_equal(u, [[0.5, -1.0]] * 3)
+    assert ctrl(np.zeros((3, 4)), 0.01) is u
+    assert ctrl(np.zeros((5, 4)), 0.02).shape == (5, 2)
+    ctrl.action = np.array([2.0, 3.0])
+    assert np.array_equal(ctrl(np.zeros((5, 4)), 0.03), [[2.0, 3.0]] * 5)

@@ -126,13 +126,18 @@ class OpenLoop:
 
     def __init__(self, action: np.ndarray):
         self.action = np.asarray(action, dtype=float)
+        self._out: np.ndarray | None = None  # the last call's read-only broadcast view
 
     def reset(self, num: int) -> None:
         """Nothing to clear."""
 
     def __call__(self, x_hat: np.ndarray, t_s: float) -> np.ndarray:
-        """``action`` for every member, (N, nu)."""
-        return np.broadcast_to(self.action, (len(x_hat), len(self.action)))
+        """``action`` for every member, (N, nu): a read-only view of ``action``, the same
+        object while ``action`` and N are (np.broadcast_to costs more than the step's use)."""
+        out, n = self._out, len(x_hat)
+        if out is None or len(out) != n or out.base is not self.action:
+            out = self._out = np.broadcast_to(self.action, (n, len(self.action)))
+        return out
 
 
 #: LQR weights per rig name (diagonals); other rigs get identity weights.
