@@ -34,10 +34,11 @@ Input conversion
     :func:`real_array`: user input as a real ``float64`` array or a ``ValueError`` naming the
     argument (complex values, non-numeric containers, integers beyond the float range);
     :class:`TimeFunction`: a constant or a function of time, checked for shape and finiteness;
-    :func:`positive_time`: a time step in seconds, finite and positive.
+    :func:`positive_time`: a time step in seconds, finite and positive;
+    :func:`all_finite`: whether an array's entries are all finite (one BLAS call for float64).
 """
 
-from filters._linalg import TimeFunction, positive_time, real_array, zoh
+from filters._linalg import TimeFunction, all_finite, positive_time, real_array, zoh
 from filters.analysis import UncertainPlant, hinf_norm, robust_filter_analysis
 from filters.base import Estimator
 from filters.ekf import ExtendedKalmanFilter
@@ -115,6 +116,7 @@ __all__ = [
     "UnscentedKalmanFilter",
     "VarianceDesign",
     "certify_gain",
+    "all_finite",
     "check_covariance",
     "check_design",
     "design_discrete",

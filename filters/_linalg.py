@@ -96,6 +96,20 @@ def to_float_array(name: str, value: object) -> FloatArray:
     return real_array(value, name, finite=False)
 
 
+def all_finite(a: np.ndarray) -> bool:
+    """Whether every entry of ``a`` is finite.
+
+    For float64, first as one BLAS sum of squares (finite only if every entry is; NaN and
+    infinities make it NaN or infinite); when that overflows, or for another dtype, the
+    exact test.
+    """
+    if a.dtype == np.float64:
+        w = a.ravel()
+        if math.isfinite(w.dot(w)):
+            return True
+    return bool(np.count_nonzero(np.isfinite(a)) == a.size)
+
+
 def shared_member(X: FloatArray, core_ndim: int = 2) -> FloatArray:
     """A stack reduced to its first member when all its members are equal.
 

@@ -28,6 +28,7 @@ from scipy.linalg.lapack import dpotrs as _dpotrs
 
 from filters._linalg import (
     FloatArray,
+    all_finite,
     batch_symmetric_psd,
     max_abs_eigenvalue,
     positive_time,
@@ -132,10 +133,8 @@ class _SampledFilter:
         if x.ndim == 1:  # fast: Python float sum (overflow of finite entries falls through)
             if math.isfinite(sum(x.tolist())) or np.isfinite(x).all():
                 return
-        else:  # a finite sum of squares has finite entries (BLAS ddot: one call); an
-            w = x.ravel()  # overflowing one falls through to the exact test
-            if math.isfinite(w.dot(w)) or np.isfinite(x).all():
-                return
+        elif all_finite(x):
+            return
         raise FiniteEscapeError("state estimate became non-finite", time=self._time(steps),
                                 quantity="x", value=np.array(x))
 
@@ -171,8 +170,7 @@ class _SampledFilter:
                     f"{name} must have shape ({dim},) or {full} for batch shape {self._batch}, "
                     f"got shape {v.shape}"
                 )
-        w = v.ravel()  # finite sum of squares: finite entries (else the exact test)
-        if not math.isfinite(w.dot(w)) and not np.isfinite(v).all():
+        if not all_finite(v):
             raise ValueError(f"{name} must be finite, got non-finite entries")
         return v
 
@@ -311,13 +309,19 @@ class KalmanFilter(_SampledFilter):
     # A batch whose members share one covariance keeps the gain and innovation covariance as
     # that one member and makes the stack of copies only when it is read (most loops never
     # read them): the same values, without two stack copies per step.
+    def _stacked(self, name: str) -> FloatArray | None:
+        """The attribute ``name`` (a gain or innovation covariance, or None), as the stack
+        of the batch's members: made from the shared member once, when first read."""
+        M = getattr(self, name)
+        if M is not None and M.shape[:-2] != self._batch:
+            M = self._members(M)
+            setattr(self, name, M)
+        return M
+
     @property
     def gain(self) -> FloatArray | None:
         """Kalman gain of the last update, shape ``(..., n, m)``, or None."""
-        K = self._gain
-        if K is not None and K.shape[:-2] != self._batch:
-            K = self._gain = self._members(K)
-        return K
+        return self._stacked("_gain")
 
     @gain.setter
     def gain(self, K: FloatArray | None) -> None:
@@ -326,10 +330,7 @@ class KalmanFilter(_SampledFilter):
     @property
     def innovation_cov(self) -> FloatArray | None:
         """``H P_prior H^T + R`` of the last update, shape ``(..., m, m)``, or None."""
-        S = self._innovation_cov
-        if S is not None and S.shape[:-2] != self._batch:
-            S = self._innovation_cov = self._members(S)
-        return S
+        return self._stacked("_innovation_cov")
 
     @innovation_cov.setter
     def innovation_cov(self, S: FloatArray | None) -> None:

@@ -7,7 +7,6 @@ and reproductions) and the Gymnasium wrapper :class:`testbed.envs.wrappers.Filte
 
 from __future__ import annotations
 
-import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -17,7 +16,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from filters import real_array
+from filters import all_finite, real_array
 from filters.errors import FilterError, FiniteEscapeError
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.plugins import PLUGIN_FAILURES, EstimatorFailed, describe
@@ -206,11 +205,7 @@ class EstimatorStage:
             time_s = (self.metrics.count + 1) * self.metrics.dt_s
             raise EstimatorFailed(f"the estimator's step raised {describe(exc)} at "
                                   f"t = {time_s:g} s", time_s) from exc
-        # a finite float64 sum of squares has finite entries (one BLAS call); anything
-        # else (an overflowing sum, another dtype) gets the exact test
-        flat = x_hat.ravel() if x_hat.dtype == np.float64 else None
-        if (flat is None or not math.isfinite(flat.dot(flat))) and \
-                np.count_nonzero(np.isfinite(x_hat)) != x_hat.size:
+        if not all_finite(x_hat):
             raise FiniteEscapeError("the estimator returned a non-finite estimate",
                                     time=(self.metrics.count + 1) * self.metrics.dt_s, quantity="x",
                                     value=x_hat.copy())

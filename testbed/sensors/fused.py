@@ -160,8 +160,7 @@ class _QuantizeGroup(_Group):
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
         for c, _, step in self.row_terms:
-            q = y[c] / step  # (_rint(q) written out: no call per column)
-            y[c] = (copysign((a + _TWO52) - _TWO52, q) if (a := abs(q)) < _TWO52 else q) * step
+            y[c] = _rint(y[c] / step) * step
 
 
 class _WalkGroup(_Group):

@@ -687,8 +687,8 @@ class Simulator:
         self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
         # fixed for the simulator's life: read once, not per step
         self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
-        #: No signal, disturbance forces or step noise: without an input profile, a
-        #: one-member step's only input is the clipped action (:meth:`_step_single`).
+        #: No signal, disturbance forces or step noise: a one-member step skips their inputs
+        #: (:meth:`_step_single`).
         self._plain_inputs = not (self._has_signal or self._dist_active or rig.step_noise_dim)
         dist = self.disturbance
         #: The disturbance's velocity rows of G and b (None without), sqrt(dt) and the rig's
@@ -1204,62 +1204,43 @@ class Simulator:
         index, sel = self._all, _ALL
         # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
         # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
-        if no_manoeuvre and self._plain_inputs:  # the clipped action is the only input (no
-            # profile, signal, disturbance forces or step noise): the steps of the general
-            # branch below that remain, without its tests. The profile is zero: clipped + 0
-            # (which makes -0.0 +0.0), in the clip's pass; the flags compare it with the
-            # action: c + 0.0 != v is c != v (only a zero's sign changes, and -0.0 == 0.0)
+        t = None
+        if has_signal or not no_manoeuvre:  # the times as the batch step has them
+            t = np.array((self.steps.item(0) * self.dt_s,))
+        if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0), in the
+            # clip's pass; the flags compare it with the action: c + 0.0 != v is c != v
+            # (only a zero's sign changes, and -0.0 == 0.0)
             profile = None
             applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
                        for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
             clipped = list(map(_ne, applied, ul))
-            # (1, nu): a view of the new (nu,) array (one numpy call less than ((applied,)))
-            applied_rows = np.array(applied)[None]
-            xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
-            physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), None)
-            if self.record_poses or physics.substeps:
-                warned = physics.step(index, need_mass=False, need_poses=self.record_poses,
-                                      step_noise=None)
-            else:
-                warned = physics.step_plain()
         else:
-            t = None
-            if has_signal or not no_manoeuvre:  # the times as the batch step has them
-                t = np.array((self.steps.item(0) * self.dt_s,))
-            if no_manoeuvre:  # (as above)
-                profile = None
-                applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
-                           for v, lo, hi in zip(ul, self._low_list, self._high_list,
-                                                strict=True)]
-                clipped = list(map(_ne, applied, ul))
-            else:
-                clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
-                             for v, lo, hi in zip(ul, self._low_list, self._high_list,
-                                                  strict=True)]
-                profile = self._manoeuvre(t, sel, True)
-                total = list(map(operator.add, clipped_u, profile.tolist()[0]))
-                applied = list(map(min, map(max, total, self._low_list), self._high_list))
-                clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied,
-                                                                   total, strict=True)]
-            applied_rows = np.array(applied)[None]
-            xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
+            clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
+                         for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
+            profile = self._manoeuvre(t, sel, True)
+            total = list(map(operator.add, clipped_u, profile.tolist()[0]))
+            applied = list(map(min, map(max, total, self._low_list), self._high_list))
+            clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
+                                                               strict=True)]
+        # (1, nu): a view of the new (nu,) array (one numpy call less than ((applied,)))
+        applied_rows = np.array(applied)[None]
+        xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
+        step_noise = qfrc = None
+        if not self._plain_inputs:  # step noise, disturbance forces or a signal
             n_step = rig.step_noise_dim
-            step_noise = None
             if n_step:
                 step_noise = xi[:, :n_step]
                 info["step_noise"][sel] = step_noise
-            qfrc = None
             if dist_active:
                 w, accel, qfrc = self._forces(t, index, sel, True, xi, self._zero_accel)
             elif has_signal:
                 w = self._signal(t, index, True)
-            physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), qfrc)
-            if step_noise is None and not (dist_active or self.record_poses
-                                           or physics.substeps):
-                warned = physics.step_plain()
-            else:
-                warned = physics.step(index, need_mass=dist_active,
-                                      need_poses=self.record_poses, step_noise=step_noise)
+        physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), qfrc)
+        if step_noise is None and not (dist_active or self.record_poses or physics.substeps):
+            warned = physics.step_plain()
+        else:
+            warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
+                                  step_noise=step_noise)
         steps = self.steps.item(0) + 1
         self.steps[0] = steps
         t_now = steps * self.dt_s

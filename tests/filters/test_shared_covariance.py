@@ -295,3 +295,17 @@ def test_kalman_shared_gain_is_stacked_when_read() -> None:
     f.step(y, u)
     g.step(y, u)
     assert np.array_equal(f.gain, g.gain) and np.array_equal(f.P, g.P)
+
+
+def test_all_finite_is_numpy_isfinite_all() -> None:
+    """``filters.all_finite`` (one sum of squares, else the exact test) agrees with
+    ``np.isfinite(a).all()``: NaN, infinities, sums that overflow with finite entries,
+    other dtypes and empty arrays."""
+    from filters import all_finite
+
+    cases = [np.zeros((0, 3)), np.ones((4, 3)), np.array([1e200, 1e200, -1e300]),
+             np.array([np.nan, 1.0]), np.array([[np.inf], [1.0]]), np.array([-np.inf, np.inf]),
+             np.array([1.0, np.nan], dtype=np.float32), np.arange(6).reshape(2, 3),
+             np.full((3, 2), 1e30, dtype=np.float32), np.ones((5, 4))[:, ::2]]
+    for a in cases:
+        assert all_finite(a) == bool(np.isfinite(a).all()), a
