@@ -55,7 +55,7 @@ from filters.hinf_polynomial import (
     NonOrthonormalPolynomialHInfFilter,
     PolynomialHInfFilter,
 )
-from filters.kalman import MAX_AUTO_SUBSTEPS, KalmanBucyFilter, KalmanFilter
+from filters.kalman import MAX_AUTO_SUBSTEPS, CovarianceMemo, KalmanBucyFilter, KalmanFilter
 from filters.lmi_hinf import (
     DesignCheck,
     GammaSearch,
@@ -87,6 +87,7 @@ __all__ = [
     "TimeFunction",
     "positive_time",
     "MAX_AUTO_SUBSTEPS",
+    "CovarianceMemo",
     "DesignCheck",
     "DesignSearchRecord",
     "DiscreteDesignParameters",

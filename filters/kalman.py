@@ -18,6 +18,7 @@ Conventions
 from __future__ import annotations
 
 import math
+import threading
 from typing import ClassVar, NoReturn
 
 import numpy as np
@@ -46,7 +47,7 @@ from filters.errors import (
 )
 from filters.models import DiscreteLinearSystem, LinearSystem
 
-__all__ = ["MAX_AUTO_SUBSTEPS", "KalmanBucyFilter", "KalmanFilter"]
+__all__ = ["MAX_AUTO_SUBSTEPS", "CovarianceMemo", "KalmanBucyFilter", "KalmanFilter"]
 
 _ESCAPE_BOUND = 1e12  # default of check_covariance
 #: Cap of ``substeps="auto"`` (RK4 substeps per sample interval) of the continuous-time
@@ -57,6 +58,56 @@ _ESCAPE_BOUND_SQ = _ESCAPE_BOUND * _ESCAPE_BOUND
 #: Steps of a shared covariance :meth:`KalmanFilter.step` remembers (a covariance that settles
 #: into a cycle of floating-point values of at most this period is then not recomputed).
 _MEMO_STEPS = 16
+
+_Step = tuple[FloatArray, FloatArray, FloatArray]  # (S, K, P) of a shared covariance step
+
+
+class CovarianceMemo:
+    """Shared-covariance steps of :class:`KalmanFilter` batches, shared between batches.
+
+    A batch whose members share one covariance computes the covariance recursion once per
+    step. Batches of one study that start from the same ``P0`` with the same model (the
+    lanes of a Monte Carlo, stepped in parallel threads, and its successive batches)
+    compute the same sequence; filters given one memo with
+    :meth:`KalmanFilter.share_covariance_memo` look a step up here before computing it
+    and keep what they computed, so each step is computed once for all of them.
+
+    An entry is keyed as a filter's own memo: the bytes of the shared posterior
+    covariance, within the filter's model (``F``, ``H``, ``Q``, ``R`` and the number of
+    batch axes; filters of other models get tables of their own). Its value is what the
+    computation gives for that covariance (a function of it alone; only a step that
+    passed its checks is kept), so results are bitwise the same with or without a memo.
+
+    Parameters
+    ----------
+    max_steps : int
+        Entries kept per model (default 65,536, about 30 MB for 8 states); once full, no
+        more are added (nothing is evicted).
+
+    Notes
+    -----
+    Thread safety: one lock guards the look-up and the computation of a missing step, so
+    filters in several threads compute a step once (a thread that finds it missing while
+    another computes it waits, the GIL released, instead of computing it again). Meant
+    to live for one study (its owner drops it afterwards), not as a process-wide cache.
+    """
+
+    def __init__(self, max_steps: int = 1 << 16) -> None:
+        if isinstance(max_steps, bool) or int(max_steps) != max_steps or max_steps < 0:
+            raise ValueError(f"max_steps must be a non-negative integer, got {max_steps!r}")
+        self.max_steps = int(max_steps)
+        self._tables: dict[bytes, dict[bytes, _Step]] = {}
+        self.lock = threading.Lock()
+
+    def table(self, model: bytes) -> dict[bytes, _Step]:
+        """The table of one model (created on first use): ``P`` bytes -> ``(S, K, P)``."""
+        with self.lock:
+            return self._tables.setdefault(model, {})
+
+    def __len__(self) -> int:
+        """Entries over all models."""
+        with self.lock:
+            return sum(len(t) for t in self._tables.values())
 
 
 class _SampledFilter:
@@ -299,6 +350,8 @@ class KalmanFilter(_SampledFilter):
         self._R = system.R
         self._UR = np.linalg.cholesky(system.R).T  # R = U_R^T U_R
         self._I = np.eye(self._n)
+        self._covariance_memo: CovarianceMemo | None = None
+        self._memo_table: dict[bytes, _Step] | None = None
         self.reset(x0, P0)
 
     @property
@@ -349,7 +402,34 @@ class KalmanFilter(_SampledFilter):
         self._gain: FloatArray | None = None
         self._P_shared = self._shared(self._P)
         # shared posterior covariance (bytes) -> the next step's S, K and posterior covariance
-        self._memo: dict[bytes, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        self._memo: dict[bytes, _Step] = {}
+        # the shared memo's table for this model and batch rank (reset may change the rank)
+        self._memo_table = (None if self._covariance_memo is None
+                            else self._covariance_memo.table(self._model_key()))
+
+    def share_covariance_memo(self, memo: CovarianceMemo | None) -> None:
+        """Look shared-covariance steps up in ``memo`` and keep computed ones there (see
+        :class:`CovarianceMemo`); None: this filter's own memo only.
+
+        Parameters
+        ----------
+        memo : CovarianceMemo or None
+            Filters of one study, in one thread or several, may share one memo; the
+            results do not depend on it (bitwise).
+        """
+        if memo is not None and not isinstance(memo, CovarianceMemo):
+            raise TypeError(f"memo must be a CovarianceMemo or None, got {type(memo).__name__}")
+        self._covariance_memo = memo
+        self._memo_table = None if memo is None else memo.table(self._model_key())
+
+    def _model_key(self) -> bytes:
+        """What a shared-covariance step depends on besides ``P``: the model's matrices
+        (shapes and values) and the number of batch axes (the shape of the shared member)."""
+        parts = [np.asarray(len(self._batch), dtype=np.int64).tobytes()]
+        for M in (self._F, self._H, self._Q, self._R):
+            A = np.ascontiguousarray(M, dtype=float)
+            parts += [np.asarray(A.shape, dtype=np.int64).tobytes(), A.tobytes()]
+        return b"|".join(parts)
 
     # ------------------------------------------------------------- public API
     def predict(self, u: npt.ArrayLike | None = None) -> FloatArray:
@@ -525,12 +605,23 @@ class KalmanFilter(_SampledFilter):
         ``P`` are kept and returned for a bitwise equal ``P`` (the same numbers the
         computation gives; only a computation that passed its checks is kept). The kept
         arrays are never written: the public ``P``, ``gain`` and ``innovation_cov`` are
-        copies.
+        copies. A step not among those is looked up in the :class:`CovarianceMemo` given
+        to :meth:`share_covariance_memo` (other batches or threads may have computed it),
+        and a computed one is kept there too.
         """
         key = P.tobytes()
         done = self._memo.get(key)
         if done is None:
-            done = self._gain_and_covariance(self._predict_covariance(P), steps)
+            table = self._memo_table
+            if table is None:
+                done = self._gain_and_covariance(self._predict_covariance(P), steps)
+            else:
+                with self._covariance_memo.lock:  # type: ignore[union-attr]
+                    done = table.get(key)
+                    if done is None:
+                        done = self._gain_and_covariance(self._predict_covariance(P), steps)
+                        if len(table) < self._covariance_memo.max_steps:  # type: ignore[union-attr]
+                            table[key] = done
             if len(self._memo) >= _MEMO_STEPS:
                 del self._memo[next(iter(self._memo))]  # the oldest
             self._memo[key] = done

@@ -157,6 +157,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "poly_step_us": ("<=", 50.0),
     "mc_vs_raw": (">=", 0.9),
     "mc_vehicle_vs_raw": (">=", 0.9),
+    "mc_hardware_vs_paper": (">=", 0.7),
     "mc_peak_rss_mb": ("<=", 500.0),
     "sweep_ray_speedup": (">=", 1.6),
     "mc_ray_speedup": (">=", 1.6),

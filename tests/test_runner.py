@@ -140,6 +140,34 @@ def test_a_run_reads_its_mjcf_at_most_twice(monkeypatch, profile, reads):
     assert np.isfinite(summary["rmse"]["pitch"])
 
 
+def test_lanes_share_the_covariance_memo_of_their_study(monkeypatch):
+    """The lanes and batches of one study share one :class:`filters.kalman.CovarianceMemo`
+    (the vehicle's covariance sequence computed once for all): every per-run number is
+    bitwise the one without it, and each study has a memo of its own."""
+    from filters.kalman import CovarianceMemo, KalmanFilter
+
+    scenario = Scenario(rig="vehicle-roll", estimator="kalman", duration_s=0.5, seed=3)
+    memos: list[CovarianceMemo] = []
+    share = KalmanFilter.share_covariance_memo
+
+    def recorded(self, memo):
+        memos.append(memo)
+        share(self, memo)
+
+    monkeypatch.setattr(KalmanFilter, "share_covariance_memo", recorded)
+    shared = [runner.monte_carlo(scenario, runs=6, num_threads=2),
+              runner.monte_carlo(scenario, runs=7, batch_size=2, num_threads=1)]
+    assert len(memos) == 2 + 2  # two lanes, then batches of 2 and of 1 (a separate build)
+    assert len({id(m) for m in memos}) == 2  # one per study
+    assert all(len(m) == 50 for m in memos)  # 0.5 s at 10 ms: the sequence, computed once
+    monkeypatch.setattr(KalmanFilter, "share_covariance_memo", lambda self, memo: None)
+    alone = [runner.monte_carlo(scenario, runs=6, num_threads=2),
+             runner.monte_carlo(scenario, runs=7, batch_size=2, num_threads=1)]
+    for a, b in zip(shared, alone, strict=True):
+        assert a["rmse_per_run"] == b["rmse_per_run"]
+        assert a["nees"] == b["nees"]
+
+
 def test_lanes_equal_one_thread_and_a_failing_lane_stops_the_study(monkeypatch):
     """``num_threads`` > 1 runs contiguous parts of the runs on as many Python threads: the
     same per-run results as one thread; a lane's failure is raised once the others stop."""

@@ -29,6 +29,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from filters.kalman import CovarianceMemo
 from testbed import estimators
 from testbed.estimators.design import DesignModel
 from testbed.experiment.backend import check_backend, map_jobs
@@ -593,11 +594,16 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     if lanes > 1:
         batch_size = min(batch_size, -(-runs // lanes))
     experiments: dict[int, Experiment] = {}
+    # the batches of the study (every lane's, one after the other) compute one covariance
+    # sequence when their estimator's covariance does not depend on the data: computed once
+    # for all of them (the study's own memo, dropped with it; the same values without it)
+    memo = CovarianceMemo()
 
     def experiment_for(size: int) -> Experiment:
         if size not in experiments:
-            experiments[size] = build(scenario, size,
-                                      num_threads=1 if lanes > 1 else num_threads)
+            experiments[size] = _sharing(build(scenario, size,
+                                               num_threads=1 if lanes > 1 else num_threads),
+                                         memo)
         return experiments[size]
 
     first = experiment_for(batch_size)
@@ -623,7 +629,7 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
                    unit="step", disable=not progress)
         with bar:
             if lanes > 1:
-                gathered = _run_lanes(scenario, parts, batch_size, experiments, bar)
+                gathered = _run_lanes(scenario, parts, batch_size, experiments, bar, memo)
             else:
                 for start in range(0, runs, batch_size):
                     size = min(batch_size, runs - start)
@@ -675,11 +681,22 @@ def monte_carlo(scenario: Scenario, runs: int = 100, *, batch_size: int | None =
     return result
 
 
+def _sharing(experiment: Experiment, memo: CovarianceMemo) -> Experiment:
+    """``experiment``, its estimator given the study's covariance memo if it takes one
+    (:meth:`filters.kalman.KalmanFilter.share_covariance_memo`)."""
+    share = getattr(experiment.loop.stage.estimator, "share_covariance_memo", None)
+    if callable(share):
+        share(memo)
+    return experiment
+
+
 def _run_lanes(scenario: Scenario, parts: list[np.ndarray], batch_size: int,
-               experiments: dict[int, Experiment], bar: tqdm) -> RunMetrics:
+               experiments: dict[int, Experiment], bar: tqdm,
+               memo: CovarianceMemo) -> RunMetrics:
     """The runs of ``parts`` (contiguous seeds, in order), each part in batches of at most
     ``batch_size`` on a thread of its own with its own one-thread experiments (the first
-    part's are ``experiments``, closed by the caller; the others' are closed here).
+    part's are ``experiments``, closed by the caller; the others' are closed here); every
+    lane's estimators share ``memo`` (:class:`filters.kalman.CovarianceMemo`).
 
     A failure or an interrupt stops every lane within a step (:class:`Stopped`) and is
     raised once they have stopped.
@@ -704,7 +721,7 @@ def _run_lanes(scenario: Scenario, parts: list[np.ndarray], batch_size: int,
             for size in {min(batch_size, len(part) - start)
                          for start in range(0, len(part), batch_size)}:
                 if size not in own[j]:
-                    own[j][size] = build(scenario, size, num_threads=1)
+                    own[j][size] = _sharing(build(scenario, size, num_threads=1), memo)
         # BLAS single-threaded for the whole study (each run's own limit then nests)
         with threadpool_limits(1), ThreadPoolExecutor(len(parts)) as pool:
             futures = [pool.submit(lane, j) for j in range(len(parts))]

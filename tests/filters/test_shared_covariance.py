@@ -309,3 +309,88 @@ def test_all_finite_is_numpy_isfinite_all() -> None:
              np.full((3, 2), 1e30, dtype=np.float32), np.ones((5, 4))[:, ::2]]
     for a in cases:
         assert all_finite(a) == bool(np.isfinite(a).all()), a
+
+
+def test_kalman_covariance_memo_shared_between_threads_is_bitwise_unshared(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Batches of one model sharing a :class:`CovarianceMemo` in several threads (the lanes
+    of a Monte Carlo): each covariance step is computed once for all of them, the results
+    are bitwise those without the memo, and another model gets a table of its own."""
+    import threading
+
+    rng = np.random.default_rng(40)
+    system = _discrete(rng, 4)
+    other = _discrete(rng, 4)
+    T = 150
+    sizes = (5, 3, 5, 1)  # a batch of one has no shared member: it never uses the memo
+    x0s = [rng.standard_normal((N, 4)) for N in sizes]
+    P0 = _spd(rng, 4)
+    data = [(rng.standard_normal((T, N, 2)), rng.standard_normal((T, N, 1))) for N in sizes]
+    calls: list[int] = []
+    compute = KalmanFilter._gain_and_covariance
+
+    def counted(self: KalmanFilter, P: np.ndarray, steps: int):
+        calls.append(steps)
+        return compute(self, P, steps)
+
+    monkeypatch.setattr(KalmanFilter, "_gain_and_covariance", counted)
+
+    def run(j: int, memo: kalman.CovarianceMemo | None, out: list) -> None:
+        f = KalmanFilter(other if j == 2 else system, x0s[j], P0)
+        f.share_covariance_memo(memo)
+        ys, us = data[j]
+        for i in range(T):
+            f.step(ys[i], us[i])
+            out += [np.array(f.x), np.array(f.P), f.innovation, f.innovation_cov, f.gain]
+
+    alone: list[list] = [[] for _ in sizes]
+    per_batch = []
+    for j in range(len(sizes)):
+        before = len(calls)
+        run(j, None, alone[j])
+        per_batch.append(len(calls) - before)
+    # one sequence per batch with a shared member (until it settles into a cycle); the batch
+    # of one computes its stack every step
+    assert per_batch[0] == per_batch[1] > 0 and per_batch[2] > 0 and per_batch[3] == T
+    calls.clear()
+    memo = kalman.CovarianceMemo()
+    together: list[list] = [[] for _ in sizes]
+    threads = [threading.Thread(target=run, args=(j, memo, together[j]))
+               for j in range(len(sizes))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for a, b in zip(alone, together, strict=True):
+        assert len(a) == len(b)
+        assert all(np.array_equal(u, v) and u.shape == v.shape for u, v in zip(a, b, strict=True))
+    # the two batches of `system` computed its sequence once, `other` its own
+    assert len(calls) == per_batch[0] + per_batch[2] + T
+    assert len(memo._tables) == 2 and len(memo) == per_batch[0] + per_batch[2]
+    with pytest.raises(TypeError, match="CovarianceMemo"):
+        KalmanFilter(system, x0s[0], P0).share_covariance_memo({})  # type: ignore[arg-type]
+
+
+def test_kalman_covariance_memo_keeps_at_most_max_steps_and_only_checked_steps() -> None:
+    rng = np.random.default_rng(41)
+    system = _discrete(rng, 3)
+    memo = kalman.CovarianceMemo(max_steps=7)
+    f = KalmanFilter(system, rng.standard_normal((4, 3)), _spd(rng, 3))
+    f.share_covariance_memo(memo)
+    g = KalmanFilter(system, rng.standard_normal((4, 3)), _spd(rng, 3))
+    for _ in range(30):
+        y, u = rng.standard_normal((4, 2)), rng.standard_normal((4, 1))
+        f.step(y, u)
+        g.step(y, u)
+    assert len(memo) == 7
+    f.reset(np.zeros((4, 3)), g.P[0])  # reset keeps the memo (for the batch's rank)
+    assert f._memo_table is next(iter(memo._tables.values()))
+    with pytest.raises(ValueError, match="max_steps"):
+        kalman.CovarianceMemo(max_steps=-1)
+    # a step whose covariance check fails raises and is not kept
+    bad = kalman.CovarianceMemo()
+    h = KalmanFilter(system, np.zeros((2, 3)), 1e13 * np.eye(3))
+    h.share_covariance_memo(bad)
+    with pytest.raises(FiniteEscapeError):
+        h.step(np.zeros((2, 2)), np.zeros((2, 1)))
+    assert len(bad) == 0
