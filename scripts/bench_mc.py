@@ -255,7 +255,8 @@ def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
     dict
         The keys of :func:`bench_rig` for both rigs, their ``mc_*vs_raw*`` keys with one
         thread (suffix ``_1thread``, when ``threads > 1``), ``mc_mshinf_traj_steps_per_s``,
-        ``mc_peak_rss_mb``, ``import_rss_mb``, ``scaling`` (``"N=..,steps=.."`` ->
+        ``mc_vehicle_vs_raw_4xruns`` (4x the runs, 1/4 the steps), ``mc_peak_rss_mb``,
+        ``import_rss_mb``, ``scaling`` (``"N=..,steps=.."`` ->
         ``{"us_per_traj_step", "traj_steps_per_s"}``), ``threads``, ``runs``, ``steps``.
     """
     threads = num_threads or default_num_threads()
@@ -263,6 +264,11 @@ def bench_monte_carlo(runs: int = 256, steps: int = 2000, rss_runs: int = 1000,
     for rig_name in RIG_SCENARIOS:
         out.update(bench_rig(rig_name, runs, steps, threads, repeats))
     out.update(bench_hardware(runs, steps, threads, repeats))
+    # diagnostic: the vehicle with 4x the runs and 1/4 the steps (the same trajectory-steps,
+    # 4x the members per lane: the per-step Python that does not grow with the members is
+    # spread over more of them)
+    big = bench_rig("vehicle-roll", 4 * runs, max(steps // 4, 1), threads, repeats)
+    out["mc_vehicle_vs_raw_4xruns"] = big["mc_vehicle_vs_raw"]
     if threads > 1:  # diagnostic: the same without threads (insensitive to a busy core)
         for rig_name in RIG_SCENARIOS:
             single = bench_rig(rig_name, runs, max(steps // 4, 1), 1, repeats)

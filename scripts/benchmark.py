@@ -129,6 +129,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "mc_hardware_vs_paper": ("", "mc_hardware_traj_steps_per_s / the paper profile's"),
     "mc_vs_raw_1thread": ("", "mc_vs_raw with one physics thread for both (diagnostic)"),
     "mc_vehicle_vs_raw_1thread": ("", "mc_vehicle_vs_raw with one thread (diagnostic)"),
+    "mc_vehicle_vs_raw_4xruns": ("", "mc_vehicle_vs_raw with 4x the runs, 1/4 the steps "
+                                 "(diagnostic: 4x the members per lane)"),
     "mc_vs_raw_batch_1thread": ("", "mc_vs_raw_batch with one thread (diagnostic)"),
     "mc_vehicle_vs_raw_batch_1thread": ("", "mc_vehicle_vs_raw_batch with one thread"),
     "mc_mshinf_traj_steps_per_s": ("1/s", "monte_carlo helicopter, mean-square H-infinity"),
