@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -114,3 +116,30 @@ def test_env_options_select_and_parameterize_the_manoeuvre():
         env.reset(options={"manoeuvre": "slalom"})
     with pytest.raises(ValueError, match="manoeuvre_params"):
         env.reset(options={"manoeuvre": "step-steer", "manoeuvre_params": {"sharpness": 1.0}})
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_common_time_profile_matches_per_member_times(name):
+    """The one-time path of Simulator._manoeuvre (common=True) gives, bitwise, the rows the
+    general path gives for members at different times (each time's value, per member)."""
+    from testbed.sim import build_simulator
+
+    sim = build_simulator("vehicle-roll", 3, num_threads=1, manoeuvre=name)
+    sim.reset(None, [0, 1, 2])
+    fn = sim._schedules[0]
+    for t0 in (0.0, 0.37, 1.25, 2.5, 4.0, 9.9):
+        common = sim._manoeuvre(np.full(3, t0), sim._all, common=True)
+        mixed = sim._manoeuvre(np.array([t0, t0 + 0.5, t0]), sim._all)
+        assert common.shape == (3, 1) and common.dtype == np.float64
+        assert common.tobytes() == np.repeat(mixed[:1], 3, axis=0).tobytes()
+        assert mixed[0].tobytes() == mixed[2].tobytes() == np.float64(fn(t0)).tobytes()
+        assert mixed[1].tobytes() == np.float64(fn(t0 + 0.5)).tobytes()
+
+
+def test_common_time_profile_rejects_a_non_finite_value():
+    from testbed.sim import build_simulator
+
+    sim = build_simulator("vehicle-roll", 2, num_threads=1, manoeuvre=lambda t: math.nan)
+    sim.reset(None, [0, 1])
+    with pytest.raises(ValueError, match="non-finite input"):
+        sim._manoeuvre(np.full(2, 0.5), sim._all, common=True)

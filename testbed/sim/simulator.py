@@ -541,6 +541,13 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     return table[inverse]
 
 
+def _filled(value: float, k: int, dim: int) -> np.ndarray:
+    """A new (k, dim) array of ``value``: what :func:`_per_time` makes of one time's scalar."""
+    out = np.empty((k, dim))
+    out.fill(value)
+    return out
+
+
 def _defines_with(cls: type, method: str, companion: str) -> bool:
     """Whether the class in ``cls``'s MRO that defines ``method`` defines ``companion``."""
     for klass in cls.__mro__:
@@ -943,6 +950,10 @@ class Simulator:
         checked: np.ndarray | None = None  # (the rows to check for a non-finite input)
         if len(self._schedules) == 1:  # every member's profile (one, not None)
             fn = self._schedules[0]
+            if common and len(t):
+                value = fn(float(t[0]))
+                if type(value) is float and math.isfinite(value):
+                    return _filled(value, len(t), self._nu)
             out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu, common)
             if common:  # one time: every row is the first one
                 checked = out[:1]

@@ -186,7 +186,7 @@ class DoubleLaneChange:
 
     def __call__(self, t_s: TimeLike) -> TimeLike:
         """``a_y`` in m/s^2 at time(s) ``t_s`` (s), same shape as ``t_s``."""
-        if np.ndim(t_s) == 0:  # one time (every simulation step): on Python floats
+        if type(t_s) is float or np.ndim(t_s) == 0:  # one time (every step): Python floats
             return self._at(float(t_s))
         _, k1, k2, th1, th2 = self._terms(t_s)
         # d^2/dx^2 tanh(k (x - c)) = -2 k^2 tanh sech^2
