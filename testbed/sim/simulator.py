@@ -45,7 +45,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from filters import real_array
+from filters import all_finite, real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
@@ -731,6 +731,14 @@ class Simulator:
         for a in (self._all, self._zero_input, self._zero_accel, self._zero_w, self._low_rows,
                   self._high_rows, self._envelope_rows, self._dt_rows, self._one_rows):
             a.flags.writeable = False
+        #: The whole batch's joint accelerations in generalized coordinates (num, nv): zero
+        #: but in the rig's dof columns, which :meth:`_forces` overwrites every step.
+        self._accel_rows = np.zeros((n, self.physics.nv))
+        dof = rig.dof_adr
+        #: The rig's dof columns: a slice when they are consecutive (a basic-index write).
+        self._dof_cols: Any = (slice(int(dof[0]), int(dof[-1]) + 1)
+                               if len(dof) and np.array_equal(dof, np.arange(dof[0], dof[-1] + 1))
+                               else dof)
         #: What a step of the whole batch reads for its members: their indices, selection,
         #: number, action limits, envelope and zero input, acceleration and signal rows.
         self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
@@ -1061,8 +1069,7 @@ class Simulator:
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
         if (type(actions) is np.ndarray and actions.dtype == np.float64
-                and actions.shape == (k, self._nu)
-                and np.count_nonzero(np.isfinite(actions)) == actions.size):
+                and actions.shape == (k, self._nu) and all_finite(actions)):
             return actions  # used as it is: a step keeps none of it
         u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
@@ -1340,8 +1347,12 @@ class Simulator:
             n_step = self.rig.step_noise_dim
             drawn = xi[:, n_step:n_step + self._dist_draws]
             accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
-        a = np.zeros((len(index), self.physics.nv))
-        a[:, dof_adr] = accel
+        if isinstance(sel, slice):  # the whole batch: its rows, zero outside the dof columns
+            a = self._accel_rows
+            a[:, self._dof_cols] = accel
+        else:
+            a = np.zeros((len(index), self.physics.nv))
+            a[:, dof_adr] = accel
         return w, accel, np.matvec(self.physics.mass[sel], a)
 
     def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None,
