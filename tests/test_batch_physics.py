@@ -188,3 +188,22 @@ def test_whole_batch_step_equals_the_members_step_bitwise():
                                 + [sim.info[key] for key in info_keys]))
         runs.append(out)
     assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("rig", ["vehicle-roll", "helicopter"])
+def test_whole_batch_mass_store_equals_the_indexed_one(rig):
+    """The whole batch's dense mass write (slices, one write for a diagonal M) gives, bitwise,
+    the per-index write."""
+    from testbed.sim.simulator import _ALL
+
+    sim = build_simulator(rig, 3, num_threads=1)
+    sim.reset(None, [0, 1, 2])
+    sim.step(np.zeros((3, sim.rig.n_actions)))
+    physics = sim.physics
+    physics._mass_bound = physics.batch.bind("M")
+    physics._store_mass(_ALL)
+    whole = physics.mass.copy()
+    physics.mass[...] = 0.0  # (as made: positions outside M's pattern stay zero)
+    physics._store_mass(np.arange(3))
+    assert whole.tobytes() == physics.mass.tobytes()
+    assert np.all(np.diagonal(whole, axis1=1, axis2=2) > 0)  # the masses were written

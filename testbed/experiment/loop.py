@@ -407,7 +407,8 @@ class ClosedLoop:
                               k * sim.dt_s))
                 x_hat = stage.step(sim.obs, info["action_applied"], info["state"],
                                    info["disturbance"])
-                clipped += info["action_clipped"].any(axis=1)
+                flags = info["action_clipped"]  # (n, nu): one input's column is its any()
+                clipped += flags[:, 0] if flags.shape[1] == 1 else flags.any(axis=1)
                 if rec is not None:
                     self._record(rec, k + 1)
                 if rows is not None:

@@ -45,7 +45,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from filters import all_finite, real_array
+from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
@@ -206,6 +206,11 @@ class Physics:
         self._m_rows, self._m_cols = rows, np.asarray(model.M_colind)
         #: Their flat positions in a member's (nv, nv) matrix, below and above the diagonal.
         self._m_flat = (rows * self.nv + self._m_cols, self._m_cols * self.nv + rows)
+        lower, upper = self._m_flat
+        #: The same positions for the whole batch's write: slices where consecutive, and no
+        #: upper write when it is the lower one (a diagonal M).
+        self._m_flat_whole = (_as_slice(lower),
+                              None if np.array_equal(lower, upper) else _as_slice(upper))
         #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
         #: columns of the state rows holding [flag, command, c, r].
         self._native: tuple[int, slice, slice] | None = None
@@ -368,7 +373,12 @@ class Physics:
         m = self._mass_bound[sel]
         flat = self.mass.reshape(self.num, -1)  # (a view: one index per entry, not two)
         lower, upper = self._m_flat
-        if isinstance(sel, slice):
+        if sel is _ALL:
+            lower_cols, upper_cols = self._m_flat_whole
+            flat[:, lower_cols] = m
+            if upper_cols is not None:
+                flat[:, upper_cols] = m
+        elif isinstance(sel, slice):
             flat[:, lower] = m
             flat[:, upper] = m
         else:
@@ -507,6 +517,14 @@ class Physics:
 
 
 _MODEL_FIELDS: tuple[str, ...] | None = None
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` (j,), int: the slice selecting the same entries when they are consecutive
+    and increasing (a basic-index read or write instead of a fancy one), else ``index``."""
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
 
 
 def _model_fields() -> tuple[str, ...]:
@@ -734,11 +752,8 @@ class Simulator:
         #: The whole batch's joint accelerations in generalized coordinates (num, nv): zero
         #: but in the rig's dof columns, which :meth:`_forces` overwrites every step.
         self._accel_rows = np.zeros((n, self.physics.nv))
-        dof = rig.dof_adr
         #: The rig's dof columns: a slice when they are consecutive (a basic-index write).
-        self._dof_cols: Any = (slice(int(dof[0]), int(dof[-1]) + 1)
-                               if len(dof) and np.array_equal(dof, np.arange(dof[0], dof[-1] + 1))
-                               else dof)
+        self._dof_cols = _as_slice(rig.dof_adr)
         #: What a step of the whole batch reads for its members: their indices, selection,
         #: number, action limits, envelope and zero input, acceleration and signal rows.
         self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
@@ -1069,7 +1084,8 @@ class Simulator:
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
         if (type(actions) is np.ndarray and actions.dtype == np.float64
-                and actions.shape == (k, self._nu) and all_finite(actions)):
+                and actions.shape == (k, self._nu)
+                and np.count_nonzero(np.isfinite(actions)) == actions.size):
             return actions  # used as it is: a step keeps none of it
         u = real_array(actions, "actions", finite=False)
         if u.shape != (k, self._nu):
