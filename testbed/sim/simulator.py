@@ -1168,7 +1168,10 @@ class Simulator:
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        ref = self._reference(t, sel, common)
+        if common and len(self._tables) == 1:  # one row (1, r), broadcast, not repeated
+            ref = self._table_rows[self._table_row(float(t[0]))]
+        else:
+            ref = self._reference(t, sel, common)
         e = x[:, self._tracked_cols] - ref
         sq = e * e
         r = self._r
