@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from typing import ClassVar, NoReturn
 
 import numpy as np
@@ -103,6 +104,19 @@ class CovarianceMemo:
         """The table of one model (created on first use): ``P`` bytes -> ``(S, K, P)``."""
         with self.lock:
             return self._tables.setdefault(model, {})
+
+    def step(self, table: dict[bytes, _Step], key: bytes,
+             compute: Callable[[], _Step]) -> _Step:
+        """The entry ``key`` of ``table`` (one of :meth:`table`), else ``compute()``, kept
+        while the table has room; under the lock (a step raising in ``compute`` is not
+        kept)."""
+        with self.lock:
+            done = table.get(key)
+            if done is None:
+                done = compute()
+                if len(table) < self.max_steps:
+                    table[key] = done
+            return done
 
     def __len__(self) -> int:
         """Entries over all models."""
@@ -612,16 +626,11 @@ class KalmanFilter(_SampledFilter):
         key = P.tobytes()
         done = self._memo.get(key)
         if done is None:
-            table = self._memo_table
-            if table is None:
-                done = self._gain_and_covariance(self._predict_covariance(P), steps)
-            else:
-                with self._covariance_memo.lock:  # type: ignore[union-attr]
-                    done = table.get(key)
-                    if done is None:
-                        done = self._gain_and_covariance(self._predict_covariance(P), steps)
-                        if len(table) < self._covariance_memo.max_steps:  # type: ignore[union-attr]
-                            table[key] = done
+            def compute() -> _Step:
+                return self._gain_and_covariance(self._predict_covariance(P), steps)
+
+            memo, table = self._covariance_memo, self._memo_table
+            done = compute() if memo is None or table is None else memo.step(table, key, compute)
             if len(self._memo) >= _MEMO_STEPS:
                 del self._memo[next(iter(self._memo))]  # the oldest
             self._memo[key] = done

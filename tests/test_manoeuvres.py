@@ -143,3 +143,28 @@ def test_common_time_profile_rejects_a_non_finite_value():
     sim.reset(None, [0, 1])
     with pytest.raises(ValueError, match="non-finite input"):
         sim._manoeuvre(np.full(2, 0.5), sim._all, common=True)
+
+
+@pytest.mark.parametrize("kind", ["numpy scalar", "array", "nan array"])
+def test_common_time_profile_calls_a_non_float_manoeuvre_once(kind):
+    """A manoeuvre returning a numpy scalar or array at a common time is called once per
+    step (not once for the float test and again for the rows); the rows are its value."""
+    from testbed.sim import build_simulator
+
+    calls = []
+
+    def fn(t):
+        calls.append(t)
+        value = np.float64(0.25 * t) if kind == "numpy scalar" else np.array([0.25 * t])
+        return value * np.nan if kind == "nan array" else value
+
+    sim = build_simulator("vehicle-roll", 3, num_threads=1, manoeuvre=fn)
+    sim.reset(None, [0, 1, 2])
+    calls.clear()
+    if kind == "nan array":
+        with pytest.raises(ValueError, match="non-finite input"):
+            sim._manoeuvre(np.full(3, 0.5), sim._all, common=True)
+    else:
+        rows = sim._manoeuvre(np.full(3, 0.5), sim._all, common=True)
+        assert rows.shape == (3, 1) and np.all(rows == 0.125)
+    assert calls == [0.5]

@@ -59,14 +59,21 @@ class _NotFusable(Exception):
     """The suite has a sensor a plan cannot apply across channels."""
 
 
+def as_slice(index: Any) -> slice | np.ndarray:
+    """Integer positions ``index`` (j,) as a basic slice when they are consecutive and
+    increasing (a view, a basic-index write), else as an int array (a fancy index)."""
+    cols = [int(i) for i in index]
+    if cols and cols == list(range(cols[0], cols[0] + len(cols))):
+        return slice(cols[0], cols[0] + len(cols))
+    return np.asarray(index, dtype=int)
+
+
 def _index(cols: list[int], width: int | None = None) -> Any:
-    """Columns as an index: None for all ``width`` of them (the array itself), a basic slice
-    when consecutive (a view), else an int array (``take`` and a fancy assignment)."""
+    """Columns as an index: None for all ``width`` of them (the array itself), else
+    :func:`as_slice` (``take`` and a fancy assignment when not consecutive)."""
     if width is not None and cols == list(range(width)):
         return None
-    lo = cols[0]
-    return (slice(lo, lo + len(cols)) if cols == list(range(lo, lo + len(cols)))
-            else np.array(cols))
+    return as_slice(cols)
 
 
 def _get(a: np.ndarray, index: Any) -> np.ndarray:

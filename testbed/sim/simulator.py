@@ -49,7 +49,7 @@ from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
-from testbed.sensors.fused import measure_one, state_row_plan
+from testbed.sensors.fused import as_slice, measure_one, state_row_plan
 from testbed.sim import native
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
@@ -209,8 +209,8 @@ class Physics:
         lower, upper = self._m_flat
         #: The same positions for the whole batch's write: slices where consecutive, and no
         #: upper write when it is the lower one (a diagonal M).
-        self._m_flat_whole = (_as_slice(lower),
-                              None if np.array_equal(lower, upper) else _as_slice(upper))
+        self._m_flat_whole = (as_slice(lower),
+                              None if np.array_equal(lower, upper) else as_slice(upper))
         #: The rig's per-physics-step ctrl runs in C (testbed.sim.native): the userdata
         #: columns of the state rows holding [flag, command, c, r].
         self._native: tuple[int, slice, slice] | None = None
@@ -519,14 +519,6 @@ class Physics:
 _MODEL_FIELDS: tuple[str, ...] | None = None
 
 
-def _as_slice(index: np.ndarray) -> slice | np.ndarray:
-    """``index`` (j,), int: the slice selecting the same entries when they are consecutive
-    and increasing (a basic-index read or write instead of a fancy one), else ``index``."""
-    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
-        return slice(int(index[0]), int(index[0]) + len(index))
-    return index
-
-
 def _model_fields() -> tuple[str, ...]:
     """The model fields a batch can hold per simulation, but for structure (addresses,
     counts, ids, types) and names."""
@@ -551,18 +543,20 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     ``common``: the caller knows that every entry of ``t`` is the same time (not looked at).
     """
     if len(t) and (common or t.min() == t.max()):
-        out = np.empty((len(t), dim))
-        out[...] = np.asarray(fn(float(t[0])), dtype=float)  # broadcast, as np.broadcast_to
-        return out
+        return _filled(fn(float(t[0])), len(t), dim)
     values, inverse = np.unique(t, return_inverse=True)
     table = np.array([fn(float(v)) for v in values], dtype=float).reshape(len(values), dim)
     return table[inverse]
 
 
-def _filled(value: float, k: int, dim: int) -> np.ndarray:
-    """A new (k, dim) array of ``value``: what :func:`_per_time` makes of one time's scalar."""
+def _filled(value: Any, k: int, dim: int) -> np.ndarray:
+    """A new (k, dim) array of one time's ``value`` (a float, or what broadcasts to (dim,))
+    in every row (broadcast, as np.broadcast_to)."""
     out = np.empty((k, dim))
-    out.fill(value)
+    if type(value) is float:
+        out.fill(value)
+    else:
+        out[...] = np.asarray(value, dtype=float)
     return out
 
 
@@ -753,7 +747,7 @@ class Simulator:
         #: but in the rig's dof columns, which :meth:`_forces` overwrites every step.
         self._accel_rows = np.zeros((n, self.physics.nv))
         #: The rig's dof columns: a slice when they are consecutive (a basic-index write).
-        self._dof_cols = _as_slice(rig.dof_adr)
+        self._dof_cols = as_slice(rig.dof_adr)
         #: What a step of the whole batch reads for its members: their indices, selection,
         #: number, action limits, envelope and zero input, acceleration and signal rows.
         self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
@@ -973,13 +967,14 @@ class Simulator:
         checked: np.ndarray | None = None  # (the rows to check for a non-finite input)
         if len(self._schedules) == 1:  # every member's profile (one, not None)
             fn = self._schedules[0]
-            if common and len(t):
+            if common and len(t):  # one time: one call, every row the first one
                 value = fn(float(t[0]))
                 if type(value) is float and math.isfinite(value):
                     return _filled(value, len(t), self._nu)
-            out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu, common)
-            if common:  # one time: every row is the first one
+                out = _filled(value, len(t), self._nu)
                 checked = out[:1]
+            else:
+                out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu)
         else:
             groups = self._schedule_of[sel]
             out = np.zeros((len(t), self._nu))
