@@ -386,6 +386,14 @@ class KalmanFilter(_SampledFilter):
         return M
 
     @property
+    def shared_P(self) -> FloatArray | None:
+        """The covariance every member of a batch shares, shape ``(n, n)`` (read-only), or
+        None (a single filter, or members whose covariances differ): :attr:`P` is then this
+        matrix repeated, and what is computed from one covariance can be computed once."""
+        shared = self._P_shared
+        return None if shared is None else shared.reshape(shared.shape[-2:])
+
+    @property
     def gain(self) -> FloatArray | None:
         """Kalman gain of the last update, shape ``(..., n, m)``, or None."""
         return self._stacked("_gain")

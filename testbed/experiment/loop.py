@@ -132,7 +132,10 @@ class EstimatorStage:
     def P(self) -> np.ndarray | None:
         """The marginal covariance of the physical states, (N, n_rig, n_rig), or None
         (possibly a view of the estimator's)."""
-        P = self.estimator.P
+        return self._physical_block(self.estimator.P)
+
+    def _physical_block(self, P: Any) -> np.ndarray | None:
+        """The physical states' block of a covariance (..., n, n) (None stays None)."""
         i = self._physical
         if P is None or i is None:
             return P
@@ -213,7 +216,11 @@ class EstimatorStage:
             self.check("after the first step")
             self._checked = True
         x_phys = self.x
-        self.metrics.update(x_true, x_phys, self.P, y, w if w is not None and w.size else None)
+        # a covariance the batch's members share (a Kalman filter's: filters.KalmanFilter.
+        # shared_P): the metrics factor it once for every member (the same values)
+        shared = getattr(est, "shared_P", None)
+        P = self.P if shared is None else self._physical_block(shared)
+        self.metrics.update(x_true, x_phys, P, y, w if w is not None and w.size else None)
         return x_phys
 
 

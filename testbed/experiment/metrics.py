@@ -7,7 +7,118 @@ episodes stepped together (:mod:`testbed.batch`) with the same formulas.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
+
+#: Largest state dimension whose NEES :func:`nees` computes elementwise (its operation count
+#: grows as n**3); larger ones go through LAPACK's LU solve.
+NEES_ELEMENTWISE_MAX = 8
+
+
+def nees(error: np.ndarray, covariance: np.ndarray) -> Any:
+    """Normalized estimation error squared ``e^T P^-1 e`` of every row.
+
+    Computed as ``|z|^2`` with ``L z = e`` and ``P = L L^T``: the Cholesky factor and the
+    forward substitution are written out entry by entry, one IEEE operation after another
+    (no BLAS or LAPACK call, whose rounding depends on the CPU's kernel and on the call's
+    shape). So the value of a row is the same bits whether it is computed alone, in a batch,
+    against a covariance shared by the batch or against its own one, on any machine.
+
+    Parameters
+    ----------
+    error : ndarray, shape (n,) or (..., n)
+        Estimation errors.
+    covariance : ndarray, shape (n, n) or (..., n, n)
+        Their covariances: one shared by every row, or one per row (broadcast against
+        ``error``'s leading axes).
+
+    Returns
+    -------
+    float or ndarray, shape (...)
+        A float for one error and one covariance, else an array of the broadcast leading
+        shape.
+
+    Notes
+    -----
+    A covariance that is not positive definite (a Cholesky pivot not > 0, or not finite)
+    and any ``n > NEES_ELEMENTWISE_MAX`` get ``e^T solve(P, e)`` (LAPACK's LU) instead: the
+    value of an indefinite but invertible matrix, and LAPACK's error for a singular one.
+    """
+    n = error.shape[-1]
+    P = covariance
+    if n <= NEES_ELEMENTWISE_MAX:
+        rows = _cholesky_rows(P)
+        if rows is not None:
+            q = _forward_norm(rows, error.tolist() if error.ndim == 1 and P.ndim == 2
+                              else [error[..., i] for i in range(n)])
+            return q if isinstance(q, float) else np.asarray(q)
+    if error.ndim == 1 and P.ndim == 2:
+        return float(np.vecdot(error, np.linalg.solve(P, error[:, None])[:, 0]))
+    if P.ndim == 2 or n > NEES_ELEMENTWISE_MAX:
+        return np.vecdot(error, np.linalg.solve(P, error[..., None])[..., 0])
+    return _nees_rows(error, P)
+
+
+def _cholesky_rows(P: np.ndarray) -> list[list[Any]] | None:
+    """The lower Cholesky factor of ``P`` (n, n) (Python floats) or of a stack (..., n, n)
+    (arrays of shape (...)), as rows ``L[i][j]`` (``j <= i``); None unless every pivot of
+    every matrix is finite and > 0 (NaN is not)."""
+    n = P.shape[-1]
+    if P.ndim == 2:
+        A: list[list[Any]] = P.tolist()
+        sqrt: Any = math.sqrt
+    else:
+        flat = P.ravel()
+        if not math.isfinite(flat.dot(flat)):  # a non-finite entry (or a huge one)
+            return None
+        A = [[P[..., i, j] for j in range(i + 1)] for i in range(n)]
+        sqrt = np.sqrt
+    L: list[list[Any]] = []
+    for i in range(n):
+        row: list[Any] = []
+        for j in range(i + 1):
+            s = A[i][j]
+            other = row if j == i else L[j]
+            for k in range(j):
+                s = s - row[k] * other[k]
+            if j < i:
+                row.append(s / L[j][j])
+            elif (0.0 < s < math.inf) if P.ndim == 2 else bool(np.all(s > 0)):
+                row.append(sqrt(s))
+            else:
+                return None
+        L.append(row)
+    return L
+
+
+def _forward_norm(L: list[list[Any]], e: list[Any]) -> Any:
+    """``|z|^2`` with ``L z = e`` by forward substitution (``e`` a list of the n entries:
+    floats, or arrays of the rows)."""
+    z: list[Any] = []
+    q: Any = 0.0
+    for i, row in enumerate(L):
+        s = e[i]
+        for k in range(i):
+            s = s - row[k] * z[k]
+        zi = s / row[i]
+        z.append(zi)
+        q = zi * zi if i == 0 else q + zi * zi
+    return q
+
+
+def _nees_rows(error: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """:func:`nees` of a stack with some matrix that is not positive definite: the positive
+    definite rows elementwise, the others through LAPACK (row by row, as alone)."""
+    shape = np.broadcast_shapes(error.shape[:-1], P.shape[:-2])
+    n = error.shape[-1]
+    e = np.broadcast_to(error, (*shape, n)).reshape(-1, n)
+    Ps = np.broadcast_to(P, (*shape, n, n)).reshape(-1, n, n)
+    out = np.empty(len(e))
+    for r in range(len(e)):
+        out[r] = nees(e[r], Ps[r])
+    return out.reshape(shape)
 
 
 class EpisodeMetrics:
@@ -96,11 +207,7 @@ class EpisodeMetrics:
         self.count += 1
         self._sq_err += err**2
         if P is not None:
-            if single:
-                self._nees_sum += float(err @ np.linalg.solve(P, err))
-            else:
-                self._nees_sum = self._nees_sum + np.vecdot(
-                    err, np.linalg.solve(P, err[..., None])[..., 0])
+            self._nees_sum = self._nees_sum + nees(err, P)
             self._nees_count += 1
         y_t, x_t = y.T, x_true.T  # channel-major: y_t[channel] is (...,) in both cases
         for channel, state in enumerate(self.measured_state_index):

@@ -27,6 +27,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from testbed.experiment.metrics import nees
 from testbed.experiment.trajectory import Trajectory
 from testbed.io import atomic_path
 from testbed.outputs.axes import held_setpoint, steady_state_limit
@@ -101,8 +102,7 @@ def trajectory_metrics(traj: Trajectory) -> dict[str, Any]:
                                             strict=True))}
     if traj.covariance is not None:
         P = np.asarray(traj.covariance[1:], dtype=float)
-        nees = np.einsum("ti,ti->t", err, np.linalg.solve(P, err[..., None])[..., 0])
-        out["nees_mean"] = float(np.nanmean(nees))
+        out["nees_mean"] = float(np.nanmean(nees(err, P)))
     return out
 
 

@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, t
 
+from testbed.experiment.metrics import nees as nees_of
+
 #: Two-sided confidence level of every interval and bound.
 LEVEL = 0.95
 
@@ -77,13 +79,12 @@ def nees(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     ValueError
         A covariance is not positive definite (step and run named).
     """
-    try:
-        chol = np.linalg.cholesky(covariance)
+    try:  # (the check; the value is the Monte Carlo's own formula)
+        np.linalg.cholesky(covariance)
     except np.linalg.LinAlgError:
         bad = [(i, k) for i in range(error.shape[0]) for k in range(error.shape[1])
                if np.any(np.linalg.eigvalsh(covariance[i, k]) <= 0)]
         i, k = bad[0] if bad else (-1, -1)
         raise ValueError(f"covariance not positive definite (run {i}, step {k}): NEES "
                          "undefined") from None
-    z = np.linalg.solve(chol, error[..., None])[..., 0]
-    return np.sum(z * z, axis=-1)
+    return nees_of(error, covariance)
