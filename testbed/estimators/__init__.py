@@ -102,6 +102,11 @@ class EstimatorWrapper:
         """The inner covariance."""
         return self.inner.P
 
+    @property
+    def shared_P(self) -> np.ndarray | None:
+        """The covariance the inner batch's members share (its ``shared_P``), or None."""
+        return getattr(self.inner, "shared_P", None)
+
     def reset(self, x0: Any, P0: Any) -> None:
         """Reset the inner estimator."""
         self.inner.reset(x0, P0)
