@@ -415,6 +415,11 @@ class KalmanFilter(_SampledFilter):
         self._innovation_cov: FloatArray | None = None
         self._gain: FloatArray | None = None
         self._P_shared = self._shared(self._P)
+        # the exact shapes of a whole batch's y and u (the fast path of step) and of P
+        batch = self._batch
+        self._y_shape = (*batch, self._m)
+        self._u_shape = (*batch, self._k)
+        self._P_shape = self._P.shape
         # shared posterior covariance (bytes) -> the next step's S, K and posterior covariance
         self._memo: dict[bytes, _Step] = {}
         # the shared memo's table for this model and batch rank (reset may change the rank)
@@ -532,17 +537,14 @@ class KalmanFilter(_SampledFilter):
             As :meth:`update` (``quantity`` ``"P"``, ``"innovation_cov"`` or ``"x"``, with
             the time of the step); state unchanged.
         """
+        shared = self._P_shared
+        if shared is not None:
+            return self._shared_step(shared, y, u)
         y = self._vector("y", y, self._m)
         u = self._input(u)
         steps = self._steps + 1
-        shared = self._P_shared
-        if shared is None:
-            xp, Pp = self._predict(u)
-            x, P = self._update(xp, Pp, y, u if self._DT is not None else None, steps)
-        else:
-            S, K, P = self._shared_covariance_step(shared, steps)
-            x = self._correct(self._predict_state(u), y, u if self._DT is not None else None,
-                              S, K, steps)
+        xp, Pp = self._predict(u)
+        x, P = self._update(xp, Pp, y, u if self._DT is not None else None, steps)
         self._commit_shared(x, P, steps)
         return x
 
@@ -564,15 +566,47 @@ class KalmanFilter(_SampledFilter):
 
     # -------------------------------------------------------------- internals
     def _shared(self, P: FloatArray) -> FloatArray | None:
-        """The member every filter of a batch shares, shape ``(1, ..., 1, n, n)``, or None.
+        """The member every filter of a batch shares, shape ``(n, n)``, or None.
 
         ``P`` does not depend on the data: the members of a batch that start from one ``P0``
-        keep one covariance, computed once on this member (a view of the stack).
+        keep one covariance, computed once on this member (a view of the stack). It is kept
+        as one matrix, without the stack's batch axes: ``matmul`` and ``linalg.solve`` make the
+        same per-matrix BLAS/LAPACK calls for ``(n, n)`` as for ``(1, ..., 1, n, n)``
+        operands, and it broadcasts against the batch all the same.
         """
         if not self._batch:
             return None
         first = shared_member(P)
-        return None if first.shape == P.shape else first  # (a batch of one: the stack)
+        if first.shape == P.shape:  # a batch of one: the stack
+            return None
+        return first.reshape(P.shape[-2:])
+
+    def _shared_step(self, P: FloatArray, y: npt.ArrayLike,
+                     u: npt.ArrayLike | None) -> FloatArray:
+        """:meth:`step` of a batch whose members share the posterior covariance ``P``.
+
+        A ``float64`` ``y`` (and ``u``) of exactly the batch's shape needs only its finiteness
+        test (:meth:`_vector` raises when it fails); other inputs are validated in full.
+        """
+        if (type(y) is np.ndarray and y.dtype == np.float64 and y.shape == self._y_shape
+                and (u is None or (type(u) is np.ndarray and u.dtype == np.float64
+                                   and u.shape == self._u_shape and self._k > 0))):
+            if not (all_finite(y) and (u is None or all_finite(u))):
+                self._vector("y", y, self._m)  # raises for y, else:
+                self._input(u)  # raises for u
+        else:
+            y = self._vector("y", y, self._m)
+            u = self._input(u)
+        steps = self._steps + 1
+        S, K, P = self._shared_covariance_step(P, steps)
+        x = self._correct(self._predict_state(u), y,  # type: ignore[arg-type]
+                          u if self._DT is not None else None, S, K, steps)
+        # commit: the stack of the shared member (a new array; the kept P is never written)
+        stack = np.empty(self._P_shape)
+        stack[...] = P
+        self._commit(x, stack, steps)
+        self._P_shared = P
+        return x
 
     def _commit_shared(self, x: FloatArray, P: FloatArray, steps: int) -> None:
         """:meth:`_commit` of a covariance that may be the batch's shared member."""
@@ -624,16 +658,20 @@ class KalmanFilter(_SampledFilter):
         and a computed one is kept there too.
         """
         key = P.tobytes()
-        done = self._memo.get(key)
+        own = self._memo
+        done = own.get(key)
         if done is None:
-            def compute() -> _Step:
-                return self._gain_and_covariance(self._predict_covariance(P), steps)
+            table = self._memo_table
+            if table is None:
+                done = self._gain_and_covariance(self._predict_covariance(P), steps)
+            else:
+                def compute() -> _Step:
+                    return self._gain_and_covariance(self._predict_covariance(P), steps)
 
-            memo, table = self._covariance_memo, self._memo_table
-            done = compute() if memo is None or table is None else memo.step(table, key, compute)
-            if len(self._memo) >= _MEMO_STEPS:
-                del self._memo[next(iter(self._memo))]  # the oldest
-            self._memo[key] = done
+                done = self._covariance_memo.step(table, key, compute)  # type: ignore[union-attr]
+            if len(own) >= _MEMO_STEPS:
+                del own[next(iter(own))]  # the oldest
+            own[key] = done
         return done
 
     def _update(
@@ -688,13 +726,24 @@ class KalmanFilter(_SampledFilter):
         """
         H, R = self._H, self._R
         PHT = P @ self._HT
-        S = H @ PHT + R
+        S = H @ PHT
+        S += R  # (in place: the same sum as H @ PHT + R)
         try:
             K = np.linalg.solve(S, PHT.mT).mT  # .mT: swapaxes(-1, -2), no Python call
         except np.linalg.LinAlgError:
             self._raise_innovation_cov(self._members(S), steps)
-        IKH = self._I - K @ H
-        P = IKH @ P @ IKH.mT + K @ R @ K.mT
+        IKH = K @ H
+        np.subtract(self._I, IKH, out=IKH)  # I - K H
+        P = IKH @ P @ IKH.mT
+        P += K @ R @ K.mT
+        if P.ndim == 2:  # a batch's shared member: check_shared_covariance's fast path inline
+            # the symmetrization of check_covariance, 0.5 * (P + P^T), and its test of a
+            # matrix: every entry bounded (sum of squares; False for NaN) and dpotrf succeeds
+            Ps = P + P.T
+            Ps *= 0.5
+            v = Ps.ravel()
+            if v.dot(v) <= _ESCAPE_BOUND_SQ and _dpotrf(Ps)[1] == 0:
+                return S, K, Ps
         P = check_shared_covariance(P, self._batch, time=self._time(steps), quantity="P")
         return S, K, P
 

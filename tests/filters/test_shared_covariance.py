@@ -170,7 +170,7 @@ def _member(out: list[np.ndarray], i: int) -> list[np.ndarray]:
     return [a if a.ndim == 0 else a[i] for a in out]
 
 
-@pytest.mark.parametrize("n", [2, 4, 7])
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 6, 7])
 @pytest.mark.parametrize("priors", ["shared", "different"])
 def test_kalman_shared_p_is_bitwise_member_by_member(
         n: int, priors: str, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -394,3 +394,73 @@ def test_kalman_covariance_memo_keeps_at_most_max_steps_and_only_checked_steps()
     with pytest.raises(FiniteEscapeError):
         h.step(np.zeros((2, 2)), np.zeros((2, 1)))
     assert len(bad) == 0
+
+
+def _defer_case(zero: str, failing: bool, priors: str) -> KalmanFilter:
+    rng = np.random.default_rng(50)
+    n, N = 3, 4
+    s = _discrete(rng, n)
+    F, B, H, D = s.F, s.B, s.H, s.D
+    if zero == "gain":  # H = 0: K = 0
+        H = np.zeros_like(H)
+    elif zero == "input":  # u enters nowhere
+        B, D = np.zeros_like(B), np.zeros_like(D)
+    system = DiscreteLinearSystem(F=F, B=B, H=H, D=D, Q=s.Q, R=s.R, dt_s=0.01)
+    P0 = _spd(rng, n) if priors == "shared" else np.array([_spd(rng, n) for _ in range(N)])
+    f = KalmanFilter(system, rng.standard_normal((N, n)), P0)
+    assert (f._P_shared is not None) == (priors == "shared")
+    if failing:  # the covariance step raises LossOfDefinitenessError
+        f._Q = -10.0 * np.eye(n)
+    return f
+
+
+@pytest.mark.parametrize("zero", ["none", "gain", "input"])
+@pytest.mark.parametrize("failing", [False, True])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", ["y", "u", "both"])
+def test_kalman_shared_step_non_finite_input_raises_its_value_error_first(
+        zero: str, failing: bool, bad: float, where: str) -> None:
+    """A shared batch's step with a non-finite whole-batch float64 y or u raises the same
+    ValueError as member by member (y before u, before a covariance error), the filter
+    unchanged; also when the gain, or B and D, are zero."""
+    for priors in ("shared", "different"):
+        f = _defer_case(zero, failing, priors)
+        y, u = np.zeros((4, 2)), np.zeros((4, 1))
+        if where in ("y", "both"):
+            y[2, 1] = bad
+        if where in ("u", "both"):
+            u[1, 0] = bad
+        before = [np.array(f.x), np.array(f.P), f.t_s]
+        name = "u" if where == "u" else "y"
+        with pytest.raises(ValueError, match=rf"^{name} must be finite, got non-finite entries$"):
+            f.step(y, u)
+        assert all(np.array_equal(a, b) for a, b in zip(before, [f.x, f.P, f.t_s], strict=True))
+        assert f.innovation is None and f.gain is None
+        if failing:  # finite inputs: the covariance error
+            with pytest.raises(LossOfDefinitenessError):
+                f.step(np.zeros((4, 2)), np.zeros((4, 1)))
+
+
+def test_kalman_shared_step_validates_shapes_before_finiteness() -> None:
+    f = _defer_case("none", False, "shared")
+    nan_y = np.full((4, 2), np.nan)
+    with pytest.raises(ValueError, match=r"^y must be finite"):  # before u's shape
+        f.step(nan_y, np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"^u must have shape"):
+        f.step(np.zeros((4, 2)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"^y must have shape"):
+        f.step(np.zeros((4, 3)), np.full((4, 1), np.nan))
+    with pytest.raises(ValueError, match=r"^y must be finite"):  # broadcast y: tested first
+        f.step(np.array([0.0, np.nan]), np.zeros((4, 1)))
+    with pytest.raises(ValueError, match=r"^u must be finite"):  # another dtype: tested first
+        f.step(np.zeros((4, 2), dtype=np.float32), np.full((4, 1), np.inf, dtype=np.float32))
+    f.step(np.zeros((4, 2)), None)
+    assert f.t_s == pytest.approx(0.01)
+
+
+def test_kalman_state_overflow_is_still_a_state_error() -> None:
+    """Finite inputs whose state overflows: FiniteEscapeError for x, as before."""
+    f = _defer_case("none", False, "shared")
+    with pytest.raises(FiniteEscapeError) as caught:
+        f.step(np.full((4, 2), 1e308), np.full((4, 1), 1e308))
+    assert caught.value.quantity == "x"
