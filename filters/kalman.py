@@ -59,6 +59,11 @@ _ESCAPE_BOUND_SQ = _ESCAPE_BOUND * _ESCAPE_BOUND
 #: Steps of a shared covariance :meth:`KalmanFilter.step` remembers (a covariance that settles
 #: into a cycle of floating-point values of at most this period is then not recomputed).
 _MEMO_STEPS = 16
+#: Steps a shared covariance :meth:`KalmanFilter.step` computes ahead when its step is not
+#: kept: the recursion does not depend on the data, and computed back to back (instead of one
+#: per loop iteration, between the simulator's and the controller's code) its Python and
+#: numpy code stays in the CPU caches, several times faster per step.
+_AHEAD_STEPS = 32
 
 _Step = tuple[FloatArray, FloatArray, FloatArray]  # (S, K, P) of a shared covariance step
 
@@ -342,6 +347,9 @@ class KalmanFilter(_SampledFilter):
     are still the stacks of all members. Such a covariance usually settles into a fixed
     point or a short cycle of floating-point values: :meth:`step` keeps its last 16 steps'
     results and reuses them for a bitwise equal covariance instead of recomputing them.
+    Since the recursion does not depend on the data, :meth:`step` computes up to 15 steps
+    ahead when it computes one (kept like the others; a step ahead that fails or would warn
+    is dropped, then computed, and raises or warns, at its own time).
     """
 
     name: ClassVar[str] = "kalman"
@@ -658,21 +666,49 @@ class KalmanFilter(_SampledFilter):
         and a computed one is kept there too.
         """
         key = P.tobytes()
-        own = self._memo
-        done = own.get(key)
+        done = self._memo.get(key)
         if done is None:
-            table = self._memo_table
-            if table is None:
-                done = self._gain_and_covariance(self._predict_covariance(P), steps)
-            else:
-                def compute() -> _Step:
-                    return self._gain_and_covariance(self._predict_covariance(P), steps)
-
-                done = self._covariance_memo.step(table, key, compute)  # type: ignore[union-attr]
-            if len(own) >= _MEMO_STEPS:
-                del own[next(iter(own))]  # the oldest
-            own[key] = done
+            done = self._computed_step(P, key, steps)  # raises: nothing kept
+            self._run_ahead(done[2], steps)
         return done
+
+    def _computed_step(self, P: FloatArray, key: bytes, steps: int) -> _Step:
+        """The step from ``P`` (bytes ``key``): looked up in the :class:`CovarianceMemo` or
+        computed (and kept there), then kept in the filter's own memo."""
+        table = self._memo_table
+        if table is None:
+            done = self._gain_and_covariance(self._predict_covariance(P), steps)
+        else:
+            def compute() -> _Step:
+                return self._gain_and_covariance(self._predict_covariance(P), steps)
+
+            done = self._covariance_memo.step(table, key, compute)  # type: ignore[union-attr]
+        own = self._memo
+        if len(own) >= _MEMO_STEPS + _AHEAD_STEPS:
+            del own[next(iter(own))]  # the oldest
+        own[key] = done
+        return done
+
+    def _run_ahead(self, P: FloatArray, steps: int) -> None:
+        """Compute and keep the next ``_AHEAD_STEPS - 1`` steps from the posterior ``P`` of
+        step ``steps``, up to one already kept, one that fails or one that would warn.
+
+        Each is the step that :meth:`step` would compute from the same ``P`` (the same
+        numbers). A step that raises is not kept and stops the run, as does one setting a
+        floating-point flag that is not ignored (``numpy.errstate`` turned to ``"raise"``):
+        :meth:`step` then computes it at its own time, raising or warning there.
+        """
+        strict = {k: "ignore" if v == "ignore" else "raise" for k, v in np.geterr().items()}
+        own = self._memo
+        try:
+            with np.errstate(**strict):
+                for ahead in range(1, _AHEAD_STEPS):
+                    key = P.tobytes()
+                    if key in own:
+                        return
+                    P = self._computed_step(P, key, steps + ahead)[2]
+        except Exception:  # noqa: BLE001, S110 (computed again at its time, and raised there)
+            pass
 
     def _update(
         self, x: FloatArray, P: FloatArray, y: FloatArray, u: FloatArray | None, steps: int

@@ -8,6 +8,8 @@ must raise the errors of the whole stack.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -464,3 +466,89 @@ def test_kalman_state_overflow_is_still_a_state_error() -> None:
     with pytest.raises(FiniteEscapeError) as caught:
         f.step(np.full((4, 2), 1e308), np.full((4, 1), 1e308))
     assert caught.value.quantity == "x"
+
+
+def test_kalman_shared_p_steps_are_computed_ahead(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A shared batch's step computes the following steps too (kept): one computation burst
+    per ``_AHEAD_STEPS`` steps, bitwise the member-by-member results."""
+    rng = np.random.default_rng(60)
+    system = _discrete(rng, 3)
+    N, T = 3, kalman._AHEAD_STEPS + 3
+    x0, P0 = rng.standard_normal((N, 3)), _spd(rng, 3, 100.0)  # far from settled
+    ys, us = rng.standard_normal((T, N, 2)), rng.standard_normal((T, N, 1))
+    bursts: list[int] = []
+    compute = KalmanFilter._gain_and_covariance
+
+    def counted(self: KalmanFilter, P: np.ndarray, steps: int):
+        bursts.append(self._steps)  # the step being made when it is computed
+        return compute(self, P, steps)
+
+    def run(f: KalmanFilter) -> list[np.ndarray]:
+        out = []
+        for y, u in zip(ys, us, strict=True):
+            f.step(y, u)
+            out += [np.array(f.x), np.array(f.P), f.innovation, f.innovation_cov, f.gain]
+        return out
+
+    monkeypatch.setattr(KalmanFilter, "_gain_and_covariance", counted)
+    shared = run(KalmanFilter(system, x0, P0))
+    assert sorted(set(bursts)) == [0, kalman._AHEAD_STEPS]
+    assert bursts[:kalman._AHEAD_STEPS] == [0] * kalman._AHEAD_STEPS
+    assert kalman._AHEAD_STEPS < len(bursts) <= 2 * kalman._AHEAD_STEPS
+    _without_sharing(monkeypatch)
+    stack = run(KalmanFilter(system, x0, P0))
+    assert all(np.array_equal(a, b) and a.shape == b.shape
+               for a, b in zip(shared, stack, strict=True))
+
+
+def _escaping(shared: bool) -> tuple[list[np.ndarray], FilterError]:
+    """An unmeasured unstable state: P escapes the bound after about 20 steps."""
+    system = DiscreteLinearSystem(F=np.diag([0.5, 2.0]), B=np.ones((2, 1)), H=np.eye(1, 2),
+                                  Q=0.1 * np.eye(2), R=np.eye(1), dt_s=0.01)
+    f = KalmanFilter(system, np.zeros((2, 2)), np.eye(2))
+    assert (f._P_shared is not None) == shared
+    out: list[np.ndarray] = []
+    with pytest.raises(FilterError) as caught:
+        for _ in range(100):
+            f.step(np.zeros((2, 1)), np.zeros((2, 1)))
+            out += [np.array(f.x), np.array(f.P), np.array(f.t_s)]
+    return out, caught.value
+
+
+def test_kalman_shared_p_step_ahead_failure_raises_at_its_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A step computed ahead that fails is not kept: the step raises at its own time."""
+    shared, got = _escaping(True)
+    _without_sharing(monkeypatch)
+    members, expected = _escaping(False)
+    assert 10 < len(shared) // 3 < 100
+    assert type(got) is type(expected) is FiniteEscapeError
+    assert got.time == expected.time and str(got) == str(expected)
+    assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
+
+
+def _underflow_warnings(shared: bool) -> list[int]:
+    """Warnings per step of a state decaying to zero, with ``numpy.errstate(under="warn")``."""
+    system = DiscreteLinearSystem(F=np.diag([1e-30, 0.9]), B=np.ones((2, 1)),
+                                  H=np.array([[0.0, 1.0]]), Q=np.diag([0.0, 0.1]), R=np.eye(1),
+                                  dt_s=0.01)
+    f = KalmanFilter(system, np.zeros((2, 2)), np.eye(2))
+    assert (f._P_shared is not None) == shared
+    counts = []
+    with np.errstate(under="warn"):
+        for _ in range(12):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                f.step(np.zeros((2, 1)), np.zeros((2, 1)))
+            counts.append(len(caught))
+    return counts
+
+
+def test_kalman_shared_p_step_ahead_that_would_warn_warns_at_its_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A step computed ahead that sets a floating-point flag the caller does not ignore is
+    dropped and computed (warning) at its own time."""
+    got = _underflow_warnings(True)
+    _without_sharing(monkeypatch)
+    assert got == _underflow_warnings(False)
+    assert got[0] == 0 and sum(got) > 1
