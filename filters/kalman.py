@@ -655,15 +655,16 @@ class KalmanFilter(_SampledFilter):
         self, P: FloatArray, steps: int
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Innovation covariance, gain and posterior covariance of one :meth:`step` from the
-        shared posterior covariance ``P`` (shape ``(1, ..., 1, n, n)``).
+        shared posterior covariance ``P`` (shape ``(n, n)``).
 
         A function of ``P`` alone: the results for the last :data:`_MEMO_STEPS` values of
-        ``P`` are kept and returned for a bitwise equal ``P`` (the same numbers the
-        computation gives; only a computation that passed its checks is kept). The kept
-        arrays are never written: the public ``P``, ``gain`` and ``innovation_cov`` are
-        copies. A step not among those is looked up in the :class:`CovarianceMemo` given
-        to :meth:`share_covariance_memo` (other batches or threads may have computed it),
-        and a computed one is kept there too.
+        ``P``, and for up to :data:`_AHEAD_STEPS` - 1 steps computed ahead, are kept and
+        returned for a bitwise equal ``P`` (the same numbers the computation gives; only a
+        computation that passed its checks is kept). The kept arrays are never written: the
+        public ``P``, ``gain`` and ``innovation_cov`` are copies. A step not among those is
+        looked up in the :class:`CovarianceMemo` given to :meth:`share_covariance_memo`
+        (other batches or threads may have computed it), and a computed one is kept there
+        too; then the following steps are computed (or looked up) ahead (:meth:`_run_ahead`).
         """
         key = P.tobytes()
         done = self._memo.get(key)
