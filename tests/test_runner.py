@@ -144,7 +144,7 @@ def test_lanes_share_the_covariance_memo_of_their_study(monkeypatch):
     """The lanes and batches of one study share one :class:`filters.kalman.CovarianceMemo`
     (the vehicle's covariance sequence computed once for all): every per-run number is
     bitwise the one without it, and each study has a memo of its own."""
-    from filters.kalman import CovarianceMemo, KalmanFilter
+    from filters.kalman import _AHEAD_STEPS, CovarianceMemo, KalmanFilter
 
     scenario = Scenario(rig="vehicle-roll", estimator="kalman", duration_s=0.5, seed=3)
     memos: list[CovarianceMemo] = []
@@ -159,7 +159,8 @@ def test_lanes_share_the_covariance_memo_of_their_study(monkeypatch):
               runner.monte_carlo(scenario, runs=7, batch_size=2, num_threads=1)]
     assert len(memos) == 2 + 2  # two lanes, then batches of 2 and of 1 (a separate build)
     assert len({id(m) for m in memos}) == 2  # one per study
-    assert all(len(m) == 50 for m in memos)  # 0.5 s at 10 ms: the sequence, computed once
+    # 0.5 s at 10 ms: the sequence, computed once (in bursts of _AHEAD_STEPS steps)
+    assert all(len(m) == -(-50 // _AHEAD_STEPS) * _AHEAD_STEPS for m in memos)
     monkeypatch.setattr(KalmanFilter, "share_covariance_memo", lambda self, memo: None)
     alone = [runner.monte_carlo(scenario, runs=6, num_threads=2),
              runner.monte_carlo(scenario, runs=7, batch_size=2, num_threads=1)]

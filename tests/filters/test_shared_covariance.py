@@ -8,6 +8,8 @@ must raise the errors of the whole stack.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -170,7 +172,7 @@ def _member(out: list[np.ndarray], i: int) -> list[np.ndarray]:
     return [a if a.ndim == 0 else a[i] for a in out]
 
 
-@pytest.mark.parametrize("n", [2, 4, 7])
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 6, 7])
 @pytest.mark.parametrize("priors", ["shared", "different"])
 def test_kalman_shared_p_is_bitwise_member_by_member(
         n: int, priors: str, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -394,3 +396,159 @@ def test_kalman_covariance_memo_keeps_at_most_max_steps_and_only_checked_steps()
     with pytest.raises(FiniteEscapeError):
         h.step(np.zeros((2, 2)), np.zeros((2, 1)))
     assert len(bad) == 0
+
+
+def _defer_case(zero: str, failing: bool, priors: str) -> KalmanFilter:
+    rng = np.random.default_rng(50)
+    n, N = 3, 4
+    s = _discrete(rng, n)
+    F, B, H, D = s.F, s.B, s.H, s.D
+    if zero == "gain":  # H = 0: K = 0
+        H = np.zeros_like(H)
+    elif zero == "input":  # u enters nowhere
+        B, D = np.zeros_like(B), np.zeros_like(D)
+    system = DiscreteLinearSystem(F=F, B=B, H=H, D=D, Q=s.Q, R=s.R, dt_s=0.01)
+    P0 = _spd(rng, n) if priors == "shared" else np.array([_spd(rng, n) for _ in range(N)])
+    f = KalmanFilter(system, rng.standard_normal((N, n)), P0)
+    assert (f._P_shared is not None) == (priors == "shared")
+    if failing:  # the covariance step raises LossOfDefinitenessError
+        f._Q = -10.0 * np.eye(n)
+    return f
+
+
+@pytest.mark.parametrize("zero", ["none", "gain", "input"])
+@pytest.mark.parametrize("failing", [False, True])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", ["y", "u", "both"])
+def test_kalman_shared_step_non_finite_input_raises_its_value_error_first(
+        zero: str, failing: bool, bad: float, where: str) -> None:
+    """A shared batch's step with a non-finite whole-batch float64 y or u raises the same
+    ValueError as member by member (y before u, before a covariance error), the filter
+    unchanged; also when the gain, or B and D, are zero."""
+    for priors in ("shared", "different"):
+        f = _defer_case(zero, failing, priors)
+        y, u = np.zeros((4, 2)), np.zeros((4, 1))
+        if where in ("y", "both"):
+            y[2, 1] = bad
+        if where in ("u", "both"):
+            u[1, 0] = bad
+        before = [np.array(f.x), np.array(f.P), f.t_s]
+        name = "u" if where == "u" else "y"
+        with pytest.raises(ValueError, match=rf"^{name} must be finite, got non-finite entries$"):
+            f.step(y, u)
+        assert all(np.array_equal(a, b) for a, b in zip(before, [f.x, f.P, f.t_s], strict=True))
+        assert f.innovation is None and f.gain is None
+        if failing:  # finite inputs: the covariance error
+            with pytest.raises(LossOfDefinitenessError):
+                f.step(np.zeros((4, 2)), np.zeros((4, 1)))
+
+
+def test_kalman_shared_step_validates_shapes_before_finiteness() -> None:
+    f = _defer_case("none", False, "shared")
+    nan_y = np.full((4, 2), np.nan)
+    with pytest.raises(ValueError, match=r"^y must be finite"):  # before u's shape
+        f.step(nan_y, np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"^u must have shape"):
+        f.step(np.zeros((4, 2)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"^y must have shape"):
+        f.step(np.zeros((4, 3)), np.full((4, 1), np.nan))
+    with pytest.raises(ValueError, match=r"^y must be finite"):  # broadcast y: tested first
+        f.step(np.array([0.0, np.nan]), np.zeros((4, 1)))
+    with pytest.raises(ValueError, match=r"^u must be finite"):  # another dtype: tested first
+        f.step(np.zeros((4, 2), dtype=np.float32), np.full((4, 1), np.inf, dtype=np.float32))
+    f.step(np.zeros((4, 2)), None)
+    assert f.t_s == pytest.approx(0.01)
+
+
+def test_kalman_state_overflow_is_still_a_state_error() -> None:
+    """Finite inputs whose state overflows: FiniteEscapeError for x, as before."""
+    f = _defer_case("none", False, "shared")
+    with pytest.raises(FiniteEscapeError) as caught:
+        f.step(np.full((4, 2), 1e308), np.full((4, 1), 1e308))
+    assert caught.value.quantity == "x"
+
+
+def test_kalman_shared_p_steps_are_computed_ahead(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A shared batch's step computes the following steps too (kept): one computation burst
+    per ``_AHEAD_STEPS`` steps, bitwise the member-by-member results."""
+    rng = np.random.default_rng(60)
+    system = _discrete(rng, 3)
+    N, T = 3, kalman._AHEAD_STEPS + 3
+    x0, P0 = rng.standard_normal((N, 3)), _spd(rng, 3, 100.0)  # far from settled
+    ys, us = rng.standard_normal((T, N, 2)), rng.standard_normal((T, N, 1))
+    bursts: list[int] = []
+    compute = KalmanFilter._gain_and_covariance
+
+    def counted(self: KalmanFilter, P: np.ndarray, steps: int):
+        bursts.append(self._steps)  # the step being made when it is computed
+        return compute(self, P, steps)
+
+    def run(f: KalmanFilter) -> list[np.ndarray]:
+        out = []
+        for y, u in zip(ys, us, strict=True):
+            f.step(y, u)
+            out += [np.array(f.x), np.array(f.P), f.innovation, f.innovation_cov, f.gain]
+        return out
+
+    monkeypatch.setattr(KalmanFilter, "_gain_and_covariance", counted)
+    shared = run(KalmanFilter(system, x0, P0))
+    assert sorted(set(bursts)) == [0, kalman._AHEAD_STEPS]
+    assert bursts[:kalman._AHEAD_STEPS] == [0] * kalman._AHEAD_STEPS
+    assert kalman._AHEAD_STEPS < len(bursts) <= 2 * kalman._AHEAD_STEPS
+    _without_sharing(monkeypatch)
+    stack = run(KalmanFilter(system, x0, P0))
+    assert all(np.array_equal(a, b) and a.shape == b.shape
+               for a, b in zip(shared, stack, strict=True))
+
+
+def _escaping(shared: bool) -> tuple[list[np.ndarray], FilterError]:
+    """An unmeasured unstable state: P escapes the bound after about 20 steps."""
+    system = DiscreteLinearSystem(F=np.diag([0.5, 2.0]), B=np.ones((2, 1)), H=np.eye(1, 2),
+                                  Q=0.1 * np.eye(2), R=np.eye(1), dt_s=0.01)
+    f = KalmanFilter(system, np.zeros((2, 2)), np.eye(2))
+    assert (f._P_shared is not None) == shared
+    out: list[np.ndarray] = []
+    with pytest.raises(FilterError) as caught:
+        for _ in range(100):
+            f.step(np.zeros((2, 1)), np.zeros((2, 1)))
+            out += [np.array(f.x), np.array(f.P), np.array(f.t_s)]
+    return out, caught.value
+
+
+def test_kalman_shared_p_step_ahead_failure_raises_at_its_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A step computed ahead that fails is not kept: the step raises at its own time."""
+    shared, got = _escaping(True)
+    _without_sharing(monkeypatch)
+    members, expected = _escaping(False)
+    assert 10 < len(shared) // 3 < 100
+    assert type(got) is type(expected) is FiniteEscapeError
+    assert got.time == expected.time and str(got) == str(expected)
+    assert all(np.array_equal(a, b) for a, b in zip(shared, members, strict=True))
+
+
+def _underflow_warnings(shared: bool) -> list[int]:
+    """Warnings per step of a state decaying to zero, with ``numpy.errstate(under="warn")``."""
+    system = DiscreteLinearSystem(F=np.diag([1e-30, 0.9]), B=np.ones((2, 1)),
+                                  H=np.array([[0.0, 1.0]]), Q=np.diag([0.0, 0.1]), R=np.eye(1),
+                                  dt_s=0.01)
+    f = KalmanFilter(system, np.zeros((2, 2)), np.eye(2))
+    assert (f._P_shared is not None) == shared
+    counts = []
+    with np.errstate(under="warn"):
+        for _ in range(12):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                f.step(np.zeros((2, 1)), np.zeros((2, 1)))
+            counts.append(len(caught))
+    return counts
+
+
+def test_kalman_shared_p_step_ahead_that_would_warn_warns_at_its_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A step computed ahead that sets a floating-point flag the caller does not ignore is
+    dropped and computed (warning) at its own time."""
+    got = _underflow_warnings(True)
+    _without_sharing(monkeypatch)
+    assert got == _underflow_warnings(False)
+    assert got[0] == 0 and sum(got) > 1
