@@ -207,3 +207,23 @@ def test_whole_batch_mass_store_equals_the_indexed_one(rig):
     physics._store_mass(np.arange(3))
     assert whole.tobytes() == physics.mass.tobytes()
     assert np.all(np.diagonal(whole, axis1=1, axis2=2) > 0)  # the masses were written
+
+
+def test_a_copied_physics_stores_the_mass_in_its_own_matrix():
+    """The dense mass is written through a kept flat view of ``mass``: a deep copy (and an
+    unpickled physics) writes its own ``mass``, not the original's, bitwise as the
+    original."""
+    import copy
+    import pickle
+
+    sim = build_simulator("vehicle-roll", 3, num_threads=1)
+    sim.reset(None, [0, 1, 2])
+    sim.step(np.full((3, 1), 2.0))
+    twins = [copy.deepcopy(sim), pickle.loads(pickle.dumps(sim))]
+    for s in [sim, *twins]:
+        for k in range(5):
+            s.step(np.full((3, 1), -1.0 + k))
+    for twin in twins:
+        assert twin.physics.mass.tobytes() == sim.physics.mass.tobytes()
+        assert twin.physics._mass_flat.base is twin.physics.mass
+    assert sim.physics._mass_flat.base is sim.physics.mass

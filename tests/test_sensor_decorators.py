@@ -230,3 +230,110 @@ def test_one_member_reads_a_channel_subclass_through_its_own_measure():
     xi.seed(0, 3)
     expected = np.array([[0.5, -0.5]]) + np.array([[0.1, 0.2]]) * xi.draw(2)
     assert suite.measure(sample, streams.view(slice(None))).tobytes() == expected.tobytes()
+
+
+def test_a_channel_subclass_changing_measure_is_written_through_it():
+    """The batch's fused plan writes a leaf through ``measure_into`` only where the class
+    that defines ``measure`` defines it: a subclass that changes ``measure`` only is
+    measured through it (not through its parent's ``measure_into``)."""
+    from testbed.sensors import Suite
+
+    class Doubled(StateChannel):
+        def measure(self, sample, noise):
+            return 2.0 * super().measure(sample, noise)
+
+    suite = Suite(WhiteNoise(Doubled(0, 2, 1, "roll", "rad"), std=0.0),
+                  WhiteNoise(StateChannel(1, 2, 1, "roll_rate", "rad/s"), std=0.2))
+    suite.allocate(3)
+    assert suite._plan is not None
+    x = np.array([[0.25, -0.5], [1.0, 2.0], [-3.0, 0.5]])
+    sample = Sample(x, np.zeros(3), np.zeros((3, 1)), np.zeros((3, 0)))
+    streams = NoiseStreams(3)
+    for i in range(3):
+        streams.seed(i, i)
+    y = suite.measure(sample, streams.view(slice(None)))
+    assert y[:, 0].tobytes() == (2.0 * x[:, 0]).tobytes()
+
+
+def _vehicle_leaves():
+    from testbed.rigs.vehicle_roll.sensors import (
+        LateralAccelerometer,
+        SpeedChannel,
+        SpeedYawRate,
+        YawRateChannel,
+    )
+
+    return [StateChannel(1, 2, 1, "roll_rate", "rad/s"), LateralAccelerometer(), SpeedChannel(),
+            YawRateChannel(), SpeedYawRate()]
+
+
+@pytest.mark.parametrize("leaf", _vehicle_leaves(), ids=lambda s: type(s).__name__)
+def test_measure_into_writes_what_measure_returns(leaf):
+    """A channel's ``measure_into`` (the fused plan's write into its columns of a wider
+    array) gives bitwise ``measure``'s values."""
+    rng = np.random.default_rng(1)
+    k = 37
+    sample = Sample(rng.normal(0, 0.3, (k, 2)), np.zeros(k), rng.normal(0, 4, (k, 1)),
+                    np.zeros((k, 0)))
+    wide = np.full((k, leaf.dim + 3), np.nan)
+    leaf.measure_into(sample, None, wide[:, 2:2 + leaf.dim])
+    assert wide[:, 2:2 + leaf.dim].tobytes() == np.ascontiguousarray(
+        leaf.measure(sample, None)).tobytes()
+    assert np.isnan(wide[:, :2]).all() and np.isnan(wide[:, 2 + leaf.dim:]).all()
+
+
+def test_fused_groups_on_one_column_equal_sensor_by_sensor():
+    """Groups that act on one column of the plan (noise, quantization, a walk: their
+    in-place 1-D operations) and on several (a gather), beside leaves written in place,
+    give bitwise the sensor-by-sensor values and walks, for the whole batch (a slice), a
+    subset and one member."""
+    import copy
+
+    from testbed.rigs.vehicle_roll.sensors import LateralAccelerometer, SpeedYawRate
+    from testbed.sensors import Suite
+    from testbed.sensors.fused import measure_one
+
+    def roll():
+        return StateChannel(0, 2, 1, "roll", "rad")
+
+    fused = Suite(Quantize(WhiteNoise(roll(), std=0.05), 0.01),
+                  BiasRandomWalk(StateChannel(1, 2, 1, "roll_rate", "rad/s"), walk=0.3,
+                                 dt_s=0.01, initial_std=0.1),
+                  WhiteNoise(LateralAccelerometer(), std=0.2),
+                  BiasRandomWalk(WhiteNoise(SpeedYawRate(), std=[0.1, 0.01]), walk=[0.2, 0.1],
+                                 dt_s=0.01))
+    plain = copy.deepcopy(fused)
+    num = 5
+    streams = []
+    for suite in (fused, plain):
+        suite.allocate(num)
+        streams.append(NoiseStreams(num))
+        for i in range(num):
+            streams[-1].seed(i, 20 + i)
+    plain._plan = None
+    assert fused._plan is not None
+    rng = np.random.default_rng(2)
+
+    def sample(members):
+        k = num if isinstance(members, slice) else len(members)
+        return Sample(rng.normal(0, 0.2, (k, 2)), np.zeros(k), rng.normal(0, 3, (k, 1)),
+                      np.zeros((k, 0)), members)
+
+    first = sample(slice(None))
+    for suite, st in zip((fused, plain), streams, strict=True):
+        suite.reset(first, st.view(slice(None)))
+    for step in range(12):
+        members = (slice(None), np.array([0, 2, 4]), np.array([3]))[step % 3]
+        smp = sample(members)
+        if step % 6 == 5:
+            a = np.asarray(measure_one(fused, smp, streams[0].view(members)),
+                           dtype=float).reshape(1, -1)
+        else:
+            a = fused.measure(smp, streams[0].view(members))
+        b = plain.measure(smp, streams[1].view(members))
+        assert a.tobytes() == b.tobytes()
+    walks = [(x, y) for x, y in zip(fused.sensors, plain.sensors, strict=True)
+             if isinstance(x, BiasRandomWalk)]
+    assert len(walks) == 2
+    for x, y in walks:
+        assert x.bias.tobytes() == y.bias.tobytes()

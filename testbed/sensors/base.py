@@ -284,6 +284,13 @@ class Sensor:
         values, bitwise."""
         return self.measure(sample, noise).tolist()[0]
 
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """:meth:`measure` written into ``out`` (k, m), the columns of a fused suite's array
+        (:mod:`testbed.sensors.fused`). Default: the values of :meth:`measure`; a channel
+        may compute them into ``out`` directly, with the same operations (bitwise the same
+        values, without the array between)."""
+        out[...] = self.measure(sample, noise)
+
     def linear_model(self) -> SensorModel:
         """The model a designer uses (see :class:`SensorModel`)."""
         raise NotImplementedError

@@ -31,6 +31,10 @@ class StateChannel(Sensor):
         """``x[:, index]``, shape (k, 1)."""
         return sample.x[:, self.index:self.index + 1]
 
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """``x[:, index]`` into ``out`` (k, 1)."""
+        out[...] = sample.x[:, self.index:self.index + 1]
+
     def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
         """``[x[0, index]]``."""
         return [sample.x.item(0, self.index)]

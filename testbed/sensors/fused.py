@@ -76,11 +76,40 @@ def _index(cols: list[int], width: int | None = None) -> Any:
     return as_slice(cols)
 
 
+def _target(a: np.ndarray, index: Any) -> np.ndarray | None:
+    """The columns ``index`` (:func:`_index`) of ``a`` as the view an operation writes in
+    place: all of them (the array itself) or one (a 1-D view: numpy runs a 1-D operation
+    in one loop, a (k, 1) view of a wider array through its general iterator); else None
+    (a gather into a new array and back costs less than numpy's row-by-row loop over a
+    view of a few columns of each row)."""
+    if index is None:
+        return a
+    if type(index) is slice and index.stop - index.start == 1:
+        return a[:, index.start]
+    return None
+
+
+def _like(b: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``b`` (k, c) shaped as ``target`` (:func:`_target`): its one column for a 1-D one."""
+    return b if target.ndim == 2 else b[:, 0]
+
+
 def _get(a: np.ndarray, index: Any) -> np.ndarray:
     """The columns ``index`` (:func:`_index`) of ``a``."""
     if index is None:
         return a
     return a[:, index] if type(index) is slice else a.take(index, axis=1)
+
+
+def _scaled(values: np.ndarray, xi: np.ndarray, index: Any) -> np.ndarray:
+    """``values * xi[:, index]`` (k, c), a new array (the product in place of the gather
+    when ``index`` gathers one)."""
+    if type(index) is slice:
+        if index.stop - index.start == 1:  # (1-D operands: numpy's one loop)
+            return np.multiply(values[:, 0], xi[:, index.start])[:, None]
+        return values * xi[:, index]
+    drawn = xi.take(index, axis=1)
+    return np.multiply(values, drawn, out=drawn)
 
 
 class _Tiled:
@@ -144,8 +173,13 @@ class _NoiseGroup(_Group):
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
-        return self._put(y, _get(y, self.cols)
-                         + self.values.of(len(y)) * _get(xi, self.xcols))
+        scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
+        target = _target(y, self.cols)
+        if target is None:
+            return self._put(y, _get(y, self.cols) + scaled)
+        # (y is the plan's own array: the same sum, in place)
+        np.add(target, _like(scaled, target), out=target)
+        return y
 
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
@@ -162,7 +196,14 @@ class _QuantizeGroup(_Group):
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
         step = self.values.of(len(y))
-        return self._put(y, np.rint(_get(y, self.cols) / step) * step)
+        target = _target(y, self.cols)
+        if target is None:
+            return self._put(y, np.rint(_get(y, self.cols) / step) * step)
+        step = _like(step, target)
+        q = target / step  # the same three operations, the last two in place
+        np.rint(q, out=q)
+        np.multiply(q, step, out=target)
+        return y
 
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
@@ -202,9 +243,17 @@ class _WalkGroup(_Group):
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
         bias = self.bias[members]
-        y = self._put(y, _get(y, self.cols) + bias)
-        if self.values is not None:  # the walk
-            self.bias[members] = bias + self.values.of(len(y)) * _get(xi, self.xcols)
+        target = _target(y, self.cols)
+        if target is None:
+            y = self._put(y, _get(y, self.cols) + bias)
+        else:
+            np.add(target, _like(bias, target), out=target)
+        if self.values is not None:  # the walk: b + step xi
+            scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
+            if type(members) is slice:  # ``bias`` is a view of the rows: in place
+                np.add(bias, scaled, out=bias)
+            else:
+                self.bias[members] = bias + scaled
         return y
 
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
@@ -217,15 +266,39 @@ class _WalkGroup(_Group):
                                    in zip(self.row_terms, bias, strict=True)]]
 
 
+class _TapStep:
+    """A :class:`~testbed.sensors.Tap` on its columns: their values into its ``last`` (what
+    ``Tap.apply`` does with the columns' view), without a decorator call."""
+
+    def __init__(self, tap: Tap, c0: int):
+        self.tap, self.cols = tap, slice(c0, c0 + tap.dim)
+
+    def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
+              noise: Noise) -> np.ndarray:
+        self.tap.last[members] = y[:, self.cols]
+        return y
+
+    def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
+        """:meth:`apply` on one row of Python floats (the same values into ``last``)."""
+        self.tap.last[members] = [y[self.cols]]
+
+
+def _defining(sensor: Sensor, method: str) -> Any:
+    """``sensor``'s bound ``method`` when the class defining its ``measure`` defines it
+    too; else the base :class:`Sensor`'s (which goes through ``measure``: a subclass that
+    changes ``measure`` only is read through it)."""
+    for cls in type(sensor).__mro__:
+        if "measure" in cls.__dict__:
+            if method in cls.__dict__:
+                return getattr(sensor, method)
+            break
+    return functools.partial(getattr(Sensor, method), sensor)
+
+
 def _row_reader(sensor: Sensor) -> Any:
     """``sensor.measure_row`` when the class defining its ``measure`` defines it too; else
     the row of ``measure`` (a subclass that changes ``measure`` only is read through it)."""
-    for cls in type(sensor).__mro__:
-        if "measure" in cls.__dict__:
-            if "measure_row" in cls.__dict__:
-                return sensor.measure_row
-            break
-    return functools.partial(Sensor.measure_row, sensor)
+    return _defining(sensor, "measure_row")
 
 
 #: 2**52: from here on every double is an integer.
@@ -286,7 +359,9 @@ class FusedPlan:
         owns: list[tuple[int, Decorator, int, int, int]] = []
         for lv, dec, c0, offset, draws in decorators:
             kind = type(dec)
-            if kind is WhiteNoise and dec._std is not None:
+            if kind is Tap:
+                owns.append((lv, dec, c0, offset, draws))
+            elif kind is WhiteNoise and dec._std is not None:
                 if draws:  # (zero noise draws nothing and changes nothing)
                     groups.setdefault((lv, "noise"), []).append((dec, c0, offset))
             elif kind is BiasRandomWalk:
@@ -297,6 +372,9 @@ class FusedPlan:
                 owns.append((lv, dec, c0, offset, draws))
         self.leaves = [(s, slice(c0, c0 + s.dim), slice(o, o + d) if d else None)
                        for s, c0, o, d in leaves]
+        #: The leaves' writers into the plan's columns (:meth:`Sensor.measure_into`).
+        self.into_leaves = [(_defining(s, "measure_into"), cols, draws)
+                            for s, cols, draws in self.leaves]
         #: The leaves' one-row readers (:func:`_row_reader`) with their normals.
         self.row_leaves = [(_row_reader(s), draws) for s, _, draws in self.leaves]
         #: The only leaf when it is a suite of bare state channels covering every column
@@ -313,7 +391,8 @@ class FusedPlan:
         for level in sorted({lv for lv, *_ in decorators}):
             for lv, dec, c0, offset, draws in owns:
                 if lv == level:
-                    self.steps.append(_OwnApply(dec, c0, offset, draws))
+                    self.steps.append(_TapStep(dec, c0) if type(dec) is Tap
+                                      else _OwnApply(dec, c0, offset, draws))
             for (lv, key), members in groups.items():
                 if lv != level:
                     continue
@@ -347,9 +426,8 @@ class FusedPlan:
             y = self.whole.measure(sample, noise)
         else:
             y = np.empty((len(sample.x), self.dim))
-            for sensor, cols, draws in self.leaves:
-                y[:, cols] = sensor.measure(sample,
-                                            noise if draws is None else Drawn(xi[:, draws]))
+            for write, cols, draws in self.into_leaves:
+                write(sample, noise if draws is None else Drawn(xi[:, draws]), y[:, cols])
         members = sample.members
         for step in self.steps:
             y = step.apply(y, xi, members, sample, noise)

@@ -192,6 +192,9 @@ class Physics:
         self._diffs: dict[Params, dict[str, np.ndarray]] = {rig.params: {}}
         self.constants = np.tile(rig.member_constants(rig.params), (self.num, 1))
         self.mass = np.zeros((self.num, self.nv, self.nv))
+        #: ``mass`` as (num, nv * nv), a view (one index per entry, not two): made again
+        #: when it is no view of ``mass`` (a copy or an unpickled physics).
+        self._mass_flat = self.mass.reshape(self.num, -1)
         c = _state_offset(model, _INTEGRATION, _CTRL)
         f = _state_offset(model, _INTEGRATION, _QFRC)
         x = _state_offset(model, _INTEGRATION, _XFRC)
@@ -370,18 +373,22 @@ class Physics:
     def _store_mass(self, sel: Any) -> None:
         """Dense mass matrices of the members from MuJoCo's sparse ``M`` (a copy of the
         values, as ``mj_fullM``)."""
-        m = self._mass_bound[sel]
-        flat = self.mass.reshape(self.num, -1)  # (a view: one index per entry, not two)
+        flat = self._mass_flat
+        if flat.base is not self.mass:
+            flat = self._mass_flat = self.mass.reshape(self.num, -1)
         lower, upper = self._m_flat
         if sel is _ALL:
+            m = self._mass_bound  # (every row: the array, without a view of it)
             lower_cols, upper_cols = self._m_flat_whole
             flat[:, lower_cols] = m
             if upper_cols is not None:
                 flat[:, upper_cols] = m
         elif isinstance(sel, slice):
-            flat[:, lower] = m
-            flat[:, upper] = m
+            m = self._mass_bound[sel]
+            flat[sel, lower] = m
+            flat[sel, upper] = m
         else:
+            m = self._mass_bound[sel]
             flat[sel[:, None], lower] = m
             flat[sel[:, None], upper] = m
 
@@ -547,6 +554,15 @@ def _per_time(fn: Callable[[float], np.ndarray], t: np.ndarray, dim: int,
     values, inverse = np.unique(t, return_inverse=True)
     table = np.array([fn(float(v)) for v in values], dtype=float).reshape(len(values), dim)
     return table[inverse]
+
+
+def _finite_profile(out: np.ndarray, checked: np.ndarray, t: Any) -> np.ndarray:
+    """``out``, the input profiles, when ``checked`` (its rows to check) is finite; else
+    ``ValueError`` naming the time(s) ``t``."""
+    if np.count_nonzero(np.isfinite(checked)) != checked.size:
+        times = t.tolist() if isinstance(t, np.ndarray) else [t]
+        raise ValueError(f"the manoeuvre returned a non-finite input at t = {times} s")
+    return out
 
 
 def _filled(value: Any, k: int, dim: int) -> np.ndarray:
@@ -964,17 +980,11 @@ class Simulator:
         ``common``: every entry of ``t`` is the same time."""
         if self._no_manoeuvre:  # no profile anywhere
             return np.zeros((len(t), self._nu))
-        checked: np.ndarray | None = None  # (the rows to check for a non-finite input)
         if len(self._schedules) == 1:  # every member's profile (one, not None)
             fn = self._schedules[0]
             if common and len(t):  # one time: one call, every row the first one
-                value = fn(float(t[0]))
-                if type(value) is float and math.isfinite(value):
-                    return _filled(value, len(t), self._nu)
-                out = _filled(value, len(t), self._nu)
-                checked = out[:1]
-            else:
-                out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu)
+                return self._common_profile(float(t[0]), len(t))
+            out = _per_time(lambda s: np.atleast_1d(fn(s)), t, self._nu)
         else:
             groups = self._schedule_of[sel]
             out = np.zeros((len(t), self._nu))
@@ -984,10 +994,16 @@ class Simulator:
                     continue
                 mask = groups == g
                 out[mask] = _per_time(lambda s, fn=fn: np.atleast_1d(fn(s)), t[mask], self._nu)
-        checked = out if checked is None else checked
-        if np.count_nonzero(np.isfinite(checked)) != checked.size:
-            raise ValueError(f"the manoeuvre returned a non-finite input at t = {t.tolist()} s")
-        return out
+        return _finite_profile(out, out, t)
+
+    def _common_profile(self, t: float, k: int) -> np.ndarray:
+        """The input profiles (k, nu) of ``k`` members at one time ``t`` when every member
+        has the one default profile: one call, every row its value."""
+        value = self._schedules[0](t)
+        out = _filled(value, k, self._nu)
+        if type(value) is float and math.isfinite(value):
+            return out
+        return _finite_profile(out, out[:1], t)
 
     def _signal(self, t: np.ndarray, index: np.ndarray, common: bool = False) -> np.ndarray:
         """The disturbance signal (k, s) of the members ``index`` at their times ``t`` (k,);
@@ -1122,18 +1138,25 @@ class Simulator:
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
-        t = self.steps[sel] * self.dt_s if has_signal or not no_manoeuvre else None
+        t = None
+        if has_signal or not (no_manoeuvre or common):
+            t = self.steps[sel] * self.dt_s
         # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
         clipped_u = np.minimum(np.maximum(u, low), high)
+        # the whole batch's flags go straight into info (no one else reads them)
+        clipped_out = info["action_clipped"] if members is None else None
         if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
             profile = zero_u
             applied = clipped_u + profile
-            clipped = clipped_u != u
+            clipped = np.not_equal(clipped_u, u, out=clipped_out)
         else:
-            profile = self._manoeuvre(t, sel, common)
+            # one time for every member: steps * dt_s of the first, a Python float (int64
+            # to double and the product, as numpy's)
+            profile = (self._common_profile(self.steps.item(0) * self.dt_s, k)
+                       if t is None else self._manoeuvre(t, sel, common))
             total = clipped_u + profile
             applied = np.minimum(np.maximum(total, low), high)
-            clipped = (clipped_u != u) | (applied != total)
+            clipped = np.bitwise_or(clipped_u != u, applied != total, out=clipped_out)
         # the step's normals in one draw, in stream order: step noise, disturbance, sensors
         noise = self._noise_all if members is None else self.noise.view(index)
         xi = noise.normal(self._step_draws) if self._step_draws else None
@@ -1186,7 +1209,8 @@ class Simulator:
         info["t"][sel] = t
         info["setpoint"][sel] = ref
         info["action_applied"][sel] = applied
-        info["action_clipped"][sel] = clipped
+        if clipped_out is None:
+            info["action_clipped"][sel] = clipped
         # the entries below keep what reset wrote without a signal, profile or disturbance
         if has_signal:
             info["disturbance"][sel] = w
@@ -1360,7 +1384,10 @@ class Simulator:
         if b_rows is not None:
             n_step = self.rig.step_noise_dim
             drawn = xi[:, n_step:n_step + self._dist_draws]
-            accel = accel + np.matvec(b_rows, drawn) / sqrt_dt
+            # accel + (b xi) / sqrt(dt): the division and the sum into the new product
+            noise = np.matvec(b_rows, drawn)
+            np.divide(noise, sqrt_dt, out=noise)
+            accel = np.add(accel, noise, out=noise)
         if isinstance(sel, slice):  # the whole batch: its rows, zero outside the dof columns
             a = self._accel_rows
             a[:, self._dof_cols] = accel

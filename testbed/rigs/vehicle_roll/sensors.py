@@ -98,6 +98,11 @@ class SpeedYawRate(Sensor):
         np.divide(sample.u[:, 0], self.speed_m_s, out=out[:, 1])
         return out
 
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """:meth:`measure` into ``out`` (k, 2) (the same division)."""
+        out[:, 0] = self.speed_m_s
+        np.divide(sample.u[:, 0], self.speed_m_s, out=out[:, 1])
+
     def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
         """:meth:`measure` of one member on Python floats (the same division)."""
         return [self.speed_m_s, sample.u.item(0, 0) / self.speed_m_s]
@@ -121,6 +126,10 @@ class SpeedChannel(SpeedYawRate):
         out.fill(self.speed_m_s)
         return out
 
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """``v`` into ``out`` (k, 1)."""
+        out.fill(self.speed_m_s)
+
     def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
         """``[v]``."""
         return [self.speed_m_s]
@@ -141,6 +150,11 @@ class YawRateChannel(SpeedChannel):
     def measure(self, sample: Sample, noise: Noise) -> np.ndarray:
         """``a_y / v``, shape (k, 1)."""
         return sample.u[:, :1] / self.speed_m_s
+
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """``a_y / v`` into ``out`` (k, 1) (the same division, on 1-D columns: numpy's
+        one loop)."""
+        np.divide(sample.u[:, 0], self.speed_m_s, out=out[:, 0])
 
     def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
         """``[a_y / v]`` of one member on Python floats (the same division)."""
@@ -194,6 +208,18 @@ class LateralAccelerometer(Sensor):
         """``a_y cos(roll) + g sin(roll)``, shape (k, 1)."""
         roll = sample.x[:, :1]
         return sample.u[:, :1] * np.cos(roll) + GRAVITY_M_S2 * np.sin(roll)
+
+    def measure_into(self, sample: Sample, noise: Noise, out: np.ndarray) -> None:
+        """:meth:`measure` into ``out`` (k, 1): the cosine and the sine of the same roll
+        column into new arrays as there (their inputs and outputs laid out the same: numpy
+        may pick another loop for other strides), the products and the sum (exact
+        operations) in place."""
+        roll = sample.x[:, :1]
+        c = np.cos(roll)
+        np.multiply(sample.u[:, :1], c, out=c)
+        s = np.sin(roll)
+        np.multiply(GRAVITY_M_S2, s, out=s)
+        np.add(c[:, 0], s[:, 0], out=out[:, 0])  # (1-D columns: numpy's one loop)
 
     def measure_row(self, sample: Sample, noise: Noise) -> list[float]:
         """:meth:`measure` of one member: numpy's cosine and sine of the roll (the same
