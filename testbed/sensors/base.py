@@ -118,7 +118,7 @@ class NoiseStreams:
     def draw(self, d: int, members: Members = slice(None)) -> np.ndarray:
         """The next ``d`` values of each selected stream, shape (k, d)."""
         if isinstance(members, slice) and members == slice(None):
-            return self._draw_all(d)
+            return self.draw_all(d)
         self._sync()
         index = np.arange(len(self._positions))[members]
         if d == 0:
@@ -137,9 +137,9 @@ class NoiseStreams:
         self._positions[index] = pos + d
         return out
 
-    def _draw_all(self, d: int) -> np.ndarray:
-        """:meth:`draw` for every stream (the same values, without per-call gathers when
-        the streams are at one position)."""
+    def draw_all(self, d: int) -> np.ndarray:
+        """:meth:`draw` for every stream, shape (num, d) (the same values, without
+        per-call gathers when the streams are at one position)."""
         c = self._common
         if c is None:
             pos = self._positions

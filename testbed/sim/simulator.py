@@ -1158,8 +1158,12 @@ class Simulator:
             applied = np.minimum(np.maximum(total, low), high)
             clipped = np.bitwise_or(clipped_u != u, applied != total, out=clipped_out)
         # the step's normals in one draw, in stream order: step noise, disturbance, sensors
-        noise = self._noise_all if members is None else self.noise.view(index)
-        xi = noise.normal(self._step_draws) if self._step_draws else None
+        if members is None:  # (every stream: drawn without the view's selection test)
+            noise = self._noise_all
+            xi = self.noise.draw_all(self._step_draws) if self._step_draws else None
+        else:
+            noise = self.noise.view(index)
+            xi = noise.normal(self._step_draws) if self._step_draws else None
         n_step = rig.step_noise_dim
         step_noise = None
         if n_step:  # applied by the physics threads, before each member's step
@@ -1186,17 +1190,24 @@ class Simulator:
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        if common and len(self._tables) == 1:  # one row (1, r), broadcast, not repeated
-            ref = self._table_rows[self._table_row(float(t[0]))]
+        r = self._r
+        one_row = common and len(self._tables) == 1
+        if one_row:  # one row (1, r), broadcast, not repeated
+            row = self._table_row(t.item(0))
+            ref = self._table_rows[row]
         else:
             ref = self._reference(t, sel, common)
-        e = x[:, self._tracked_cols] - ref
-        sq = e * e
-        r = self._r
-        if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
-            total = sq[:, 0] + sq[:, 1]
+        if one_row and r == 1:  # the tracked column (1-D: numpy's one loop) minus the row's
+            # float: the same differences and squares
+            e = x[:, self._tracked_list[0]] - self._table_lists[row][0]
+            total = e * e
         else:
-            total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
+            e = x[:, self._tracked_cols] - ref
+            sq = e * e
+            if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
+                total = sq[:, 0] + sq[:, 1]
+            else:
+                total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
         if members is None:
             np.negative(total, self.reward)
         else:
