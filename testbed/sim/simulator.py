@@ -1383,12 +1383,17 @@ class Simulator:
 
     def _forces(self, t: np.ndarray | None, index: np.ndarray, sel: Any, common: bool,
                 xi: np.ndarray | None, zero_accel: np.ndarray
-                ) -> tuple[np.ndarray, Any, np.ndarray]:
+                ) -> tuple[np.ndarray | None, Any, np.ndarray]:
         """The disturbance of a step: the signal ``w`` (k, s) (the one reset wrote when
-        there is none), the joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the
-        generalized forces ``M(q) a`` (k, nv) of the members."""
+        there is none; None when there is neither a signal nor ``G``: no one reads it), the
+        joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the generalized forces
+        ``M(q) a`` (k, nv) of the members."""
         G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
-        w = self._signal(t, index, common) if self._has_signal else self.info["disturbance"][sel]
+        w = None
+        if self._has_signal:
+            w = self._signal(t, index, common)
+        elif G_rows is not None:
+            w = self.info["disturbance"][sel]
         accel: Any = zero_accel
         if G_rows is not None:
             accel = accel + np.matvec(G_rows, w)
@@ -1402,10 +1407,12 @@ class Simulator:
         if isinstance(sel, slice):  # the whole batch: its rows, zero outside the dof columns
             a = self._accel_rows
             a[:, self._dof_cols] = accel
+            mass = self.physics.mass  # (every row: the array itself, as its view would be)
         else:
             a = np.zeros((len(index), self.physics.nv))
             a[:, dof_adr] = accel
-        return w, accel, np.matvec(self.physics.mass[sel], a)
+            mass = self.physics.mass[sel]
+        return w, accel, np.matvec(mass, a)
 
     def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None,
                  one: bool = False) -> Any:
