@@ -766,7 +766,7 @@ class Simulator:
         self._dof_cols = as_slice(rig.dof_adr)
         #: What a step of the whole batch reads for its members: their indices, selection,
         #: number, action limits, envelope and zero input, acceleration and signal rows.
-        self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
+        self._whole = (self._all, _ALL, n, self._low_rows, self._high_rows,
                        self._envelope_rows, self._zero_input, self._zero_accel, self._zero_w)
         widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
                   "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
@@ -1423,7 +1423,7 @@ class Simulator:
         sensors = self.sensors
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
             return measure_one(sensors, sample, noise) if one else sensors.measure(sample, noise)
-        drawn_ahead = (Drawn(xi[:, self.rig.step_noise_dim + self._dist_draws:])
+        drawn_ahead = (Drawn(xi[:, self._sensor_offset:])
                        if self._sensor_draws else self._no_draws)
         y = (measure_one(sensors, sample, drawn_ahead) if one
              else sensors.measure(sample, drawn_ahead))
