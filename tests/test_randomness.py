@@ -85,3 +85,27 @@ def test_monte_carlo_on_defaults_gives_a_spread(rig):
         fixed = runner.monte_carlo(Scenario(rig=rig, duration_s=2.0, reset_noise_scale=0.0,
                                             ambient_noise=0.0), 4, progress=False)
         assert len(set(fixed["rmse_per_run"]["pitch"])) == 1
+
+
+@pytest.mark.parametrize("block, sizes", [(10, [3, 3, 3, 3, 2, 4, 1, 5]), (8, [4, 4, 4, 1, 7]),
+                                          (6, [6, 6, 2, 5, 0, 4])])
+def test_every_stream_draws_its_generators_values_across_refills(block, sizes):
+    """``NoiseStreams.draw_all`` (all streams at one position, refilled together: the values
+    left moved in one copy, overlapping or not) gives each member its own generator's
+    values in order, bitwise: the same as drawing member by member."""
+    from gymnasium.utils import seeding
+
+    from testbed.sensors import NoiseStreams
+
+    seeds = [7, 0, 12345]
+    streams = NoiseStreams(len(seeds), block)
+    one_by_one = NoiseStreams(len(seeds), block)
+    for i, seed in enumerate(seeds):
+        streams.seed(i, seed)
+        one_by_one.seed(i, seed)
+    together = np.concatenate([streams.draw_all(d) for d in sizes], axis=1)
+    alone = np.concatenate([np.concatenate([one_by_one.draw(d, np.array([i])) for d in sizes],
+                                           axis=1) for i in range(len(seeds))])
+    expected = np.array([seeding.np_random(s)[0].standard_normal(sum(sizes) + 2 * block)
+                         [:sum(sizes)] for s in seeds])
+    assert together.tobytes() == expected.tobytes() == alone.tobytes()

@@ -115,10 +115,23 @@ class NoiseStreams:
         self.generators[i].standard_normal(out=buf[left:])
         self._positions[i] = 0
 
+    def _refill_all(self, pos: int) -> None:
+        """:meth:`_refill` of every stream, all at position ``pos`` (the values left move
+        to the front in one copy, then each generator fills the rest of its row: the same
+        draws as stream by stream, without the per-stream position bookkeeping). The
+        positions are then 0: the caller sets ``_common``."""
+        left = self.block - pos
+        buf = self._buf
+        if left:
+            buf[:, :left] = buf[:, pos:]
+        for generator, row in zip(self.generators, buf[:, left:] if left else buf,
+                                  strict=True):
+            generator.standard_normal(out=row)
+
     def draw(self, d: int, members: Members = slice(None)) -> np.ndarray:
         """The next ``d`` values of each selected stream, shape (k, d)."""
         if isinstance(members, slice) and members == slice(None):
-            return self._draw_all(d)
+            return self.draw_all(d)
         self._sync()
         index = np.arange(len(self._positions))[members]
         if d == 0:
@@ -137,9 +150,9 @@ class NoiseStreams:
         self._positions[index] = pos + d
         return out
 
-    def _draw_all(self, d: int) -> np.ndarray:
-        """:meth:`draw` for every stream (the same values, without per-call gathers when
-        the streams are at one position)."""
+    def draw_all(self, d: int) -> np.ndarray:
+        """:meth:`draw` for every stream, shape (num, d) (the same values, without
+        per-call gathers when the streams are at one position)."""
         c = self._common
         if c is None:
             pos = self._positions
@@ -151,9 +164,7 @@ class NoiseStreams:
         if d > self.block:
             raise ValueError(f"cannot draw {d} values at once (block {self.block})")
         if c + d > self.block:
-            self._positions[:] = c
-            for i in range(len(self._positions)):
-                self._refill(i)
+            self._refill_all(c)
             c = 0
         self._common = c + d
         return self._buf[:, c:c + d].copy()

@@ -132,6 +132,10 @@ class _Tiled:
         return rows
 
 
+#: At most this many scattered columns are summed into one by one (:attr:`_Group.few`).
+_FEW = 3
+
+
 class _Group:
     """Decorators of one kind and level applied on all their columns at once.
 
@@ -151,6 +155,10 @@ class _Group:
         cols = [c for d, c0, _ in decorators for c in range(c0, c0 + d.dim)]
         xcols = [o + j for d, _, o in decorators for j in range(d.dim)]
         self.cols, self.xcols = _index(cols, width), _index(xcols)
+        #: The columns one by one when they are a few scattered ones (:data:`_FEW`): a sum
+        #: into each 1-D column costs less than a gather, the sum and a scatter; else None.
+        self.few = (list(enumerate(cols)) if len(cols) <= _FEW and self.cols is not None
+                    else None)
         self.values = None if values is None else _Tiled(np.concatenate(values))
         #: For one row (:meth:`apply_row`): (column, normal, parameter) of each column.
         self.row_terms = list(zip(cols, xcols, [0.0] * len(cols) if values is None
@@ -175,10 +183,14 @@ class _NoiseGroup(_Group):
               noise: Noise) -> np.ndarray:
         scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
         target = _target(y, self.cols)
-        if target is None:
+        if target is not None:  # (y is the plan's own array: the same sum, in place)
+            np.add(target, _like(scaled, target), out=target)
+        elif self.few is not None:  # (the same sums, column by column)
+            for j, c in self.few:
+                column = y[:, c]
+                np.add(column, scaled[:, j], out=column)
+        else:
             return self._put(y, _get(y, self.cols) + scaled)
-        # (y is the plan's own array: the same sum, in place)
-        np.add(target, _like(scaled, target), out=target)
         return y
 
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
@@ -244,10 +256,14 @@ class _WalkGroup(_Group):
               noise: Noise) -> np.ndarray:
         bias = self.bias[members]
         target = _target(y, self.cols)
-        if target is None:
-            y = self._put(y, _get(y, self.cols) + bias)
-        else:
+        if target is not None:
             np.add(target, _like(bias, target), out=target)
+        elif self.few is not None:  # (the same sums, column by column)
+            for j, c in self.few:
+                column = y[:, c]
+                np.add(column, bias[:, j], out=column)
+        else:
+            y = self._put(y, _get(y, self.cols) + bias)
         if self.values is not None:  # the walk: b + step xi
             scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
             if type(members) is slice:  # ``bias`` is a view of the rows: in place

@@ -766,7 +766,7 @@ class Simulator:
         self._dof_cols = as_slice(rig.dof_adr)
         #: What a step of the whole batch reads for its members: their indices, selection,
         #: number, action limits, envelope and zero input, acceleration and signal rows.
-        self._whole = (self._all, slice(None), n, self._low_rows, self._high_rows,
+        self._whole = (self._all, _ALL, n, self._low_rows, self._high_rows,
                        self._envelope_rows, self._zero_input, self._zero_accel, self._zero_w)
         widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
                   "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
@@ -1158,8 +1158,12 @@ class Simulator:
             applied = np.minimum(np.maximum(total, low), high)
             clipped = np.bitwise_or(clipped_u != u, applied != total, out=clipped_out)
         # the step's normals in one draw, in stream order: step noise, disturbance, sensors
-        noise = self._noise_all if members is None else self.noise.view(index)
-        xi = noise.normal(self._step_draws) if self._step_draws else None
+        if members is None:  # (every stream: drawn without the view's selection test)
+            noise = self._noise_all
+            xi = self.noise.draw_all(self._step_draws) if self._step_draws else None
+        else:
+            noise = self.noise.view(index)
+            xi = noise.normal(self._step_draws) if self._step_draws else None
         n_step = rig.step_noise_dim
         step_noise = None
         if n_step:  # applied by the physics threads, before each member's step
@@ -1186,17 +1190,24 @@ class Simulator:
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        if common and len(self._tables) == 1:  # one row (1, r), broadcast, not repeated
-            ref = self._table_rows[self._table_row(float(t[0]))]
+        r = self._r
+        one_row = common and len(self._tables) == 1
+        if one_row:  # one row (1, r), broadcast, not repeated
+            row = self._table_row(t.item(0))
+            ref = self._table_rows[row]
         else:
             ref = self._reference(t, sel, common)
-        e = x[:, self._tracked_cols] - ref
-        sq = e * e
-        r = self._r
-        if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
-            total = sq[:, 0] + sq[:, 1]
+        if one_row and r == 1:  # the tracked column (1-D: numpy's one loop) minus the row's
+            # float: the same differences and squares
+            e = x[:, self._tracked_list[0]] - self._table_lists[row][0]
+            total = e * e
         else:
-            total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
+            e = x[:, self._tracked_cols] - ref
+            sq = e * e
+            if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
+                total = sq[:, 0] + sq[:, 1]
+            else:
+                total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
         if members is None:
             np.negative(total, self.reward)
         else:
@@ -1372,12 +1383,17 @@ class Simulator:
 
     def _forces(self, t: np.ndarray | None, index: np.ndarray, sel: Any, common: bool,
                 xi: np.ndarray | None, zero_accel: np.ndarray
-                ) -> tuple[np.ndarray, Any, np.ndarray]:
+                ) -> tuple[np.ndarray | None, Any, np.ndarray]:
         """The disturbance of a step: the signal ``w`` (k, s) (the one reset wrote when
-        there is none), the joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the
-        generalized forces ``M(q) a`` (k, nv) of the members."""
+        there is none; None when there is neither a signal nor ``G``: no one reads it), the
+        joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the generalized forces
+        ``M(q) a`` (k, nv) of the members."""
         G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
-        w = self._signal(t, index, common) if self._has_signal else self.info["disturbance"][sel]
+        w = None
+        if self._has_signal:
+            w = self._signal(t, index, common)
+        elif G_rows is not None:
+            w = self.info["disturbance"][sel]
         accel: Any = zero_accel
         if G_rows is not None:
             accel = accel + np.matvec(G_rows, w)
@@ -1391,10 +1407,12 @@ class Simulator:
         if isinstance(sel, slice):  # the whole batch: its rows, zero outside the dof columns
             a = self._accel_rows
             a[:, self._dof_cols] = accel
+            mass = self.physics.mass  # (every row: the array itself, as its view would be)
         else:
             a = np.zeros((len(index), self.physics.nv))
             a[:, dof_adr] = accel
-        return w, accel, np.matvec(self.physics.mass[sel], a)
+            mass = self.physics.mass[sel]
+        return w, accel, np.matvec(mass, a)
 
     def _measure(self, sample: Sample, noise: Any, xi: np.ndarray | None,
                  one: bool = False) -> Any:
@@ -1405,7 +1423,7 @@ class Simulator:
         sensors = self.sensors
         if self._sensor_draws is None:  # the sensors draw from the streams themselves
             return measure_one(sensors, sample, noise) if one else sensors.measure(sample, noise)
-        drawn_ahead = (Drawn(xi[:, self.rig.step_noise_dim + self._dist_draws:])
+        drawn_ahead = (Drawn(xi[:, self._sensor_offset:])
                        if self._sensor_draws else self._no_draws)
         y = (measure_one(sensors, sample, drawn_ahead) if one
              else sensors.measure(sample, drawn_ahead))

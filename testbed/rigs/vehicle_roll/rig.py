@@ -140,7 +140,9 @@ class VehicleRollRig(Rig):
     def step_noise_model(self, constants: np.ndarray,
                          xi: np.ndarray) -> dict[str, tuple[int, np.ndarray]]:
         """Damping ``C_R + D_n w_k`` for the next step, shape (k,)."""
-        return {"dof_damping": (self._damping_dof, constants[:, 1] + constants[:, 2] * xi[:, 0])}
+        damping = np.multiply(constants[:, 2], xi[:, 0])
+        np.add(constants[:, 1], damping, out=damping)  # (the sum into the new product)
+        return {"dof_damping": (self._damping_dof, damping)}
 
     x0_draws = 2
 
