@@ -1038,7 +1038,8 @@ class Simulator:
             if seed is not None and (not isinstance(seed, int | np.integer) or seed < 0):
                 raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
         per = self.member_options(options, k)
-        params = [self.nominal_params.scaled(o.get("params") or {}) for o in per]
+        nominal = self.nominal_params  # (validated when built; frozen: shared, not copied)
+        params = [nominal.scaled(o["params"]) if o.get("params") else nominal for o in per]
         x0 = np.array([self.rig.validate_x0(o["x0"]) if o.get("x0") is not None
                        else self.rig.default_x0() for o in per]).reshape(k, self._nx)
         tables = [0 if o.get("setpoints") is None else
