@@ -142,6 +142,22 @@ def test_a_sensor_drawing_other_than_it_declares_is_named(declared, message):
         env.step(np.zeros(1))
 
 
+def _with_plain_copy(fused, num: int, seed0: int):
+    """A copy of ``fused`` measured sensor by sensor (no plan), both allocated for ``num``
+    members, and a set of noise streams for each (member ``i`` seeded ``seed0 + i``)."""
+    import copy
+
+    plain = copy.deepcopy(fused)
+    streams = []
+    for suite in (fused, plain):
+        suite.allocate(num)
+        streams.append(NoiseStreams(num))
+        for i in range(num):
+            streams[-1].seed(i, seed0 + i)
+    plain._plan = None  # sensor by sensor
+    return plain, streams
+
+
 @pytest.mark.parametrize("rig, preset, options", PRESETS,
                          ids=[f"{r}-{p}-{bool(o)}" for r, p, o in PRESETS])
 def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
@@ -158,15 +174,8 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
 
     sensors = resolve_rig(rig)().sensors(preset, **options)
     fused = sensors if isinstance(sensors, Suite) else Suite(sensors)
-    plain = copy.deepcopy(fused)
     num, n = 4, 4 if rig == "helicopter" else 2
-    streams = []
-    for suite in (fused, plain):
-        suite.allocate(num)
-        streams.append(NoiseStreams(num))
-        for i in range(num):
-            streams[-1].seed(i, 10 + i)
-    plain._plan = None  # sensor by sensor
+    plain, streams = _with_plain_copy(fused, num, 10)
     if rig == "vehicle-roll" and preset == "imu":
         assert fused._plan is not None
     rng = np.random.default_rng(0)
@@ -210,14 +219,17 @@ def test_rint_of_a_python_float_is_numpys():
     assert np.array([_rint(v) for v in values]).tobytes() == expected.tobytes()
 
 
+class Doubled(StateChannel):
+    """A channel subclass that changes ``measure`` only."""
+
+    def measure(self, sample, noise):
+        return 2.0 * super().measure(sample, noise)
+
+
 def test_one_member_reads_a_channel_subclass_through_its_own_measure():
     """A channel subclass that changes ``measure`` only is read through it on the fused
     one-row path (not through its parent's ``measure_row``)."""
-    from testbed.sensors import StateChannel, Suite
-
-    class Doubled(StateChannel):
-        def measure(self, sample, noise):
-            return 2.0 * super().measure(sample, noise)
+    from testbed.sensors import Suite
 
     suite = Suite(WhiteNoise(Doubled(0, 2, 1, "roll", "rad"), std=0.1),
                   WhiteNoise(StateChannel(1, 2, 1, "roll_rate", "rad/s"), std=0.2))
@@ -237,10 +249,6 @@ def test_a_channel_subclass_changing_measure_is_written_through_it():
     that defines ``measure`` defines it: a subclass that changes ``measure`` only is
     measured through it (not through its parent's ``measure_into``)."""
     from testbed.sensors import Suite
-
-    class Doubled(StateChannel):
-        def measure(self, sample, noise):
-            return 2.0 * super().measure(sample, noise)
 
     suite = Suite(WhiteNoise(Doubled(0, 2, 1, "roll", "rad"), std=0.0),
                   WhiteNoise(StateChannel(1, 2, 1, "roll_rate", "rad/s"), std=0.2))
@@ -314,20 +322,12 @@ def test_fused_groups_on_one_column_equal_sensor_by_sensor(name):
     in-place 1-D operations), on a few (column by one) and on many (a gather), beside
     leaves written in place, give bitwise the sensor-by-sensor values and walks, for the
     whole batch (a slice), a subset and one member."""
-    import copy
 
     from testbed.sensors.fused import measure_one
 
     fused = _column_suites()[name]
-    plain = copy.deepcopy(fused)
     num = 5
-    streams = []
-    for suite in (fused, plain):
-        suite.allocate(num)
-        streams.append(NoiseStreams(num))
-        for i in range(num):
-            streams[-1].seed(i, 20 + i)
-    plain._plan = None
+    plain, streams = _with_plain_copy(fused, num, 20)
     assert fused._plan is not None
     rng = np.random.default_rng(2)
 

@@ -164,6 +164,21 @@ class _Group:
         self.row_terms = list(zip(cols, xcols, [0.0] * len(cols) if values is None
                                   else np.concatenate(values).tolist(), strict=True))
 
+    def _add(self, y: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``y`` with ``values`` (k, c) added to the group's columns: in place on the plan's
+        own array where it can (all columns, one as a 1-D view, or a few one by one: the
+        same sums), else gathered, summed and put back."""
+        target = _target(y, self.cols)
+        if target is not None:
+            np.add(target, _like(values, target), out=target)
+        elif self.few is not None:
+            for j, c in self.few:
+                column = y[:, c]
+                np.add(column, values[:, j], out=column)
+        else:
+            return self._put(y, _get(y, self.cols) + values)
+        return y
+
     def _put(self, y: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``y`` with the group's columns set to ``values`` (``values`` for all of them)."""
         cols = self.cols
@@ -181,17 +196,7 @@ class _NoiseGroup(_Group):
 
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
-        scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
-        target = _target(y, self.cols)
-        if target is not None:  # (y is the plan's own array: the same sum, in place)
-            np.add(target, _like(scaled, target), out=target)
-        elif self.few is not None:  # (the same sums, column by column)
-            for j, c in self.few:
-                column = y[:, c]
-                np.add(column, scaled[:, j], out=column)
-        else:
-            return self._put(y, _get(y, self.cols) + scaled)
-        return y
+        return self._add(y, _scaled(self.values.of(len(y)), xi, self.xcols))
 
     def apply_row(self, y: list[float], xi: list[float], members: Any) -> None:
         """:meth:`apply` on one row of Python floats, in place (the same operations)."""
@@ -255,15 +260,7 @@ class _WalkGroup(_Group):
     def apply(self, y: np.ndarray, xi: np.ndarray, members: Any, sample: Sample,
               noise: Noise) -> np.ndarray:
         bias = self.bias[members]
-        target = _target(y, self.cols)
-        if target is not None:
-            np.add(target, _like(bias, target), out=target)
-        elif self.few is not None:  # (the same sums, column by column)
-            for j, c in self.few:
-                column = y[:, c]
-                np.add(column, bias[:, j], out=column)
-        else:
-            y = self._put(y, _get(y, self.cols) + bias)
+        y = self._add(y, bias)
         if self.values is not None:  # the walk: b + step xi
             scaled = _scaled(self.values.of(len(y)), xi, self.xcols)
             if type(members) is slice:  # ``bias`` is a view of the rows: in place
