@@ -19,6 +19,19 @@ CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
     list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
 
 
+def _interrupted(value: BaseException | None) -> bool:
+    """Whether ``value`` is a ``KeyboardInterrupt`` or was raised because of one: a Ctrl-C
+    inside an extension module's initialization (``import mujoco``, say) comes out as
+    ``ImportError: initialization failed``, chained to the interrupt."""
+    seen: set[int] = set()
+    while value is not None and id(value) not in seen:
+        if isinstance(value, KeyboardInterrupt):
+            return True
+        seen.add(id(value))
+        value = value.__cause__ or value.__context__
+    return False
+
+
 def _quiet_interrupt_at_startup() -> None:
     """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
     own handling is in place) ends it with exit code 130 and one line, not a traceback."""
@@ -27,8 +40,7 @@ def _quiet_interrupt_at_startup() -> None:
     previous = sys.excepthook
 
     def hook(kind: type, value: BaseException, tb: object) -> None:
-        if issubclass(kind, KeyboardInterrupt) and \
-                os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
+        if _interrupted(value) and os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
             sys.stderr.write("testbed: interrupted (SIGINT)\n")
             sys.stderr.flush()
             os._exit(130)

@@ -411,6 +411,27 @@ def test_sigint_during_start_up_exits_130_without_a_traceback(delay_s, tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("chained, debug, code", [
+    (True, "", 130), (True, "1", 1), (False, "", 1)])
+def test_an_interrupt_inside_an_extension_import_at_start_up_exits_130(tmp_path, chained, debug,
+                                                                        code):
+    """A Ctrl-C inside an extension module's initialization (``import mujoco`` while the
+    command starts) comes out as ``ImportError: initialization failed`` chained to the
+    interrupt: the command still ends with 130 and one line (the traceback with
+    ``TESTBED_DEBUG``); an ImportError of another cause stays a traceback."""
+    script = tmp_path / "testbed"  # the command's name: testbed.CLI_PROCESS
+    cause = "from KeyboardInterrupt()" if chained else ""
+    script.write_text("import testbed\n"
+                      f"raise ImportError('initialization failed') {cause}\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         env={**ENV, "TESTBED_DEBUG": debug}, timeout=120)
+    assert out.returncode == code, out.stderr
+    if code == 130:
+        assert out.stderr == "testbed: interrupted (SIGINT)\n"
+    else:
+        assert "Traceback" in out.stderr and "initialization failed" in out.stderr
+
+
 def test_sigint_at_many_points_of_a_study_leaves_all_outputs_or_none(tmp_path):
     """A real Ctrl-C at many moments of ``mc`` (start-up, building, the runs with the .npz
     temporaries, writing): exit 130 and nothing left, or exit 0 and every output."""
