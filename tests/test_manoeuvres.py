@@ -168,3 +168,26 @@ def test_common_time_profile_calls_a_non_float_manoeuvre_once(kind):
         rows = sim._manoeuvre(np.full(3, 0.5), sim._all, common=True)
         assert rows.shape == (3, 1) and np.all(rows == 0.125)
     assert calls == [0.5]
+
+
+def test_members_with_other_manoeuvres_at_one_time_keep_their_own_profiles():
+    """A whole-batch step with every member at one time, but members reset to different
+    manoeuvres (or none), gives each member its own profile: the values of stepping the
+    same members by index (the general path)."""
+    from testbed.sim import build_simulator
+
+    options = [None, {"manoeuvre": None}, {"manoeuvre": "step-steer"}]
+    sims = []
+    for _ in range(2):
+        sim = build_simulator("vehicle-roll", 3, num_threads=1, manoeuvre="double-lane-change")
+        sim.reset(None, [0, 1, 2], options)
+        sims.append(sim)
+    whole, by_index = sims
+    u = np.zeros((3, 1))
+    for _ in range(150):
+        whole.step(u)
+        by_index.step(u, np.arange(3))
+        assert whole.info["manoeuvre"].tobytes() == by_index.info["manoeuvre"].tobytes()
+        assert whole.info["state"].tobytes() == by_index.info["state"].tobytes()
+    assert whole.info["manoeuvre"][1, 0] == 0.0 != whole.info["manoeuvre"][0, 0]
+    assert whole.info["manoeuvre"][2, 0] != whole.info["manoeuvre"][0, 0]

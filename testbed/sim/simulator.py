@@ -1139,8 +1139,10 @@ class Simulator:
         rig, physics, info = self.rig, self.physics, self.info
         has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
                                                  self._no_manoeuvre)
+        # every member at one time with the one default profile: the profile from a float
+        one_profile = common and not no_manoeuvre and len(self._schedules) == 1
         t = None
-        if has_signal or not (no_manoeuvre or common):
+        if has_signal or not (no_manoeuvre or one_profile):
             t = self.steps[sel] * self.dt_s
         # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
         clipped_u = np.minimum(np.maximum(u, low), high)
