@@ -685,14 +685,12 @@ class KalmanFilter(_SampledFilter):
     def _computed_step(self, P: FloatArray, key: bytes, steps: int) -> _Step:
         """The step from ``P`` (bytes ``key``): looked up in the :class:`CovarianceMemo` or
         computed (and kept there), then kept in the filter's own memo."""
-        table = self._memo_table
-        if table is None:
-            done = self._gain_and_covariance(self._predict_covariance(P), steps)
-        else:
-            def compute() -> _Step:
-                return self._gain_and_covariance(self._predict_covariance(P), steps)
+        def compute() -> _Step:
+            return self._gain_and_covariance(self._predict_covariance(P), steps)
 
-            done = self._covariance_memo.step(table, key, compute)  # type: ignore[union-attr]
+        table = self._memo_table
+        done = (compute() if table is None
+                else self._covariance_memo.step(table, key, compute))  # type: ignore[union-attr]
         own = self._memo
         if len(own) >= _MEMO_STEPS + _AHEAD_STEPS:
             del own[next(iter(own))]  # the oldest
@@ -782,14 +780,6 @@ class KalmanFilter(_SampledFilter):
         np.subtract(self._I, IKH, out=IKH)  # I - K H
         P = IKH @ P @ IKH.mT
         P += K @ R @ K.mT
-        if P.ndim == 2:  # a batch's shared member: check_shared_covariance's fast path inline
-            # the symmetrization of check_covariance, 0.5 * (P + P^T), and its test of a
-            # matrix: every entry bounded (sum of squares; False for NaN) and dpotrf succeeds
-            Ps = P + P.T
-            Ps *= 0.5
-            v = Ps.ravel()
-            if v.dot(v) <= _ESCAPE_BOUND_SQ and _dpotrf(Ps)[1] == 0:
-                return S, K, Ps
         P = check_shared_covariance(P, self._batch, time=self._time(steps), quantity="P")
         return S, K, P
 

@@ -142,6 +142,21 @@ def test_a_sensor_drawing_other_than_it_declares_is_named(declared, message):
         env.step(np.zeros(1))
 
 
+def _assert_measures_alike(fused, plain, streams, smp, one: bool) -> None:
+    """``fused`` (through ``measure_one`` when ``one``) measures ``smp`` bitwise as
+    ``plain`` does, each from its own streams."""
+    from testbed.sensors.fused import measure_one
+
+    members = smp.members
+    if one:
+        a = np.asarray(measure_one(fused, smp, streams[0].view(members)),
+                       dtype=float).reshape(1, -1)
+    else:
+        a = fused.measure(smp, streams[0].view(members))
+    b = plain.measure(smp, streams[1].view(members))
+    assert a.tobytes() == b.tobytes()
+
+
 def _with_plain_copy(fused, num: int, seed0: int):
     """A copy of ``fused`` measured sensor by sensor (no plan), both allocated for ``num``
     members, and a set of noise streams for each (member ``i`` seeded ``seed0 + i``)."""
@@ -170,7 +185,6 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
 
     from testbed.rigs import resolve_rig
     from testbed.sensors import Suite
-    from testbed.sensors.fused import measure_one
 
     sensors = resolve_rig(rig)().sensors(preset, **options)
     fused = sensors if isinstance(sensors, Suite) else Suite(sensors)
@@ -193,14 +207,8 @@ def test_fused_suite_equals_sensor_by_sensor(rig, preset, options):
         if step == 4:  # a copy mid-episode measures like the original
             fused = copy.deepcopy(fused)
         members = (slice(None), np.array([1, 3]), np.array([2]))[step % 3]
-        smp = sample(members)
-        if step in (2, 8):  # one member through measure_one: its row, list or array
-            a = np.asarray(measure_one(fused, smp, streams[0].view(members)),
-                           dtype=float).reshape(1, -1)
-        else:
-            a = fused.measure(smp, streams[0].view(members))
-        b = plain.measure(smp, streams[1].view(members))
-        assert a.tobytes() == b.tobytes()
+        # steps 2 and 8: one member through measure_one (its row, list or array)
+        _assert_measures_alike(fused, plain, streams, sample(members), step in (2, 8))
     for x, y in zip(fused.sensors, plain.sensors, strict=True):
         for name in ("bias", "last"):
             if hasattr(x, name):
@@ -323,7 +331,6 @@ def test_fused_groups_on_one_column_equal_sensor_by_sensor(name):
     leaves written in place, give bitwise the sensor-by-sensor values and walks, for the
     whole batch (a slice), a subset and one member."""
 
-    from testbed.sensors.fused import measure_one
 
     fused = _column_suites()[name]
     num = 5
@@ -341,14 +348,7 @@ def test_fused_groups_on_one_column_equal_sensor_by_sensor(name):
         suite.reset(first, st.view(slice(None)))
     for step in range(12):
         members = (slice(None), np.array([0, 2, 4]), np.array([3]))[step % 3]
-        smp = sample(members)
-        if step % 6 == 5:
-            a = np.asarray(measure_one(fused, smp, streams[0].view(members)),
-                           dtype=float).reshape(1, -1)
-        else:
-            a = fused.measure(smp, streams[0].view(members))
-        b = plain.measure(smp, streams[1].view(members))
-        assert a.tobytes() == b.tobytes()
+        _assert_measures_alike(fused, plain, streams, sample(members), step % 6 == 5)
     walks = [(x, y) for x, y in zip(fused.sensors, plain.sensors, strict=True)
              if isinstance(x, BiasRandomWalk)]
     for x, y in walks:

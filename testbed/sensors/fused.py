@@ -308,12 +308,6 @@ def _defining(sensor: Sensor, method: str) -> Any:
     return functools.partial(getattr(Sensor, method), sensor)
 
 
-def _row_reader(sensor: Sensor) -> Any:
-    """``sensor.measure_row`` when the class defining its ``measure`` defines it too; else
-    the row of ``measure`` (a subclass that changes ``measure`` only is read through it)."""
-    return _defining(sensor, "measure_row")
-
-
 #: 2**52: from here on every double is an integer.
 _TWO52 = 4503599627370496.0
 
@@ -388,8 +382,8 @@ class FusedPlan:
         #: The leaves' writers into the plan's columns (:meth:`Sensor.measure_into`).
         self.into_leaves = [(_defining(s, "measure_into"), cols, draws)
                             for s, cols, draws in self.leaves]
-        #: The leaves' one-row readers (:func:`_row_reader`) with their normals.
-        self.row_leaves = [(_row_reader(s), draws) for s, _, draws in self.leaves]
+        #: The leaves' one-row readers (:meth:`Sensor.measure_row`) with their normals.
+        self.row_leaves = [(_defining(s, "measure_row"), draws) for s, _, draws in self.leaves]
         #: The only leaf when it is a suite of bare state channels covering every column
         #: (whose measurement, a gather, is a new array the decorators may change in place).
         self.whole = (leaves[0][0] if len(leaves) == 1 and isinstance(leaves[0][0], Suite)
