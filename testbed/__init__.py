@@ -32,21 +32,61 @@ def _interrupted(value: BaseException | None) -> bool:
     return False
 
 
+#: Whether a SIGINT arrived while the ``testbed`` command started (see
+#: :func:`_quiet_interrupt_at_startup`).
+STARTUP_INTERRUPTED = False
+
+
+def _on_startup_sigint(signum: int, frame: object) -> None:
+    """SIGINT while the command starts: remembered (the command ends with 130 when its
+    start-up ends); a second one interrupts at once."""
+    global STARTUP_INTERRUPTED
+    if STARTUP_INTERRUPTED:
+        raise KeyboardInterrupt
+    STARTUP_INTERRUPTED = True
+
+
 def _quiet_interrupt_at_startup() -> None:
     """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
-    own handling is in place) ends it with exit code 130 and one line, not a traceback."""
+    own handling is in place) ends it with exit code 130 and one line, not a traceback.
+
+    The interrupt is deferred to the end of the start-up (:func:`end_of_startup`, well
+    under a second later): raised inside an import, an extension module or a ctypes call
+    may turn it into another exception (``ImportError: initialization failed``,
+    ``ctypes.ArgumentError: argument 1: KeyboardInterrupt``), or the interpreter may print
+    and drop it (an import's module-lock callback). A second Ctrl-C interrupts at once; any
+    exception after the first still ends the command with 130 and one line."""
+    import signal
+    import threading
+
     if not CLI_PROCESS:
         return
+    if threading.current_thread() is threading.main_thread() \
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_startup_sigint)
     previous = sys.excepthook
 
     def hook(kind: type, value: BaseException, tb: object) -> None:
-        if _interrupted(value) and os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
+        if (STARTUP_INTERRUPTED or _interrupted(value)) \
+                and os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
             sys.stderr.write("testbed: interrupted (SIGINT)\n")
             sys.stderr.flush()
             os._exit(130)
         previous(kind, value, tb)
 
     sys.excepthook = hook
+
+
+def end_of_startup() -> bool:
+    """The ``testbed`` command's start-up is over: SIGINT raises ``KeyboardInterrupt`` again
+    from here on. Returns whether a SIGINT arrived while it started."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread() \
+            and signal.getsignal(signal.SIGINT) is _on_startup_sigint:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    return STARTUP_INTERRUPTED
 
 
 _quiet_interrupt_at_startup()

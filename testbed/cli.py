@@ -952,8 +952,12 @@ def _plugin_flag(args: argparse.Namespace) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``testbed`` command (exit codes in the module docstring)."""
+    import testbed
+
     args = None
     try:
+        if testbed.end_of_startup():  # a Ctrl-C while the command started (its imports)
+            raise KeyboardInterrupt
         args = build_parser().parse_args(argv)
         commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep,
                     "reproduce": cmd_reproduce, "score": cmd_score}

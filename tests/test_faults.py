@@ -432,6 +432,46 @@ def test_an_interrupt_inside_an_extension_import_at_start_up_exits_130(tmp_path,
         assert "Traceback" in out.stderr and "initialization failed" in out.stderr
 
 
+@pytest.mark.parametrize("after", ["mangled", "dropped"])
+def test_a_ctrl_c_at_start_up_that_a_library_mangles_or_drops_still_exits_130(tmp_path, after):
+    """A real SIGINT while the command starts is deferred to the end of its start-up: an
+    import it landed in could turn it into another exception without a chain
+    (``ctypes.ArgumentError: argument 1: KeyboardInterrupt`` in PyOpenGL's EGL probe while
+    ``import mujoco`` ran) or drop it (an import's module-lock callback). The command ends
+    with 130 and one line when its start-up ends, or on any exception before."""
+    script = tmp_path / "testbed"  # the command's name: testbed.CLI_PROCESS
+    script.write_text(
+        "import os, signal, sys, time\n"
+        "import testbed\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(0.2)\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        + ("raise RuntimeError('argument 1: KeyboardInterrupt')\n"  # no chain, as ctypes
+           if after == "mangled" else "") +
+        "from testbed.cli import main\n"
+        "sys.exit(main(['run', 'helicopter', '--duration', '0.1', '--no-progress']))\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         env=ENV, timeout=120, cwd=tmp_path,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert out.returncode == 130, out.stderr
+    assert out.stderr == "testbed: interrupted (SIGINT)\n"
+
+
+def test_a_second_ctrl_c_at_start_up_interrupts_at_once(tmp_path):
+    script = tmp_path / "testbed"
+    script.write_text("import os, signal, time\n"
+                      "import testbed\n"
+                      "os.kill(os.getpid(), signal.SIGINT)\n"
+                      "os.kill(os.getpid(), signal.SIGINT)\n"
+                      "time.sleep(600)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         env=ENV, timeout=120,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert out.returncode == 130 and out.stderr == "testbed: interrupted (SIGINT)\n"
+
+
 def test_sigint_at_many_points_of_a_study_leaves_all_outputs_or_none(tmp_path):
     """A real Ctrl-C at many moments of ``mc`` (start-up, building, the runs with the .npz
     temporaries, writing): exit 130 and nothing left, or exit 0 and every output."""
