@@ -11,7 +11,9 @@ Importing the package registers the Gymnasium environments::
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 
 #: Whether this process is the ``testbed`` command (not a library user, not a test calling
 #: :func:`testbed.cli.main`).
@@ -19,46 +21,30 @@ CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
     list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
 
 
-def _interrupted(value: BaseException | None) -> bool:
-    """Whether ``value`` is a ``KeyboardInterrupt`` or was raised because of one: a Ctrl-C
-    inside an extension module's initialization (``import mujoco``, say) comes out as
-    ``ImportError: initialization failed``, chained to the interrupt."""
-    seen: set[int] = set()
-    while value is not None and id(value) not in seen:
-        if isinstance(value, KeyboardInterrupt):
-            return True
-        seen.add(id(value))
-        value = value.__cause__ or value.__context__
-    return False
-
-
 #: Whether a SIGINT arrived while the ``testbed`` command started (see
 #: :func:`_quiet_interrupt_at_startup`).
-STARTUP_INTERRUPTED = False
+_startup_interrupted = False
 
 
 def _on_startup_sigint(signum: int, frame: object) -> None:
     """SIGINT while the command starts: remembered (the command ends with 130 when its
     start-up ends); a second one interrupts at once."""
-    global STARTUP_INTERRUPTED
-    if STARTUP_INTERRUPTED:
+    global _startup_interrupted
+    if _startup_interrupted:
         raise KeyboardInterrupt
-    STARTUP_INTERRUPTED = True
+    _startup_interrupted = True
 
 
 def _quiet_interrupt_at_startup() -> None:
     """The ``testbed`` command: a Ctrl-C while it starts (importing its modules, before its
     own handling is in place) ends it with exit code 130 and one line, not a traceback.
 
-    The interrupt is deferred to the end of the start-up (:func:`end_of_startup`, well
+    The interrupt is deferred to the end of the start-up (:func:`_end_of_startup`, well
     under a second later): raised inside an import, an extension module or a ctypes call
     may turn it into another exception (``ImportError: initialization failed``,
     ``ctypes.ArgumentError: argument 1: KeyboardInterrupt``), or the interpreter may print
     and drop it (an import's module-lock callback). A second Ctrl-C interrupts at once; any
     exception after the first still ends the command with 130 and one line."""
-    import signal
-    import threading
-
     if not CLI_PROCESS:
         return
     if threading.current_thread() is threading.main_thread() \
@@ -67,7 +53,7 @@ def _quiet_interrupt_at_startup() -> None:
     previous = sys.excepthook
 
     def hook(kind: type, value: BaseException, tb: object) -> None:
-        if (STARTUP_INTERRUPTED or _interrupted(value)) \
+        if (_startup_interrupted or issubclass(kind, KeyboardInterrupt)) \
                 and os.environ.get("TESTBED_DEBUG", "") in ("", "0"):
             sys.stderr.write("testbed: interrupted (SIGINT)\n")
             sys.stderr.flush()
@@ -77,16 +63,13 @@ def _quiet_interrupt_at_startup() -> None:
     sys.excepthook = hook
 
 
-def end_of_startup() -> bool:
+def _end_of_startup() -> bool:
     """The ``testbed`` command's start-up is over: SIGINT raises ``KeyboardInterrupt`` again
     from here on. Returns whether a SIGINT arrived while it started."""
-    import signal
-    import threading
-
     if threading.current_thread() is threading.main_thread() \
             and signal.getsignal(signal.SIGINT) is _on_startup_sigint:
         signal.signal(signal.SIGINT, signal.default_int_handler)
-    return STARTUP_INTERRUPTED
+    return _startup_interrupted
 
 
 _quiet_interrupt_at_startup()

@@ -956,7 +956,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = None
     try:
-        if testbed.end_of_startup():  # a Ctrl-C while the command started (its imports)
+        if testbed._end_of_startup():  # a Ctrl-C while the command started (its imports)
             raise KeyboardInterrupt
         args = build_parser().parse_args(argv)
         commands = {"run": cmd_run, "mc": cmd_mc, "sweep": cmd_sweep,
