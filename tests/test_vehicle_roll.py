@@ -156,6 +156,36 @@ def test_mujoco_rig_reproduces_eq51():
     assert err_cos < 1e-4  # what is left is MuJoCo's 1 ms integration error
 
 
+def test_gravity_input_is_the_xfrc_actuation_up_to_rounding():
+    # the simulator carries a_y as each member's opt.gravity (Rig.physics_inputs); the same
+    # episode with actuation()'s xfrc_applied written instead (the definition) gives the
+    # same states up to rounding, and a reset restores the model's gravity
+    kwargs = {"manoeuvre": "step-steer", "manoeuvre_params": {"amplitude_m_s2": 7.0},
+              "params": {"damping_noise": 500.0}}
+    env, by_xfrc = VehicleRollEnv(**kwargs), VehicleRollEnv(**kwargs)
+    rig = by_xfrc.sim.rig
+    rig.physics_inputs = rig.actuation  # (this instance only)
+    env.reset(seed=4)
+    by_xfrc.reset(seed=4)
+    rng = np.random.default_rng(3)
+    states, replayed = [], []
+    for _ in range(600):
+        action = rng.uniform(-1.0, 1.0, 1)
+        _, _, _, _, info = env.step(action)
+        a_y = float(np.ravel(info["action_applied"])[0])
+        assert _member_model(env).opt.gravity.tolist() == [0.0, -a_y, -G]
+        assert not env.sim.physics.state[0, env.sim.physics._xfrc].any()
+        states.append(info["state"])
+        replayed.append(by_xfrc.step(action)[4]["state"])
+        assert _member_model(by_xfrc).opt.gravity.tolist() == [0.0, 0.0, -G]
+    states, replayed = np.array(states), np.array(replayed)
+    assert np.abs(states[:, 0]).max() > 0.05
+    assert not np.array_equal(states, replayed)  # (the two paths round differently)
+    np.testing.assert_allclose(states, replayed, rtol=0, atol=1e-12 * np.abs(states).max())
+    env.reset(seed=4)
+    assert _member_model(env).opt.gravity.tolist() == [0.0, 0.0, -G]
+
+
 def test_damping_noise_is_drawn_per_step_and_applied():
     env = VehicleRollEnv()
     env.reset(seed=3)

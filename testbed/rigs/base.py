@@ -440,6 +440,31 @@ class Rig:
         """
         return {"ctrl": u}
 
+    def physics_inputs(self, u: np.ndarray, constants: np.ndarray) -> dict[str, np.ndarray]:
+        """What the simulator writes into its members for applied actions ``u`` (k, nu):
+        :meth:`actuation` (default), or the same physics through cheaper MuJoCo inputs.
+
+        Besides ``"ctrl"`` and ``"xfrc"``, a rig may give ``"gravity"`` (k, 3): each
+        member's ``opt.gravity`` for the step (a per-simulation model field; a member's
+        reset restores its model's). A uniform acceleration field is the d'Alembert force
+        of an accelerating base on every massive body at its centre of mass, which MuJoCo
+        adds with the bias forces at no extra cost; ``xfrc_applied`` costs a Jacobian per
+        body and physics step. :meth:`actuation` stays the definition (the nonlinear
+        filters' MuJoCo process model and :meth:`linearize` use it), and the two must give
+        the same physics up to rounding (tested).
+
+        Parameters
+        ----------
+        u : ndarray, shape (k, nu)
+        constants : ndarray, shape (k, d)
+
+        Returns
+        -------
+        dict
+            ``"ctrl"`` (k, model.nu), ``"xfrc"`` (k, nbody, 6) and/or ``"gravity"`` (k, 3).
+        """
+        return self.actuation(u, constants)
+
     #: Whether :meth:`substep_ctrl` runs before every physics step (e.g. a current limit
     #: that depends on the motor state); False keeps MuJoCo's multi-step call.
     needs_substep: bool = False

@@ -403,7 +403,13 @@ class Physics:
 
     def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
                    qfrc: np.ndarray | None) -> None:
-        """Write ctrl / xfrc_applied / qfrc_applied of the members' state rows."""
+        """Write ctrl / xfrc_applied / qfrc_applied of the members' state rows and their
+        ``opt.gravity`` (:meth:`~testbed.rigs.base.Rig.physics_inputs`)."""
+        if "gravity" in inputs:
+            field = self._fields.get("opt.gravity")
+            if field is None:  # (a member's reset writes its model's back: _write_params)
+                field = self._fields["opt.gravity"] = self.batch.expand("opt.gravity")
+            field[members] = inputs["gravity"]
         if "ctrl" in inputs:
             self.state[members, self._ctrl] = inputs["ctrl"]
         if "xfrc" in inputs:
@@ -1177,7 +1183,7 @@ class Simulator:
             w, accel, qfrc = self._forces(t, index, sel, common, xi, zero_accel)
         elif has_signal:
             w = self._signal(t, index, common)
-        physics.set_inputs(sel, rig.actuation(applied, physics.constants[sel]), qfrc)
+        physics.set_inputs(sel, rig.physics_inputs(applied, physics.constants[sel]), qfrc)
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
         if members is None:
@@ -1305,7 +1311,7 @@ class Simulator:
                 w, accel, qfrc = self._forces(t, index, sel, True, xi, self._zero_accel)
             elif has_signal:
                 w = self._signal(t, index, True)
-        physics.set_inputs(sel, rig.actuation(applied_rows, physics.constants), qfrc)
+        physics.set_inputs(sel, rig.physics_inputs(applied_rows, physics.constants), qfrc)
         if step_noise is None and not (dist_active or self.record_poses or physics.substeps):
             warned = physics.step_plain()
         else:
