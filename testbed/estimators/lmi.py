@@ -39,6 +39,7 @@ import numpy as np
 
 from filters import zoh
 from filters.lmi_hinf import (
+    LMIHInfDesign,
     LMIHInfFilter,
     StochasticLinearSystem,
     design_lmi_hinf,
@@ -236,7 +237,7 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
                       gamma_factor, objective, max_steps, plant_block)
     gamma_min, lmi = memo.memoized("lmi-hinf", digest, lambda: _search(
         system, gamma=gamma, gamma_factor=gamma_factor, objective=objective,
-        max_steps=max_steps, plant_block=plant_block))
+        max_steps=max_steps, plant_block=plant_block), valid=_is_search_result)
     if not lmi.feasible:
         raise ValueError(f"no verified lmi-hinf design at gamma = {lmi.gamma:.6g}: status "
                          f"{lmi.status} (solver: {lmi.solver_status})")
@@ -253,6 +254,13 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
 
 #: The fields of a :class:`filters.lmi_hinf.StochasticLinearSystem` a design depends on.
 _SYSTEM_FIELDS = ("A", "B", "C_y", "C_z", "A_w", "B_w", "D_y", "D_z")
+
+
+def _is_search_result(value: Any) -> bool:
+    """Whether ``value`` has the shape of :func:`_search`'s result (a memo entry's check)."""
+    return (isinstance(value, tuple) and len(value) == 2
+            and (value[0] is None or isinstance(value[0], float))
+            and isinstance(value[1], LMIHInfDesign))
 
 
 def _search(system: StochasticLinearSystem, *, gamma: float | None, gamma_factor: float,

@@ -8,8 +8,9 @@ this process. Inside :func:`shared_directory` it also keeps them as pickles in a
 that the worker processes of one run share (``testbed score`` makes one per call): an entry
 scored on one worker then reuses the designs another worker computed for an entry with the
 same design model (the +-20 % mismatch entries share their nominal entry's). The directory is
-only read and written inside the context; a file that cannot be written or read is
-recomputed, never an error.
+only read and written inside the context, and only when it is a directory of this user that
+nobody else may write to; an entry that cannot be read, does not unpickle, or is not of the
+type the caller expects is recomputed, never an error.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
+import stat
 import tempfile
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
@@ -72,7 +74,18 @@ def shared_directory(path: str | os.PathLike[str] | None) -> Iterator[None]:
         _directory = before
 
 
-def memoized(kind: str, digest: str, compute: Callable[[], T]) -> T:
+def _private(directory: Path) -> bool:
+    """Whether ``directory`` is a directory of this user that nobody else may write to."""
+    try:
+        st = os.lstat(directory)
+    except OSError:
+        return False
+    return (stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid()
+            and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
+
+
+def memoized(kind: str, digest: str, compute: Callable[[], T],
+             valid: Callable[[Any], bool]) -> T:
     """``compute()``, or the design an earlier call with the same ``kind`` and ``digest``
     returned (in this process, or in the shared directory).
 
@@ -84,6 +97,9 @@ def memoized(kind: str, digest: str, compute: Callable[[], T]) -> T:
         :func:`key` of everything the design depends on.
     compute : callable
         Computes the design (exceptions propagate and nothing is kept).
+    valid : callable
+        Whether a value read from the shared directory is a design of this kind (e.g. an
+        ``isinstance`` test); one that is not is recomputed.
     """
     name = f"{kind}-{digest}"
     if name in _memory:
@@ -92,11 +108,14 @@ def memoized(kind: str, digest: str, compute: Callable[[], T]) -> T:
     directory = _directory
     value: Any = None
     found = False
+    if directory is not None and not _private(directory):
+        directory = None
     if directory is not None:
         try:
             with open(directory / f"{name}.pkl", "rb") as file:
-                value, found = pickle.load(file), True
-        except (OSError, EOFError, pickle.UnpicklingError):
+                value = pickle.load(file)
+            found = bool(valid(value))
+        except Exception:  # noqa: BLE001 - a damaged entry is recomputed, whatever it raises
             found = False
     if not found:
         value = compute()

@@ -550,7 +550,8 @@ def _design(design: Any, injection: np.ndarray | None, injection_scale: float | 
                                       max_evaluations, n_grid),
                          lambda: _search(plant, uncertainty, scenario_channel, injection,
                                          injection_scale, rho, start, gamma, gamma_factor,
-                                         sigma_factor, max_evaluations, n_grid))
+                                         sigma_factor, max_evaluations, n_grid),
+                         valid=lambda value: isinstance(value, VCDesign))
 
 
 def _search(plant: UncertainPlant, uncertainty: Any, scenario_channel: bool,
