@@ -93,6 +93,7 @@ class ParameterMismatch:
     ranges: dict[str, float]
     physics_dt_s: float = 0.001
     profile: str = "paper"
+    options: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def derivatives(self, step: float = 1e-3) -> dict[str, np.ndarray]:
         """``dA/ds_i`` of :meth:`Rig.linearize` with respect to the scale factor ``s_i`` of
@@ -111,10 +112,63 @@ class ParameterMismatch:
         out = {}
         for name in self.ranges:
             A = [self.rig_type(self.params.scaled({name: 1.0 + sign * step}),
-                               physics_dt_s=self.physics_dt_s, profile=self.profile
+                               physics_dt_s=self.physics_dt_s, profile=self.profile,
+                               options=self.options
                                ).linearize()[0] for sign in (1.0, -1.0)]
             out[name] = (A[0] - A[1]) / (2.0 * step)
         return out
+
+
+@dataclasses.dataclass(frozen=True)
+class RigOption:
+    """A rig's construction option (``--rig-option NAME=VALUE``, the scenario's
+    ``rig_options``), e.g. the Aero's ``yaw_locked``.
+
+    Attributes
+    ----------
+    default : bool, int, float or str
+        The value when not given; its type is the option's type.
+    help : str
+        One line for ``testbed describe`` and ``--help``.
+    choices : tuple, optional
+        The allowed values (empty: any of the type).
+    """
+
+    default: bool | int | float | str
+    help: str
+    choices: tuple[Any, ...] = ()
+
+    def parse(self, name: str, value: Any) -> Any:
+        """``value`` (a Python value, or the text of ``NAME=VALUE``) as this option's type.
+
+        Raises
+        ------
+        ValueError
+            One line naming the option and what was expected.
+        """
+        kind = type(self.default)
+        if isinstance(value, str) and kind is not str:
+            text = value.strip().lower()
+            try:
+                if kind is bool:
+                    if text not in ("true", "false", "1", "0", "yes", "no"):
+                        raise ValueError
+                    value = text in ("true", "1", "yes")
+                else:
+                    value = kind(text)
+            except ValueError:
+                raise ValueError(f"rig option {name!r} must be a {kind.__name__}, got "
+                                 f"{value!r}") from None
+        ok = isinstance(value, kind) and not (kind is not bool and isinstance(value, bool))
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value, ok = float(value), True
+        if not ok or (kind is float and not np.isfinite(value)):
+            raise ValueError(f"rig option {name!r} must be a {'finite ' if kind is float else ''}"
+                             f"{kind.__name__}, got {value!r}")
+        if self.choices and value not in self.choices:
+            raise ValueError(f"rig option {name!r} must be one of {list(self.choices)}, got "
+                             f"{value!r}")
+        return value
 
 
 def models_dir() -> Path:
@@ -195,9 +249,34 @@ class Rig:
     #: that the physical rig can reach, with a wide margin. The simulator raises
     #: :class:`~testbed.sim.simulator.SimulationDiverged` for a state past it. Empty: no bound.
     state_envelope: ClassVar[tuple[float, ...]] = ()
+    #: Construction options (``--rig-option NAME=VALUE``): ``{name: RigOption}``; the values
+    #: are :attr:`options` (validated, defaults filled) when :meth:`edit_spec` and
+    #: :meth:`apply_params` run.
+    rig_options: ClassVar[dict[str, RigOption]] = {}
+    #: Physical parameters a recording can identify (``testbed identify``):
+    #: ``{Params field: (low, high)}``, the bounds as factors of the nominal value (wide
+    #: enough for real units).
+    identifiable: ClassVar[dict[str, tuple[float, float]]] = {}
+
+    @classmethod
+    def resolve_options(cls, options: dict[str, Any] | None) -> dict[str, Any]:
+        """``options`` checked against :attr:`rig_options`, defaults filled.
+
+        Raises
+        ------
+        ValueError
+            An unknown option (the valid ones listed) or a bad value (named).
+        """
+        options = dict(options or {})
+        unknown = set(options) - set(cls.rig_options)
+        if unknown:
+            raise ValueError(f"rig {cls.name!r} has no option {sorted(unknown)[0]!r}; expected "
+                             f"one of {sorted(cls.rig_options) or 'none'}")
+        return {name: opt.parse(name, options[name]) if name in options else opt.default
+                for name, opt in cls.rig_options.items()}
 
     def __init__(self, params: Params | None = None, physics_dt_s: float = 0.001,
-                 profile: str = "paper"):
+                 profile: str = "paper", options: dict[str, Any] | None = None):
         number = isinstance(physics_dt_s, int | float | np.floating) and \
             not isinstance(physics_dt_s, bool)
         if not (number and np.isfinite(physics_dt_s) and physics_dt_s > 0):
@@ -208,9 +287,12 @@ class Rig:
                              f"of {self.profiles}")
         #: The simulation profile (one of :attr:`profiles`).
         self.profile = profile
+        #: The construction options (:attr:`rig_options`, defaults filled).
+        self.options = self.resolve_options(options)
         path = self.resolved_xml_path()
-        read = _read_mjcf(str(path), path.stat().st_mtime_ns, profile == self.profiles[0])
-        if profile == self.profiles[0]:
+        plain = profile == self.profiles[0] and self.options == self.resolve_options(None)
+        read = _read_mjcf(str(path), path.stat().st_mtime_ns, plain)
+        if plain:
             self.model = copy.deepcopy(read)
         else:
             spec = read.copy()
@@ -262,6 +344,11 @@ class Rig:
                 raise TypeError(f"{type(self).__name__}.mismatch_range: {name!r}: {r!r} must "
                                 f"name a field of {self.params_type.__name__} with a "
                                 "relative range in (0, 1)")
+        fields_ok = all(name in fields and 0 < lo < 1 < hi for name, (lo, hi)
+                        in self.identifiable.items())
+        if not fields_ok:
+            raise TypeError(f"{type(self).__name__}.identifiable must map fields of "
+                            f"{self.params_type.__name__} to bounds (low < 1 < high)")
         unknown = set(self.tracked_states) - set(self.state_names)
         if unknown:
             raise TypeError(f"{type(self).__name__}.tracked_states {sorted(unknown)} are not "
@@ -682,7 +769,8 @@ class Rig:
         if not self.mismatch_range:
             return None
         return ParameterMismatch(type(self), self.params, dict(self.mismatch_range),
-                                 float(self.model.opt.timestep), self.profile)
+                                 float(self.model.opt.timestep), self.profile,
+                                 dict(self.options))
 
     def linearization_point(self) -> np.ndarray:
         """Default operating state of :meth:`linearize`, shape (n,) (zero)."""
