@@ -224,7 +224,7 @@ def test_npz_stream_uses_no_memory_map_and_keeps_its_contents(tmp_path, monkeypa
     monkeypatch.setattr(np, "memmap", no_memmap)
     scenario = Scenario(rig="helicopter", duration_s=0.5, seed=2)
     monte_carlo(scenario, 3, batch_size=2, progress=False, save_npz=tmp_path / "a.npz")
-    monkeypatch.setattr("testbed.experiment.runner._FileRows.BUFFER_BYTES", 64)  # tiny chunks
+    monkeypatch.setattr("testbed.io.trajectory_stream.FileRows.BUFFER_BYTES", 64)  # tiny chunks
     monte_carlo(scenario, 3, batch_size=3, progress=False, save_npz=tmp_path / "b.npz")
     a, b = np.load(tmp_path / "a.npz"), np.load(tmp_path / "b.npz")
     assert sorted(a.files) == sorted(b.files) and a["state"].shape == (3, 51, 4)
@@ -373,16 +373,16 @@ def test_debug_shows_the_traceback(plugin_dir):
 
 # ====================================================== 5. a huge study is refused first
 def test_huge_runs_are_refused_with_the_estimate_before_any_allocation(capsys, monkeypatch):
-    from testbed.experiment import runner
+    from testbed.experiment import study
 
-    monkeypatch.setattr(runner, "run_seeds", lambda *a: pytest.fail("allocated seeds"))
+    monkeypatch.setattr(study, "run_seeds", lambda *a: pytest.fail("allocated seeds"))
     start = time.perf_counter()
     assert main(["mc", "helicopter", "--runs", "100000000000", "--no-progress"]) == 2
     line = _one_line(capsys.readouterr().err)
     assert line.startswith("testbed: error: --runs 100,000,000,000 would need about ")
     assert "TB of memory" in line and "available" in line
     assert time.perf_counter() - start < 20
-    monkeypatch.setattr(runner, "available_memory", lambda: 1_000_000)
+    monkeypatch.setattr(study, "available_memory", lambda: 1_000_000)
     assert main(["sweep", "helicopter", "--grid", "process_noise=0,1", "--runs", "5000",
                  "--no-progress"]) == 2
     assert "--runs 5,000 would need" in capsys.readouterr().err
@@ -598,10 +598,11 @@ OUTPUT_LINES = [
 @pytest.mark.parametrize("line, needle", OUTPUT_LINES, ids=[o[0] for o in OUTPUT_LINES])
 def test_every_output_including_derived_ones_is_checked_first(line, needle, places, capsys,
                                                                monkeypatch):
-    from testbed.experiment import runner
+    from testbed.experiment import episode, study, sweep
     from testbed.score import harness
 
-    monkeypatch.setattr(runner, "build", lambda *a, **k: pytest.fail("built"))
+    for module in (episode, study, sweep):
+        monkeypatch.setattr(module, "build", lambda *a, **k: pytest.fail("built"))
     monkeypatch.setattr(harness, "score", lambda *a, **k: pytest.fail("scored"))
     assert _code(line.format(**places).split()) == 2
     err = capsys.readouterr().err
@@ -798,7 +799,7 @@ def test_score_has_no_progress(monkeypatch, capsys):
 
     monkeypatch.setattr(harness, "score", score)
     with pytest.raises(Stop):
-        from testbed.cli import cmd_score
+        from testbed.cli.score import command as cmd_score
 
         cmd_score(build_parser().parse_args(["score", "--estimator", "kalman",
                                              "--no-progress"]))

@@ -423,11 +423,11 @@ def test_unreachable_ray_cluster_fails_fast_with_exit_5(capsys):
 
 
 def test_long_runs_record_decimated_rows_equal_to_the_full_recording(monkeypatch):
-    from testbed.experiment import runner
+    from testbed.experiment import episode, runner
 
     scenario = Scenario(rig="helicopter", duration_s=1.23)
     full, summary_full = runner.run(scenario, progress=False)
-    monkeypatch.setattr(runner, "RECORD_MAX_ROWS", 20)
+    monkeypatch.setattr(episode, "RECORD_MAX_ROWS", 20)
     part, summary_part = runner.run(scenario, progress=False)
     assert summary_part["rmse"] == summary_full["rmse"]  # metrics use every step
     every = part.meta["recorded_every_steps"]

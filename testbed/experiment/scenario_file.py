@@ -254,10 +254,10 @@ def _plain(value: Any) -> Any:
 def block(scenario: Scenario) -> dict[str, Any]:
     """The scenario block of the JSON outputs: every field, the rig's and the estimator's
     defaults filled in (what ran), JSON-ready; :func:`read` accepts it unchanged."""
-    from testbed.experiment.runner import _with_defaults, described
+    from testbed.experiment.build import described, with_defaults
 
     return {k: (_plain(v) if isinstance(v, dict | list | tuple | np.ndarray | np.generic) else v)
-            for k, v in described(_with_defaults(scenario)).items()}
+            for k, v in described(with_defaults(scenario)).items()}
 
 
 def check_destination(path: str | os.PathLike, name: str = "--save-scenario") -> Path:

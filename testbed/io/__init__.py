@@ -172,8 +172,9 @@ def remove_own_temporaries(path: str | os.PathLike, keep: tuple[Path, ...] = ())
     transaction = _TRANSACTION.get()
     if transaction is not None:  # written, waiting for the end of outputs_together
         keep = (*keep, *(tmp for tmp, _ in transaction.pending))
+    kept = {os.path.abspath(k) for k in keep}  # a relative and an absolute name of one file
     for entry in final.parent.glob(f"{glob.escape(_own_prefix(final))}*"):
-        if entry in keep or not entry.name.endswith((".tmp", ".tmpdir")):
+        if os.path.abspath(entry) in kept or not entry.name.endswith((".tmp", ".tmpdir")):
             continue
         with contextlib.suppress(OSError):
             if entry.is_dir() and not entry.is_symlink():

@@ -79,12 +79,12 @@ def check_rendering() -> None:
     import os
     import warnings
 
-    import testbed
+    from testbed import _startup
 
     hint = ("set MUJOCO_GL=egl (a GPU or Mesa's EGL) or MUJOCO_GL=osmesa (software; needs "
             "libOSMesa)")
-    if testbed.BAD_MUJOCO_GL is not None:
-        raise ValueError(f"{testbed.BAD_MUJOCO_GL}; {hint}")
+    if _startup.BAD_MUJOCO_GL is not None:
+        raise ValueError(f"{_startup.BAD_MUJOCO_GL}; {hint}")
     current = os.environ.get("MUJOCO_GL", "")
     try:
         with warnings.catch_warnings():

@@ -162,19 +162,3 @@ def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PO
             return 0
     finally:
         stop_group(proc)
-
-
-# ------------------------------------------------------------------ the CLI's hook
-def add_parser(sub) -> None:  # noqa: ANN001 - argparse's private subparsers type
-    """``testbed view`` on the CLI's subparsers."""
-    v = sub.add_parser("view", help="open a .rrd recording in Rerun's viewer (native or web)")
-    v.add_argument("file", help="a .rrd file written by testbed (--rrd, reproduce, score)")
-    v.add_argument("--web", action="store_true",
-                   help=f"host the web viewer on {BIND} and print its URL (headless machines)")
-    v.add_argument("--web-port", type=int, default=WEB_PORT)
-    v.add_argument("--grpc-port", type=int, default=GRPC_PORT)
-
-
-def cmd_view(args) -> int:  # noqa: ANN001 - argparse.Namespace
-    """``testbed view``: the viewer's exit code."""
-    return view(args.file, web=args.web, grpc_port=args.grpc_port, web_port=args.web_port)

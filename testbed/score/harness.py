@@ -495,7 +495,7 @@ class ScoreRun:
 def _check_memory(entries: list[SuiteEntry]) -> None:
     """Refuse entries whose recorded runs (every run's trajectory is kept) cannot fit in the
     available memory, before anything is allocated (``runner.StudyTooLarge``)."""
-    from testbed.experiment.runner import StudyTooLarge, _size_text, available_memory
+    from testbed.experiment.study import StudyTooLarge, available_memory, size_text
 
     available = available_memory()
     for entry in entries:
@@ -511,9 +511,9 @@ def _check_memory(entries: list[SuiteEntry]) -> None:
         if needed > available // 2:
             raise StudyTooLarge(
                 f"runs {entry.runs:,} of scenario {entry.name!r} would need about "
-                f"{_size_text(needed)} of memory (every run's trajectory is kept: "
-                f"{_size_text(per_run)} per run), more than half of the "
-                f"{_size_text(available)} available; use fewer runs", needed, available)
+                f"{size_text(needed)} of memory (every run's trajectory is kept: "
+                f"{size_text(per_run)} per run), more than half of the "
+                f"{size_text(available)} available; use fewer runs", needed, available)
 
 
 def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,

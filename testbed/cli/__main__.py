@@ -1,0 +1,8 @@
+"""``python -m testbed.cli``: the ``testbed`` command."""
+
+import sys
+
+from testbed.cli.main import main
+
+if __name__ == "__main__":
+    sys.exit(main())
