@@ -125,7 +125,7 @@ def test_vehicle_lateral_accelerometer_is_nonlinear_with_its_feedthrough():
 
 def test_linear_channels_are_the_design_rows():
     design = _design("helicopter")  # encoders: linear
-    measure = MeasurementModel(design, "helicopter")
+    measure = MeasurementModel(design)
     assert measure.nonlinear == ()
     x = np.random.default_rng(1).standard_normal((3, 4))
     np.testing.assert_array_equal(measure(x, np.zeros((3, 2))), x @ design.discrete.H.T)

@@ -27,8 +27,8 @@ Process model :class:`AugmentedProcessModel` (a matched, augmented design)
     of a nonlinear channel takes the channel's nonlinear value.
 Measurement model :class:`MeasurementModel`
     ``h(x, u) = H x + D u`` with ``design.discrete``'s rows, except channels whose nonlinear
-    form is known (:data:`NONLINEAR_CHANNELS`: the helicopter IMU's ``gyro_yaw = yaw_rate
-    cos(pitch)`` and ``accel_x = g sin(pitch)``, the vehicle's ``lateral_accel = a_y
+    form the sensors declare (``SensorModel.nonlinear``: the helicopter IMU's ``gyro_yaw =
+    yaw_rate cos(pitch)`` and ``accel_x = g sin(pitch)``, the vehicle's ``lateral_accel = a_y
     cos(roll) + g sin(roll)``) and read the rig's states directly, which are used as they
     are, with their analytic Jacobians (``g`` is the model's ``opt.gravity``).
 Input
@@ -368,38 +368,6 @@ class MujocoProcessModel:
         return J
 
 
-#: A channel in its nonlinear form: ``value(x (M, n_rig), w (M, k_rig), g) -> (M,)`` and its
-#: gradients ``d/dx -> (M, n_rig)`` and ``d/dw -> (M, k_rig)`` (``w``: the rig's physical
-#: input, absolute; ``g``: the model's gravity, m/s^2).
-ChannelFunctions = tuple[Callable[..., np.ndarray], Callable[..., np.ndarray],
-                         Callable[..., np.ndarray]]
-
-
-def _zeros(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    return np.zeros((len(x), w.shape[1]))
-
-
-#: Measurement channels used in their nonlinear form, by ``(rig name, channel name)``.
-NONLINEAR_CHANNELS: dict[tuple[str, str], ChannelFunctions] = {
-    # helicopter IMU at the pivot (testbed.rigs.helicopter.imu): x = [pitch, yaw, rates]
-    ("helicopter", "gyro_yaw"): (
-        lambda x, w, g: x[:, 3] * np.cos(x[:, 0]),
-        lambda x, w, g: np.stack([-x[:, 3] * np.sin(x[:, 0]), np.zeros(len(x)),
-                                  np.zeros(len(x)), np.cos(x[:, 0])], axis=1),
-        _zeros),
-    ("helicopter", "accel_x"): (
-        lambda x, w, g: g * np.sin(x[:, 0]),
-        lambda x, w, g: np.stack([g * np.cos(x[:, 0])] + [np.zeros(len(x))] * 3, axis=1),
-        _zeros),
-    # vehicle lateral accelerometer (testbed.rigs.vehicle_roll.sensors): x = [roll, rate]
-    ("vehicle-roll", "lateral_accel"): (
-        lambda x, w, g: w[:, 0] * np.cos(x[:, 0]) + g * np.sin(x[:, 0]),
-        lambda x, w, g: np.stack([-w[:, 0] * np.sin(x[:, 0]) + g * np.cos(x[:, 0]),
-                                  np.zeros(len(x))], axis=1),
-        lambda x, w, g: np.cos(x[:, :1])),
-}
-
-
 def gravity(model: mujoco.MjModel) -> float:
     """The magnitude of the model's gravity (``opt.gravity``), m/s^2."""
     return float(np.linalg.norm(model.opt.gravity))
@@ -470,16 +438,15 @@ class MeasurementModel:
     """``y = h(x, u)`` of the design's modelled channels (``design.measurement_index``).
 
     The rows of ``design.discrete`` (``H x + D u``: linear channels, bias and delay states),
-    except channels of :data:`NONLINEAR_CHANNELS` for this rig that read the rig's states
-    directly (not through delay states): their rig-state part is the nonlinear function of
-    the rig state and the physical input ``w`` (:class:`PhysicalInput`), the rest of their
-    row (bias states) stays. A delayed nonlinear channel is nonlinear in its first delay
+    except the channels the sensors declare nonlinear (``design.sensors.nonlinear``) that
+    read the rig's states directly (not through delay states): their rig-state part is the
+    nonlinear function of the rig state and the physical input ``w``
+    (:class:`PhysicalInput`), the rest of their row (bias states) stays. A delayed nonlinear channel is nonlinear in its first delay
     state's transition instead (:class:`AugmentedProcessModel`).
 
     Parameters
     ----------
     design : DesignModel
-    rig_name : str
     rig : Rig, optional
         The designer's rig (its gravity and operating input); default: a nominal one
         (:func:`nominal_rig`).
@@ -492,7 +459,7 @@ class MeasurementModel:
         Those used in their nonlinear form here.
     """
 
-    def __init__(self, design: DesignModel, rig_name: str, rig: Rig | None = None) -> None:
+    def __init__(self, design: DesignModel, rig: Rig | None = None) -> None:
         rig = nominal_rig(design) if rig is None else rig
         index = np.asarray(design.measurement_index, int)
         self.names = tuple(design.measurement_names[i] for i in index)
@@ -505,9 +472,9 @@ class MeasurementModel:
         self._d = nr + ne
         delays = (design.extras.get("augmentation") or {}).get("delays", {}) \
             if design.augmented else {}
-        self._rows = [(row, *NONLINEAR_CHANNELS[(rig_name, name)])
-                      for row, name in enumerate(self.names)
-                      if (rig_name, name) in NONLINEAR_CHANNELS and not delays.get(name)]
+        declared = design.sensors.nonlinear
+        self._rows = [(row, *declared[name]) for row, name in enumerate(self.names)
+                      if name in declared and not delays.get(name)]
         self.nonlinear = tuple(self.names[row] for row, *_ in self._rows)
 
     def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -573,7 +540,8 @@ class AugmentedProcessModel:
       ``w_i`` (:meth:`MujocoProcessModel.rollout`; gravity and joint limits in the MJCF, so a
       design input that stands for a stop's reaction is not a MuJoCo input).
     - ``rest``: the rows of ``design.discrete`` (``F``, ``B``), except the first delay state
-      of a channel of :data:`NONLINEAR_CHANNELS`, which takes the channel's nonlinear value
+      of a channel the sensors declare nonlinear (``SensorModel.nonlinear``), which takes the
+      channel's nonlinear value
       ``h(p_k, w_0)`` (``w`` of the input memory when the design keeps one).
 
     Rows of ``x`` that share ``[p, e]`` and ``u`` bitwise are rolled out once.
@@ -627,12 +595,11 @@ class AugmentedProcessModel:
                and nm_[:-5] in design.input_names]
         self._memory = np.array(mem, int) if len(mem) == self.k else None
         self._rows = []
+        declared = design.sensors.nonlinear
         for ch, d in delays.items():
-            if d and (rig.name, ch) in NONLINEAR_CHANNELS:
-                self._rows.append((names.index(f"{ch}_delay1") - self.d,
-                                   *NONLINEAR_CHANNELS[(rig.name, ch)]))
-        self.nonlinear = tuple(ch for ch, d in delays.items()
-                               if d and (rig.name, ch) in NONLINEAR_CHANNELS)
+            if d and ch in declared:
+                self._rows.append((names.index(f"{ch}_delay1") - self.d, *declared[ch]))
+        self.nonlinear = tuple(ch for ch, d in delays.items() if d and ch in declared)
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -804,7 +771,7 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
                          f"this design's state is {list(design.state_names)}")
     process = MujocoProcessModel(rig, design.dt_s, eps=eps, centered=centered,
                                  jacobian=jacobian, nthread=nthread)
-    measure = MeasurementModel(design, rig.name, rig)
+    measure = MeasurementModel(design, rig)
     if design.augmented:
         if not np.array_equal(design.physical, np.arange(rig.n_states)):
             raise ValueError("the nonlinear filters need the rig's states first in an "

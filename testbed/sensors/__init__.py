@@ -6,6 +6,7 @@ delay and sample-and-hold.
 """
 
 from testbed.sensors.base import (
+    ChannelFunctions,
     Drawn,
     Noise,
     NoiseStreams,
@@ -13,6 +14,7 @@ from testbed.sensors.base import (
     Sensor,
     SensorModel,
     Suite,
+    no_input_gradient,
 )
 from testbed.sensors.channels import LinearChannel, StateChannel
 from testbed.sensors.decorators import (
@@ -27,6 +29,7 @@ from testbed.sensors.decorators import (
     WhiteNoise,
 )
 
-__all__ = ["Bias", "BiasRandomWalk", "Decorator", "Delay", "Drawn", "LinearChannel", "Noise",
-           "NoiseStreams", "Quantize", "Sample", "SampleAndHold", "ScaleFactor", "Sensor",
-           "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise"]
+__all__ = ["Bias", "BiasRandomWalk", "ChannelFunctions", "Decorator", "Delay", "Drawn",
+           "LinearChannel", "Noise", "NoiseStreams", "Quantize", "Sample", "SampleAndHold",
+           "ScaleFactor", "Sensor", "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise",
+           "no_input_gradient"]

@@ -23,6 +23,7 @@ over one sample), a density ``N`` (unit/sqrt(Hz)) the standard deviation ``N sqr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -215,6 +216,18 @@ class Drawn:
         return self.xi[:, p:e]
 
 
+#: A channel in its nonlinear form: ``value(x (M, n_rig), w (M, k_rig), g) -> (M,)`` and its
+#: gradients ``d/dx -> (M, n_rig)`` and ``d/dw -> (M, k_rig)`` (``w``: the rig's physical
+#: input, absolute; ``g``: the model's gravity, m/s^2). Module-level functions (they pickle).
+ChannelFunctions = tuple[Callable[..., np.ndarray], Callable[..., np.ndarray],
+                         Callable[..., np.ndarray]]
+
+
+def no_input_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``d value / dw`` of a channel that does not see the input: zeros (M, k_rig)."""
+    return np.zeros((len(x), w.shape[1]))
+
+
 @dataclass
 class SensorModel:
     """Linear model ``y = C x + D u + Hw w + v``, ``cov(v) = R`` per sample.
@@ -234,6 +247,10 @@ class SensorModel:
         Channels an estimator's *input* is computed from (e.g. the vehicle's speed and yaw
         rate giving ``a_y``), not measurements of the state: designs leave them out.
         Default: none.
+    nonlinear : dict of str to ChannelFunctions
+        Channels whose exact noise-free value is nonlinear in the state, by name: the
+        function and its gradients (:data:`ChannelFunctions`), declared by the sensor beside
+        its linear model (the EKF/UKF measure with them). Default: none.
     """
 
     C: np.ndarray
@@ -242,6 +259,7 @@ class SensorModel:
     Hw: np.ndarray
     stochastic: np.ndarray
     inputs: np.ndarray | None = None
+    nonlinear: dict[str, ChannelFunctions] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.inputs is None:
@@ -258,7 +276,8 @@ class SensorModel:
                            D=np.vstack([mod.D for mod in models]),
                            R=block_diag(*[mod.R for mod in models]), Hw=Hw,
                            stochastic=np.concatenate([mod.stochastic for mod in models]),
-                           inputs=np.concatenate([mod.inputs for mod in models]))
+                           inputs=np.concatenate([mod.inputs for mod in models]),
+                           nonlinear={k: v for mod in models for k, v in mod.nonlinear.items()})
 
 
 class Sensor:

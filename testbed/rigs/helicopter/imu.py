@@ -23,7 +23,28 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.rigs.base import GRAVITY_M_S2
-from testbed.sensors import Noise, Sample, Sensor, SensorModel
+from testbed.sensors import Noise, Sample, Sensor, SensorModel, no_input_gradient
+
+
+def gyro_yaw_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``gyro_yaw = yaw_rate cos(pitch)``, shape (M,) for ``x`` (M, 4)."""
+    return x[:, 3] * np.cos(x[:, 0])
+
+
+def gyro_yaw_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``d gyro_yaw / dx``, shape (M, 4)."""
+    zero = np.zeros(len(x))
+    return np.stack([-x[:, 3] * np.sin(x[:, 0]), zero, zero, np.cos(x[:, 0])], axis=1)
+
+
+def accel_x_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``accel_x = g sin(pitch)``, shape (M,)."""
+    return g * np.sin(x[:, 0])
+
+
+def accel_x_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``d accel_x / dx``, shape (M, 4)."""
+    return np.stack([g * np.cos(x[:, 0])] + [np.zeros(len(x))] * 3, axis=1)
 
 
 class HelicopterIMU(Sensor):
@@ -44,7 +65,12 @@ class HelicopterIMU(Sensor):
                         axis=1)
 
     def linear_model(self) -> SensorModel:
-        """The first-order model about level pitch (no noise: decorators add it)."""
+        """The first-order model about level pitch (no noise: decorators add it), with the
+        exact nonlinear ``gyro_yaw`` and ``accel_x``."""
         C = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0], [GRAVITY_M_S2, 0.0, 0.0, 0.0]])
         return SensorModel(C=C, D=np.zeros((3, 2)), R=np.zeros((3, 3)), Hw=np.zeros((3, 0)),
-                           stochastic=np.ones(3, bool))
+                           stochastic=np.ones(3, bool),
+                           nonlinear={"gyro_yaw": (gyro_yaw_value, gyro_yaw_gradient,
+                                                   no_input_gradient),
+                                      "accel_x": (accel_x_value, accel_x_gradient,
+                                                  no_input_gradient)})

@@ -191,6 +191,22 @@ def find_tap(sensors: Sensor) -> Tap | None:
     return None
 
 
+def lateral_accel_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``a_y cos(roll) + g sin(roll)``, shape (M,) for ``x`` (M, 2), ``w`` (M, 1)."""
+    return w[:, 0] * np.cos(x[:, 0]) + g * np.sin(x[:, 0])
+
+
+def lateral_accel_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``d / dx``, shape (M, 2)."""
+    return np.stack([-w[:, 0] * np.sin(x[:, 0]) + g * np.cos(x[:, 0]), np.zeros(len(x))],
+                    axis=1)
+
+
+def lateral_accel_input_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
+    """``d / dw``, shape (M, 1)."""
+    return np.cos(x[:, :1])
+
+
 class LateralAccelerometer(Sensor):
     """Specific force along the body's lateral axis: ``a_y cos(roll) + g sin(roll)`` (m/s^2).
 
@@ -229,9 +245,12 @@ class LateralAccelerometer(Sensor):
                 + GRAVITY_M_S2 * np.sin(roll).item()]
 
     def linear_model(self) -> SensorModel:
-        """``y = g roll + a_y``."""
+        """``y = g roll + a_y``, with the exact nonlinear channel."""
         return SensorModel(C=np.array([[GRAVITY_M_S2, 0.0]]), D=np.ones((1, 1)),
-                           R=np.zeros((1, 1)), Hw=np.zeros((1, 0)), stochastic=np.ones(1, bool))
+                           R=np.zeros((1, 1)), Hw=np.zeros((1, 0)), stochastic=np.ones(1, bool),
+                           nonlinear={"lateral_accel": (lateral_accel_value,
+                                                        lateral_accel_gradient,
+                                                        lateral_accel_input_gradient)})
 
 
 def imu(dt_s: float = 0.01, gyro_noise_density: float = GYRO_NOISE_DENSITY,
