@@ -441,8 +441,9 @@ class MeasurementModel:
     except the channels the sensors declare nonlinear (``design.sensors.nonlinear``) that
     read the rig's states directly (not through delay states): their rig-state part is the
     nonlinear function of the rig state and the physical input ``w``
-    (:class:`PhysicalInput`), the rest of their row (bias states) stays. A delayed nonlinear channel is nonlinear in its first delay
-    state's transition instead (:class:`AugmentedProcessModel`).
+    (:class:`PhysicalInput`), the rest of their row (bias states) stays. A delayed nonlinear
+    channel is nonlinear in its first delay state's transition instead
+    (:class:`AugmentedProcessModel`).
 
     Parameters
     ----------
