@@ -414,7 +414,7 @@ def test_on_an_augmented_linear_plant_the_nonlinear_filters_equal_kalman(kind):
     from scipy.linalg import expm
 
     from filters import DiscreteLinearSystem, KalmanFilter
-    from testbed.estimators.design import InputStates, build_matched_design
+    from testbed.design import InputStates, build_matched_design
     from testbed.estimators.nonlinear import AugmentedProcessModel, nonlinear_estimator
     from testbed.sensors import BiasRandomWalk, Delay, StateChannel, WhiteNoise
 

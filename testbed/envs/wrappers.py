@@ -124,7 +124,7 @@ class FilterInLoop(gym.Wrapper, gym.utils.RecordConstructorArgs):
         estimator : str or callable
             A registered name (``"kalman"``, ...), ``"package.module:factory"``, or a factory
             ``(design, **options) -> Estimator`` (see :mod:`testbed.estimators`).
-        design : testbed.estimators.design.DesignModel, optional
+        design : testbed.design.DesignModel, optional
             Default: ``rig.design_model(sensors, dt_s, disturbance)`` of the environment.
         **options
             Passed to the estimator factory.

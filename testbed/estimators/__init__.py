@@ -59,7 +59,7 @@ are their attributes).
 
 A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
 (``testbed run RIG --filter mymodule:make``); the factory receives the
-:class:`~testbed.estimators.design.DesignModel` and keyword options.
+:class:`~testbed.design.DesignModel` and keyword options.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ import numpy as np
 
 from filters import KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
 from testbed import plugins
-from testbed.estimators.design import DesignModel
+from testbed.design import DesignModel
 
 Factory = Callable[..., Any]
 
@@ -292,15 +292,22 @@ def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: floa
     from the discrete design model (:mod:`testbed.estimators.lmi`: the full LMI (48) on a
     stable plant, its error block on a plant with free integrators; ``plant_block`` forces
     either)."""
-    build = design.extras.get("lmi_system")
-    if build is None:
-        from testbed.estimators.lmi import lmi_estimator as build
-    elif plant_block is not None:
-        raise ValueError("filter 'lmi-hinf': option plant_block applies to the generic design "
-                         "(testbed.estimators.lmi), not to this rig's own LMI system")
-    extra = {} if plant_block is None else {"plant_block": bool(plant_block)}
-    est, meta = build(design, gamma=gamma, gamma_factor=gamma_factor, objective=objective,
-                      **extra)
+    from testbed.estimators.lmi import lmi_estimator, verified_estimator
+
+    rig_system = design.extras.get("lmi_system")
+    if rig_system is None:
+        extra = {} if plant_block is None else {"plant_block": bool(plant_block)}
+        est, meta = lmi_estimator(design, gamma=gamma, gamma_factor=gamma_factor,
+                                  objective=objective, **extra)
+    else:
+        if plant_block is not None:
+            raise ValueError("filter 'lmi-hinf': option plant_block applies to the generic "
+                             "design (testbed.estimators.lmi), not to this rig's own LMI "
+                             "system")
+        system, B_u, D_u = rig_system(design)
+        est, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
+                                       objective=objective, input_matrix=B_u, feedthrough=D_u)
+        meta["a_y_std"] = design.extras.get("a_y_std", 0.1)
     est.design_meta = meta
     est.batched = True
     return _select(est, design)

@@ -66,7 +66,7 @@ def design_system(design: Any, *, stable: bool = True) -> tuple[StochasticLinear
 
     Parameters
     ----------
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
     stable : bool
         Require ``rho(F) < 1`` (the full LMI (48), and the plant of vc-discrete).
 
@@ -202,7 +202,7 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
     Parameters
     ----------
     system : StochasticLinearSystem
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
         For ``x0`` and ``dt_s``.
     gamma : float or None
     gamma_factor : float

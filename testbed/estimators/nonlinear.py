@@ -4,7 +4,7 @@ The extended and the unscented Kalman filter (:class:`filters.ExtendedKalmanFilt
 :class:`filters.UnscentedKalmanFilter`; registered as ``ekf`` and ``ukf`` in
 :mod:`testbed.estimators`) need the rig's nonlinear model where the linear filters use
 ``design.discrete``. What the designer knows is the same as for the linear design model
-(:mod:`testbed.estimators.design`): the rig's MJCF with NOMINAL parameters (a fresh rig of the
+(:mod:`testbed.design`): the rig's MJCF with NOMINAL parameters (a fresh rig of the
 design's class in its first profile, never the simulated, possibly mismatched or
 ``hardware`` truth), the sensors' model and the noise covariances ``Q``, ``R`` of
 ``design.discrete``.
@@ -65,8 +65,8 @@ import numpy as np
 from scipy.linalg import expm
 
 from filters import ExtendedKalmanFilter, UnscentedKalmanFilter
+from testbed.design import DesignModel, InputStates
 from testbed.estimators import EstimatorWrapper
-from testbed.estimators.design import DesignModel, InputStates
 
 if TYPE_CHECKING:  # the designer's rig: its class comes with the design (extras["rig_type"])
     from testbed.rigs.base import Rig
@@ -527,7 +527,7 @@ class AugmentedProcessModel:
     design's extra (actuator), bias and delay states.
 
     State ``x = [p (rig states), e (extra states), rest (biases, delays, input memory)]``
-    (:func:`testbed.estimators.design.build_matched_design`'s order); ``u`` absolute
+    (:func:`testbed.design.build_matched_design`'s order); ``u`` absolute
     (:class:`AbsoluteInput`).
 
     - ``e``: the design's continuous ``A_ee``, ``B_e`` (the matched linear design, one
@@ -731,7 +731,7 @@ def nominal_rig(design: DesignModel) -> Rig:
     """The designer's rig: the design's rig class at nominal parameters, first profile.
 
     The class and physics step come from ``design.extras["rig_type"]`` and
-    ``["physics_dt_s"]`` (set by the design builders of :mod:`testbed.estimators.design`
+    ``["physics_dt_s"]`` (set by the design builders of :mod:`testbed.design`
     from the rig that designed).
 
     Raises
@@ -744,7 +744,7 @@ def nominal_rig(design: DesignModel) -> Rig:
             and callable(getattr(rig_type, "operating_input", None))):
         raise ValueError("the nonlinear filters need the rig's MuJoCo model: the design names "
                          "no rig (design.extras['rig_type'], set by "
-                         "testbed.estimators.design.build_design)")
+                         "testbed.design.build_design)")
     if physics_dt_s is None:
         return rig_type()
     return rig_type(physics_dt_s=float(physics_dt_s))

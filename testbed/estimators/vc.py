@@ -3,7 +3,7 @@
 :mod:`filters.variance_discrete` (Liu, Deng & Wang; the second equation and the gains
 reconstructed) designs the constant-gain one-step predictor ``xhat(k+1) = G xhat(k) + K y(k)``
 for a plant with norm-bounded uncertainty. This module builds that plant
-(:class:`~filters.analysis.UncertainPlant`) from a :class:`~testbed.estimators.design.DesignModel`::
+(:class:`~filters.analysis.UncertainPlant`) from a :class:`~testbed.design.DesignModel`::
 
     x(k+1) = (F + M Fu N) x(k) + D1 w(k),   D1 = [G_d, Q^(1/2), 0]
     y(k)   = H x(k)            + D2 w(k),   D2 = [0,   0,  R^(1/2)]
@@ -203,7 +203,7 @@ def mismatch_uncertainty(design: Any, *, rank_tol: float = RANK_TOL,
 
     Parameters
     ----------
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
     rank_tol : float
         Relative singular-value threshold of each block.
     step : float
@@ -260,7 +260,7 @@ def uncertain_plant(design: Any, uncertainty: MismatchUncertainty,
 
     Parameters
     ----------
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
     uncertainty : MismatchUncertainty
     injection : ndarray, shape (n, p), optional
         ``L0`` of the output-injection loop: the plant's state matrix is ``F - L0 H`` and
@@ -478,7 +478,7 @@ def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor:
 
     Parameters
     ----------
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
     gamma : float, optional
         The H-infinity level (default ``gamma_factor gamma_min``).
     gamma_factor : float

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from testbed import estimators
-from testbed.estimators.design import DesignModel
+from testbed.design import DesignModel
 from testbed.experiment.control import make_controller
 from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics

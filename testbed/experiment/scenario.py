@@ -277,7 +277,7 @@ class Scenario:
         if self.profile not in rig_cls.profiles:
             raise ScenarioError("profile", f"profile must be one of {rig_cls.profiles} for rig "
                                 f"{rig_cls.name!r}, got {self.profile!r}")
-        from testbed.estimators.design import DESIGN_PROFILES
+        from testbed.design import DESIGN_PROFILES
 
         if self.design_profile not in DESIGN_PROFILES:
             raise ScenarioError("design_profile", f"design_profile must be one of "

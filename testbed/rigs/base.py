@@ -787,12 +787,12 @@ class Rig:
 
         Parameters
         ----------
-        design : testbed.estimators.design.DesignModel
+        design : testbed.design.DesignModel
             The design model the expansion is written in (state, input, ``A``, ``B``).
 
         Returns
         -------
-        testbed.estimators.poly.CubicExpansion
+        testbed.design.cubic.CubicExpansion
 
         Raises
         ------
@@ -811,8 +811,8 @@ class Rig:
 
         Returns
         -------
-        testbed.estimators.design.DesignModel
+        testbed.design.DesignModel
         """
-        from testbed.estimators.design import design_from_linearization
+        from testbed.design import design_from_linearization
 
         return design_from_linearization(self, sensors, dt_s, disturbance, **options)

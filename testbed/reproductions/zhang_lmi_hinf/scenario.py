@@ -11,7 +11,7 @@ StochasticLinearSystem` (paper (44) letters in brackets)::
 in two versions: (52) verbatim (:func:`paper_system`: the forward-Euler model without ``g``
 in ``A[1, 0]``) and the physically consistent model of the MuJoCo rig (:func:`rig_system`:
 exact zero-order hold of the physical linearization, with ``g``). For the rig in the loop with
-any vehicle sensor suite: :func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_estimator`.
+any vehicle sensor suite: :func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_system`.
 """
 
 from __future__ import annotations

@@ -565,15 +565,15 @@ class HelicopterRig(Rig):
 
         Parameters
         ----------
-        design : testbed.estimators.design.DesignModel
+        design : testbed.design.DesignModel
         pitch0_rad : float
             Expansion point, rad.
 
         Returns
         -------
-        testbed.estimators.poly.CubicExpansion
+        testbed.design.cubic.CubicExpansion
         """
-        from testbed.estimators.poly import CubicExpansion
+        from testbed.design.cubic import CubicExpansion
 
         if not (np.isfinite(pitch0_rad) and abs(pitch0_rad) <= PITCH_LIMIT_RAD):
             raise ValueError(f"pitch0_rad must lie within the stops +-{PITCH_LIMIT_RAD:.4f} "
@@ -612,7 +612,7 @@ class HelicopterRig(Rig):
         process_noise_floor : float
             Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
         """
-        from testbed.estimators.design import build_design
+        from testbed.design import build_design
 
         if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
             raise ValueError(f"process_noise_floor must be finite and >= 0, got "
@@ -641,7 +641,7 @@ class HelicopterRig(Rig):
         """The ``hardware`` profile's design: the paper design plus what the rig declares.
 
         State ``[pitch, yaw, pitch_rate, yaw_rate, dact_pitch, dact_yaw, biases...,
-        delays...]`` (:func:`testbed.estimators.design.build_matched_design`):
+        delays...]`` (:func:`testbed.design.build_matched_design`):
 
         - rotor lag: ``dact = act - V_g(pitch)``, the volt-equivalent rotor speeds above the
           gravity-compensating voltage, from :meth:`linearize` ``(motor_states=True)`` at
@@ -660,7 +660,7 @@ class HelicopterRig(Rig):
           of pitch, 12 times the encoder's resolution noise) is left out;
         - encoders: quantization ``q^2 / 12`` in ``R`` (the sensors' linear model).
         """
-        from testbed.estimators.design import InputStates, build_matched_design, channel_effects
+        from testbed.design import InputStates, build_matched_design, channel_effects
 
         hw = self.hardware
         nominal = HelicopterParams()

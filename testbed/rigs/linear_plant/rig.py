@@ -160,13 +160,13 @@ class LinearPlantRig(Rig):
 
         Parameters
         ----------
-        design : testbed.estimators.design.DesignModel
+        design : testbed.design.DesignModel
 
         Returns
         -------
-        testbed.estimators.poly.CubicExpansion
+        testbed.design.cubic.CubicExpansion
         """
-        from testbed.estimators.poly import CubicExpansion
+        from testbed.design.cubic import CubicExpansion
 
         plant = design.continuous
         return CubicExpansion(a0=np.zeros(plant.A.shape[0]), a1=np.array(plant.A),
@@ -183,7 +183,7 @@ class LinearPlantRig(Rig):
         ``diag(PRIOR_STD)^2``; the truth is drawn from it when the harness asks
         (``x0_from_prior``).
         """
-        from testbed.estimators.design import build_design
+        from testbed.design import build_design
 
         A, B = self.linearize()
         b = None if disturbance is None else disturbance.b

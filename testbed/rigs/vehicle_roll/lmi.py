@@ -3,8 +3,8 @@
 The design system adds to the physical model what the rig has and the paper's model does
 not: the known lateral acceleration as an input and the multiplicative damping noise
 ``C_R + D_n w_k`` through the derivative of the exact ZOH discretization. The rig's design
-model exposes :func:`vehicle_lmi_estimator` as ``extras["lmi_system"]`` (``--filter
-lmi-hinf``).
+model exposes :func:`vehicle_lmi_system` as ``extras["lmi_system"]``; ``--filter lmi-hinf``
+designs on it (:mod:`testbed.estimators.lmi`).
 """
 
 from __future__ import annotations
@@ -14,8 +14,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import expm_frechet
 
-from filters.lmi_hinf import LMIHInfFilter, StochasticLinearSystem
-from testbed.estimators.lmi import verified_estimator
+from filters.lmi_hinf import StochasticLinearSystem
 from testbed.rigs.vehicle_roll.model import VehicleRollParams, paper_model, physical_model
 
 
@@ -46,7 +45,7 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
 
     Parameters
     ----------
-    design : testbed.estimators.design.DesignModel
+    design : testbed.design.DesignModel
         The vehicle rig's design model (its stochastic channels, ``dt_s``).
     params : VehicleRollParams, optional
         The designer's parameters (nominal by default).
@@ -89,32 +88,17 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
     return system, B, D_u
 
 
-def vehicle_lmi_estimator(design: Any, *, gamma: float | None = None,
-                          gamma_factor: float = 5.0, objective: str = "h2-unique"
-                          ) -> tuple[LMIHInfFilter, dict[str, Any]]:
-    """The filter (45) for the vehicle rig in the loop (``--filter lmi-hinf``).
-
-    Designs on :func:`vehicle_design_system` by Theorem 4 at ``gamma`` (default
-    the first accurate verified 1-2-5 grid level above ``gamma_factor * gamma_min``,
-    :func:`filters.lmi_hinf.design_on_grid`) with the strictly convex mixed H2/H-infinity
-    objective.
+def vehicle_lmi_system(design: Any) -> tuple[StochasticLinearSystem, np.ndarray, np.ndarray]:
+    """The rig's LMI design system for ``--filter lmi-hinf`` (``design.extras["lmi_system"]``):
+    :func:`vehicle_design_system` with the design's ``a_y_std``; the family designs on it
+    (Theorem 4, :func:`testbed.estimators.lmi.verified_estimator`).
 
     Returns
     -------
-    estimator : LMIHInfFilter
-        With the known input ``a_y`` (``input_matrix``, ``feedthrough``) and ``dt_s``.
-    meta : dict
-        ``gamma_min``, ``gamma``, ``gain``, ``status``, ``spectral_radius`` for outputs.
-
-    Raises
-    ------
-    ValueError
-        If no verified design exists (the solver status is in the message).
+    system : StochasticLinearSystem
+    B_u : ndarray, shape (2, 1)
+        The known input's matrix.
+    D_u : ndarray, shape (m, 1)
+        Its feedthrough.
     """
-    a_y_std = design.extras.get("a_y_std", 0.1)
-    system, B_u, D_u = vehicle_design_system(design, a_y_std=a_y_std)
-    estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
-                                         objective=objective, input_matrix=B_u,
-                                         feedthrough=D_u)
-    meta["a_y_std"] = a_y_std
-    return estimator, meta
+    return vehicle_design_system(design, a_y_std=design.extras.get("a_y_std", 0.1))

@@ -222,9 +222,9 @@ class VehicleRollRig(Rig):
 
         Returns
         -------
-        testbed.estimators.poly.CubicExpansion
+        testbed.design.cubic.CubicExpansion
         """
-        from testbed.estimators.poly import CubicExpansion
+        from testbed.design.cubic import CubicExpansion
 
         nominal = VehicleRollParams()
         a3 = np.zeros((2, 2, 2, 2))
@@ -252,7 +252,7 @@ class VehicleRollRig(Rig):
             ``oracle`` = the applied ``a_y`` exactly; ``auto`` = measured when the sensors
             have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
         """
-        from testbed.estimators.design import build_design
+        from testbed.design import build_design
         from testbed.rigs.vehicle_roll.sensors import find_tap
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
@@ -281,10 +281,10 @@ class VehicleRollRig(Rig):
                               output_matrix=paper_model().M, input_transform=transform,
                               input_noise_cov=input_noise_cov)
         design.extras["input_noise_cov"] = input_noise_cov
-        from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_estimator
+        from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_system
 
         design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
-                             lmi_system=vehicle_lmi_estimator,
+                             lmi_system=vehicle_lmi_system,
                              lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
         if self.profile == "paper":
             return design
@@ -296,7 +296,7 @@ class VehicleRollRig(Rig):
         """The ``hardware`` profile's design: the paper design plus what the sensors declare.
 
         State ``[roll, roll_rate, (bias_a_y), biases..., delays...]``
-        (:func:`testbed.estimators.design.build_matched_design`):
+        (:func:`testbed.design.build_matched_design`):
 
         - the measured input's bias ``bias_a_y = v b_r`` (the yaw-rate gyro's declared bias
           times the speed; random walk ``v q_r``): the roll dynamics see ``a_y - bias_a_y``
@@ -313,7 +313,7 @@ class VehicleRollRig(Rig):
         """
         from scipy.linalg import block_diag
 
-        from testbed.estimators.design import InputStates, build_matched_design, channel_effects
+        from testbed.design import InputStates, build_matched_design, channel_effects
 
         names = tuple(sensors.names)
         effects = channel_effects(sensors)
