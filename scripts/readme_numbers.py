@@ -113,7 +113,7 @@ def vehicle() -> str:
     commands = [f"testbed run vehicle-roll --filter {f} --manoeuvre double-lane-change "
                 "--duration 10 --seed 0" for f in ("kalman", "lmi-hinf")]
     commands.append("testbed run vehicle-roll --filter kalman --manoeuvre double-lane-change "
-                    "--duration 10 --seed 0 --a-y-source oracle")
+                    "--duration 10 --seed 0 --design-option a_y_source=oracle")
     return "\n".join([*(f"`{c}`" for c in commands), "",
                       _run_table(commands, lambda c: " ".join(
                           [c.split("--filter ")[1].split()[0]]

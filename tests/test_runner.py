@@ -96,7 +96,8 @@ def test_sweep_ray_equals_local():
 
 @pytest.mark.parametrize("argv, needle", [
     (["run", "vehicle-roll", "--process-noise", "5"], "--process-noise"),
-    (["run", "vehicle-roll", "--encoder-noise", "1"], "--encoder-noise"),
+    (["run", "vehicle-roll", "--sensor-option", "noise_std_rad=1"], "--sensor-option"),
+    (["run", "vehicle-roll", "--rig-option", "yaw_locked=true"], "--rig-option"),
     (["run", "vehicle-roll", "--disturbance", "basin-helicopter"], "--disturbance"),
     (["run", "helicopter", "--manoeuvre", "step-steer"], "manoeuvre"),
     (["run", "helicopter", "--design-option", "a_y_std=1"], "a_y_std"),

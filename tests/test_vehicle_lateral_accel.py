@@ -92,7 +92,9 @@ def test_measured_input_costs_accuracy_and_stays_consistent():
 
 
 def test_cli_a_y_source(capsys):
-    assert main(["run", "vehicle-roll", "--a-y-source", "oracle", "--duration", "0.2",
-                 "--no-progress"]) == 0
-    assert main(["run", "helicopter", "--a-y-source", "oracle", "--duration", "0.2"]) == 2
-    assert "--a-y-source does not apply" in capsys.readouterr().err
+    assert main(["run", "vehicle-roll", "--design-option", "a_y_source=oracle", "--duration",
+                 "0.2", "--no-progress"]) == 0
+    assert main(["run", "helicopter", "--design-option", "a_y_source=oracle", "--duration",
+                 "0.2"]) == 2
+    err = capsys.readouterr().err
+    assert "--design-option" in err and "a_y_source" in err and "do not apply" in err

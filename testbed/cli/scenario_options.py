@@ -24,7 +24,8 @@ MAX_DURATION_S = 3600.0
 #: Command-line flag of each scenario field (error messages name the flag).
 FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-option",
          "controller": "--controller", "duration_s": "--duration", "seed": "--seed",
-         "sensors": "--sensors", "sensor_options": "--encoder-noise",
+         "sensors": "--sensors", "sensor_options": "--sensor-option",
+         "rig_options": "--rig-option", "nominal_params": "--twin",
          "manoeuvre": "--manoeuvre", "manoeuvre_params": "--manoeuvre-param",
          "disturbance": "--disturbance", "process_noise": "--process-noise",
          "design_options": "--design-option", "params": "--param", "profile": "--profile",
@@ -60,8 +61,12 @@ def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
                    help=f"accept a --duration above {MAX_DURATION_S:g} s")
     p.add_argument("--seed", type=values.seed, default=0, help="integer in [0, 2**63)")
     p.add_argument("--sensors", default=None, help="a sensor preset of the rig")
-    p.add_argument("--encoder-noise", type=values.non_negative, default=None,
-                   help="helicopter: extra Gaussian noise std on the encoder angles, rad")
+    p.add_argument("--sensor-option", type=values.name_setting, action="append", default=[],
+                   metavar="NAME=VALUE", help="option of the sensor preset (e.g. the "
+                   "helicopter's noise_std_rad); repeatable (testbed describe RIG)")
+    p.add_argument("--rig-option", type=values.name_setting, action="append", default=[],
+                   metavar="NAME=VALUE", help="construction option the rig declares (e.g. the "
+                   "Aero's yaw_locked=true); repeatable (testbed describe RIG)")
     p.add_argument("--manoeuvre", default=None,
                    help="vehicle-roll: lateral-acceleration profile (or 'none')")
     p.add_argument("--manoeuvre-param", type=values.name_value, action="append", default=[],
@@ -70,18 +75,15 @@ def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
                    help="a named disturbance of the rig (helicopter: basin-helicopter)")
     p.add_argument("--process-noise", type=values.non_negative, default=None,
                    help="scale of the rig's white process noise (helicopter)")
-    p.add_argument("--a-y-source", default=None, choices=("auto", "measured", "oracle"),
-                   help="vehicle-roll: the filter's input a_y from measured speed x yaw rate "
-                   "(measured; auto = when the sensors have them) or exact (oracle)")
     p.add_argument("--ambient-noise", type=values.finite, default=1.0,
                    help="scale of the rig's small ambient disturbance (air turbulence, gusts; "
                    "default 1, 0: none)")
     p.add_argument("--reset-noise-scale", type=values.finite, default=1.0,
                    help="scale of the rig's initial-state distribution (default 1; 0: the "
                    "fixed initial state of the papers)")
-    p.add_argument("--design-option", type=values.name_value, action="append", default=[],
-                   metavar="NAME=VALUE", help="rig design option (helicopter: "
-                   "process_noise_floor; vehicle-roll: a_y_std, design_roll_rate)")
+    p.add_argument("--design-option", type=values.name_setting, action="append", default=[],
+                   metavar="NAME=VALUE", help="design option the rig declares (e.g. "
+                   "process_noise_floor=0.05); repeatable (testbed describe RIG)")
     p.add_argument("--param", type=values.name_value, action="append", default=[],
                    metavar="NAME=SCALE", help="scale a physical parameter of the simulated "
                    "rig (model mismatch), e.g. --param mass_kg=1.1; repeatable")
@@ -96,7 +98,8 @@ ARG_FIELDS = {"rig": "rig", "profile": "profile", "design_profile": "design_prof
               "process_noise": "process_noise", "ambient_noise": "ambient_noise",
               "reset_noise_scale": "reset_noise_scale", "filter_option": "estimator_options",
               "manoeuvre_param": "manoeuvre_params", "design_option": "design_options",
-              "param": "params"}
+              "param": "params", "sensor_option": "sensor_options",
+              "rig_option": "rig_options"}
 
 
 def _cli_fields(args: argparse.Namespace, rig: Any, dests: set[str]) -> dict[str, Any]:
@@ -106,16 +109,6 @@ def _cli_fields(args: argparse.Namespace, rig: Any, dests: set[str]) -> dict[str
         value = getattr(args, dest, None)
         if dest in dests and value is not None:
             out[name] = dict(value) if isinstance(value, list) else value
-    if "encoder_noise" in dests and args.encoder_noise is not None:
-        if rig.name != "helicopter":
-            raise ValueError(f"--encoder-noise does not apply to rig {rig.name!r} (it has no "
-                             "encoders)")
-        out["sensor_options"] = {"noise_std_rad": args.encoder_noise}
-    if "a_y_source" in dests and args.a_y_source is not None:
-        if "a_y_source" not in rig.scenario_options:
-            raise ValueError(f"--a-y-source does not apply to rig {rig.name!r} (its input is "
-                             "not a lateral acceleration)")
-        out["design_options"] = {**out.get("design_options", {}), "a_y_source": args.a_y_source}
     return out
 
 
@@ -132,7 +125,7 @@ def scenario_and_file(args: argparse.Namespace
         (or with the file and its key).
     """
     source = scenario_file.read(args.scenario) if getattr(args, "scenario", None) else None
-    every = set(ARG_FIELDS) | {"encoder_noise", "a_y_source"}
+    every = set(ARG_FIELDS)
     given = getattr(args, scenario_file.GIVEN, every) if source is not None else every
     from_file = source.fields if source is not None else {}
     rig_name = args.rig if args.rig is not None else from_file.get("rig")

@@ -39,6 +39,23 @@ def name_value(text: str) -> tuple[str, float]:
     return name.strip(), number
 
 
+def name_setting(text: str) -> tuple[str, float | bool | str]:
+    """``NAME=VALUE`` with a number, ``true``/``false`` or a word as the value (the options a
+    rig, its sensors or its design declare: the receiver checks the value's type)."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    value = value.strip()
+    if value.lower() in ("true", "false"):
+        return name.strip(), value.lower() == "true"
+    if _DECIMAL.fullmatch(value):
+        number = float(value)
+        if not math.isfinite(number):
+            raise argparse.ArgumentTypeError(f"{name}: value must be finite, got {value!r}")
+        return name.strip(), number
+    return name.strip(), value
+
+
 def number(text: str, ok: Callable[[float], bool], what: str) -> float:
     value = plain_float(text)
     if not (math.isfinite(value) and ok(value)):

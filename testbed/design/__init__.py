@@ -189,11 +189,14 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
 
 
 def _designer(rig) -> dict[str, Any]:
-    """The designer's rig as the nonlinear filters rebuild it: its class and physics step
-    (``extras["rig_type"]``, ``extras["physics_dt_s"]``)."""
+    """The designer's rig as the nonlinear filters rebuild it: its class, physics step,
+    nominal parameters and options (``extras["rig_type"]``, ``["physics_dt_s"]``,
+    ``["rig_params"]``, ``["rig_options"]``)."""
     model = getattr(rig, "model", None)
     return {"rig_type": type(rig),
-            "physics_dt_s": None if model is None else float(model.opt.timestep)}
+            "physics_dt_s": None if model is None else float(model.opt.timestep),
+            "rig_params": getattr(rig, "params", None),
+            "rig_options": dict(getattr(rig, "options", None) or {})}
 
 
 def _mismatch(rig) -> Any:

@@ -728,11 +728,12 @@ class AbsoluteInput(EstimatorWrapper):
 
 
 def nominal_rig(design: DesignModel) -> Rig:
-    """The designer's rig: the design's rig class at nominal parameters, first profile.
+    """The designer's rig: the design's rig class at its nominal parameters and options, first
+    profile.
 
-    The class and physics step come from ``design.extras["rig_type"]`` and
-    ``["physics_dt_s"]`` (set by the design builders of :mod:`testbed.design`
-    from the rig that designed).
+    The class, physics step, parameters and options come from ``design.extras["rig_type"]``,
+    ``["physics_dt_s"]``, ``["rig_params"]`` and ``["rig_options"]`` (set by the design
+    builders of :mod:`testbed.design` from the rig that designed).
 
     Raises
     ------
@@ -745,9 +746,11 @@ def nominal_rig(design: DesignModel) -> Rig:
         raise ValueError("the nonlinear filters need the rig's MuJoCo model: the design names "
                          "no rig (design.extras['rig_type'], set by "
                          "testbed.design.build_design)")
-    if physics_dt_s is None:
-        return rig_type()
-    return rig_type(physics_dt_s=float(physics_dt_s))
+    params, options = design.extras.get("rig_params"), design.extras.get("rig_options")
+    kwargs: dict[str, Any] = {"options": options} if options else {}  # as rigs.base.build_rig
+    if physics_dt_s is not None:
+        kwargs["physics_dt_s"] = float(physics_dt_s)
+    return rig_type(params, **kwargs)
 
 
 def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool = False,

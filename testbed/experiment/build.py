@@ -15,6 +15,7 @@ from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame
 from testbed.rigs import resolve_rig
+from testbed.rigs.base import build_rig
 from testbed.sim import build_simulator
 
 
@@ -95,9 +96,12 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     # the designer's rigs: nominal parameters; the controller's is always the paper
     # profile's (the same controller whatever the estimator's design), the estimator's
     # knows the scenario's profile unless design_profile is "paper"
-    control_rig = type(rig)(physics_dt_s=scenario.physics_dt_s)
+    # (nominal: the scenario's nominal parameters and rig options, a twin's when given)
+    control_rig = build_rig(type(rig), rig.params, physics_dt_s=scenario.physics_dt_s,
+                            options=rig.options)
     matched = scenario.design_profile == "matched" and scenario.profile != "paper"
-    design_rig = (type(rig)(physics_dt_s=scenario.physics_dt_s, profile=scenario.profile)
+    design_rig = (build_rig(type(rig), rig.params, physics_dt_s=scenario.physics_dt_s,
+                            profile=scenario.profile, options=rig.options)
                   if matched else control_rig)
     with blame("design_options"):
         design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,

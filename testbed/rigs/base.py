@@ -111,10 +111,9 @@ class ParameterMismatch:
             raise ValueError(f"step must be in (0, 0.5), got {step}")
         out = {}
         for name in self.ranges:
-            A = [self.rig_type(self.params.scaled({name: 1.0 + sign * step}),
-                               physics_dt_s=self.physics_dt_s, profile=self.profile,
-                               options=self.options
-                               ).linearize()[0] for sign in (1.0, -1.0)]
+            A = [build_rig(self.rig_type, self.params.scaled({name: 1.0 + sign * step}),
+                           physics_dt_s=self.physics_dt_s, profile=self.profile,
+                           options=self.options).linearize()[0] for sign in (1.0, -1.0)]
             out[name] = (A[0] - A[1]) / (2.0 * step)
         return out
 
@@ -169,6 +168,26 @@ class RigOption:
             raise ValueError(f"rig option {name!r} must be one of {list(self.choices)}, got "
                              f"{value!r}")
         return value
+
+
+def build_rig(rig_cls: type, params: Params | None = None, *, physics_dt_s: float = 0.001,
+               profile: str = "paper", options: dict[str, Any] | None = None) -> Rig:
+    """``rig_cls(params, physics_dt_s=..., profile=...)``, with ``options=`` only when there are
+    options (a rig class of a user's that predates rig options keeps working).
+
+    Parameters
+    ----------
+    rig_cls : type
+        A :class:`Rig` subclass.
+    params : Params, optional
+        Its nominal parameters (default the class's).
+    physics_dt_s : float
+    profile : str
+    options : dict, optional
+        :attr:`Rig.rig_options` values.
+    """
+    kwargs = {"options": dict(options)} if options else {}
+    return rig_cls(params, physics_dt_s=physics_dt_s, profile=profile, **kwargs)
 
 
 def models_dir() -> Path:

@@ -43,6 +43,7 @@ from testbed.estimators import EstimatorWrapper, PerMember, memo, paper_design_o
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.rigs import resolve_rig
+from testbed.rigs.base import build_rig
 from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
@@ -150,7 +151,8 @@ def _sampled(entry: SuiteEntry, scenario, num: int, steps: int,
              nominal: bool) -> SampledDisturbance | None:
     """The entry's disturbance as per-member samples (the named signal's values when
     ``nominal``, else zeros) for ``steps + 1`` control instants, with its white noise."""
-    rig = resolve_rig(scenario.rig)(physics_dt_s=scenario.physics_dt_s)
+    rig = build_rig(resolve_rig(scenario.rig), physics_dt_s=scenario.physics_dt_s,
+                    options=scenario.rig_options)
     dt_s = scenario.physics_dt_s * scenario.frame_skip
     base = rig.disturbance(scenario.disturbance, scenario.process_noise)
     channel = None if entry.worst_case is None else entry.worst_case.channel

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from testbed.rigs import resolve_rig
-from testbed.rigs.base import Rig
+from testbed.rigs.base import Rig, build_rig
 from testbed.sim.simulator import Simulator, positive_int
 
 
@@ -18,20 +18,24 @@ def build_simulator(rig: Any = "helicopter", num: int = 1, *, physics_dt_s: floa
                     manoeuvre_params: dict[str, Any] | None = None,
                     params: dict[str, float] | None = None,
                     num_threads: int | None = None, profile: str = "paper",
-                    reset_noise_scale: float = 1.0, ambient_noise: float = 1.0) -> Simulator:
+                    reset_noise_scale: float = 1.0, ambient_noise: float = 1.0,
+                    rig_options: dict[str, Any] | None = None,
+                    nominal_params: Any = None) -> Simulator:
     """A :class:`Simulator` of ``num`` members from the environments' arguments.
 
     ``rig`` is a registered name, a class or a built :class:`~testbed.rigs.base.Rig` (used as
     it is; ``physics_dt_s`` and ``profile`` are then the rig's own). By default the initial
     state is drawn from the rig's documented distribution
     (``reset_noise_scale = 1``) and the rig's small ambient disturbance is on
-    (``ambient_noise = 1``); 0 turns either off.
+    (``ambient_noise = 1``); 0 turns either off. ``rig_options`` and ``nominal_params`` (the
+    rig's ``Params``, e.g. a twin's) build a rig from its name or class.
     """
     positive_int(frame_skip, "frame_skip")
     if isinstance(rig, Rig):
         rig_obj = rig  # built already (Scenario.check): the MJCF is not read again
     else:
-        rig_obj = resolve_rig(rig)(physics_dt_s=physics_dt_s, profile=profile)
+        rig_obj = build_rig(resolve_rig(rig), nominal_params, physics_dt_s=physics_dt_s,
+                            profile=profile, options=rig_options)
     dt_s = rig_obj.model.opt.timestep * int(frame_skip)
     if sensors is None or isinstance(sensors, str):
         sensors = rig_obj.sensors(sensors, dt_s=dt_s, **(sensor_kwargs or {}))

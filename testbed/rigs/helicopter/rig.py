@@ -350,7 +350,8 @@ class HelicopterRig(Rig):
     state_envelope = (np.pi / 2, np.inf, 100.0, 100.0)
 
     def __init__(self, params: HelicopterParams | None = None, physics_dt_s: float = 0.001,
-                 profile: str = "paper", hardware: HelicopterHardware | None = None):
+                 profile: str = "paper", hardware: HelicopterHardware | None = None,
+                 options: dict | None = None):
         if hardware is not None and not isinstance(hardware, HelicopterHardware):
             raise ValueError(f"hardware must be a HelicopterHardware, got {hardware!r}")
         if hardware is not None and profile != "hardware":
@@ -360,7 +361,7 @@ class HelicopterRig(Rig):
         if self.hardware is not None:
             limits = tuple(float(v) for v in self.hardware.voltage_limit_v)
             self.action_low, self.action_high = tuple(-v for v in limits), limits
-        super().__init__(params, physics_dt_s, profile)
+        super().__init__(params, physics_dt_s, profile, options)
         ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n)
                for n in ("pitch_motor", "yaw_motor")]
         self._act_pitch, self._act_yaw = ids
@@ -625,7 +626,7 @@ class HelicopterRig(Rig):
             if disturbance.intensity is not None:
                 Q += disturbance.intensity
             G = disturbance.G
-        nominal = HelicopterParams()  # what the designer knows: never the scaled truth
+        nominal = self.params  # what the designer knows (nominal or a twin's): never the truth
 
         unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
@@ -663,7 +664,7 @@ class HelicopterRig(Rig):
         from testbed.design import InputStates, build_matched_design, channel_effects
 
         hw = self.hardware
-        nominal = HelicopterParams()
+        nominal = self.params
         A, B = self.linearize(motor_states=True)
         tau = np.asarray(hw.motor_time_constant_s, float)
         Qm = np.zeros((6, 6))

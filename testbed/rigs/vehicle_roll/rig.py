@@ -105,8 +105,8 @@ class VehicleRollRig(Rig):
     state_envelope = (np.pi, 50.0)
 
     def __init__(self, params: VehicleRollParams | None = None, physics_dt_s: float = 0.001,
-                 profile: str = "paper"):
-        super().__init__(params, physics_dt_s, profile)
+                 profile: str = "paper", options: dict | None = None):
+        super().__init__(params, physics_dt_s, profile, options)
         self.model.opt.gravity[:] = [0.0, 0.0, -GRAVITY_M_S2]
         self._body_id = self.body_id("sprung_mass")
         self._nbody, self._damping_dof = self.model.nbody, int(self.dof_adr[0])
@@ -270,7 +270,7 @@ class VehicleRollRig(Rig):
         transform = None
         if source == "measured":
             transform = functools.partial(_measured_a_y_input, tap)  # pickles
-        nominal = VehicleRollParams()
+        nominal = self.params  # the designer's (nominal or a twin's), never the truth
         A, B = physical_model(nominal)
         Q = process_noise_intensity(nominal, dt_s, a_y_std, design_roll_rate)
         if disturbance is not None and disturbance.intensity is not None:
