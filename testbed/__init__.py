@@ -10,9 +10,7 @@ Importing the package registers the Gymnasium environments::
 
 from __future__ import annotations
 
-import gymnasium as gym  # noqa: E402 - after the start-up interrupt handling
-
-from testbed import _startup  # noqa: F401 - first: start-up Ctrl-C and MUJOCO_GL
+from testbed import _startup  # first: start-up Ctrl-C and MUJOCO_GL
 
 __version__ = "0.1.0"
 
@@ -36,7 +34,12 @@ _ENVS = {
 ENV_IDS = tuple(_ENVS)
 
 
-def _register() -> None:
+def register() -> None:
+    """Register the Gymnasium ids (:data:`ENV_IDS`); importing the package does, except in
+    the ``testbed`` command's own process, whose commands call it once parsed (so that
+    ``testbed --version`` does not import Gymnasium)."""
+    import gymnasium as gym
+
     for env_id, (entry_point, max_steps, *rest) in _ENVS.items():
         vector, kwargs = (rest + [None, None])[:2]
         if env_id not in gym.registry:
@@ -44,4 +47,5 @@ def _register() -> None:
                          vector_entry_point=vector, kwargs=kwargs or {})
 
 
-_register()
+if not _startup.CLI_PROCESS:
+    register()

@@ -33,8 +33,19 @@ parsers), :mod:`~testbed.cli.scenario_options` (the options of every scenario co
 ``add_parser(sub)`` and ``command(args)``.
 """
 
-from testbed.cli.main import main
-from testbed.cli.parser import build_parser
-from testbed.cli.scenario_options import scenario_from_args
+from typing import Any
 
 __all__ = ["build_parser", "main", "scenario_from_args"]
+
+#: Where each name of :data:`__all__` lives (imported on first use: ``testbed --version``
+#: imports no command).
+_HOMES = {"main": "testbed.cli.main", "build_parser": "testbed.cli.parser",
+          "scenario_from_args": "testbed.cli.scenario_options"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOMES:
+        import importlib
+
+        return getattr(importlib.import_module(_HOMES[name]), name)
+    raise AttributeError(f"module 'testbed.cli' has no attribute {name!r}")

@@ -13,10 +13,6 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from filters import FilterError
-from testbed.experiment.scenario import ScenarioError
-from testbed.sim.simulator import SimulationDiverged
-
 EXIT_FAILURE, EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 1, 2, 3, 4, 5
 
 
@@ -99,14 +95,19 @@ def _plugin_flag(args: argparse.Namespace) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``testbed`` command (exit codes in :mod:`testbed.cli`)."""
+    import testbed
     from testbed import _startup
-    from testbed.cli.parser import build_parser, command_module
+    from testbed.cli.parser import build_parser, command_module, command_named
 
     args = None
     try:
         if _startup.end_of_startup():  # a Ctrl-C while the command started (its imports)
             raise KeyboardInterrupt
-        args = build_parser().parse_args(argv)
+        words = list(sys.argv[1:] if argv is None else argv)
+        named = command_named(words)
+        only = [named] if named else [] if "--print-completion" not in words else None
+        args = build_parser(only).parse_args(words)
+        testbed.register()  # the Gymnasium ids, for plug-ins that make environments
         command = command_module(args.command).command
         with _sigterm_raises(), _mujoco_warnings_logged():
             return _run_command(command, args)
@@ -151,10 +152,13 @@ def _done_with_signals() -> None:
 
 def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
     """The exit code of a failure (printed as one line); re-raises what is not a failure."""
+    from filters import FilterError
     from testbed.cli.scenario_options import FLAGS
     from testbed.experiment.runner import StudyTooLarge
+    from testbed.experiment.scenario import ScenarioError
     from testbed.io import OutputError
     from testbed.plugins import EstimatorFailed, describe
+    from testbed.sim.simulator import SimulationDiverged
 
     if _SIGNALLED and not isinstance(exc, KeyboardInterrupt | _Terminated):
         # the signal landed in a library, which turned it into another exception

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from testbed.cli import values
 from testbed.cli.outputs import units_note, wrote
@@ -19,9 +18,8 @@ from testbed.io import write_json
 from testbed.outputs.units import display
 
 
-def add_parser(sub: Any) -> None:
-    """The command's subparser."""
-    mc = sub.add_parser("mc", help="Monte-Carlo study: many closed-loop runs, batched")
+def add_arguments(mc: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``mc``."""
     add_scenario_options(mc, 10.0)
     mc.add_argument("--runs", type=values.positive_int, default=100)
     mc.add_argument("--batch-size", type=values.positive_int, default=None)

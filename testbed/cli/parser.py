@@ -5,16 +5,24 @@ from __future__ import annotations
 
 import argparse
 import importlib
+from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 from testbed import __version__
 from testbed.cli.main import EXIT_USAGE
 from testbed.completion import add_completion
-from testbed.experiment import scenario_file
 
-#: The commands, in ``--help`` order: ``testbed.cli.NAME`` has ``add_parser(sub)`` and
-#: ``command(args) -> exit code``.
-COMMANDS = ("run", "mc", "sweep", "reproduce", "score", "view")
+#: The commands, in ``--help`` order, with their one-line help: ``testbed.cli.NAME`` has
+#: ``add_arguments(parser)`` and ``command(args) -> exit code``.
+COMMANDS = {
+    "run": "fly a rig with an estimator in the loop",
+    "mc": "Monte-Carlo study: many closed-loop runs, batched",
+    "sweep": "one Monte-Carlo study per point of a parameter grid",
+    "reproduce": "run a paper example and compare with its numbers",
+    "score": "score estimators on a scenario suite (RMSE, consistency, worst-case gain, "
+             "cost, mismatch)",
+    "view": "open a .rrd recording in Rerun's viewer (native or web)",
+}
 
 DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
 
@@ -31,11 +39,23 @@ class _Parser(argparse.ArgumentParser):
         # the deferred defaults of run/mc/sweep: a scenario file's values yield only to the
         # options typed (testbed.experiment.scenario_file.defer_defaults)
         namespace, extras = super().parse_known_args(args, namespace)
+        if not getattr(namespace, "command", None):
+            return namespace, extras  # --version, --help: no scenario options
+        from testbed.experiment import scenario_file
+
         return scenario_file.fill_deferred(self, namespace), extras
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser (also used by the docs and tests)."""
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser (also used by the docs and tests).
+
+    Parameters
+    ----------
+    commands : iterable of str, optional
+        The commands whose arguments are added (default: all); the others are listed with
+        their help only, so that ``testbed --version`` and ``testbed --help`` import no
+        command module (nor MuJoCo, SciPy or Gymnasium).
+    """
     import testbed.cli
 
     parser = _Parser(prog="testbed", description=testbed.cli.__doc__.splitlines()[0],
@@ -47,8 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_completion(parser)
     parser.add_argument("--debug", action="store_true", default=False, help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMANDS:
-        command_module(name).add_parser(sub)
+    wanted = set(COMMANDS if commands is None else commands)
+    for name, text in COMMANDS.items():
+        command = sub.add_parser(name, help=text)
+        if name in wanted:
+            command_module(name).add_arguments(command)
     for command in sub.choices.values():  # also after the command: testbed run ... --debug
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help=DEBUG_HELP)
@@ -58,3 +81,13 @@ def build_parser() -> argparse.ArgumentParser:
 def command_module(name: str) -> Any:
     """The module of command ``name`` (``testbed.cli.NAME``)."""
     return importlib.import_module(f"testbed.cli.{name}")
+
+
+def command_named(argv: Sequence[str]) -> str | None:
+    """The command a command line names (its first word that is a command), or None."""
+    for word in argv:
+        if word in COMMANDS:
+            return word
+        if word == "--print-completion":
+            return None  # completion needs every command's arguments
+    return None

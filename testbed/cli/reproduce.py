@@ -3,18 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from testbed.cli import values
 from testbed.cli.outputs import REPRODUCE_DOC, REPRODUCE_OUT_DIR, wrote
 from testbed.cli.scenario_options import MAX_DURATION_S
 
 
-def add_parser(sub: Any) -> None:
-    """The command's subparser."""
+def add_arguments(rep: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``rep``."""
     from testbed.reproductions import REPRODUCTIONS
 
-    rep = sub.add_parser("reproduce", help="run a paper example and compare with its numbers")
     rep.add_argument("name", choices=[*sorted(REPRODUCTIONS), "all"])
     rep.add_argument("--horizon", type=values.positive, default=None,
                      help="simulated seconds (default: the paper's horizon; at most "

@@ -21,9 +21,8 @@ from testbed.experiment.scenario import Scenario
 from testbed.io import write_json
 
 
-def add_parser(sub: Any) -> None:
-    """The command's subparser."""
-    run = sub.add_parser("run", help="fly a rig with an estimator in the loop")
+def add_arguments(run: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``run``."""
     add_scenario_options(run, 20.0)
     run.add_argument("--rrd", help="write a Rerun recording here")
     run.add_argument("--json", help="write the summary JSON here")

@@ -4,17 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
 from testbed.cli import values
 from testbed.cli.outputs import worst_case_path, wrote
 from testbed.estimators import ESTIMATORS
 
 
-def add_parser(sub: Any) -> None:
-    """The command's subparser."""
-    sc = sub.add_parser("score", help="score estimators on a scenario suite (RMSE, "
-                        "consistency, worst-case gain, cost, mismatch)")
+def add_arguments(sc: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``sc``."""
     sc.add_argument("--estimator", action="append", default=[], metavar="NAME_OR_MODULE:FACTORY",
                     help=f"{', '.join(ESTIMATORS)} or package.module:factory; repeatable")
     sc.add_argument("--suite", default="quick", help="quick or standard")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from testbed.cli import values
 from testbed.cli.outputs import units_note, wrote
@@ -20,9 +19,8 @@ from testbed.io import write_json
 from testbed.outputs.units import display
 
 
-def add_parser(sub: Any) -> None:
-    """The command's subparser."""
-    sw = sub.add_parser("sweep", help="one Monte-Carlo study per point of a parameter grid")
+def add_arguments(sw: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``sw``."""
     add_scenario_options(sw, 10.0)
     sw.add_argument("--runs", type=values.positive_int, default=100)
     sw.add_argument("--grid", type=values.grid_axis, action="append", default=[],

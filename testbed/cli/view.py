@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from testbed.outputs.view import BIND, GRPC_PORT, WEB_PORT, view
 
 
-def add_parser(sub: Any) -> None:
-    """``testbed view`` on the CLI's subparsers."""
-    v = sub.add_parser("view", help="open a .rrd recording in Rerun's viewer (native or web)")
+def add_arguments(v: argparse.ArgumentParser) -> None:
+    """The command's arguments on its subparser ``v``."""
     v.add_argument("file", help="a .rrd file written by testbed (--rrd, reproduce, score)")
     v.add_argument("--web", action="store_true",
                    help=f"host the web viewer on {BIND} and print its URL (headless machines)")
