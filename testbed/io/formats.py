@@ -86,7 +86,7 @@ def _file_kind(mode: int) -> str:
     return "not a regular file"
 
 
-def read_bounded(path: str | os.PathLike, limit: int = MAX_RECORDING_BYTES, *,
+def read_bounded(path: str | os.PathLike, limit: int | None = None, *,
                  what: str = "recording") -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes.
 
@@ -98,8 +98,8 @@ def read_bounded(path: str | os.PathLike, limit: int = MAX_RECORDING_BYTES, *,
     Parameters
     ----------
     path : str or PathLike
-    limit : int
-        Largest size accepted, bytes.
+    limit : int, optional
+        Largest size accepted, bytes (default :data:`MAX_RECORDING_BYTES`).
     what : str
         What the file is, for messages.
 
@@ -109,6 +109,7 @@ def read_bounded(path: str | os.PathLike, limit: int = MAX_RECORDING_BYTES, *,
         One line naming the file.
     """
     name = os.fspath(path)
+    limit = MAX_RECORDING_BYTES if limit is None else int(limit)
     try:
         fd = os.open(name, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
                      | getattr(os, "O_CLOEXEC", 0))
@@ -139,6 +140,19 @@ def read_bounded(path: str | os.PathLike, limit: int = MAX_RECORDING_BYTES, *,
         raise RecordingError(f"{name}: cannot read the {what} ({exc.strerror or exc})") from None
     finally:
         os.close(fd)
+
+
+def _check_kind(name: str) -> None:
+    """Refuse a path that is not a regular file by its ``stat`` (nothing is opened)."""
+    try:
+        mode = os.stat(name).st_mode
+    except FileNotFoundError:
+        raise RecordingError(f"{name}: no such recording file") from None
+    except OSError as exc:
+        raise RecordingError(f"{name}: cannot read the recording ({exc.strerror or exc})"
+                             ) from None
+    if not stat.S_ISREG(mode):
+        raise RecordingError(f"{name}: {_file_kind(mode)}; a recording must be a regular file")
 
 
 # ---------------------------------------------------------------------------- parsed tables
@@ -245,8 +259,10 @@ def _parse_cells(body: list[str], header: list[str], name: str, first: int) -> n
         if not row or not any(cell.strip() for cell in row):
             raise RecordingError(f"{name}: column {header[0]!r}, line {line}: empty row")
         if len(row) != len(header):
-            raise RecordingError(f"{name}: column {header[min(len(row), len(header)) - 1]!r}, "
-                                 f"line {line}: {len(row)} cells, the header has {len(header)}")
+            column = repr(header[len(row)]) if len(row) < len(header) else \
+                f"{len(header) + 1} (past the header)"
+            raise RecordingError(f"{name}: column {column}, line {line}: {len(row)} cells, the "
+                                 f"header has {len(header)}")
         for j, cell in enumerate(row):
             cell = cell.strip()
             if not cell:
@@ -654,6 +670,7 @@ def read_recording(path: str | os.PathLike | Sequence[str | os.PathLike], *,
         if Path(source).is_dir():
             raise RecordingError(f"{source}: a directory: a directory of QUARC files needs a "
                                  "mapping naming rows of files (docs/twin.md)")
+        _check_kind(source)
         suffix = Path(source).suffix.lower()
         if suffix not in SUFFIXES:
             raise RecordingError(f"{source}: unknown recording format {suffix or '(none)'!r}; "

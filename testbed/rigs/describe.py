@@ -233,7 +233,7 @@ def _cell(value: Any) -> str:
             "-inf" if math.isinf(value) else f"{value:.6g}"
     if isinstance(value, list | tuple):
         return ", ".join(_cell(v) for v in value) if value else "-"
-    return "-" if value is None else str(value)
+    return "" if value is None else "-" if value == "" else str(value)
 
 
 def format_description(d: dict[str, Any]) -> str:
@@ -263,7 +263,7 @@ def format_description(d: dict[str, Any]) -> str:
             if "error" in suite:
                 rows.append((preset, "-", f"({suite['error']})"))
             for k, ch in enumerate(suite.get("channels", [])):
-                rows.append((preset if k == 0 else "", ch["name"], ch["unit"]))
+                rows.append((preset if k == 0 else None, ch["name"], ch["unit"]))
         out += ["", f"profile {prof}: sensor channels by preset (default: "
                     f"{entry['default_sensors'] or '-'})",
                 _table(("preset", "channel", "unit"), rows)]
