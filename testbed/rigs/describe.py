@@ -119,16 +119,19 @@ def _doc_units(params_type: type) -> dict[str, str]:
 
 
 def parameter_unit(params_type: type, field: str) -> str:
-    """A parameter's unit: the field's ``metadata["unit"]``, its name's ending (``_kg``),
-    or its docstring; ``""`` when unknown."""
+    """A parameter's unit: the field's ``metadata["unit"]``, its docstring (numpydoc
+    ``Attributes``), or its name's ending (``_kg``); ``""`` when unknown."""
     for f in dataclasses.fields(params_type):
         if f.name == field and "unit" in f.metadata:
             return str(f.metadata["unit"])
+    documented = _doc_units(params_type).get(field)
+    if documented:
+        return documented
     lower = field.lower()
     for suffix in sorted(_SUFFIX_UNITS, key=len, reverse=True):
         if lower.endswith(suffix):
             return _SUFFIX_UNITS[suffix]
-    return _doc_units(params_type).get(field, "")
+    return ""
 
 
 def _default_preset(rig: Rig, suites: dict[str, dict[str, Any]]) -> str:
