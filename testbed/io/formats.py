@@ -522,8 +522,8 @@ def _check_time(time: _Column, factor_s: float) -> np.ndarray:
     step = np.diff(t)
     if not (step > 0).all():
         i = int(np.flatnonzero(step <= 0)[0]) + 1
-        problem = (f"time {t[i]:.17g} s repeats" if step[i - 1] == 0 else
-                   f"time {t[i]:.17g} s goes back (after {t[i - 1]:.17g} s)")
+        problem = (f"time {float(t[i])!r} s repeats" if step[i - 1] == 0 else
+                   f"time {float(t[i])!r} s goes back (after {float(t[i - 1])!r} s)")
         raise time.at(i, problem + "; time must be strictly increasing")
     return t
 

@@ -297,9 +297,9 @@ def _bad_csv(tmp_path, line: int | None, text: str | None, lines=None):
 
 
 @pytest.mark.parametrize("line, text, column, expected", [
-    (6, "0.02,1.5,0.004", "time_s", "goes back (after 0.029999999999999999 s)"),
+    (6, "0.02,1.5,0.004", "time_s", "time 0.02 s goes back (after 0.03 s)"),
     (4, "nan,1.5,0.002", "time_s", "time nan is not finite"),
-    (5, "0.02,1.5,0.003", "time_s", "repeats"),
+    (5, "0.02,1.5,0.003", "time_s", "time 0.02 s repeats"),
     (4, "0.02,1.5,nan", "pitch", "NaN (a gap)"),
     (4, "0.02,,0.002", "V_pitch", "empty cell"),
     (7, "0.05,1.5,abc", "pitch", "not a number: 'abc'"),
