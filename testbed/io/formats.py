@@ -759,7 +759,8 @@ def _kind(name: str, col: _Column, entry: ColumnMap | None, declared: _Declared 
                              f"{what}not an input or sensor channel of {declared.label}; "
                              f"expected {declared.expected()}")
     if entry is not None and entry.kind and entry.kind != kind:
-        raise RecordingError(f"{entry.name!r}: the mapping says kind {entry.kind!r}, "
+        raise RecordingError(f"{col.file}: column {label!r}: the mapping says kind "
+                             f"{entry.kind!r} for {entry.name!r}, "
                              f"{declared.label} has it as an {kind}")
     if entry is not None and entry.unit and unit and entry.si_unit() != unit:
         raise RecordingError(f"{col.file}: column {label!r}: the mapping's unit "

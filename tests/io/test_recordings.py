@@ -131,6 +131,28 @@ def test_the_convention_of_a_simulated_run(tmp_path):
         recording_from_run_result(traj)
 
 
+def test_a_batched_loop_result_member():
+    from testbed.experiment.runner import build, run_seeds
+    from testbed.experiment.scenario import Scenario
+
+    experiment = build(Scenario(rig="vehicle-roll", duration_s=0.3), 3, num_threads=1)
+    sim = experiment.loop.sim
+    try:
+        seeds = run_seeds(2, 3)
+        result = experiment.loop.run(seeds, 0.3, record=True)
+    finally:
+        experiment.close()
+    rec = recording_from_run_result(result, action_names=sim.rig.action_names,
+                                    channel_names=sim.sensors.names, member=2)
+    traj = result.trajectory
+    assert rec.n_samples == len(traj["t_s"]) - 1
+    assert bitwise(rec.inputs["a_y"], traj["action"][2, 1:, 0])
+    assert bitwise(rec.channel_matrix(sim.sensors.names), traj["measurement"][2, :-1])
+    assert rec.meta["seed"] == seeds[2]
+    with pytest.raises(ValueError, match="action_names and channel_names"):
+        recording_from_run_result(result)
+
+
 # ---------------------------------------------------------------------------- QUARC layout
 def _quarc_experiment(rec: Recording, folder, shift_sample: int | None = None):
     """What a QUARC model's "To File" blocks write: encoder counts (pitch from its rest on the
@@ -460,3 +482,39 @@ def test_writer_refuses_bad_recordings_and_names(tmp_path):
     with pytest.raises(ValueError, match="must end in .csv, .npz, .mat"):
         write_recording(tmp_path / "a.txt", Recording(t, {}, {"y": np.zeros(4)}))
     assert not list(tmp_path.iterdir())
+
+
+def test_mapping_kinds_without_a_rig_and_path_errors(tmp_path):
+    t = 0.02 * np.arange(20)
+    np.savez(tmp_path / "log.npz", time_s=t, volts=np.full(20, 2.0), ang=np.linspace(0, 90, 20))
+    mapping = Mapping.from_dict({"columns": {
+        "V_pitch": {"from": "volts", "kind": "input", "unit": "mV", "scale": 2.0},
+        "pitch": {"from": "ang", "unit": "deg"}}}, source="m.toml")
+    rec = read_recording(tmp_path / "log.npz", mapping=mapping)
+    assert list(rec.inputs) == ["V_pitch"] and list(rec.channels) == ["pitch"]
+    np.testing.assert_allclose(rec.inputs["V_pitch"], 4e-3, rtol=1e-15)
+    np.testing.assert_allclose(rec.channels["pitch"][-1], np.pi / 2, rtol=1e-15)
+    missing = Mapping.from_dict({"columns": {"pitch": {"from": "theta"}}}, source="m.toml")
+    with pytest.raises(RecordingError) as exc:
+        read_recording(tmp_path / "log.npz", mapping=missing)
+    one_line(exc, "m.toml", "[columns.pitch] reads column 'theta'", "ang, volts")
+    for path, expected in ((tmp_path, "a directory"), (tmp_path / "log.txt", "unknown recording "
+                           "format '.txt'"), (tmp_path / "none.csv", "no such recording file")):
+        if expected.startswith("unknown"):
+            path.write_text("time_s\n")
+        with pytest.raises(RecordingError) as exc:
+            read_recording(path)
+        one_line(exc, str(path), expected)
+
+
+def test_matlab_v73_read_with_h5py_when_installed(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    path = tmp_path / "new.mat"
+    t = 0.01 * np.arange(50)
+    with h5py.File(path, "w", userblock_size=512) as f:
+        f["time_s"] = t[None, :]  # what MATLAB writes for a column vector (transposed)
+        f["pitch"] = np.sin(t)[None, :]
+    with open(path, "r+b") as f:
+        f.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, HDF5 schema 1.00 .".ljust(128))
+    rec = read_recording(path)
+    assert bitwise(rec.time_s, t) and bitwise(rec.channels["pitch"], np.sin(t))
