@@ -62,7 +62,7 @@ def _suites(rig: Rig) -> dict[str, dict[str, Any]]:
         label = preset or "default"
         try:
             suite = rig.sensors(preset)
-        except (ValueError, TypeError) as exc:  # a preset needing options the rig lacks
+        except (ValueError, TypeError, NotImplementedError) as exc:  # options it lacks
             out[label] = {"error": str(exc).splitlines()[0]}
             continue
         out[label] = {"channels": [{"name": n, "unit": u}
@@ -138,7 +138,7 @@ def _default_preset(rig: Rig, suites: dict[str, dict[str, Any]]) -> str:
     """The preset ``rig.sensors()`` builds (the first with the same description)."""
     try:
         default = rig.sensors().describe()
-    except (ValueError, TypeError):
+    except (ValueError, TypeError, NotImplementedError):
         return ""
     for preset in suites:
         if "channels" in suites[preset] and preset != "default" and \
