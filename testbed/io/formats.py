@@ -907,8 +907,8 @@ def recording_from_run_result(result: Any, *, action_names: Sequence[str] | None
         Member of a batched ``LoopResult``.
     source : str
     meta : dict, optional
-        Added to the recording's meta (default keeps the run's rig, sensors, control period,
-        seed and duration; never its parameters or states).
+        Added to the recording's meta (default keeps the run's rig, profile, sensors, control
+        period, seed and duration; never its parameters or states).
 
     Returns
     -------
@@ -935,6 +935,9 @@ def recording_from_run_result(result: Any, *, action_names: Sequence[str] | None
         action_names = action_names or [n.partition(" [")[0] for n in result.action_names]
         channel_names = channel_names or list(result.measurement_names)
         run_meta = {k: result.meta[k] for k in _RUN_META if k in result.meta}
+        profile = (result.meta.get("scenario") or {}).get("profile")
+        if isinstance(profile, str):
+            run_meta["profile"] = profile
     else:
         traj = getattr(result, "trajectory", None)
         if not isinstance(traj, dict) or "measurement" not in traj:
