@@ -4,6 +4,10 @@ What a real unit's log holds (and what ``testbed run --save-log`` writes for a s
 the time stamps, the inputs the rig received (named as the rig's ``action_names``) and the
 channels its sensors gave (named as the sensor suite's ``names``). A recording may hold a
 subset of the channels. Readers and writers of files are in :mod:`testbed.io.formats`.
+
+Row ``k`` holds the time ``t_k``, the channels the sensors gave at ``t_k`` and the inputs
+applied from ``t_k`` to ``t_{k+1}`` (a real rig's data logger: the command computed after
+reading row ``k``, held over the next step).
 """
 
 from __future__ import annotations
