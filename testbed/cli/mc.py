@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from testbed.cli import values
+from testbed.cli import deferred, values
 from testbed.cli.outputs import units_note, wrote
 from testbed.cli.scenario_options import (
     add_scenario_options,
@@ -13,7 +13,6 @@ from testbed.cli.scenario_options import (
     show_progress,
     study_value,
 )
-from testbed.experiment import scenario_file
 from testbed.io import write_json
 from testbed.outputs.units import display
 
@@ -34,7 +33,7 @@ def add_arguments(mc: argparse.ArgumentParser) -> None:
     mc.add_argument("--address", default=None,
                     help="Ray cluster address host:port (with --backend ray; default: a local "
                     "Ray instance)")
-    scenario_file.defer_defaults(mc)
+    deferred.defer_defaults(mc)
 
 
 def _print_mc(result: dict) -> None:

@@ -12,7 +12,8 @@ from testbed.outputs.units import display
 
 #: Output flags and the suffix of the file each writes.
 OUTPUTS = {"json": ".json", "plot": ".png", "rrd": ".rrd", "save_npz": ".npz",
-           "video": ".mp4", "markdown": ".md"}
+           "video": ".mp4", "markdown": ".md", "save_log": (".csv", ".npz", ".mat"),
+           "twin": ".toml"}
 
 
 #: Where ``testbed reproduce all`` writes by default.

@@ -9,6 +9,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any, NoReturn
 
 from testbed import __version__
+from testbed.cli import deferred
 from testbed.cli.main import EXIT_USAGE
 from testbed.completion import add_completion
 
@@ -22,6 +23,7 @@ COMMANDS = {
     "score": "score estimators on a scenario suite (RMSE, consistency, worst-case gain, "
              "cost, mismatch)",
     "view": "open a .rrd recording in Rerun's viewer (native or web)",
+    "describe": "a rig's inputs, sensor channels, units, options and identifiable parameters",
 }
 
 DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
@@ -37,13 +39,9 @@ class _Parser(argparse.ArgumentParser):
 
     def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
         # the deferred defaults of run/mc/sweep: a scenario file's values yield only to the
-        # options typed (testbed.experiment.scenario_file.defer_defaults)
+        # options typed (testbed.cli.deferred.defer_defaults)
         namespace, extras = super().parse_known_args(args, namespace)
-        if not getattr(namespace, "command", None):
-            return namespace, extras  # --version, --help: no scenario options
-        from testbed.experiment import scenario_file
-
-        return scenario_file.fill_deferred(self, namespace), extras
+        return deferred.fill_deferred(self, namespace), extras
 
 
 def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:

@@ -4,10 +4,11 @@ viewing in :mod:`testbed.cli.live`, paced runs in :mod:`testbed.experiment.realt
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from typing import Any
 
-from testbed.cli import values
+from testbed.cli import deferred, values
 from testbed.cli.live import check_live_options, finish_live, open_live
 from testbed.cli.outputs import format_table, say_written, wrote
 from testbed.cli.scenario_options import (
@@ -16,7 +17,6 @@ from testbed.cli.scenario_options import (
     scenario_from_args,
     show_progress,
 )
-from testbed.experiment import scenario_file
 from testbed.experiment.scenario import Scenario
 from testbed.io import write_json
 
@@ -27,6 +27,9 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
     run.add_argument("--rrd", help="write a Rerun recording here")
     run.add_argument("--json", help="write the summary JSON here")
     run.add_argument("--plot", help="write a PNG plot here")
+    run.add_argument("--save-log", metavar="FILE", help="write what the sensors gave and the "
+                     "inputs applied as a recording (.csv, .npz or .mat: what a real unit's "
+                     "log holds, no truth; testbed replay/identify/compare read it)")
     live = run.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true",
                       help="stream the run to a native Rerun viewer started here")
@@ -47,7 +50,7 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
                      "(a background thread samples the rig; late commands count as overruns)")
     run.add_argument("--realtime-factor", type=values.positive, default=1.0,
                      help="with --realtime: simulated seconds per wall-clock second")
-    scenario_file.defer_defaults(run)
+    deferred.defer_defaults(run)
 
 
 def command(args: argparse.Namespace) -> int:
@@ -63,7 +66,10 @@ def command(args: argparse.Namespace) -> int:
     live = open_live(args, scenario)
     start = time.perf_counter()
     try:
-        traj, summary = runner.run(scenario, record=bool(args.plot or args.rrd or args.video),
+        traj, summary = runner.run(scenario,
+                                   record=bool(args.plot or args.rrd or args.video
+                                               or args.save_log),
+                                   every_step=bool(args.save_log),
                                    progress=None if show_progress(args) else False,
                                    observe=None if live is None else live.attach)
     except BaseException:
@@ -101,6 +107,11 @@ def command(args: argparse.Namespace) -> int:
         path = write_rrd(traj, args.rrd, model=model, application_id=app,
                          description=run_description(meta, summary))
         wrote(path)
+    if args.save_log:
+        from testbed.io.formats import recording_from_run_result, write_recording
+
+        wrote(write_recording(args.save_log, recording_from_run_result(
+            traj, source=os.path.basename(args.save_log))))
     if args.video:
         from testbed.outputs.render import frame_stride, iter_frames, write_video
 

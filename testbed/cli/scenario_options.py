@@ -8,7 +8,7 @@ import argparse
 import sys
 from typing import Any
 
-from testbed.cli import values
+from testbed.cli import deferred, values
 from testbed.cli.outputs import wrote
 from testbed.estimators import ESTIMATORS
 from testbed.experiment import scenario_file
@@ -126,7 +126,7 @@ def scenario_and_file(args: argparse.Namespace
     """
     source = scenario_file.read(args.scenario) if getattr(args, "scenario", None) else None
     every = set(ARG_FIELDS)
-    given = getattr(args, scenario_file.GIVEN, every) if source is not None else every
+    given = getattr(args, deferred.GIVEN, every) if source is not None else every
     from_file = source.fields if source is not None else {}
     rig_name = args.rig if args.rig is not None else from_file.get("rig")
     if rig_name is None:
@@ -166,7 +166,7 @@ def study_value(args: argparse.Namespace, source: scenario_file.ScenarioFile | N
            name: str) -> Any:
     """``--runs``/``--grid`` if typed, else the ``--scenario`` file's ``[study]`` value, else
     the option's default."""
-    if source is None or name in getattr(args, scenario_file.GIVEN, {name}):
+    if source is None or name in getattr(args, deferred.GIVEN, {name}):
         return getattr(args, name)
     return source.study.get(name, getattr(args, name))
 

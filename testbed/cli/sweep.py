@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from testbed.cli import values
+from testbed.cli import deferred, values
 from testbed.cli.outputs import units_note, wrote
 from testbed.cli.scenario_options import (
     add_scenario_options,
@@ -13,7 +13,6 @@ from testbed.cli.scenario_options import (
     show_progress,
     study_value,
 )
-from testbed.experiment import scenario_file
 from testbed.experiment.scenario import Scenario, ScenarioError
 from testbed.io import write_json
 from testbed.outputs.units import display
@@ -35,7 +34,7 @@ def add_arguments(sw: argparse.ArgumentParser) -> None:
                     "10 s: exit code 5")
     sw.add_argument("--json", help="write the results here")
     sw.add_argument("--plot", help="write RMSE versus the first --grid parameter (PNG) here")
-    scenario_file.defer_defaults(sw)
+    deferred.defer_defaults(sw)
 
 
 def check_grid(scenario: Scenario, axes: list[tuple[str, list[float]]]) -> dict[str, list]:

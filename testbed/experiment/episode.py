@@ -64,8 +64,8 @@ class _DecimatedRows:
 
 
 def run(scenario: Scenario, *, record: bool = True, progress: bool | None = False,
-        observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None
-        ) -> tuple[Trajectory | None, dict[str, Any]]:
+        observe: Callable[[Experiment], Callable[[int, dict[str, Any]], None]] | None = None,
+        every_step: bool = False) -> tuple[Trajectory | None, dict[str, Any]]:
     """One closed-loop episode of ``scenario`` (seed ``scenario.seed``).
 
     Parameters
@@ -83,6 +83,10 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = Fals
         recorded
         for it. The run is the same with or without it.
 
+    every_step : bool
+        Keep every step however long the run (``testbed run --save-log``: a recording has
+        every sample), instead of at most :data:`RECORD_MAX_ROWS` rows.
+
     Returns
     -------
     trajectory : Trajectory or None
@@ -97,7 +101,7 @@ def run(scenario: Scenario, *, record: bool = True, progress: bool | None = Fals
     experiment = build(scenario, 1, num_threads=1)
     loop = experiment.loop
     n_steps = int(round(scenario.duration_s / loop.sim.dt_s))
-    every = -(-(n_steps + 1) // RECORD_MAX_ROWS)  # ceil
+    every = 1 if every_step else -(-(n_steps + 1) // RECORD_MAX_ROWS)  # ceil
     recorder: Any = record
     if record and every > 1:
         shapes = loop.trajectory_shapes(n_steps, poses=True)

@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 
 
-def check_output_path(path: str | os.PathLike, name: str, suffix: str | None) -> Path:
+def check_output_path(path: str | os.PathLike, name: str,
+                      suffix: str | tuple[str, ...] | None) -> Path:
     """Check an output destination before any work is done.
 
     Parameters
@@ -42,9 +43,9 @@ def check_output_path(path: str | os.PathLike, name: str, suffix: str | None) ->
         Destination file (or directory when ``suffix`` is None).
     name : str
         What to call it in messages (e.g. ``"--json"``).
-    suffix : str or None
-        Required file suffix (``".json"``, ``".png"``, ``".rrd"``, ``".npz"``...); None: a
-        directory.
+    suffix : str, tuple of str or None
+        Required file suffix (``".json"``, ``".png"``, ``".rrd"``, ``".npz"``...), or the
+        suffixes allowed; None: a directory.
 
     Returns
     -------
@@ -67,10 +68,12 @@ def check_output_path(path: str | os.PathLike, name: str, suffix: str | None) ->
             raise ValueError(f"{name} {text!r} exists and is not a directory")
         start = final
     else:
-        if final.suffix.lower() != suffix:
-            raise ValueError(f"{name} must be a {suffix} file, got {text!r}")
+        allowed = (suffix,) if isinstance(suffix, str) else tuple(suffix)
+        if final.suffix.lower() not in allowed:
+            raise ValueError(f"{name} must be a {' or '.join(allowed)} file, got {text!r}")
         if final.is_dir():
-            raise ValueError(f"{name} {text!r} is a directory, expected a {suffix} file")
+            raise ValueError(f"{name} {text!r} is a directory, expected a "
+                             f"{' or '.join(allowed)} file")
         start = final.parent
     ancestor = Path(os.path.abspath(start))
     while not ancestor.exists() and ancestor != ancestor.parent:
