@@ -635,8 +635,10 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     n_phys = len(design.physical)
     x_hat = np.empty((K + 1, n_phys))
     P_diag = None if P is None else np.empty((K + 1, n_phys))
-    innovations: list[np.ndarray] = []
-    variances: list[np.ndarray] = []
+    nu_arr: np.ndarray | None = None
+    S_arr: np.ndarray | None = None
+    nu_pick: Any = ()
+    S_pick: Any = ()
     has_innovation = True
 
     def restore_taps(j: int) -> None:
@@ -664,11 +666,17 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
             if has_innovation:
                 nu = getattr(inner, "innovation", None)
                 S = getattr(inner, "innovation_cov", None)
-                if nu is None or S is None:
+                if nu_arr is None and nu is not None and S is not None:
+                    # (N, p) and (N, p, p), or one member's (p,) and (p, p)
+                    nu_pick = 0 if np.ndim(nu) == 2 else ()
+                    S_pick = 0 if np.ndim(S) == 3 else ()
+                    p = np.shape(nu)[-1]
+                    nu_arr, S_arr = np.empty((K, p)), np.empty((K, p, p))
+                try:
+                    nu_arr[j - 1] = nu[nu_pick]
+                    S_arr[j - 1] = S[S_pick]
+                except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
                     has_innovation = False
-                else:  # (N, p) and (N, p, p), or one member's (p,) and (p, p)
-                    innovations.append(np.array(nu[0] if np.ndim(nu) == 2 else nu, float))
-                    variances.append(np.array(S[0] if np.ndim(S) == 3 else S, float))
             if progress and j % 1000 == 0:
                 bar.update(1000)
         bar.update(K - bar.n)
@@ -677,11 +685,12 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     notes: list[str] = []
     if fallback:
         notes.append(f"designed from the paper model ({fallback})")
-    nu_arr = S_arr = nis = None
+    if not has_innovation:
+        nu_arr = S_arr = None
+    nis = None
     consistency = None
     innovation_names: list[str] = []
-    if has_innovation and innovations:
-        nu_arr, S_arr = np.array(innovations), np.array(variances)
+    if nu_arr is not None:
         p = nu_arr.shape[1]
         innovation_names = ([names[int(i)] for i in used] if len(used) == p
                             else [f"innovation_{i}" for i in range(p)])
