@@ -629,7 +629,7 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     Yb = np.ascontiguousarray(np.repeat(np.nan_to_num(Y)[:, None, :], num, axis=1))
     Ub = np.ascontiguousarray(np.repeat(U[:, None, :], num, axis=1))
     tap_columns = [[names.index(n) for n in tap.names] for tap in taps]
-    suite.allocate(num)
+    suite.allocate(1)  # one unit: the taps hold member 0's channels (the copy gets its inputs)
     x0_hat, P0 = stage.priors(num, [None] * num)
 
     n_phys = len(design.physical)
@@ -643,7 +643,7 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
 
     def restore_taps(j: int) -> None:
         for tap, cols in zip(taps, tap_columns, strict=True):
-            tap.last[:] = Yb[j][:, cols]
+            tap.last[:] = Yb[j, :1][:, cols]
 
     inner = est.instances[0] if isinstance(est, estimators.PerMember) else est
     step = stage.step

@@ -113,11 +113,14 @@ def test_a_decimated_trajectory_is_refused(paper_run):
 
 
 # ------------------------------------------------------------------ bitwise
-@pytest.mark.parametrize("profile", ["paper", "hardware"])
-def test_replay_gives_the_runs_estimates_bitwise(profile):
-    traj, summary = _run(duration_s=3.0, seed=7, profile=profile)
+@pytest.mark.parametrize(("rig", "profile"), [("helicopter", "paper"),
+                                              ("helicopter", "hardware"),
+                                              ("vehicle-roll", "paper")])  # a tapped input
+def test_replay_gives_the_runs_estimates_bitwise(rig, profile):
+    traj, summary = runner.run(Scenario(rig=rig, estimator="kalman", duration_s=3.0, seed=7,
+                                        profile=profile))
     rec = recording_from_result((traj, summary))
-    result = replay(rec, rig="helicopter", profile=profile, estimator="kalman")
+    result = replay(rec, rig=rig, profile=profile, estimator="kalman")
     np.testing.assert_array_equal(result.x_hat, traj.estimate)
     np.testing.assert_array_equal(result.P_diag,
                                   np.diagonal(traj.covariance, axis1=1, axis2=2))
