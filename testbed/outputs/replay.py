@@ -2,7 +2,8 @@
 
 No truth in a replay: the state panels show the estimate with its +-3 sigma band over the
 measurements of that state (and the held-out reference channel, when there is one); the
-innovation panels show each innovation channel between +-3 sqrt(S_ii). Units as everywhere:
+innovation panels show each innovation channel between +-3 sqrt(S_ii), on an axis that fits
+the steady state (samples beyond it marked at its edge). Units as everywhere:
 the declared ones, angles in degrees (:mod:`testbed.outputs.units`).
 
 Rerun entities (every temporal one on the ``time`` timeline, a duration in seconds)::
@@ -26,8 +27,9 @@ import numpy as np
 
 from testbed.experiment.replay import ReplayResult
 from testbed.io import atomic_path
+from testbed.outputs.axes import steady_state_limit
 from testbed.outputs.names import entity_parts
-from testbed.outputs.plots import figure_legend, new_figure, save_figure, set_title
+from testbed.outputs.plots import figure_legend, mark_clipped, new_figure, save_figure, set_title
 from testbed.outputs.units import display, label
 from testbed.outputs.viz import (
     ESTIMATE_COLOR,
@@ -110,9 +112,12 @@ def replay_figure(result: ReplayResult) -> Any:
         factor, unit = display(result.measurement_units[j] if j is not None else "")
         ax = fig.add_subplot(grid[k, 1], sharex=first)
         bound = 3.0 * factor * np.sqrt(result.innovation_var[:, k])
+        values = factor * result.innovations[:, k]
+        lim = steady_state_limit(t[1:], values, bound)
         ax.fill_between(t[1:], -bound, bound, color="0.5", alpha=0.25, lw=0, label="±3√S")
-        ax.plot(t[1:], factor * result.innovations[:, k], color=_COLORS[k % len(_COLORS)],
-                lw=0.8, label="innovation")
+        ax.plot(t[1:], values, color=_COLORS[k % len(_COLORS)], lw=0.8, label="innovation")
+        mark_clipped(ax, t[1:], values, lim)
+        ax.set_ylim(-lim, lim)
         ax.axhline(0.0, color="black", lw=0.5)
         ax.set_ylabel(label(f"{name} innovation", unit))
         ax.grid(True, alpha=0.3)

@@ -222,6 +222,9 @@ def _without(rec, *, inputs=(), channels=()):
     ({"channels": ("pitch",)}, {"reference": "pitch"}, "no channel 'pitch' \\(reference\\)"),
     ({}, {"reference": "gyro_pitch"}, "not a channel of the sensors"),
     ({}, {"profile": "lab"}, "unknown profile"),
+    ({}, {"options": {"yaw_locked": True}}, "takes no construction options"),
+    ({}, {"params": "twin.toml"}, "params must be a HelicopterParams"),
+    ({}, {"sensors": "lidar"}, "unknown helicopter sensor preset"),
 ])
 def test_bad_input_is_one_line_before_any_step(paper_run, change, kwargs, message):
     rec = _without(recording_from_result(paper_run), **change)
@@ -237,6 +240,19 @@ def test_a_non_uniform_recording_is_refused(paper_run):
     t[10:] += 0.004
     with pytest.raises(ValueError, match="uniform rate .* row 10"):
         replay(dataclasses.replace(rec, time_s=t), rig="helicopter")
+
+
+def test_the_designers_parameters_reach_the_design(paper_run):
+    from testbed.rigs.helicopter.rig import HelicopterParams
+
+    traj, _ = _run(duration_s=2.0, seed=1, profile="hardware")
+    rec = recording_from_result(traj)
+    twin = HelicopterParams().scaled({"mass_kg": 1.2, "pitch_damping": 1.2})
+    nominal = replay(rec, rig="helicopter", profile="hardware")
+    other = replay(rec, rig="helicopter", profile="hardware", params=twin)
+    assert np.abs(other.x_hat - nominal.x_hat).max() > 1e-3
+    same = replay(rec, rig="helicopter", profile="hardware", params=HelicopterParams())
+    np.testing.assert_array_equal(same.x_hat, nominal.x_hat)
 
 
 # ------------------------------------------------------------------ plug-ins, outputs
