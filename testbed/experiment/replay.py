@@ -159,12 +159,39 @@ def recording_from_result(result: Any, *, experiment: Any = None, member: int = 
                       _meta(experiment.meta, sim.rig, sim.sensors, seed), source)
 
 
+def simulate_recording(scenario: Any, *, source: str = "<simulation>") -> Recording:
+    """One simulated episode of ``scenario`` (seed ``scenario.seed``) as a :class:`Recording`,
+    every step kept whatever the duration (through the loop's tape, without body poses).
+
+    The same episode as :func:`testbed.experiment.runner.run` of the scenario (the same
+    samples, bitwise): for runs longer than its
+    :data:`~testbed.experiment.runner.RECORD_MAX_ROWS` recorded rows.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    source : str
+
+    Returns
+    -------
+    Recording
+    """
+    from testbed.experiment import runner
+
+    experiment = runner.build(scenario, 1, num_threads=1)
+    try:
+        result = experiment.loop.run(np.array([scenario.seed]), scenario.duration_s, tape=True)
+    finally:
+        experiment.close()
+    return recording_from_result(result, experiment=experiment, source=source)
+
+
 def _from_trajectory(traj: Trajectory, source: str) -> Recording:
     every = int(traj.meta.get("recorded_every_steps", 1) or 1)
     if every != 1:
         raise ValueError(f"the trajectory keeps every {every}th step only (a run of more than "
-                         "RECORD_MAX_ROWS rows): a recording needs every step; record the run "
-                         "with ClosedLoop.run(..., tape=True) and pass its LoopResult")
+                         "RECORD_MAX_ROWS rows): a recording needs every step; use "
+                         "simulate_recording(scenario) or pass ClosedLoop.run's LoopResult")
     rig = traj.rig
     if rig is None:
         raise ValueError("the trajectory has no rig (Trajectory.rig): its action names are "

@@ -14,7 +14,12 @@ from scipy.stats import chi2
 
 from filters import KalmanFilter
 from testbed.experiment import runner
-from testbed.experiment.replay import INPUT_CONVENTION, recording_from_result, replay
+from testbed.experiment.replay import (
+    INPUT_CONVENTION,
+    recording_from_result,
+    replay,
+    simulate_recording,
+)
 from testbed.experiment.scenario import Scenario
 from testbed.io.recording import Recording
 
@@ -92,8 +97,11 @@ def test_loop_result_and_tape_give_the_trajectorys_recording(paper_run):
     finally:
         experiment.close()
     want = recording_from_result(paper_run)
-    for given in (result, dataclasses.replace(result, tape=None), result.tape):
-        got = recording_from_result(given, experiment=experiment)
+    simulated = simulate_recording(scenario)
+    for given in (result, dataclasses.replace(result, tape=None), result.tape, simulated):
+        got = given if isinstance(given, Recording) else \
+            recording_from_result(given, experiment=experiment)
+        assert got.meta["seed"] == 5 and got.meta["rig"] == "helicopter"
         for key in ("inputs", "channels"):
             for name, values in getattr(want, key).items():
                 np.testing.assert_array_equal(getattr(got, key)[name], values)
