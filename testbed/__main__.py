@@ -1,4 +1,4 @@
-"""``python -m testbed``: the ``testbed`` command (:func:`testbed.cli.main`)."""
+"""``python -m testbed``: the ``testbed`` command (:func:`testbed.cli.entry.main`)."""
 
 import sys
 

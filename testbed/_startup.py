@@ -12,7 +12,7 @@ import sys
 import threading
 
 #: Whether this process is the ``testbed`` command (not a library user, not a test calling
-#: :func:`testbed.cli.main.main`).
+#: :func:`testbed.cli.entry.main`).
 CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
     list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
 

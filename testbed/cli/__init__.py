@@ -26,7 +26,7 @@ line ``testbed: error: --NAME ...``. Exit codes:
 
 What ``--spawn``/``--serve`` start listens on 127.0.0.1 unless ``--bind ADDRESS``.
 
-The package: :mod:`~testbed.cli.main` (entry point, exit codes, signals),
+The package: :mod:`~testbed.cli.entry` (entry point, exit codes, signals),
 :mod:`~testbed.cli.parser` (the top-level parser), :mod:`~testbed.cli.values` (value
 parsers), :mod:`~testbed.cli.scenario_options` (the options of every scenario command),
 :mod:`~testbed.cli.outputs` (output flags, tables) and one module per command, each with
@@ -39,7 +39,7 @@ __all__ = ["build_parser", "main", "scenario_from_args"]
 
 #: Where each name of :data:`__all__` lives (imported on first use: ``testbed --version``
 #: imports no command).
-_HOMES = {"main": "testbed.cli.main", "build_parser": "testbed.cli.parser",
+_HOMES = {"main": "testbed.cli.entry", "build_parser": "testbed.cli.parser",
           "scenario_from_args": "testbed.cli.scenario_options"}
 
 

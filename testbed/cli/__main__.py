@@ -2,7 +2,7 @@
 
 import sys
 
-from testbed.cli.main import main
+from testbed.cli.entry import main
 
 if __name__ == "__main__":
     sys.exit(main())

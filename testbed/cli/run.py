@@ -108,9 +108,10 @@ def command(args: argparse.Namespace) -> int:
                          description=run_description(meta, summary))
         wrote(path)
     if args.save_log:
-        from testbed.io.formats import recording_from_run_result, write_recording
+        from testbed.experiment.replay import recording_from_result
+        from testbed.io.formats import write_recording
 
-        wrote(write_recording(args.save_log, recording_from_run_result(
+        wrote(write_recording(args.save_log, recording_from_result(
             traj, source=os.path.basename(args.save_log))))
     if args.video:
         from testbed.outputs.render import frame_stride, iter_frames, write_video

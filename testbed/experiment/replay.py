@@ -58,7 +58,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from testbed import estimators
-from testbed.estimators.design import DesignModel, channel_effects
+from testbed.design import DesignModel, channel_effects
 from testbed.experiment.loop import EstimatorStage, LoopResult, Tape, check_estimate, sensor_taps
 from testbed.experiment.trajectory import Trajectory
 from testbed.io.recording import Recording
@@ -574,7 +574,7 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     if profile not in cls.profiles:
         raise ValueError(f"unknown profile {profile!r} for rig {cls.name!r}; expected one of "
                          f"{cls.profiles}")
-    from testbed.estimators.design import DESIGN_PROFILES
+    from testbed.design import DESIGN_PROFILES
 
     if design_profile not in DESIGN_PROFILES:
         raise ValueError(f"design_profile must be one of {DESIGN_PROFILES}, got "

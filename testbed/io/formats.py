@@ -4,7 +4,8 @@
 :class:`~testbed.io.recording.Recording`, checked before anything runs; a bad file is one
 :class:`~testbed.io.recording.RecordingError` line naming the file, the column and the row.
 :func:`write_recording` writes one atomically (:func:`testbed.io.atomic_path`); reading it back
-gives the same arrays, bitwise. :func:`recording_from_run_result` turns a simulated run into one.
+gives the same arrays, bitwise.
+A simulated run becomes one with :func:`testbed.experiment.replay.recording_from_result`.
 
 Layouts (the column names are the rig's ``action_names`` and its sensor suite's ``names``, in
 SI units; a :class:`~testbed.io.mapping.Mapping` renames and converts others):
@@ -880,83 +881,3 @@ def write_recording(path: str | os.PathLike, recording: Recording) -> Path:
                 scipy.io.savemat(f, {**arrays, META_KEY: declaration}, format="5",
                                  oned_as="column", do_compression=False)
     return final
-
-
-# ---------------------------------------------------------------------------- simulated runs
-#: The keys of a run's meta a recording keeps (never the truth: no parameters, no states).
-_RUN_META = ("rig", "sensors", "control_dt_s", "seed", "duration_s")
-
-
-def recording_from_run_result(result: Any, *, action_names: Sequence[str] | None = None,
-                              channel_names: Sequence[str] | None = None, member: int = 0,
-                              source: str = "<simulated>",
-                              meta: dict[str, Any] | None = None) -> Recording:
-    """The recording of a simulated run: what its sensors gave and the inputs applied.
-
-    Parameters
-    ----------
-    result : Trajectory or LoopResult
-        :func:`testbed.experiment.runner.run`'s trajectory (every step recorded: a run
-        decimated to ``RECORD_MAX_ROWS`` rows is refused), or a
-        :class:`~testbed.experiment.loop.LoopResult` of ``ClosedLoop.run(..., record=True)``
-        (then give ``action_names`` and ``channel_names``; ``member`` picks the member).
-    action_names, channel_names : sequence of str, optional
-        The rig's ``action_names`` and the sensors' ``names`` (default: the trajectory's, the
-        bracketed units of its action names dropped).
-    member : int
-        Member of a batched ``LoopResult``.
-    source : str
-    meta : dict, optional
-        Added to the recording's meta (default keeps the run's rig, profile, sensors, control
-        period, seed and duration; never its parameters or states).
-
-    Returns
-    -------
-    Recording
-        ``N = T`` samples from a run of ``T`` steps (``T + 1`` rows): row ``k`` holds
-        ``t_k``, the measurement at ``t_k`` and the input applied over ``[t_k, t_{k+1})``
-        (the run's action row ``k + 1``); the last measurement has no input after it and is
-        left out.
-
-    Raises
-    ------
-    ValueError
-        A decimated trajectory, missing names, or a run of fewer than 2 steps.
-    """
-    from testbed.experiment.trajectory import Trajectory
-
-    run_meta: dict[str, Any] = {}
-    if isinstance(result, Trajectory):
-        every = int(result.meta.get("recorded_every_steps", 1))
-        if every != 1:
-            raise ValueError(f"the run kept every {every}th step (longer than the runner's "
-                             "RECORD_MAX_ROWS): a recording needs every step")
-        t, y, u = result.t_s, result.measurement, result.action
-        action_names = action_names or [n.partition(" [")[0] for n in result.action_names]
-        channel_names = channel_names or list(result.measurement_names)
-        run_meta = {k: result.meta[k] for k in _RUN_META if k in result.meta}
-        profile = (result.meta.get("scenario") or {}).get("profile")
-        if isinstance(profile, str):
-            run_meta["profile"] = profile
-    else:
-        traj = getattr(result, "trajectory", None)
-        if not isinstance(traj, dict) or "measurement" not in traj:
-            raise ValueError("result must be a Trajectory or a LoopResult recorded with "
-                             "record=True")
-        if action_names is None or channel_names is None:
-            raise ValueError("a LoopResult needs action_names and channel_names")
-        t = traj["t_s"]
-        y, u = traj["measurement"][member], traj["action"][member]
-        run_meta = {"seed": int(result.seeds[member]), "control_dt_s": float(result.dt_s)}
-    y, u = np.asarray(y, dtype=np.float64), np.asarray(u, dtype=np.float64)
-    if y.shape[1] != len(channel_names) or u.shape[1] != len(action_names):
-        raise ValueError(f"{len(channel_names)} channel and {len(action_names)} action names "
-                         f"for {y.shape[1]} measurement and {u.shape[1]} action columns")
-    if len(t) < 3:
-        raise ValueError(f"a recording needs a run of at least 2 steps, got {len(t) - 1}")
-    recording = Recording(
-        time_s=np.array(t[:-1], dtype=np.float64),
-        inputs={n: np.array(u[1:, j]) for j, n in enumerate(action_names)},
-        channels={n: np.array(y[:-1, j]) for j, n in enumerate(channel_names)},
-        source=source, meta={**run_meta, **(meta or {})})
-    return check_recording(recording)

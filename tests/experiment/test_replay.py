@@ -230,7 +230,7 @@ def _without(rec, *, inputs=(), channels=()):
     ({"channels": ("pitch",)}, {"reference": "pitch"}, "no channel 'pitch' \\(reference\\)"),
     ({}, {"reference": "gyro_pitch"}, "not a channel of the sensors"),
     ({}, {"profile": "lab"}, "unknown profile"),
-    ({}, {"options": {"yaw_locked": True}}, "takes no construction options"),
+    ({}, {"options": {"yaw_locked": True}}, "has no option .yaw_locked."),
     ({}, {"params": "twin.toml"}, "params must be a HelicopterParams"),
     ({}, {"sensors": "lidar"}, "unknown helicopter sensor preset"),
 ])

@@ -16,7 +16,7 @@ import scipy.io
 
 from testbed.envs import RigEnv
 from testbed.io import formats
-from testbed.io.formats import read_recording, recording_from_run_result, write_recording
+from testbed.io.formats import read_recording, write_recording
 from testbed.io.mapping import Mapping, load_mapping
 from testbed.io.recording import Recording, RecordingError
 
@@ -113,44 +113,21 @@ def test_sensors_restrict_the_channels(simulated, tmp_path):
 
 
 def test_the_convention_of_a_simulated_run(tmp_path):
+    """A run's recording (testbed.experiment.replay.recording_from_result) in a file and back:
+    row k holds t_k, what the sensors gave at t_k and the input applied over [t_k, t_k+1)."""
+    from testbed.experiment.replay import recording_from_result
     from testbed.experiment.runner import run
     from testbed.experiment.scenario import Scenario
 
     traj, _ = run(Scenario(rig="helicopter", duration_s=0.5, seed=4))
-    rec = recording_from_run_result(traj)
-    steps = len(traj.t_s) - 1
-    assert rec.n_samples == steps == 50
-    assert bitwise(rec.time_s, traj.t_s[:-1])
-    assert bitwise(rec.inputs["V_pitch"], traj.action[1:, 0])  # applied over [t_k, t_k+1)
-    assert bitwise(rec.channels["yaw"], traj.measurement[:-1, 1])
-    assert "params" not in rec.meta and "scenario" not in rec.meta  # never the truth
+    rec = recording_from_result(traj)
+    assert rec.n_samples == len(traj.t_s) == 51
+    assert bitwise(rec.time_s, traj.t_s)
+    assert bitwise(rec.inputs["V_pitch"][:-1], traj.action[1:, 0])  # applied over [t_k, t_k+1)
+    assert bitwise(rec.channels["yaw"], traj.measurement[:, 1])
+    assert "params" not in rec.meta and "params" not in rec.meta["scenario"]  # never the truth
     back = read_recording(write_recording(tmp_path / "run.npz", rec), rig="helicopter")
     assert same_recording(rec, back)
-    with pytest.raises(ValueError, match="every 3th step"):
-        traj.meta["recorded_every_steps"] = 3
-        recording_from_run_result(traj)
-
-
-def test_a_batched_loop_result_member():
-    from testbed.experiment.runner import build, run_seeds
-    from testbed.experiment.scenario import Scenario
-
-    experiment = build(Scenario(rig="vehicle-roll", duration_s=0.3), 3, num_threads=1)
-    sim = experiment.loop.sim
-    try:
-        seeds = run_seeds(2, 3)
-        result = experiment.loop.run(seeds, 0.3, record=True)
-    finally:
-        experiment.close()
-    rec = recording_from_run_result(result, action_names=sim.rig.action_names,
-                                    channel_names=sim.sensors.names, member=2)
-    traj = result.trajectory
-    assert rec.n_samples == len(traj["t_s"]) - 1
-    assert bitwise(rec.inputs["a_y"], traj["action"][2, 1:, 0])
-    assert bitwise(rec.channel_matrix(sim.sensors.names), traj["measurement"][2, :-1])
-    assert rec.meta["seed"] == seeds[2]
-    with pytest.raises(ValueError, match="action_names and channel_names"):
-        recording_from_run_result(result)
 
 
 # ---------------------------------------------------------------------------- QUARC layout
