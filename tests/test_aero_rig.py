@@ -24,14 +24,6 @@ from testbed.sim import build_simulator
 LOCKED = {"yaw_locked": True}
 
 
-class LockedAero(AeroRig):
-    """The Aero built yaw-locked whatever options it is given: the runner builds its rigs
-    from the class (rig options are not yet a scenario field)."""
-
-    def __init__(self, *args, options=None, **kwargs):
-        super().__init__(*args, options=LOCKED, **kwargs)
-
-
 def _quanser_from_the_table(locked: bool) -> tuple[np.ndarray, np.ndarray]:
     """Quanser's A, B written here from the parameter script's parts (independent of the
     rig's code): J_p = m_b L^2 / 12 + 2 m_p r^2, J_y = J_p + m_y r_y^2 / 2."""
@@ -285,8 +277,9 @@ def test_registered_env_passes_check_env_and_a_locked_rig_env_too():
 
 @pytest.mark.parametrize("profile", ["paper", "hardware"])
 def test_yaw_locked_closed_loop_with_kalman_tracks_pitch(profile):
-    traj, summary = runner.run(Scenario(rig=LockedAero, profile=profile, estimator="kalman",
-                                        duration_s=8.0, seed=2), record=True)
+    traj, summary = runner.run(Scenario(rig="aero", rig_options=LOCKED, profile=profile,
+                                        estimator="kalman", duration_s=8.0, seed=2),
+                               record=True)
     assert traj.state_names == ["pitch", "pitch_rate"] or tuple(traj.state_names) == (
         "pitch", "pitch_rate")
     pitch = np.asarray(traj.state).reshape(-1, 2)[:, 0]
@@ -311,11 +304,26 @@ def test_cli_runs_aero_closed_loop_with_kalman(profile, tmp_path):
     assert rmse["pitch"] < np.deg2rad(0.2) and rmse["yaw"] < np.deg2rad(0.2)
 
 
+def test_cli_acceptance_command_yaw_locked_real_stiffness(tmp_path):
+    """``testbed run aero --profile hardware --rig-option yaw_locked=true --param
+    pitch_stiffness=2.2``: the pitch-only rig with a real unit's stiffness, designers nominal."""
+    path = tmp_path / "aero.json"
+    result = subprocess.run([sys.executable, "-m", "testbed", "run", "aero", "--profile",
+                             "hardware", "--rig-option", "yaw_locked=true", "--param",
+                             "pitch_stiffness=2.2", "--duration", "2", "--json", str(path),
+                             "--no-progress"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    data = json.loads(path.read_text())
+    assert set(data["rmse"]) == {"pitch", "pitch_rate"}
+    assert data["rmse"]["pitch"] < np.deg2rad(0.2)
+
+
 @pytest.mark.parametrize("estimator", ["kalman-bucy", "ekf", "ukf", "lmi-hinf", "poly-hinf"])
 def test_estimator_families_run_on_both_configurations(estimator):
-    for rig in ("aero", LockedAero):
-        _, summary = runner.run(Scenario(rig=rig, profile="hardware", estimator=estimator,
-                                         duration_s=1.0, seed=4), record=False)
+    for options in ({}, LOCKED):
+        _, summary = runner.run(Scenario(rig="aero", rig_options=options, profile="hardware",
+                                         estimator=estimator, duration_s=1.0, seed=4),
+                                record=False)
         assert all(np.isfinite(v) and v < 0.05 for v in summary["rmse"].values()), summary
 
 
@@ -323,7 +331,7 @@ def test_estimator_families_run_on_both_configurations(estimator):
 def test_vc_discrete_runs_free_and_locked_with_output_injection():
     _, free = runner.run(Scenario(rig="aero", estimator="vc-discrete", duration_s=1.0),
                          record=False)
-    _, locked = runner.run(Scenario(rig=LockedAero, estimator="vc-discrete",
+    _, locked = runner.run(Scenario(rig="aero", rig_options=LOCKED, estimator="vc-discrete",
                                     estimator_options={"output_injection": True},
                                     duration_s=1.0), record=False)
     assert max(free["rmse"].values()) < 0.05 and max(locked["rmse"].values()) < 0.05
