@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import gymnasium as gym
 import mujoco
@@ -290,13 +288,18 @@ def test_yaw_locked_closed_loop_with_kalman_tracks_pitch(profile):
     assert summary["rmse"]["pitch"] < np.deg2rad(0.2)
 
 
+def _cli(argv: list[str]) -> int:
+    """``testbed ARGS`` in this process (the command's own entry point)."""
+    from testbed.cli.main import main
+
+    return main(argv)
+
+
 @pytest.mark.parametrize("profile", ["paper", "hardware"])
 def test_cli_runs_aero_closed_loop_with_kalman(profile, tmp_path):
     path = tmp_path / "aero.json"
-    result = subprocess.run([sys.executable, "-m", "testbed", "run", "aero", "--duration", "2",
-                             "--profile", profile, "--filter", "kalman", "--json", str(path),
-                             "--no-progress"], capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
+    assert _cli(["run", "aero", "--duration", "2", "--profile", profile, "--filter", "kalman",
+                 "--json", str(path), "--no-progress"]) == 0
     data = json.loads(path.read_text())
     assert data["scenario"]["rig"] == "aero"
     rmse = data["rmse"]
@@ -308,11 +311,9 @@ def test_cli_acceptance_command_yaw_locked_real_stiffness(tmp_path):
     """``testbed run aero --profile hardware --rig-option yaw_locked=true --param
     pitch_stiffness=2.2``: the pitch-only rig with a real unit's stiffness, designers nominal."""
     path = tmp_path / "aero.json"
-    result = subprocess.run([sys.executable, "-m", "testbed", "run", "aero", "--profile",
-                             "hardware", "--rig-option", "yaw_locked=true", "--param",
-                             "pitch_stiffness=2.2", "--duration", "2", "--json", str(path),
-                             "--no-progress"], capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
+    assert _cli(["run", "aero", "--profile", "hardware", "--rig-option", "yaw_locked=true",
+                 "--param", "pitch_stiffness=2.2", "--duration", "2", "--json", str(path),
+                 "--no-progress"]) == 0
     data = json.loads(path.read_text())
     assert set(data["rmse"]) == {"pitch", "pitch_rate"}
     assert data["rmse"]["pitch"] < np.deg2rad(0.2)
