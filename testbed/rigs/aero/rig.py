@@ -91,7 +91,7 @@ class AeroParams(Params):
         Viscous damping ``D_p``, ``D_y``, N m s/rad.
     pitch_coulomb_Nm, yaw_coulomb_Nm : float
         Coulomb friction (MuJoCo ``frictionloss``), N m. Not in Quanser's script: an
-        assumption of 5e-4 N m (the pitch torque of about 0.3 V on both rotors; 0.8 deg of
+        assumption of 5e-4 N m (the pitch torque of about 0.16 V on both rotors; 0.8 deg of
         pitch against ``K_sp``), which a recording identifies.
     pitch_inertia : float
         ``J_p = J_body + 2 J_prop``, total inertia about the pitch axis, kg m^2.
