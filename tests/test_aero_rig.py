@@ -54,6 +54,27 @@ def test_linearization_equals_quanser_linear_model(locked, profile):
     assert p.yaw_inertia == pytest.approx(0.0220, abs=5e-5)
 
 
+def test_joint_names_axes_actuators_and_nominal_model():
+    rig = AeroRig()
+    m = rig.model
+    pitch, yaw = rig.joint_id("pitch"), rig.joint_id("yaw")
+    np.testing.assert_allclose(m.jnt_axis[yaw], [0, 0, 1])
+    np.testing.assert_allclose(m.jnt_axis[pitch], [0, -1, 0])
+    assert not m.jnt_limited[pitch] and not m.jnt_limited[yaw]
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(m.nu)]
+    assert names == ["pitch_motor", "yaw_motor"]
+    np.testing.assert_allclose(m.actuator_ctrlrange, [[-24, 24], [-24, 24]])
+    body = rig.body_id("aero")
+    assert m.body_mass[body] == pytest.approx(0.954)
+    # the MJCF's written numbers are the nominal ones the rig writes at load
+    raw = mujoco.MjModel.from_xml_path(str(AeroRig.resolved_xml_path()))
+    for field in ("body_mass", "body_ipos", "body_inertia", "dof_damping", "dof_frictionloss",
+                  "actuator_gear", "site_pos"):
+        np.testing.assert_allclose(getattr(m, field), getattr(raw, field), rtol=2e-4,
+                                   atol=1e-9, err_msg=field)
+    assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, AeroRig.render_camera) >= 0
+
+
 def test_pitch_stiffness_is_gravity_on_the_mass_offset():
     p = AeroParams()
     assert p.com_depth_m == pytest.approx(0.037463 / (0.954 * 9.81))
