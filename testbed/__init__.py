@@ -24,6 +24,7 @@ _RIG_VECTOR = "testbed.envs.rig_env:RigVectorEnv"
 _ENVS = {
     "testbed/Helicopter2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "helicopter"}),
     "testbed/VehicleRoll-v0": (_RIG, 1000, _RIG_VECTOR, {"rig": "vehicle-roll"}),
+    "testbed/Aero2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "aero"}),
     "testbed/PolynomialCubic-v0": (
         "testbed.reproductions.basin_polynomial.env:PolynomialCubicEnv", 1400),
     "testbed/NonlinearDiscrete-v0": (

@@ -16,7 +16,7 @@ RANDOM: dict[str, dict] = {}
 #: Environments with no randomness at all (a fixed plant and x0, no noise).
 DETERMINISTIC = {"testbed/PolynomialCubic-v0"}
 #: The MuJoCo rig environments.
-RIG_IDS = ["testbed/Helicopter2DOF-v0", "testbed/VehicleRoll-v0"]
+RIG_IDS = ["testbed/Helicopter2DOF-v0", "testbed/VehicleRoll-v0", "testbed/Aero2DOF-v0"]
 
 
 def _rollout(env, seed, steps=20):
@@ -82,7 +82,7 @@ def _rollout_state(env):
     return np.array(env.step.__self__.__dict__.get("_x", np.zeros(0)), copy=True)
 
 
-@pytest.mark.parametrize("env_id", ["testbed/Helicopter2DOF-v0", "testbed/VehicleRoll-v0"])
+@pytest.mark.parametrize("env_id", RIG_IDS)
 def test_vector_env_equals_single_envs_bitwise(env_id):
     kwargs = RANDOM.get(env_id, {})
     venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", **kwargs)

@@ -221,7 +221,7 @@ def test_scale_factor_decorator():
         ScaleFactor(channel, error=-1.0)
 
 
-@pytest.mark.parametrize("rig", ["helicopter", "vehicle-roll"])
+@pytest.mark.parametrize("rig", ["helicopter", "vehicle-roll", "aero"])
 def test_hardware_vector_env_equals_single_envs_bitwise(rig):
     seeds = [5, 9, 2]
     kwargs = {"profile": "hardware"}
@@ -274,7 +274,7 @@ def test_vehicle_hardware_profile_changes_only_the_default_sensors():
     np.testing.assert_array_equal(a.measurement, b.measurement)
 
 
-@pytest.mark.parametrize("rig", ["helicopter", "vehicle-roll"])
+@pytest.mark.parametrize("rig", ["helicopter", "vehicle-roll", "aero"])
 def test_mc_of_one_hardware_run_equals_run(rig):
     scenario = Scenario(rig=rig, profile="hardware", duration_s=1.0, seed=7)
     mc = runner.monte_carlo(scenario, 1, progress=False)

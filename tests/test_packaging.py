@@ -22,7 +22,7 @@ def test_wheel_contains_models_and_loads_them(tmp_path):
     (wheel,) = wheel_dir.glob("testbed-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     xmls = sorted((ROOT / "models").glob("*.xml"))
-    assert len(xmls) == 3  # helicopter, vehicle roll, the calibration plant
+    assert len(xmls) == 4  # helicopter, aero, vehicle roll, the calibration plant
     for xml in xmls:
         assert f"testbed/models/{xml.name}" in names, xml
     for source in sorted((ROOT / "testbed").rglob("*.py")) + sorted(

@@ -11,6 +11,7 @@ from typing import Any
 #: Rig name -> "module:Class" (imported on first use).
 RIGS: dict[str, Any] = {
     "helicopter": "testbed.rigs.helicopter.rig:HelicopterRig",
+    "aero": "testbed.rigs.aero.rig:AeroRig",
     "vehicle-roll": "testbed.rigs.vehicle_roll.rig:VehicleRollRig",
 }
 

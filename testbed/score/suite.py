@@ -36,6 +36,11 @@ from testbed.rigs.vehicle_roll.model import physical_model
 #: mismatch range (:attr:`HelicopterRig.mismatch_range`: the moving mass, so the gravity
 #: torque the designer compensates is off by 20 %, and the viscous dampings).
 HELICOPTER_MISMATCH_KEYS = tuple(HelicopterRig.mismatch_range)
+#: Aero worst-case channel: angular accelerations (rad/s^2) on the pitch and yaw rows.
+AERO_CHANNEL = ((0.0, 0.0), (0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
+#: The pitch stiffness a real Aero unit shows, as a factor of the nominal (more than twice
+#: it): the ``aero-hardware-stiff`` entry's truth.
+AERO_REAL_STIFFNESS = 2.2
 #: Vehicle worst-case channel: a roll moment expressed as an equivalent lateral acceleration
 #: (m/s^2), i.e. the rig's input column ``m_s h_cr / I_xx`` (rad/s^2 per m/s^2).
 VEHICLE_CHANNEL = tuple(tuple(row) for row in physical_model()[1].tolist())
@@ -212,6 +217,22 @@ def _vehicle(profile: str, manoeuvre: str, runs: int, duration_s: float,
         runs=runs, profile=profile, worst_case=worst_case)
 
 
+def _aero(profile: str, stiffness: float | None, runs: int, duration_s: float,
+          worst_case: WorstCaseSpec | None) -> SuiteEntry:
+    base = "aero" if profile == "paper" else "aero-hardware"
+    what = "nominal parameters" if stiffness is None else (
+        f"simulated pitch_stiffness x {stiffness:g}, what a real unit shows (designers keep "
+        "nominal)")
+    return SuiteEntry(
+        name=base if stiffness is None else f"{base}-stiff",
+        description=(f"Quanser Aero ({profile} profile), LQR tracking the default pitch and "
+                     f"yaw setpoints, the rig's default sensors, white torque noise; {what}"),
+        scenario=Scenario(rig="aero", process_noise=1.0, duration_s=duration_s,
+                          params={} if stiffness is None else {"pitch_stiffness": stiffness}),
+        runs=runs, profile=profile, nominal=None if stiffness is None else base,
+        worst_case=worst_case if stiffness is None else None)
+
+
 def calibration_entry(runs: int, duration_s: float,
                       worst_case: WorstCaseSpec | None) -> SuiteEntry:
     """The linear-Gaussian calibration plant (the Kalman filter is optimal there)."""
@@ -226,8 +247,9 @@ def calibration_entry(runs: int, duration_s: float,
 
 def standard() -> list[SuiteEntry]:
     """Every entry: calibration, helicopter (paper/hardware x nominal/+-20 %), vehicle roll
-    (double lane change, step steer; paper/hardware), the mean-square H-infinity paper
-    scenario on the rig."""
+    (double lane change, step steer; paper/hardware), the Quanser Aero (paper, hardware, and
+    hardware with a real unit's pitch stiffness), the mean-square H-infinity paper scenario
+    on the helicopter rig."""
     wc_heli = WorstCaseSpec(energy=1.0, horizon_s=10.0)
     wc_vehicle = WorstCaseSpec(energy=1.0, horizon_s=10.0, channel=VEHICLE_CHANNEL)
     entries = [calibration_entry(100, 20.0, WorstCaseSpec(energy=1.0, horizon_s=30.0,
@@ -238,6 +260,10 @@ def standard() -> list[SuiteEntry]:
     for profile in ("paper", "hardware"):
         for manoeuvre in ("double-lane-change", "step-steer"):
             entries.append(_vehicle(profile, manoeuvre, 100, 10.0, wc_vehicle))
+    wc_aero = WorstCaseSpec(energy=0.01, horizon_s=10.0, channel=AERO_CHANNEL)
+    entries.append(_aero("paper", None, 100, 20.0, wc_aero))
+    entries.append(_aero("hardware", None, 100, 20.0, wc_aero))
+    entries.append(_aero("hardware", AERO_REAL_STIFFNESS, 100, 20.0, None))
     entries.append(SuiteEntry(
         name="basin-ms-hinf",
         description=("Basin et al.'s helicopter example on the rig: the paper's sensors "
@@ -275,7 +301,7 @@ def quick() -> list[SuiteEntry]:
 SUITES = {"quick": quick, "standard": standard}
 #: Version of each suite's definition: bump it whenever :func:`suite_hash` changes (a test pins
 #: the hash of the current version), so that scores are compared only within one version.
-SUITE_VERSIONS = {"quick": 2, "standard": 2}
+SUITE_VERSIONS = {"quick": 2, "standard": 3}
 
 
 def get_suite(name: str) -> list[SuiteEntry]:
@@ -318,6 +344,6 @@ def describe_suite(name: str) -> list[dict[str, Any]]:
     return [e.describe() for e in get_suite(name)]
 
 
-__all__ = ["HELICOPTER_MISMATCH_KEYS", "QUICK", "SUITES", "SUITE_VERSIONS", "SuiteEntry",
-           "WorstCaseSpec", "calibration_entry", "describe_suite", "get_suite", "quick",
-           "standard", "suite_hash", "suite_identity"]
+__all__ = ["AERO_CHANNEL", "AERO_REAL_STIFFNESS", "HELICOPTER_MISMATCH_KEYS", "QUICK",
+           "SUITES", "SUITE_VERSIONS", "SuiteEntry", "WorstCaseSpec", "calibration_entry",
+           "describe_suite", "get_suite", "quick", "standard", "suite_hash", "suite_identity"]

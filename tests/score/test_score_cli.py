@@ -30,10 +30,11 @@ def test_list_shows_every_entry_with_both_profiles(capsys):
 
 
 #: The definitions of each suite version (2: the scenarios carry design_profile, the
-#: hardware entries design from the matched model). A change of an entry changes the hash: bump the
+#: hardware entries design from the matched model; standard 3: the Quanser Aero entries). A
+#: change of an entry changes the hash: bump the
 #: suite's version in testbed.score.suite.SUITE_VERSIONS and record the new hash here.
 PINNED = {"quick": (2, "8f051e84817fd8d8285a33a19f21d4d45c8fe020d28aa67e3e1c4cc3403c6808"),
-          "standard": (2, "2aca0291fa8b600a7244e2cd52e307fb4283a2b7c45e06526ccddf00ff8cff9b")}
+          "standard": (3, "87d4690833e1a0d1176a755ab09e08f54c7052a531388228104628e150e7573a")}
 
 
 def test_suite_versions_and_hashes_are_pinned():
