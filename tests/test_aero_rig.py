@@ -311,7 +311,7 @@ def test_yaw_locked_closed_loop_with_kalman_tracks_pitch(profile):
 
 def _cli(argv: list[str]) -> int:
     """``testbed ARGS`` in this process (the command's own entry point)."""
-    from testbed.cli.main import main
+    from testbed.cli import main
 
     return main(argv)
 

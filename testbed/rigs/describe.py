@@ -207,12 +207,12 @@ def describe_rig(rig: Any, *, profile: str | None = None,
                              "low": min(lo * value, hi * value),
                              "high": max(lo * value, hi * value),
                              "low_factor": float(lo), "high_factor": float(hi)})
-    summary = (cls.__doc__ or "").strip().split("\n", 1)[0]
+    summary = (cls.__doc__ or "").strip().split("\n", 1)[0]  # (the states: of the built rig)
     return {
         "name": cls.name, "class": f"{cls.__module__}:{cls.__qualname__}", "summary": summary,
-        "states": [{"name": n, "unit": u} for n, u in zip(cls.state_names, cls.state_units,
+        "states": [{"name": n, "unit": u} for n, u in zip(built.state_names, built.state_units,
                                                           strict=True)],
-        "tracked": list(cls.tracked_states),
+        "tracked": list(built.tracked_states),
         "profiles": described,
         "options": [dict(_option(n, o), value=resolved[n]) for n, o in cls.rig_options.items()],
         "identifiable": identifiable,
