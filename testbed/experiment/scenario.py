@@ -96,11 +96,22 @@ def _build_sensors(rig: Rig, preset: str | None, dt_s: float, options: dict[str,
     try:
         return method(preset, dt_s=dt_s, **options)
     except (TypeError, ValueError) as exc:
-        if isinstance(exc, ValueError) and not any(repr(k) in str(exc) or f"{k}=" in str(exc)
-                                                   for k in options):
+        if isinstance(exc, ValueError) and not _builds_without(method, preset, dt_s, options):
             raise  # about the preset, not the options
         raise ScenarioError("sensor_options", f"bad sensor_options {sorted(options)} for rig "
                             f"{rig.name!r} ({exc})") from None
+
+
+def _builds_without(method: Any, preset: str | None, dt_s: float,
+                    options: dict[str, Any]) -> bool:
+    """Whether the preset builds without ``options`` (then a failure was theirs)."""
+    if not options:
+        return False
+    try:
+        method(preset, dt_s=dt_s)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 @contextlib.contextmanager
