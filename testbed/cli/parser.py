@@ -24,6 +24,8 @@ COMMANDS = {
              "cost, mismatch)",
     "view": "open a .rrd recording in Rerun's viewer (native or web)",
     "describe": "a rig's inputs, sensor channels, units, options and identifiable parameters",
+    "replay": "an estimator over a recorded run (a unit's log): consistency from its "
+              "innovations, RMSE against a held-out channel",
 }
 
 DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
