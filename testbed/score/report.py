@@ -203,13 +203,16 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
 
 
 def _consistency_text(res: dict[str, Any]) -> str:
-    """``ANEES [t interval of the per-run time averages] verdict``."""
+    """``ANEES [t interval of the per-run time averages] p <mean test's p> verdict``: ``ok``
+    only for ``consistent`` (the mean test and the band diagnostic both accept),
+    ``no verdict`` below the minimum number of runs, else the verdict in capitals."""
     test = res["nees_test"]
     if test is None:
         return "-"
     lo, hi = test["mean_ci"]
-    verdict = "ok" if test["verdict"] == "consistent" else test["verdict"].upper()
-    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] {verdict}"
+    verdict = {"consistent": "ok", "no verdict": "no verdict"}.get(test["verdict"],
+                                                                   test["verdict"].upper())
+    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] p {test['mean_p']:.2g} {verdict}"
 
 
 def _squared(unit: str) -> str:
@@ -289,7 +292,7 @@ def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
 
 
 #: Columns of :func:`leaderboard`.
-_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] verdict", "ANIS",
+_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] p verdict", "ANIS",
             "worst / random gain (gamma, sampled loop)", "us/step (x KF)", "mismatch")
 
 
@@ -339,8 +342,10 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
            f"reference {summary['reference']}, "
            f"{summary['wall_s']:.1f} s wall. RMSE in display units (angles in degrees) with "
            "the 95 % interval; ANEES with the 95 % t interval of the per-run time averages "
-           "and the verdict (consistent / overconfident / underconfident: the mean test and "
-           "the per-step chi-square band test agree), ANIS with the per-step band; "
+           "and its p-value, and the verdict: the mean test at 5 % (OVERCONFIDENT / "
+           "UNDERCONFIDENT when it rejects; ok when it and the per-step chi-square band "
+           "diagnostic both accept, INCONCLUSIVE when only the band rejects; no verdict "
+           "below 6 runs), ANIS with the per-step band; "
            "worst-case / random gain in the output's unit per "
            "unit of the scenario's w (a lower bound found by search, not a certificate; "
            "measured on probe runs whose sensors have their quantization removed, so that "
@@ -354,7 +359,7 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     for scenario, group in _rows(summary):
         desc = descriptions.get(scenario, {})
         out += [f"## {scenario}", "", desc.get("description", ""), "",
-                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] verdict | ANIS [band] | worst / "
+                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] p verdict | ANIS [band] | worst / "
                 "random gain (gamma) | us/step (x KF) | mismatch | skipped |",
                 "|---|---|---|---|---|---|---|---|"]
         for res in _sorted(group, summary.get("estimators")):
