@@ -30,7 +30,7 @@ from testbed.outputs.units import display
 from testbed.score import stats
 from testbed.score.consistency import consistency_test, verdict_text, whiteness_test
 from testbed.score.harness import REFERENCE, PairResult, ScoreRun
-from testbed.score.paired import compare_family, comparison_text
+from testbed.score.paired import comparison_text
 
 #: Keys of every entry of ``results`` (the issue's JSON contract).
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
@@ -108,24 +108,38 @@ def certificate(gamma: float | None, kind: str | None, sampled_gain: float | Non
 
 
 def comparisons(pairs: dict[str, PairResult], estimators: list[str], reference: str,
-                level: float = stats.LEVEL) -> dict[str, dict[str, Any]]:
-    """Paired comparisons of one entry: estimator name to ``{"reference", "states"}`` with,
-    per state, :func:`testbed.score.paired.compare_family` of the per-run MSE (Holm over the
-    estimators compared on that state). Estimators skipped, the reference itself, and all
-    when the reference was skipped, are left out."""
+                level: float = stats.LEVEL,
+                lineup: tuple[str, ...] | None = None) -> dict[str, dict[str, Any]]:
+    """Paired comparisons of one entry: estimator name to ``{"reference", "loss", "family",
+    "states"}`` with, per state, :func:`testbed.score.paired.paired_comparison` of the
+    per-run MSE, Holm-adjusted over a fixed family (:func:`testbed.score.paired.adjust`):
+    every state x every estimator of ``lineup`` (default
+    :data:`testbed.score.suite.LINEUP`) but the reference, plus the estimator itself when it
+    is not in the lineup; members of the family the run did not score (or that were
+    skipped) enter with p = 1. Estimators skipped, the reference itself, and all when the
+    reference was skipped, are left out."""
+    from testbed.score.paired import adjust, paired_comparison
+    from testbed.score.suite import LINEUP
+
     ref = pairs.get(reference)
     if ref is None or ref.skipped:
         return {}
+    lineup = LINEUP if lineup is None else tuple(lineup)
     names = [n for n in estimators if n != reference and not pairs[n].skipped]
-    out: dict[str, dict[str, Any]] = {n: {"reference": reference, "loss": "per-run MSE",
-                                          "states": {}} for n in names}
-    for state, ref_rmse in ref.rmse_per_run.items():
-        family = {n: pairs[n].rmse_per_run[state] ** 2 for n in names
-                  if state in pairs[n].rmse_per_run}
-        if not family:
-            continue
-        for n, comparison in compare_family(family, ref_rmse**2, level).items():
-            out[n]["states"][state] = comparison
+    states = list(ref.rmse_per_run)
+    raw = {(n, state): paired_comparison(pairs[n].rmse_per_run[state] ** 2,
+                                         ref.rmse_per_run[state] ** 2, level)
+           for n in names for state in states if state in pairs[n].rmse_per_run}
+    declared = [n for n in lineup if n != reference]
+    out: dict[str, dict[str, Any]] = {}
+    for n in names:
+        family = declared if n in declared else [*declared, n]
+        members = {key: dict(c) for key, c in raw.items() if key[0] in family}
+        adjust(members, len(family) * len(states), level)
+        out[n] = {"reference": reference, "loss": "per-run MSE",
+                  "family": f"{len(family)} estimators x {len(states)} states",
+                  "states": {state: members[(n, state)] for state in states
+                             if (n, state) in members}}
     return out
 
 
@@ -250,8 +264,9 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
         if versus is not None:
             parts = [f"{state} {comparison_text(c, _squared(units.get(state, '')))}"
                      for state, c in versus["states"].items()]
-            lines.append(f"{name} vs {versus['reference']} (MSE difference per run, 95 % "
-                         f"CI): {'; '.join(parts)}")
+            lines.append(f"{name} vs {versus['reference']} (MSE ratio and difference per "
+                         f"run, 95 % CI; p_holm over a family of {versus['family']}): "
+                         f"{'; '.join(parts)}")
     return lines
 
 
@@ -284,11 +299,23 @@ def _sorted(group: list[dict[str, Any]], order: list[str] | None = None
     return sorted(group, key=lambda res: index.get(res["estimator"], len(index)))
 
 
+#: RMSEs within this relative difference are ranked as ties (the same result up to rounding).
+TIE_RTOL = 1e-9
+
+
 def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
-    """Rank of each estimator scored on the scenario by the RMSE of the first state."""
+    """Rank of each estimator scored on the scenario by the RMSE of the first state; equal
+    RMSEs (within :data:`TIE_RTOL` of the first of their group) share the rank ("1, 1, 3")."""
     scored = [res for res in group if not res["skipped"]]
     scored.sort(key=lambda res: next(iter(res["rmse"].values())))
-    return {res["estimator"]: i + 1 for i, res in enumerate(scored)}
+    ranks: dict[str, int] = {}
+    lead = None
+    for i, res in enumerate(scored):
+        value = next(iter(res["rmse"].values()))
+        if lead is None or abs(value - lead[0]) > TIE_RTOL * abs(lead[0]):
+            lead = (value, i + 1)
+        ranks[res["estimator"]] = lead[1]
+    return ranks
 
 
 #: Columns of :func:`leaderboard`.
@@ -421,10 +448,10 @@ def write_worst_cases(path: str | os.PathLike, run: ScoreRun) -> Path | None:
 # ---------------------------------------------------------------------------- PNG
 #: Marker of each paired verdict against the reference in the RMSE panels (the reference
 #: itself: a diamond; an estimator without a comparison: a plus).
-VERDICT_MARKERS = {"reference": "D", "better": "v", "worse": "^",
-                   "no detectable difference": "o", None: "P"}
-#: Filled or hollow (no detectable difference is hollow: it is not "equal").
-_HOLLOW = {"no detectable difference"}
+VERDICT_MARKERS = {"reference": "D", "better": "v", "worse": "^", "equivalent": "X",
+                   "inconclusive": "o", None: "P"}
+#: Filled or hollow (inconclusive is hollow: it is not "equal").
+_HOLLOW = {"inconclusive"}
 
 
 def _verdict(res: dict[str, Any], state: str, reference: str) -> str | None:
@@ -574,14 +601,19 @@ def _legend_handles(estimators: list[str], colors: dict[str, str], verdicts: set
     for name in estimators:
         handles.append(Line2D([], [], color=colors[name], marker="s", ms=7, lw=1.5))
         labels.append(name)
-    for verdict in ("reference", "better", "worse", "no detectable difference", None):
+    from testbed.score.paired import MARGIN
+
+    margin_pct = 100 * MARGIN
+    for verdict in ("reference", "better", "worse", "equivalent", "inconclusive", None):
         if verdict in verdicts:
             handles.append(Line2D([], [], color="k", marker=VERDICT_MARKERS[verdict], ms=7,
                                   mfc="white" if verdict in _HOLLOW else "k",
                                   linestyle="none"))
-            labels.append({"reference": "reference", None: "not compared"}.get(
-                verdict, f"{verdict} than the reference" if verdict in ("better", "worse")
-                else verdict))
+            labels.append({"reference": "reference", None: "not compared",
+                           "equivalent": f"equivalent (MSE ratio within +-{margin_pct:g} %)"}
+                          .get(verdict, f"{verdict} than the reference (beyond +-"
+                                        f"{margin_pct:g} %)" if verdict in ("better", "worse")
+                               else verdict))
     if nees:
         handles.append(Patch(color="0.85"))
         labels.append("95 % per-step NEES band")
@@ -607,8 +639,8 @@ def score_figure(summary: dict[str, Any]) -> Any:
 
     - RMSE dot plots, one axes per display unit (deg and deg/s never share one): per state one
       row per estimator, the 95 % interval as an error bar on a linear axis from 0, the
-      marker the paired verdict against the reference (better, worse, no detectable
-      difference; the reference a diamond) and the MSE ratio to the reference beside it;
+      marker the paired verdict against the reference (better, worse, equivalent,
+      inconclusive; the reference a diamond) and the MSE ratio to the reference beside it;
     - the per-step N-run average NEES of every estimator with a covariance against the 95 %
       per-step band (when one has a covariance);
     - the worst-case gain found, the largest random gain, the linearized prediction and the
