@@ -8,7 +8,8 @@ keys of :data:`RESULT_KEYS`. ``nees_test``/``nis_test`` are
 :func:`testbed.score.consistency.consistency_test` (with the per-step curve),
 ``whiteness`` :func:`~testbed.score.consistency.whiteness_test` and ``versus_reference``
 the paired comparison of each state's per-run MSE with the reference's
-(:mod:`testbed.score.paired`, Holm over the estimators compared). ``worst_case_search`` is
+(:mod:`testbed.score.paired`: the ratio interval, the +-2 % margin, Holm over the lineup).
+``worst_case_search`` is
 :meth:`testbed.score.worst_case.SearchResult.describe` (the linear prediction, the probe
 sensors and the channels measured without quantization). ``cpu_s`` is the pair's CPU seconds
 per stage (:attr:`~testbed.score.harness.PairResult.cpu_s`: where the time goes; not
@@ -67,10 +68,13 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
                    worst_case_search=pair.worst.describe())
     out["certified_gamma"] = pair.certified_gamma
     out["gamma_kind"] = pair.gamma_kind
-    if pair.worst is not None:
-        out["sampled_loop_gain"] = pair.worst.linear_gain
-    out["certificate"] = certificate(pair.certified_gamma, pair.gamma_kind,
-                                     out["sampled_loop_gain"])
+    norm = None if pair.worst is None else pair.worst.hinf
+    if norm is not None:
+        out["sampled_loop_gain"] = norm.value
+    out["certificate"] = certificate(
+        pair.certified_gamma, pair.gamma_kind, out["sampled_loop_gain"],
+        finite_horizon=None if pair.worst is None else pair.worst.linear_gain,
+        truncation=None if norm is None or norm.method == "realization" else norm.truncation)
     out["step_us"] = pair.step_us
     if reference is not None and not reference.skipped and reference.step_us:
         out["step_vs_kalman"] = pair.step_us / reference.step_us
@@ -81,17 +85,22 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
     return out
 
 
-def certificate(gamma: float | None, kind: str | None, sampled_gain: float | None
+def certificate(gamma: float | None, kind: str | None, sampled_gain: float | None, *,
+                finite_horizon: float | None = None, truncation: float | None = None
                 ) -> str | None:
     """What a design's ``gamma`` says about the loop as it runs, sampled at the control
     period.
 
-    ``sampled_gain`` is the l2 gain of the linearized error system of the filter as it runs
-    (discrete, ``w`` held over each period, over the search horizon: the worst-case
-    search's ``linear_gain``). A discrete design's gamma certifies it: ``"holds"`` when
-    ``sampled_gain <= gamma``, else ``"violated"``. A continuous-observation gamma
-    (Basin et al.'s filters integrated over each period with the sample held) certifies
-    no sampled loop: ``"not a sampled-loop certificate"``, whatever the two numbers.
+    ``sampled_gain`` is the infinite-horizon H-infinity norm of the linearized error system
+    of the filter as it runs (discrete, ``w`` held over each period; the worst-case search's
+    ``hinf``: the realized LTI system's norm, or the truncated response's, which is then
+    within ``truncation`` of it). ``finite_horizon`` is the gain over the search horizon, a
+    lower bound of the norm: it can show a violation, never that ``gamma`` holds. A discrete
+    design's gamma is checked: ``"violated"`` when the lower bound or ``sampled_gain -
+    truncation`` exceeds it, ``"holds"`` when ``sampled_gain + truncation`` does not, else
+    ``"undecided"``. A continuous-observation gamma (Basin et al.'s filters integrated over
+    each period with the sample held) certifies no sampled loop: ``"not a sampled-loop
+    certificate"``, whatever the numbers.
 
     Returns
     -------
@@ -104,7 +113,13 @@ def certificate(gamma: float | None, kind: str | None, sampled_gain: float | Non
         return "sampled-loop gain not computed (no worst-case search)"
     if kind != "discrete":
         return "not a sampled-loop certificate (continuous-observation gamma)"
-    return "holds" if sampled_gain <= gamma * (1 + 1e-9) else "violated"
+    tail = 0.0 if truncation is None else truncation
+    bound = gamma * (1 + 1e-9)
+    if (finite_horizon is not None and finite_horizon > bound) or sampled_gain - tail > bound:
+        return "violated"
+    if sampled_gain + tail <= bound:
+        return "holds"
+    return "undecided (gamma within the truncation error of the norm)"
 
 
 def comparisons(pairs: dict[str, PairResult], estimators: list[str], reference: str,
@@ -165,7 +180,8 @@ def results(run: ScoreRun) -> dict[str, Any]:
                   "random_gain": "output unit per unit of w",
                   "linear_gain": "output unit per unit of w",
                   "certified_gamma": "as the estimator's design states it",
-                  "sampled_loop_gain": "output unit per unit of w (held over each period)"})
+                  "sampled_loop_gain": "output unit per unit of w (held over each period; "
+                                       "infinite-horizon H-infinity norm)"})
     identity = suite_identity(run.suite)
     return {"suite": run.suite, "suite_version": identity["version"],
             "suite_hash": identity["hash"], "seed": run.seed, "level": stats.LEVEL,
@@ -188,12 +204,29 @@ def notes(run: ScoreRun) -> list[str]:
                 w = pair.worst
                 probe = (f"sensors without quantization ({', '.join(w.quantization_removed)})"
                          if w.quantization_removed else "the scenario's sensors")
+                spread = (f" (restarts {min(w.restart_gains):.2g} to "
+                          f"{max(w.restart_gains):.2g})" if len(w.restart_gains) > 1 else "")
                 out.append(f"{prefix}: worst-case search over {w.horizon_s:g} s, energy "
                            f"{w.energy:g}, probe runs on {probe}: linearized error system "
-                           f"predicts {w.linear_gain:.4g}, found {w.worst_case_gain:.4g} in "
-                           f"{w.evaluations} closed-loop runs")
+                           f"predicts {w.linear_gain:.3g} over the horizon, found "
+                           f"{w.worst_case_gain:.2g}{spread} in {w.evaluations} closed-loop "
+                           "runs")
+                if w.hinf is not None:
+                    out.append(f"{prefix}: {_norm_text(w.hinf, w.linear_gain)}")
                 out += [f"{prefix}: {note}" for note in w.notes]
     return out
+
+
+def _norm_text(norm: Any, finite_horizon: float) -> str:
+    """The sampled loop's H-infinity norm, how it was obtained, and its lower bound."""
+    fft = (f"truncated response's FFT {norm.fft_value:.4g}, tail "
+           + ("not decaying" if not np.isfinite(norm.truncation)
+              else f"<= {norm.truncation:.2g} (estimated)"))
+    how = (f"realized LTI system of order {norm.order} (fit {norm.fit:.1g} over the "
+           f"{norm.horizon_s:g} s measured)" if norm.method == "realization"
+           else f"no realization fits the {norm.horizon_s:g} s measured")
+    return (f"sampled loop's H-infinity norm {norm.value:.4g}: {how}; {fft}; finite-horizon "
+            f"gain {finite_horizon:.4g} (a lower bound)")
 
 
 # ---------------------------------------------------------------------------- tables
@@ -257,7 +290,7 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
         if res["certificate"] is not None:
             sampled = res["sampled_loop_gain"]
             lines.append(f"{name} certificate: design gamma {res['certified_gamma']:.4g} "
-                         f"({res['gamma_kind']}), sampled loop's linearized gain "
+                         f"({res['gamma_kind']}), sampled loop's H-infinity norm "
                          f"{'-' if sampled is None else f'{sampled:.4g}'}: "
                          f"{res['certificate']}")
         versus = res["versus_reference"]
@@ -273,7 +306,7 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
 def _gain_text(res: dict[str, Any]) -> str:
     if res["worst_case_gain"] is None:
         return "-"
-    text = f"{res['worst_case_gain']:.3g} / {res['random_gain']:.3g}"
+    text = f"{res['worst_case_gain']:.2g} / {res['random_gain']:.2g}"
     if res["certified_gamma"] is not None:
         sampled = res["sampled_loop_gain"]
         text += f" (gamma {res['certified_gamma']:.3g}"
