@@ -260,7 +260,8 @@ def _tail(t: np.ndarray, windows: int) -> float:
     if np.any(envelope == 0) or envelope[-1] >= envelope[0]:
         return float("inf")
     rho = float(np.exp(np.polyfit(np.arange(windows), np.log(envelope), 1)[0]))
-    return float("inf") if rho >= 1 else float(envelope[-1] * width * rho / (1 - rho))
+    # each later window at most the last one's envelope, decaying by rho from the second on
+    return float("inf") if rho >= 1 else float(envelope[-1] * width / (1 - rho))
 
 
 def realize(t: np.ndarray, rows: int = 100, rtol: float = 1e-6, max_order: int = 40
@@ -308,10 +309,12 @@ def hinf_from_impulse(t: np.ndarray, dt_s: float, oversample: int = 8, windows: 
     :func:`filters.analysis.hinf_norm`, to 1e-6), used when the realization is stable and
     reproduces the measured response over all its lags within ``max_fit`` (relative l2);
     and the peak of the frequency response of the truncated response (zero-padded FFT,
-    ``oversample`` times its length, refined around the largest bin), a lower estimate whose
-    distance to the norm is at most the tail ``sum_(l >= L) ||t_l||`` (estimated from a
-    geometric decay fitted to the envelope of the last half of the response in ``windows``
-    windows). Without a valid realization the FFT value is the result.
+    ``oversample`` times its length, refined around the largest bin), whose distance to the
+    norm is at most the tail ``sum_(l >= L) ||t_l||``, estimated from a geometric decay
+    ``rho`` per window fitted to the envelope (the window maxima of ``||t_l||``) of the last
+    half of the response in ``windows`` windows: ``width e / (1 - rho)``, ``e`` the last
+    window's maximum (an estimate, not a proof). Without a valid realization the FFT value
+    is the result.
 
     Parameters
     ----------
