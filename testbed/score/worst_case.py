@@ -286,9 +286,10 @@ def realize(t: np.ndarray, rows: int = 100, rtol: float = 1e-6, max_order: int =
     rows = min(rows, (L - 2) // 2)
     if rows < 1:
         raise ValueError(f"t needs at least 4 lags, got {L}")
-    H0 = np.block([[t[1 + i + j] for j in range(rows)] for i in range(rows)])
-    H1 = np.block([[t[2 + i + j] for j in range(rows)] for i in range(rows)])
-    U, S, Vt = np.linalg.svd(H0)
+    lag = 1 + np.add.outer(np.arange(rows), np.arange(rows))  # block (i, j): t_(1 + i + j)
+    H0 = t[lag].transpose(0, 2, 1, 3).reshape(rows * q, rows * s)
+    H1 = t[lag + 1].transpose(0, 2, 1, 3).reshape(rows * q, rows * s)
+    U, S, Vt = np.linalg.svd(H0, full_matrices=False)
     if S[0] == 0:
         return np.zeros((0, 0)), np.zeros((0, s)), np.zeros((q, 0)), t[0].copy()
     r = int(min(np.sum(S > rtol * S[0]), max_order))
