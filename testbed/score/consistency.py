@@ -260,7 +260,7 @@ def verdict_text(test: dict[str, Any] | None) -> str:
     text = (f"{verdict}: mean test {test['mean']:.3g} [{lo:.3g}, {hi:.3g}] vs {test['dim']}, "
             f"p {test['mean_p']:.2g}")
     if test["verdict"] == NO_VERDICT:
-        text += f" ({test['mean_verdict']} at {test['test_level']:g})"
+        text += f" (alone it would read {test['mean_verdict']})"
     text += (f"; step test (diagnostic): {100 * test['steps_outside_fraction']:.1f} % of "
              f"steps outside [{100 * flo:.1f}, {100 * fhi:.1f}] "
              f"({test['steps_effective']:.3g} effective steps), {test['steps_verdict']}")

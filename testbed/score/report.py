@@ -73,7 +73,8 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
         out["sampled_loop_gain"] = norm.value
     out["certificate"] = certificate(
         pair.certified_gamma, pair.gamma_kind, out["sampled_loop_gain"],
-        finite_horizon=None if pair.worst is None else pair.worst.linear_gain,
+        finite_horizon=None if pair.worst is None else max(pair.worst.linear_gain,
+                                                           pair.worst.worst_case_gain),
         truncation=None if norm is None or norm.method == "realization" else norm.truncation)
     out["step_us"] = pair.step_us
     if reference is not None and not reference.skipped and reference.step_us:
@@ -94,8 +95,9 @@ def certificate(gamma: float | None, kind: str | None, sampled_gain: float | Non
     ``sampled_gain`` is the infinite-horizon H-infinity norm of the linearized error system
     of the filter as it runs (discrete, ``w`` held over each period; the worst-case search's
     ``hinf``: the realized LTI system's norm, or the truncated response's, which is then
-    within ``truncation`` of it). ``finite_horizon`` is the gain over the search horizon, a
-    lower bound of the norm: it can show a violation, never that ``gamma`` holds. A discrete
+    within ``truncation`` of it). ``finite_horizon`` is a measured lower bound (the larger of
+    the linearized gain over the search horizon and the gain found on the nonlinear loop):
+    it can show a violation, never that ``gamma`` holds. A discrete
     design's gamma is checked: ``"violated"`` when the lower bound or ``sampled_gain -
     truncation`` exceeds it, ``"holds"`` when ``sampled_gain + truncation`` does not, else
     ``"undecided"``. A continuous-observation gamma (Basin et al.'s filters integrated over
