@@ -3,7 +3,7 @@ docs/verdict_level.md (generated: never edit the table by hand).
 
 Usage::
 
-    .venv/bin/python scripts/verdict_level.py            # the suites' sizes, ~3 min
+    .venv/bin/python scripts/verdict_level.py            # the suites' sizes, ~4.5 min
     .venv/bin/python scripts/verdict_level.py --studies 200 --output /tmp/level.md
 
 For every size (runs x steps) of the scoring suites' entries, and for the minimum number of
