@@ -4,22 +4,26 @@
 step ``k`` with ``dim`` degrees of freedom (Bar-Shalom, Li & Kirubarajan 2001, ch. 5.4;
 docs/scoring.md). Two tests, both reported:
 
-- **time average** (the mean test): the per-run time averages ``a_i = mean_k values[i, k]``
-  are independent across runs (the steps of one run are not), so Student's t interval of
-  their mean is valid whatever the correlation in time. Under consistency ``E a_i = dim``.
-- **per-step band** (the step test): at each step the N-run average times ``N`` is
-  ``chi2(N dim)``, so it lies outside ``[chi2.ppf(a/2, N dim), chi2.ppf(1-a/2, N dim)] / N``
-  with probability ``a = 1 - level``. The fraction of steps outside has a Clopper-Pearson
-  interval; that interval treats the steps as independent, which they are not (a consistent
-  filter's per-step averages are correlated over its error time constant): it is nominal and
-  too narrow, so the step test alone false-alarms more often than ``a``.
+- **mean test** (the verdict): the per-run time averages ``a_i = mean_k values[i, k]``
+  are independent across runs (the steps of one run are not), so Student's t test of their
+  mean against ``dim`` is valid whatever the correlation in time; it is applied at the level
+  ``1 - level`` (5 %), two-sided, and its p-value is reported. Under consistency
+  ``E a_i = dim``.
+- **per-step band** (the step test, a diagnostic): at each step the N-run average times
+  ``N`` is ``chi2(N dim)``, so it lies outside ``[chi2.ppf(a/2, N dim), chi2.ppf(1-a/2,
+  N dim)] / N`` with probability ``a = 1 - level``. The steps are correlated in time, so
+  the fraction outside gets a Clopper-Pearson interval at the effective number of
+  independent steps ``K / tau`` (:func:`effective_steps`: ``tau`` is the variance inflation
+  of the time average, measured from the runs), not at ``K``.
 
-The verdict says which way: ``"overconfident"`` (NEES above ``dim``: the reported covariance
-is too small), ``"underconfident"`` (below) or ``"consistent"``. It is given only when both
-tests reject in the same direction: the rule's false-alarm rate is at most the mean test's
-``a`` (the step test guards the verdict against a chance excursion of the time average, the
-mean test against the step test's correlated exceedances). Each test's own verdict is in the
-result, so a reader sees when only one rejects.
+The verdict (measured level and power: docs/verdict_level.md, ``scripts/verdict_level.py``):
+
+- fewer than :data:`MIN_RUNS` runs: ``"no verdict"`` (the tests are still reported);
+- the mean test rejects: ``"overconfident"`` (NEES above ``dim``: the reported covariance is
+  too small) or ``"underconfident"`` (below), whatever the band diagnostic says (the text
+  shows it); the verdict's false-alarm rate is the mean test's level;
+- the mean test accepts: ``"consistent"`` when the band diagnostic accepts too, else
+  ``"inconclusive"`` (never "consistent" on a disagreement).
 
 Whiteness: the normalized (whitened) innovations ``z_ik = S_ik^-1/2 nu_ik`` of a consistent
 filter are white. Per run and lag ``l``, ``r_i(l) = sum_k z_ik . z_i,k+l / sum_k |z_ik|^2``;
@@ -38,6 +42,17 @@ from testbed.score.stats import LEVEL, chi2_bounds
 
 #: Verdict words of the NEES/NIS tests.
 CONSISTENT, OVERCONFIDENT, UNDERCONFIDENT = "consistent", "overconfident", "underconfident"
+#: The mean test accepts and the per-step band test rejects: neither "consistent" nor a
+#: direction.
+INCONCLUSIVE = "inconclusive"
+#: Fewer than :data:`MIN_RUNS` runs.
+NO_VERDICT = "no verdict"
+#: Fewest runs with a verdict: the smallest ``N`` at which an exact distribution-free test of
+#: the ``N`` per-run averages (the sign test, smallest two-sided p ``2^(1 - N)``) can reject
+#: at 5 %: ``2^-4 = 0.0625`` at 5 runs, ``2^-5 = 0.031`` at 6. Below it a rejection by the t
+#: test rests on the normality of the per-run averages alone, which a diverging filter's do
+#: not have.
+MIN_RUNS = 6
 #: Lags of the whiteness test (those below ``K / 2`` are used).
 LAGS = (1, 2, 5, 10)
 
@@ -88,9 +103,43 @@ def clopper_pearson(k: int, n: int, level: float = LEVEL) -> tuple[float, float]
     return lo, hi
 
 
+def effective_steps(values: np.ndarray) -> float:
+    """Effective number of independent steps of one run, ``K / tau``.
+
+    ``tau = K s^2(a) / s^2(v)`` is the variance inflation of the per-run time average
+    ``a_i = mean_k values[i, k]`` over that of ``K`` independent steps (the integrated
+    autocorrelation time, Kish's design effect), with ``s^2(a)`` the sample variance of the
+    time averages across runs and ``s^2(v)`` the pooled variance of the values about their
+    step's run average; ``tau`` is clipped to ``[1, K]``.
+
+    Parameters
+    ----------
+    values : ndarray, shape (N, K), N >= 2
+
+    Returns
+    -------
+    float
+        In ``[1, K]``.
+    """
+    N, K = values.shape
+    s2_v = float(np.sum((values - values.mean(axis=0)) ** 2) / ((N - 1) * K))
+    if s2_v == 0.0:
+        return float(K)
+    tau = K * float(np.var(values.mean(axis=1), ddof=1)) / s2_v
+    return float(K / min(max(tau, 1.0), K))
+
+
+def _beta_interval(k: float, n: float, level: float) -> tuple[float, float]:
+    """Clopper-Pearson interval for a (possibly fractional) count ``k`` of ``n``."""
+    a = 1 - level
+    lo = 0.0 if k <= 0 else float(beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k >= n else float(beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
 def consistency_test(values: np.ndarray, dim: int, level: float = LEVEL) -> dict[str, Any]:
-    """NEES (or NIS) of N runs and K steps against ``dim``: the mean and step tests, the
-    verdict and the per-step curve (see the module docstring).
+    """NEES (or NIS) of N runs and K steps against ``dim``: the mean test (the verdict), the
+    per-step band test (a diagnostic) and the per-step curve (see the module docstring).
 
     Parameters
     ----------
@@ -98,40 +147,56 @@ def consistency_test(values: np.ndarray, dim: int, level: float = LEVEL) -> dict
     dim : int
         Degrees of freedom (state or innovation dimension).
     level : float
+        Confidence level; the tests' level is ``1 - level``.
 
     Returns
     -------
     dict
-        ``dim``, ``runs``, ``steps``; ``mean`` (over runs and steps), ``mean_ci`` (t interval
-        of the per-run time averages), ``mean_p`` (p-value of ``mean == dim``),
-        ``mean_verdict``; ``band`` (per-step N-run band), ``steps_above``, ``steps_below``,
-        ``steps_outside_fraction``, ``steps_outside_ci`` (Clopper-Pearson),
-        ``steps_verdict``; ``verdict``; ``per_step`` (the N-run average at each step, 4
-        significant digits).
+        ``dim``, ``runs``, ``steps``, ``min_runs`` (:data:`MIN_RUNS`), ``test_level``
+        (``1 - level``); ``mean`` (over runs and steps), ``mean_ci`` (t interval of the
+        per-run time averages), ``mean_p`` (two-sided p-value of ``mean == dim``),
+        ``mean_verdict``; ``band`` (per-step N-run band), ``steps_above``,
+        ``steps_below``, ``steps_outside_fraction``, ``steps_effective`` (the effective
+        number of independent steps, :func:`effective_steps`), ``steps_outside_ci``
+        (Clopper-Pearson at the effective number of steps), ``steps_verdict``; ``verdict``
+        (:data:`CONSISTENT`, :data:`OVERCONFIDENT`, :data:`UNDERCONFIDENT`,
+        :data:`INCONCLUSIVE` or :data:`NO_VERDICT`); ``per_step`` (the N-run average at each
+        step, 4 significant digits).
     """
     values = np.asarray(values, dtype=float)
     if values.ndim != 2 or values.shape[0] < 2 or values.shape[1] < 1 \
             or not np.all(np.isfinite(values)):
         raise ValueError(f"values must be finite with shape (N, K), N >= 2, got "
                          f"{values.shape}")
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
     N, K = values.shape
     mean, ci, p = t_interval(values.mean(axis=1), dim, level)
-    mean_verdict = (OVERCONFIDENT if ci[0] > dim else UNDERCONFIDENT if ci[1] < dim
-                    else CONSISTENT)
+    mean_verdict = CONSISTENT
+    if p < 1 - level:
+        mean_verdict = OVERCONFIDENT if mean > dim else UNDERCONFIDENT
     lo, hi = chi2_bounds(N, dim, level)
     per_step = values.mean(axis=0)
     above, below = int(np.sum(per_step > hi)), int(np.sum(per_step < lo))
-    cp = clopper_pearson(above + below, K, level)
+    fraction = (above + below) / K
+    k_eff = effective_steps(values)
+    cp = _beta_interval(fraction * k_eff, k_eff, level)
     steps_verdict = CONSISTENT
     if cp[0] > 1 - level:
         steps_verdict = OVERCONFIDENT if above >= below else UNDERCONFIDENT
-    verdict = mean_verdict if mean_verdict == steps_verdict else CONSISTENT
-    return {"dim": int(dim), "runs": N, "steps": K, "mean": mean, "mean_ci": list(ci),
+    if N < MIN_RUNS:
+        verdict = NO_VERDICT
+    elif mean_verdict != CONSISTENT:
+        verdict = mean_verdict
+    else:
+        verdict = CONSISTENT if steps_verdict == CONSISTENT else INCONCLUSIVE
+    return {"dim": int(dim), "runs": N, "steps": K, "min_runs": MIN_RUNS,
+            "test_level": _sig(1 - level), "mean": mean, "mean_ci": list(ci),
             "mean_p": p, "mean_verdict": mean_verdict, "band": [lo, hi],
             "steps_above": above, "steps_below": below,
-            "steps_outside_fraction": (above + below) / K, "steps_outside_ci": list(cp),
-            "steps_verdict": steps_verdict, "verdict": verdict,
-            "per_step": [_sig(v) for v in per_step]}
+            "steps_outside_fraction": fraction, "steps_effective": _sig(k_eff),
+            "steps_outside_ci": list(cp), "steps_verdict": steps_verdict,
+            "verdict": verdict, "per_step": [_sig(v) for v in per_step]}
 
 
 def whiteness_test(z: np.ndarray, lags: tuple[int, ...] = LAGS, level: float = LEVEL
@@ -183,15 +248,20 @@ def whiten(innovation: np.ndarray, covariance: np.ndarray) -> np.ndarray:
 
 
 def verdict_text(test: dict[str, Any] | None) -> str:
-    """``"<verdict>: <mean> [<ci>], <pct> of steps outside [<ci>]"`` or ``"-"``."""
+    """``"<verdict>: <mean> [<ci>] vs <dim>, p <p>; step test: <pct> of steps outside
+    [<ci>] <its verdict>"`` or ``"-"``."""
     if test is None:
         return "-"
     lo, hi = test["mean_ci"]
     flo, fhi = test["steps_outside_ci"]
-    text = (f"{test['verdict']}: {test['mean']:.3g} [{lo:.3g}, {hi:.3g}] vs {test['dim']}, "
-            f"{100 * test['steps_outside_fraction']:.1f} % of steps outside "
-            f"[{100 * flo:.1f}, {100 * fhi:.1f}]")
-    if test["mean_verdict"] != test["steps_verdict"]:
-        text += (f" (mean test: {test['mean_verdict']}, step test: "
-                 f"{test['steps_verdict']})")
+    verdict = test["verdict"]
+    if verdict == NO_VERDICT:
+        verdict = f"no verdict ({test['runs']} runs < {test['min_runs']})"
+    text = (f"{verdict}: mean test {test['mean']:.3g} [{lo:.3g}, {hi:.3g}] vs {test['dim']}, "
+            f"p {test['mean_p']:.2g}")
+    if test["verdict"] == NO_VERDICT:
+        text += f" (alone it would read {test['mean_verdict']})"
+    text += (f"; step test (diagnostic): {100 * test['steps_outside_fraction']:.1f} % of "
+             f"steps outside [{100 * flo:.1f}, {100 * fhi:.1f}] "
+             f"({test['steps_effective']:.3g} effective steps), {test['steps_verdict']}")
     return text

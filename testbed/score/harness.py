@@ -48,7 +48,13 @@ from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import LoopEvaluator, population, search, without_quantization
+from testbed.score.worst_case import (
+    RESTARTS,
+    LoopEvaluator,
+    population,
+    search,
+    without_quantization,
+)
 from testbed.sim.simulator import SimulationDiverged
 
 #: The timing reference.
@@ -335,7 +341,8 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
     s = dist.values.shape[2]
     # candidates per closed-loop run: +-v_1 and the random draws, or a DE population; the
     # run without w is member 0 of the impulse response's (s + 1 members), run once
-    num = max(2 + spec.random_draws, members)
+    # + the batch's own baseline (member 0); the restarts' populations share a batch
+    num = max(2 + spec.random_draws, RESTARTS * members) + 1
     dist = _sampled(entry, scenario, num, K, nominal=False)
     impulse_dist = _sampled(entry, scenario, s + 1, K, nominal=False)
 
@@ -430,7 +437,7 @@ def entry_cost(entry: SuiteEntry) -> float:
     spec = entry.worst_case
     if spec is not None:
         K = (spec.horizon_s or scenario.duration_s) / dt_s
-        members = max(2 + spec.random_draws, population(spec.basis - 1))
+        members = max(2 + spec.random_draws, RESTARTS * population(spec.basis - 1)) + 1
         cost += K * (1.25 * (2 + STEP_OVERHEAD)
                      + (2 + spec.generations) * (members + STEP_OVERHEAD))
     return cost * ENTRY_COST_FACTORS.get((rig, entry.profile), 1.0)

@@ -8,7 +8,8 @@ keys of :data:`RESULT_KEYS`. ``nees_test``/``nis_test`` are
 :func:`testbed.score.consistency.consistency_test` (with the per-step curve),
 ``whiteness`` :func:`~testbed.score.consistency.whiteness_test` and ``versus_reference``
 the paired comparison of each state's per-run MSE with the reference's
-(:mod:`testbed.score.paired`, Holm over the estimators compared). ``worst_case_search`` is
+(:mod:`testbed.score.paired`: the ratio interval, the +-2 % margin, Holm over the lineup).
+``worst_case_search`` is
 :meth:`testbed.score.worst_case.SearchResult.describe` (the linear prediction, the probe
 sensors and the channels measured without quantization). ``cpu_s`` is the pair's CPU seconds
 per stage (:attr:`~testbed.score.harness.PairResult.cpu_s`: where the time goes; not
@@ -30,7 +31,7 @@ from testbed.outputs.units import display
 from testbed.score import stats
 from testbed.score.consistency import consistency_test, verdict_text, whiteness_test
 from testbed.score.harness import REFERENCE, PairResult, ScoreRun
-from testbed.score.paired import compare_family, comparison_text
+from testbed.score.paired import comparison_text
 
 #: Keys of every entry of ``results`` (the issue's JSON contract).
 RESULT_KEYS = ("estimator", "scenario", "runs", "rmse", "rmse_ci95", "anees", "anees_bounds",
@@ -67,10 +68,14 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
                    worst_case_search=pair.worst.describe())
     out["certified_gamma"] = pair.certified_gamma
     out["gamma_kind"] = pair.gamma_kind
-    if pair.worst is not None:
-        out["sampled_loop_gain"] = pair.worst.linear_gain
-    out["certificate"] = certificate(pair.certified_gamma, pair.gamma_kind,
-                                     out["sampled_loop_gain"])
+    norm = None if pair.worst is None else pair.worst.hinf
+    if norm is not None:
+        out["sampled_loop_gain"] = norm.value
+    out["certificate"] = certificate(
+        pair.certified_gamma, pair.gamma_kind, out["sampled_loop_gain"],
+        finite_horizon=None if pair.worst is None else max(pair.worst.linear_gain,
+                                                           pair.worst.worst_case_gain),
+        truncation=None if norm is None or norm.method == "realization" else norm.truncation)
     out["step_us"] = pair.step_us
     if reference is not None and not reference.skipped and reference.step_us:
         out["step_vs_kalman"] = pair.step_us / reference.step_us
@@ -81,17 +86,23 @@ def _entry_result(pair: PairResult, reference: PairResult | None,
     return out
 
 
-def certificate(gamma: float | None, kind: str | None, sampled_gain: float | None
+def certificate(gamma: float | None, kind: str | None, sampled_gain: float | None, *,
+                finite_horizon: float | None = None, truncation: float | None = None
                 ) -> str | None:
     """What a design's ``gamma`` says about the loop as it runs, sampled at the control
     period.
 
-    ``sampled_gain`` is the l2 gain of the linearized error system of the filter as it runs
-    (discrete, ``w`` held over each period, over the search horizon: the worst-case
-    search's ``linear_gain``). A discrete design's gamma certifies it: ``"holds"`` when
-    ``sampled_gain <= gamma``, else ``"violated"``. A continuous-observation gamma
-    (Basin et al.'s filters integrated over each period with the sample held) certifies
-    no sampled loop: ``"not a sampled-loop certificate"``, whatever the two numbers.
+    ``sampled_gain`` is the infinite-horizon H-infinity norm of the linearized error system
+    of the filter as it runs (discrete, ``w`` held over each period; the worst-case search's
+    ``hinf``: the realized LTI system's norm, or the truncated response's, which is then
+    within ``truncation`` of it). ``finite_horizon`` is a measured lower bound (the larger of
+    the linearized gain over the search horizon and the gain found on the nonlinear loop):
+    it can show a violation, never that ``gamma`` holds. A discrete
+    design's gamma is checked: ``"violated"`` when the lower bound or ``sampled_gain -
+    truncation`` exceeds it, ``"holds"`` when ``sampled_gain + truncation`` does not, else
+    ``"undecided"``. A continuous-observation gamma (Basin et al.'s filters integrated over
+    each period with the sample held) certifies no sampled loop: ``"not a sampled-loop
+    certificate"``, whatever the numbers.
 
     Returns
     -------
@@ -104,28 +115,48 @@ def certificate(gamma: float | None, kind: str | None, sampled_gain: float | Non
         return "sampled-loop gain not computed (no worst-case search)"
     if kind != "discrete":
         return "not a sampled-loop certificate (continuous-observation gamma)"
-    return "holds" if sampled_gain <= gamma * (1 + 1e-9) else "violated"
+    tail = 0.0 if truncation is None else truncation
+    bound = gamma * (1 + 1e-9)
+    if (finite_horizon is not None and finite_horizon > bound) or sampled_gain - tail > bound:
+        return "violated"
+    if sampled_gain + tail <= bound:
+        return "holds"
+    return "undecided (gamma within the truncation error of the norm)"
 
 
 def comparisons(pairs: dict[str, PairResult], estimators: list[str], reference: str,
-                level: float = stats.LEVEL) -> dict[str, dict[str, Any]]:
-    """Paired comparisons of one entry: estimator name to ``{"reference", "states"}`` with,
-    per state, :func:`testbed.score.paired.compare_family` of the per-run MSE (Holm over the
-    estimators compared on that state). Estimators skipped, the reference itself, and all
-    when the reference was skipped, are left out."""
+                level: float = stats.LEVEL,
+                lineup: tuple[str, ...] | None = None) -> dict[str, dict[str, Any]]:
+    """Paired comparisons of one entry: estimator name to ``{"reference", "loss", "family",
+    "states"}`` with, per state, :func:`testbed.score.paired.paired_comparison` of the
+    per-run MSE, Holm-adjusted over a fixed family (:func:`testbed.score.paired.adjust`):
+    every state x every estimator of ``lineup`` (default
+    :data:`testbed.score.suite.LINEUP`) but the reference, plus the estimator itself when it
+    is not in the lineup; members of the family the run did not score (or that were
+    skipped) enter with p = 1. Estimators skipped, the reference itself, and all when the
+    reference was skipped, are left out."""
+    from testbed.score.paired import adjust, paired_comparison
+    from testbed.score.suite import LINEUP
+
     ref = pairs.get(reference)
     if ref is None or ref.skipped:
         return {}
+    lineup = LINEUP if lineup is None else tuple(lineup)
     names = [n for n in estimators if n != reference and not pairs[n].skipped]
-    out: dict[str, dict[str, Any]] = {n: {"reference": reference, "loss": "per-run MSE",
-                                          "states": {}} for n in names}
-    for state, ref_rmse in ref.rmse_per_run.items():
-        family = {n: pairs[n].rmse_per_run[state] ** 2 for n in names
-                  if state in pairs[n].rmse_per_run}
-        if not family:
-            continue
-        for n, comparison in compare_family(family, ref_rmse**2, level).items():
-            out[n]["states"][state] = comparison
+    states = list(ref.rmse_per_run)
+    raw = {(n, state): paired_comparison(pairs[n].rmse_per_run[state] ** 2,
+                                         ref.rmse_per_run[state] ** 2, level)
+           for n in names for state in states if state in pairs[n].rmse_per_run}
+    declared = [n for n in lineup if n != reference]
+    out: dict[str, dict[str, Any]] = {}
+    for n in names:
+        family = declared if n in declared else [*declared, n]
+        members = {key: dict(c) for key, c in raw.items() if key[0] in family}
+        adjust(members, len(family) * len(states), level)
+        out[n] = {"reference": reference, "loss": "per-run MSE",
+                  "family": f"{len(family)} estimators x {len(states)} states",
+                  "states": {state: members[(n, state)] for state in states
+                             if (n, state) in members}}
     return out
 
 
@@ -151,7 +182,8 @@ def results(run: ScoreRun) -> dict[str, Any]:
                   "random_gain": "output unit per unit of w",
                   "linear_gain": "output unit per unit of w",
                   "certified_gamma": "as the estimator's design states it",
-                  "sampled_loop_gain": "output unit per unit of w (held over each period)"})
+                  "sampled_loop_gain": "output unit per unit of w (held over each period; "
+                                       "infinite-horizon H-infinity norm)"})
     identity = suite_identity(run.suite)
     return {"suite": run.suite, "suite_version": identity["version"],
             "suite_hash": identity["hash"], "seed": run.seed, "level": stats.LEVEL,
@@ -174,12 +206,29 @@ def notes(run: ScoreRun) -> list[str]:
                 w = pair.worst
                 probe = (f"sensors without quantization ({', '.join(w.quantization_removed)})"
                          if w.quantization_removed else "the scenario's sensors")
+                spread = (f" (restarts {min(w.restart_gains):.2g} to "
+                          f"{max(w.restart_gains):.2g})" if len(w.restart_gains) > 1 else "")
                 out.append(f"{prefix}: worst-case search over {w.horizon_s:g} s, energy "
                            f"{w.energy:g}, probe runs on {probe}: linearized error system "
-                           f"predicts {w.linear_gain:.4g}, found {w.worst_case_gain:.4g} in "
-                           f"{w.evaluations} closed-loop runs")
+                           f"predicts {w.linear_gain:.3g} over the horizon, found "
+                           f"{w.worst_case_gain:.2g}{spread} in {w.evaluations} closed-loop "
+                           "runs")
+                if w.hinf is not None:
+                    out.append(f"{prefix}: {_norm_text(w.hinf, w.linear_gain)}")
                 out += [f"{prefix}: {note}" for note in w.notes]
     return out
+
+
+def _norm_text(norm: Any, finite_horizon: float) -> str:
+    """The sampled loop's H-infinity norm, how it was obtained, and its lower bound."""
+    fft = (f"truncated response's FFT {norm.fft_value:.4g}, tail "
+           + ("not decaying" if not np.isfinite(norm.truncation)
+              else f"<= {norm.truncation:.2g} (estimated)"))
+    how = (f"realized LTI system of order {norm.order} (fit {norm.fit:.1g} over the "
+           f"{norm.horizon_s:g} s measured)" if norm.method == "realization"
+           else f"no realization fits the {norm.horizon_s:g} s measured")
+    return (f"sampled loop's H-infinity norm {norm.value:.4g}: {how}; {fft}; finite-horizon "
+            f"gain {finite_horizon:.4g} (a lower bound)")
 
 
 # ---------------------------------------------------------------------------- tables
@@ -203,13 +252,16 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
 
 
 def _consistency_text(res: dict[str, Any]) -> str:
-    """``ANEES [t interval of the per-run time averages] verdict``."""
+    """``ANEES [t interval of the per-run time averages] p <mean test's p> verdict``: ``ok``
+    only for ``consistent`` (the mean test and the band diagnostic both accept),
+    ``no verdict`` below the minimum number of runs, else the verdict in capitals."""
     test = res["nees_test"]
     if test is None:
         return "-"
     lo, hi = test["mean_ci"]
-    verdict = "ok" if test["verdict"] == "consistent" else test["verdict"].upper()
-    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] {verdict}"
+    verdict = {"consistent": "ok", "no verdict": "no verdict"}.get(test["verdict"],
+                                                                   test["verdict"].upper())
+    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] p {test['mean_p']:.2g} {verdict}"
 
 
 def _squared(unit: str) -> str:
@@ -240,22 +292,23 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
         if res["certificate"] is not None:
             sampled = res["sampled_loop_gain"]
             lines.append(f"{name} certificate: design gamma {res['certified_gamma']:.4g} "
-                         f"({res['gamma_kind']}), sampled loop's linearized gain "
+                         f"({res['gamma_kind']}), sampled loop's H-infinity norm "
                          f"{'-' if sampled is None else f'{sampled:.4g}'}: "
                          f"{res['certificate']}")
         versus = res["versus_reference"]
         if versus is not None:
             parts = [f"{state} {comparison_text(c, _squared(units.get(state, '')))}"
                      for state, c in versus["states"].items()]
-            lines.append(f"{name} vs {versus['reference']} (MSE difference per run, 95 % "
-                         f"CI): {'; '.join(parts)}")
+            lines.append(f"{name} vs {versus['reference']} (MSE ratio and difference per "
+                         f"run, 95 % CI; p_holm over a family of {versus['family']}): "
+                         f"{'; '.join(parts)}")
     return lines
 
 
 def _gain_text(res: dict[str, Any]) -> str:
     if res["worst_case_gain"] is None:
         return "-"
-    text = f"{res['worst_case_gain']:.3g} / {res['random_gain']:.3g}"
+    text = f"{res['worst_case_gain']:.2g} / {res['random_gain']:.2g}"
     if res["certified_gamma"] is not None:
         sampled = res["sampled_loop_gain"]
         text += f" (gamma {res['certified_gamma']:.3g}"
@@ -281,15 +334,27 @@ def _sorted(group: list[dict[str, Any]], order: list[str] | None = None
     return sorted(group, key=lambda res: index.get(res["estimator"], len(index)))
 
 
+#: RMSEs within this relative difference are ranked as ties (the same result up to rounding).
+TIE_RTOL = 1e-9
+
+
 def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
-    """Rank of each estimator scored on the scenario by the RMSE of the first state."""
+    """Rank of each estimator scored on the scenario by the RMSE of the first state; equal
+    RMSEs (within :data:`TIE_RTOL` of the first of their group) share the rank ("1, 1, 3")."""
     scored = [res for res in group if not res["skipped"]]
     scored.sort(key=lambda res: next(iter(res["rmse"].values())))
-    return {res["estimator"]: i + 1 for i, res in enumerate(scored)}
+    ranks: dict[str, int] = {}
+    lead = None
+    for i, res in enumerate(scored):
+        value = next(iter(res["rmse"].values()))
+        if lead is None or abs(value - lead[0]) > TIE_RTOL * abs(lead[0]):
+            lead = (value, i + 1)
+        ranks[res["estimator"]] = lead[1]
+    return ranks
 
 
 #: Columns of :func:`leaderboard`.
-_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] verdict", "ANIS",
+_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] p verdict", "ANIS",
             "worst / random gain (gamma, sampled loop)", "us/step (x KF)", "mismatch")
 
 
@@ -339,8 +404,10 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
            f"reference {summary['reference']}, "
            f"{summary['wall_s']:.1f} s wall. RMSE in display units (angles in degrees) with "
            "the 95 % interval; ANEES with the 95 % t interval of the per-run time averages "
-           "and the verdict (consistent / overconfident / underconfident: the mean test and "
-           "the per-step chi-square band test agree), ANIS with the per-step band; "
+           "and its p-value, and the verdict: the mean test at 5 % (OVERCONFIDENT / "
+           "UNDERCONFIDENT when it rejects; ok when it and the per-step chi-square band "
+           "diagnostic both accept, INCONCLUSIVE when only the band rejects; no verdict "
+           "below 6 runs), ANIS with the per-step band; "
            "worst-case / random gain in the output's unit per "
            "unit of the scenario's w (a lower bound found by search, not a certificate; "
            "measured on probe runs whose sensors have their quantization removed, so that "
@@ -354,7 +421,7 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     for scenario, group in _rows(summary):
         desc = descriptions.get(scenario, {})
         out += [f"## {scenario}", "", desc.get("description", ""), "",
-                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] verdict | ANIS [band] | worst / "
+                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] p verdict | ANIS [band] | worst / "
                 "random gain (gamma) | us/step (x KF) | mismatch | skipped |",
                 "|---|---|---|---|---|---|---|---|"]
         for res in _sorted(group, summary.get("estimators")):
@@ -416,10 +483,10 @@ def write_worst_cases(path: str | os.PathLike, run: ScoreRun) -> Path | None:
 # ---------------------------------------------------------------------------- PNG
 #: Marker of each paired verdict against the reference in the RMSE panels (the reference
 #: itself: a diamond; an estimator without a comparison: a plus).
-VERDICT_MARKERS = {"reference": "D", "better": "v", "worse": "^",
-                   "no detectable difference": "o", None: "P"}
-#: Filled or hollow (no detectable difference is hollow: it is not "equal").
-_HOLLOW = {"no detectable difference"}
+VERDICT_MARKERS = {"reference": "D", "better": "v", "worse": "^", "equivalent": "X",
+                   "inconclusive": "o", None: "P"}
+#: Filled or hollow (inconclusive is hollow: it is not "equal").
+_HOLLOW = {"inconclusive"}
 
 
 def _verdict(res: dict[str, Any], state: str, reference: str) -> str | None:
@@ -569,14 +636,19 @@ def _legend_handles(estimators: list[str], colors: dict[str, str], verdicts: set
     for name in estimators:
         handles.append(Line2D([], [], color=colors[name], marker="s", ms=7, lw=1.5))
         labels.append(name)
-    for verdict in ("reference", "better", "worse", "no detectable difference", None):
+    from testbed.score.paired import MARGIN
+
+    margin_pct = 100 * MARGIN
+    for verdict in ("reference", "better", "worse", "equivalent", "inconclusive", None):
         if verdict in verdicts:
             handles.append(Line2D([], [], color="k", marker=VERDICT_MARKERS[verdict], ms=7,
                                   mfc="white" if verdict in _HOLLOW else "k",
                                   linestyle="none"))
-            labels.append({"reference": "reference", None: "not compared"}.get(
-                verdict, f"{verdict} than the reference" if verdict in ("better", "worse")
-                else verdict))
+            labels.append({"reference": "reference", None: "not compared",
+                           "equivalent": f"equivalent (MSE ratio within +-{margin_pct:g} %)"}
+                          .get(verdict, f"{verdict} than the reference (beyond +-"
+                                        f"{margin_pct:g} %)" if verdict in ("better", "worse")
+                               else verdict))
     if nees:
         handles.append(Patch(color="0.85"))
         labels.append("95 % per-step NEES band")
@@ -602,8 +674,8 @@ def score_figure(summary: dict[str, Any]) -> Any:
 
     - RMSE dot plots, one axes per display unit (deg and deg/s never share one): per state one
       row per estimator, the 95 % interval as an error bar on a linear axis from 0, the
-      marker the paired verdict against the reference (better, worse, no detectable
-      difference; the reference a diamond) and the MSE ratio to the reference beside it;
+      marker the paired verdict against the reference (better, worse, equivalent,
+      inconclusive; the reference a diamond) and the MSE ratio to the reference beside it;
     - the per-step N-run average NEES of every estimator with a covariance against the 95 %
       per-step band (when one has a covariance);
     - the worst-case gain found, the largest random gain, the linearized prediction and the

@@ -298,6 +298,12 @@ def quick() -> list[SuiteEntry]:
     return out
 
 
+#: The suite's declared lineup: the built-in estimators a leaderboard scores. It fixes the
+#: family of the paired comparisons' Holm correction (:func:`testbed.score.report.comparisons`)
+#: so that a verdict does not depend on which other estimators a run scores.
+LINEUP = ("kalman", "kalman-bucy", "ms-hinf", "lmi-hinf", "poly-hinf", "vc-discrete", "ekf",
+          "ukf")
+
 SUITES = {"quick": quick, "standard": standard}
 #: Version of each suite's definition: bump it whenever :func:`suite_hash` changes (a test pins
 #: the hash of the current version), so that scores are compared only within one version.

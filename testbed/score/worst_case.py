@@ -52,6 +52,7 @@ Random gain: the largest gain of white Gaussian disturbances of the same energy.
 from __future__ import annotations
 
 import copy
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -176,6 +177,182 @@ def top_singular(op: ErrorOperator, p: int, rng: np.random.Generator, *, max_ite
             break
         previous = gains[0]
     return gains, V.reshape(p, K, s), iteration
+
+
+@dataclass(frozen=True)
+class ImpulseNorm:
+    """Infinite-horizon H-infinity norm of an error system from its measured impulse
+    response (:func:`hinf_from_impulse`), in the response's units.
+
+    Attributes
+    ----------
+    value : float
+        The norm: that of the realized LTI system when the realization reproduces the
+        measured response (``method == "realization"``), else ``fft_value``.
+    method : {"realization", "truncated FFT"}
+    fft_value : float
+        ``max_w sigma_max(T_L(e^jw))`` of the response truncated at ``lags`` lags.
+    truncation : float
+        Estimated tail ``sum_(l >= lags) ||t_l||_2`` (from the decay of the envelope of the
+        last half of the response; ``inf`` when it does not decay): ``fft_value`` is within
+        this of the norm of the measured system.
+    order : int
+        Order of the realization (0: none).
+    fit : float
+        Relative l2 misfit of the realization's impulse response over the measured lags
+        (``inf``: none).
+    lags : int
+    horizon_s : float
+        ``lags * dt_s``, the measured horizon.
+    peak_hz : float
+        Frequency of the maximum of the truncated response.
+    """
+
+    value: float
+    method: str
+    fft_value: float
+    truncation: float
+    order: int
+    fit: float
+    lags: int
+    horizon_s: float
+    peak_hz: float
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready (non-finite numbers as None)."""
+        return {"value": self.value, "method": self.method, "fft_value": self.fft_value,
+                "truncation": _finite(self.truncation), "order": self.order,
+                "fit": _finite(self.fit), "impulse_lags": self.lags,
+                "impulse_horizon_s": self.horizon_s, "peak_hz": self.peak_hz}
+
+
+def _sigma_max(t: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``sigma_max(sum_l t_l e^(-j omega l))`` at each ``omega`` (rad per step)."""
+    phase = np.exp(-1j * np.outer(omega, np.arange(len(t))))  # (f, L)
+    T = np.einsum("fl,lqs->fqs", phase, t)
+    return np.linalg.svd(T, compute_uv=False)[:, 0]
+
+
+def _truncated_norm(t: np.ndarray, oversample: int) -> tuple[float, float]:
+    """Peak of ``sigma_max`` of the truncated response (zero-padded FFT, refined on a fine
+    grid around the largest bin) and its frequency in rad per step."""
+    nfft = _fft_size(oversample * len(t))
+    coarse = np.linalg.svd(np.fft.rfft(t, nfft, axis=0), compute_uv=False)[:, 0]
+    k = int(np.argmax(coarse))
+    step = 2 * np.pi / nfft
+    omega = np.clip(k * step + np.linspace(-step, step, 65), 0.0, np.pi)
+    fine = _sigma_max(t, omega)
+    j = int(np.argmax(fine))
+    if fine[j] >= coarse[k]:
+        return float(fine[j]), float(omega[j])
+    return float(coarse[k]), k * step
+
+
+def _tail(t: np.ndarray, windows: int) -> float:
+    """Estimated ``sum_(l >= L) ||t_l||_2`` from a geometric decay fitted to the envelope
+    (window maxima) of the last half of the response."""
+    norms = np.linalg.norm(t, ord=2, axis=(1, 2))
+    half = norms[len(t) // 2:]
+    width = len(half) // windows
+    envelope = half[: width * windows].reshape(windows, width).max(axis=1)
+    if np.all(envelope == 0):
+        return 0.0
+    if np.any(envelope == 0) or envelope[-1] >= envelope[0]:
+        return float("inf")
+    rho = float(np.exp(np.polyfit(np.arange(windows), np.log(envelope), 1)[0]))
+    # each later window at most the last one's envelope, decaying by rho from the second on
+    return float("inf") if rho >= 1 else float(envelope[-1] * width / (1 - rho))
+
+
+def realize(t: np.ndarray, rows: int = 100, rtol: float = 1e-6, max_order: int = 40
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A state-space realization ``(A, B, C, D)`` of an impulse response by the eigensystem
+    realization algorithm (Ho & Kalman 1966; Juang & Pappa 1985): the SVD of the block
+    Hankel matrix of ``t_1 .. t_(2 rows)``, truncated at the singular values above ``rtol``
+    times the largest (at most ``max_order``), ``A`` from the shifted Hankel matrix,
+    ``D = t_0``.
+
+    Parameters
+    ----------
+    t : ndarray, shape (L, q, s), L >= 2 rows + 2
+    rows, max_order : int
+    rtol : float
+
+    Returns
+    -------
+    A (r, r), B (r, s), C (q, r), D (q, s)
+    """
+    L, q, s = t.shape
+    rows = min(rows, (L - 2) // 2)
+    if rows < 1:
+        raise ValueError(f"t needs at least 4 lags, got {L}")
+    lag = 1 + np.add.outer(np.arange(rows), np.arange(rows))  # block (i, j): t_(1 + i + j)
+    H0 = t[lag].transpose(0, 2, 1, 3).reshape(rows * q, rows * s)
+    H1 = t[lag + 1].transpose(0, 2, 1, 3).reshape(rows * q, rows * s)
+    U, S, Vt = np.linalg.svd(H0, full_matrices=False)
+    if S[0] == 0:
+        return np.zeros((0, 0)), np.zeros((0, s)), np.zeros((q, 0)), t[0].copy()
+    r = int(min(np.sum(S > rtol * S[0]), max_order))
+    root = np.sqrt(S[:r])
+    A = (U[:, :r] / root).T @ H1 @ (Vt[:r].T / root)
+    B = (root[:, None] * Vt[:r])[:, :s]
+    C = (U[:, :r] * root)[:q]
+    return A, B, C, t[0].copy()
+
+
+def hinf_from_impulse(t: np.ndarray, dt_s: float, oversample: int = 8, windows: int = 8,
+                      max_fit: float = 1e-3) -> ImpulseNorm:
+    """Infinite-horizon H-infinity norm of the discrete system whose impulse response is
+    ``t`` (the sampled error system: ``t_l`` the response at lag ``l`` to a unit ``w`` held
+    over one period).
+
+    Two estimates: the norm of the realized LTI system (:func:`realize`;
+    :func:`filters.analysis.hinf_norm`, to 1e-6), used when the realization is stable and
+    reproduces the measured response over all its lags within ``max_fit`` (relative l2);
+    and the peak of the frequency response of the truncated response (zero-padded FFT,
+    ``oversample`` times its length, refined around the largest bin), whose distance to the
+    norm is at most the tail ``sum_(l >= L) ||t_l||``, estimated from a geometric decay
+    ``rho`` per window fitted to the envelope (the window maxima of ``||t_l||``) of the last
+    half of the response in ``windows`` windows: ``width e / (1 - rho)``, ``e`` the last
+    window's maximum (an estimate, not a proof). Without a valid realization the FFT value
+    is the result.
+
+    Parameters
+    ----------
+    t : ndarray, shape (L, q, s)
+    dt_s : float
+        Sampling period (for ``horizon_s`` and ``peak_hz``).
+    oversample, windows : int
+    max_fit : float
+
+    Returns
+    -------
+    ImpulseNorm
+    """
+    from filters.analysis import hinf_norm
+
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 3 or len(t) < 2 * windows or not np.all(np.isfinite(t)):
+        raise ValueError(f"t must be finite with shape (L, q, s), L >= {2 * windows}, got "
+                         f"{t.shape}")
+    L = len(t)
+    fft_value, peak = _truncated_norm(t, oversample)
+    truncation = _tail(t, windows)
+    A, B, C, D = realize(t)
+    value, method, fit, order = fft_value, "truncated FFT", float("inf"), len(A)
+    if order and np.all(np.isfinite(A)) and np.max(np.abs(np.linalg.eigvals(A))) < 1:
+        h = np.empty_like(t)
+        h[0], x = D, B
+        for lag in range(1, L):
+            h[lag] = C @ x
+            x = A @ x
+        scale = np.linalg.norm(t)
+        fit = float(np.linalg.norm(h - t) / scale) if scale > 0 else 0.0
+        if fit <= max_fit:
+            value, method = float(hinf_norm(A, B, C, D, discrete=True)), "realization"
+    return ImpulseNorm(value=value, method=method, fft_value=fft_value,
+                       truncation=truncation, order=order, fit=fit, lags=L,
+                       horizon_s=L * dt_s, peak_hz=peak / (2 * np.pi * dt_s))
 
 
 def estimator_markov(estimator: Any, input_transform: Any, prior: tuple[np.ndarray, Any],
@@ -311,6 +488,11 @@ def without_quantization(sensor: Any) -> tuple[Any, list[str]]:
 
 
 # ---------------------------------------------------------------------------- loop side
+def _finite(value: float) -> float | None:
+    """``value``, or None when it is not finite (JSON has no infinity)."""
+    return float(value) if np.isfinite(value) else None
+
+
 @dataclass
 class SearchResult:
     """Outcome of :func:`search` (gains in the channel's units: output unit per w unit).
@@ -324,7 +506,8 @@ class SearchResult:
     random_gain : float
         Largest measured gain of the random disturbances.
     linear_gain : float
-        ``sigma_max`` of the linearized error system over the horizon (a prediction).
+        ``sigma_max`` of the linearized error system over the horizon (a prediction, and a
+        lower bound of its H-infinity norm).
     evaluations : int
         Closed-loop candidate runs (random ones included).
     iterations : int
@@ -337,6 +520,12 @@ class SearchResult:
     quantization_removed : list of str
         Channels measured without their quantization in the probe runs
         (:func:`without_quantization`).
+    hinf : ImpulseNorm, optional
+        The infinite-horizon H-infinity norm of the measured error system
+        (:func:`hinf_from_impulse`).
+    restart_gains : list of float
+        The best gain of each restart of the refinement (``worst_case_gain`` is their
+        maximum; their range is the search's spread).
     """
 
     worst_case_gain: float
@@ -350,11 +539,15 @@ class SearchResult:
     notes: list[str] = field(default_factory=list)
     probe_sensors: str = ""
     quantization_removed: list[str] = field(default_factory=list)
+    hinf: ImpulseNorm | None = None
+    restart_gains: list[float] = field(default_factory=list)
 
     def describe(self) -> dict[str, Any]:
-        """JSON-ready: the search's settings and its linear prediction (the report's
-        ``worst_case_search``)."""
-        return {"linear_gain": self.linear_gain, "energy": self.energy,
+        """JSON-ready: the search's settings, its linear prediction (finite horizon) and the
+        infinite-horizon norm (the report's ``worst_case_search``)."""
+        norm = None if self.hinf is None else self.hinf.describe()
+        return {"linear_gain": self.linear_gain, "hinf_norm": norm,
+                "restart_gains": list(self.restart_gains), "energy": self.energy,
                 "horizon_s": self.horizon_s, "evaluations": self.evaluations,
                 "iterations": self.iterations, "probe_sensors": self.probe_sensors,
                 "quantization_removed": list(self.quantization_removed),
@@ -364,12 +557,15 @@ class SearchResult:
 class LoopEvaluator:
     """Measured gains of candidate disturbances on a built closed loop (batched).
 
-    Two builds of the same probe loop: ``candidates``, whose every member runs a candidate
-    disturbance, and ``impulse``, with ``s + 1`` members (member 0 without ``w``, the
-    baseline; member ``1 + j`` an impulse on channel ``j``). Every member of both has the same
-    seed, so the baseline's run is the one a member without ``w`` would have in any batch (a
-    member's run does not depend on the batch): it is simulated once, in the impulse response,
-    and every candidate's ``dz`` is taken against it.
+    Two builds of the same probe loop: ``candidates``, whose member 0 runs without ``w`` (the
+    baseline of its batch) and every other member a candidate disturbance, and ``impulse``,
+    with ``s + 1`` members (member 0 without ``w``; member ``1 + j`` an impulse on channel
+    ``j``). Every member of both has the same seed. Each candidate's ``dz`` is taken against
+    the baseline of its own batch, not one run elsewhere: an estimator whose arithmetic
+    depends on its batch companions (poly-hinf chooses its integration substeps for the whole
+    batch) would otherwise put the difference of two integrations into ``dz`` (on
+    ``vehicle-step-steer`` it moved poly-hinf's random gain by a factor 3 under a 1e-9
+    change of the energy).
 
     Parameters
     ----------
@@ -401,6 +597,9 @@ class LoopEvaluator:
         self.seed, self.K = int(seed), int(steps)
         self.L = np.asarray(output_matrix, float)
         self.num = self.loop.sim.num
+        if self.num < 2:
+            raise ValueError(f"the candidates' loop needs at least 2 members (a baseline and "
+                             f"a candidate), got {self.num}")
         self.dt_s = self.loop.sim.dt_s
         self.evaluations = 0
         #: The baseline's output error, (steps, q) from step 1 (set by the impulse response).
@@ -426,17 +625,21 @@ class LoopEvaluator:
         return self._baseline[: self.K]
 
     def run(self, W: np.ndarray) -> np.ndarray:
-        """Gains of the candidates ``W`` (B, K, s), in batches of ``num``."""
+        """Gains of the candidates ``W`` (B, K, s), in batches of ``num - 1``: member 0 of
+        every batch runs without ``w`` and is that batch's baseline (an estimator whose
+        arithmetic depends on its batch companions, such as one integrating with a step
+        chosen for the whole batch, then differs from the baseline only by ``w``)."""
         W = np.asarray(W, dtype=float)
         gains = np.empty(len(W))
-        z0 = self.baseline()
-        for start in range(0, len(W), self.num):
-            chunk = W[start:start + self.num]
+        size = self.num - 1
+        for start in range(0, len(W), size):
+            chunk = W[start:start + size]
             self.dist.values[:] = 0.0
-            self.dist.values[: len(chunk), : self.K] = chunk
+            self.dist.values[1:1 + len(chunk), : self.K] = chunk
             z = self._errors(self.loop, self.K)
-            steps = min(z.shape[1], len(z0))  # shorter if a member terminated the episode
-            dz = z[: len(chunk), :steps] - z0[:steps]
+            z0 = z[0]
+            steps = z.shape[1]
+            dz = z[1:1 + len(chunk)] - z0
             w_energy = np.sum(chunk[:, :steps] ** 2, axis=(1, 2))
             gains[start:start + len(chunk)] = np.sqrt(np.sum(dz**2, axis=(1, 2))
                                                       / np.maximum(w_energy, 1e-300))
@@ -500,21 +703,87 @@ def scaled(w: np.ndarray, energy: float, dt_s: float) -> np.ndarray:
     return w * np.sqrt(energy) / norm
 
 
+#: Independent restarts of the refinement (their candidates share each closed-loop batch).
+RESTARTS = 3
+
+
+class _Gather:
+    """Candidates of several callers (threads) evaluated as one batch per round.
+
+    Each caller hands its candidates to :meth:`__call__` and waits; when every active caller
+    has handed its own, they are evaluated together, in the callers' order (deterministic
+    whatever the threads' timing), and each gets its part. :meth:`done` retires a caller.
+    """
+
+    def __init__(self, evaluate: Any, parties: int):
+        self.evaluate = evaluate
+        self.cond = threading.Condition()
+        self.active = set(range(parties))
+        self.pending: dict[int, np.ndarray] = {}
+        self.results: dict[int, np.ndarray] = {}
+        self.error: BaseException | None = None
+        self.round = 0
+
+    def _flush(self) -> None:
+        order = sorted(self.pending)
+        sizes = [len(self.pending[i]) for i in order]
+        try:
+            gains = self.evaluate(np.concatenate([self.pending[i] for i in order]))
+        except BaseException as err:  # handed to every waiting caller
+            self.error = err
+        else:
+            for i, part in zip(order, np.split(gains, np.cumsum(sizes)[:-1]), strict=True):
+                self.results[i] = part
+        self.pending.clear()
+        self.round += 1
+        self.cond.notify_all()
+
+    def __call__(self, index: int, W: np.ndarray) -> np.ndarray:
+        with self.cond:
+            if self.error is None:
+                self.pending[index] = W
+                current = self.round
+                if set(self.pending) >= self.active:
+                    self._flush()
+                while self.round == current and self.error is None:
+                    self.cond.wait()
+            if self.error is not None:
+                raise RuntimeError("a batch of the worst-case refinement failed") \
+                    from self.error
+            return self.results.pop(index)
+
+    def done(self, index: int) -> None:
+        with self.cond:
+            self.active.discard(index)
+            if self.pending and set(self.pending) >= self.active:
+                self._flush()
+
+
 def search(evaluator: LoopEvaluator, t: np.ndarray, *, energy: float, random_draws: int,
-           basis: int, generations: int, rng: np.random.Generator) -> SearchResult:
+           basis: int, generations: int, rng: np.random.Generator,
+           restarts: int = RESTARTS) -> SearchResult:
     """The worst-case search on one closed loop (see the module docstring).
 
     Parameters
     ----------
     evaluator : LoopEvaluator
+        Its candidates' loop should have ``restarts * population(basis - 1) + 1`` members
+        (one batch per generation of all restarts).
     t : ndarray, shape (lags, q, s)
         Impulse response of the error system (:meth:`LoopEvaluator.impulse_response`, or
         :func:`error_response` of a model), zero beyond ``lags``.
     energy : float
     random_draws, basis, generations : int
     rng : numpy.random.Generator
-        Start of the power iteration, the random disturbances, the refinement.
+        Start of the power iteration, the random disturbances, the refinements' streams
+        (:meth:`numpy.random.Generator.spawn`).
+    restarts : int
+        Independent differential-evolution refinements, run in lockstep (one batched
+        closed-loop run per generation for all of them): the result is their maximum, and
+        the restarts' best gains (``restart_gains``) show its spread.
     """
+    if int(restarts) != restarts or restarts < 1:
+        raise ValueError(f"restarts must be a positive integer, got {restarts}")
     K, dt = evaluator.K, evaluator.dt_s
     s = t.shape[2]
     op = ErrorOperator(t, K)
@@ -528,32 +797,58 @@ def search(evaluator: LoopEvaluator, t: np.ndarray, *, energy: float, random_dra
     best = int(np.argmax(first[:2]))
     sign = 1.0 if best == 0 else -1.0
     worst, worst_w = float(first[best]), sign * v1
+    restart_gains = [worst]
 
     d = len(V) - 1
     if generations > 0 and d > 0:
-        record: dict[str, Any] = {"gain": worst, "w": worst_w}
+        streams = rng.spawn(int(restarts))
+        records = [{"gain": worst, "w": worst_w} for _ in streams]
+        gather = _Gather(evaluator.run, len(streams))
 
         def candidates(c: np.ndarray) -> np.ndarray:
             c = np.atleast_2d(c.T).reshape(-1, d)  # (S, d)
             w = sign * (V[0][None] + np.einsum("bd,dks->bks", c, V[1:]))
             return scaled(w, energy, dt)
 
-        def objective(c: np.ndarray) -> np.ndarray:
-            w = candidates(c)
-            g = evaluator.run(w)
-            j = int(np.argmax(g))
-            if g[j] > record["gain"]:
-                record["gain"], record["w"] = float(g[j]), w[j]
-            return -g
+        def refine(index: int) -> None:
+            record = records[index]
 
-        differential_evolution(objective, [(-1.0, 1.0)] * d, maxiter=generations,
-                               popsize=population(d) // d, x0=np.zeros(d),
-                               vectorized=True, updating="deferred", polish=False, tol=0.0,
-                               rng=rng)
-        worst, worst_w = record["gain"], record["w"]
+            def objective(c: np.ndarray) -> np.ndarray:
+                w = candidates(c)
+                g = gather(index, w)
+                j = int(np.argmax(g))
+                if g[j] > record["gain"]:
+                    record["gain"], record["w"] = float(g[j]), w[j]
+                return -g
+
+            try:
+                differential_evolution(objective, [(-1.0, 1.0)] * d, maxiter=generations,
+                                       popsize=population(d) // d, x0=np.zeros(d),
+                                       vectorized=True, updating="deferred", polish=False,
+                                       tol=0.0, rng=streams[index])
+            except BaseException as err:  # re-raised by the caller
+                record["error"] = err
+            finally:
+                gather.done(index)
+
+        threads = [threading.Thread(target=refine, args=(i,), daemon=True)
+                   for i in range(len(streams))]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        for record in records:
+            if "error" in record:
+                error = record["error"]
+                raise error.__cause__ if isinstance(error, RuntimeError) and \
+                    error.__cause__ is not None else error
+        restart_gains = [r["gain"] for r in records]
+        top = int(np.argmax(restart_gains))
+        worst, worst_w = records[top]["gain"], records[top]["w"]
     if worst < random_gain:
-        notes.append(f"the search ({worst:.4g}) stayed below a random disturbance "
-                     f"({random_gain:.4g})")
+        notes.append(f"the search ({worst:.2g}) stayed below a random disturbance "
+                     f"({random_gain:.2g})")
     return SearchResult(worst_case_gain=worst, worst_case_w=worst_w, random_gain=random_gain,
                         linear_gain=float(gains[0]), evaluations=evaluator.evaluations,
-                        iterations=iterations, energy=energy, horizon_s=K * dt, notes=notes)
+                        iterations=iterations, energy=energy, horizon_s=K * dt, notes=notes,
+                        hinf=hinf_from_impulse(t, dt), restart_gains=restart_gains)

@@ -96,3 +96,20 @@ class ScaledCovariance:
 
     def step(self, y, u=None):
         return self.inner.step(y, u)
+
+
+class BatchDependent(FixedGainKalman):
+    """The fixed-gain filter whose reported estimate is offset by ``1e-4`` times the number
+    of members it steps (an estimator whose arithmetic depends on its batch companions)."""
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._x + 1e-4 * len(np.atleast_2d(self._x))
+
+    def step(self, y, u=None):
+        return super().step(y, u) + 1e-4 * len(np.atleast_2d(self._x))
+
+
+def batch_dependent(design, **options):
+    """``fixed_gain:batch_dependent``."""
+    return BatchDependent(design, **options)

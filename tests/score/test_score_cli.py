@@ -70,7 +70,7 @@ def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
         assert versus["reference"] == "kalman-bucy"
         assert set(versus["states"]) == {"position", "velocity"}
         for comparison in versus["states"].values():
-            assert comparison["verdict"] in ("better", "worse", "no detectable difference")
+            assert comparison["verdict"] in ("better", "worse", "equivalent", "inconclusive")
             assert comparison["difference_ci"][0] <= comparison["difference_ci"][1]
     kalman = data["results"][0]
     assert len(kalman["nees_test"]["per_step"]) == kalman["nees_test"]["steps"] == 500
@@ -80,7 +80,7 @@ def test_score_writes_json_markdown_png_rrd(tmp_path, capsys, monkeypatch):
     assert sorted(worst.files) == ["fixed_gain:make|calibration", "kalman|calibration"]
     markdown = (out / "s.md").read_text()
     assert "| kalman |" in markdown and identity["hash"] in markdown
-    assert "kalman vs kalman-bucy (MSE difference per run" in markdown
+    assert "kalman vs kalman-bucy (MSE ratio and difference per run" in markdown
     assert (out / "s.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     entities = rrd_summary(out / "s.rrd")
     assert any("calibration/truth/position" in k for k in entities)

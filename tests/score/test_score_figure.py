@@ -50,7 +50,7 @@ def summary() -> dict:
         _result("kalman", "helicopter", STATES, 1.0, None, nees=4.0, gain=2e-5),
         _result("kalman-bucy", "helicopter", STATES, 1.02,
                 {"pitch": (1.04, "worse"), "yaw": (0.9, "better"),
-                 "pitch_rate": (1.0, "no detectable difference"),
+                 "pitch_rate": (1.0, "inconclusive"),
                  "yaw_rate": (1.3, "worse")}, nees=30.0, gain=8e-5),
         _result("poly-hinf", "helicopter", STATES, 3.0,
                 {s: (9.0, "worse") for s in STATES}, nees=20.0, gain=6e-5, gamma=7e-5),
@@ -106,7 +106,7 @@ def test_score_figure_rmse_dots_intervals_and_verdicts(summary):
     assert kb.get_xdata()[0] == pytest.approx(1.02e-3 * deg)
     assert kb.get_marker() == VERDICT_MARKERS["worse"]
     assert dots["rmse|helicopter|kalman-bucy|yaw|better"].get_marker() == "v"
-    hollow = dots["rmse|helicopter|kalman-bucy|pitch_rate|no detectable difference"]
+    hollow = dots["rmse|helicopter|kalman-bucy|pitch_rate|inconclusive"]
     assert hollow.get_marker() == "o" and hollow.get_markerfacecolor() in ("white", "w",
                                                                           (1, 1, 1, 1))
     assert dots["rmse|helicopter|kalman|pitch|reference"].get_marker() == "D"
@@ -123,8 +123,9 @@ def test_score_figure_rmse_dots_intervals_and_verdicts(summary):
     assert {"\u00d71.04", "\u00d70.9", "\u00d79"} <= texts
     # the legend explains the marker styles
     labels = {t.get_text() for t in fig.legends[0].get_texts()}
-    assert {"worse than the reference", "better than the reference",
-            "no detectable difference", "reference", "95 % per-step NEES band",
+    assert {"worse than the reference (beyond +-2 %)",
+            "better than the reference (beyond +-2 %)", "inconclusive", "reference",
+            "95 % per-step NEES band",
             "worst case found", "largest random", "linearized prediction",
             "design gamma", "kalman", "kalman-bucy", "poly-hinf"} <= labels
 

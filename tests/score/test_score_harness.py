@@ -15,6 +15,7 @@ from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.score import report
 from testbed.score.harness import score, score_pair
 from testbed.score.suite import WorstCaseSpec, calibration_entry, get_suite
+from testbed.score.worst_case import RESTARTS
 
 HERE = Path(__file__).resolve().parent
 
@@ -68,7 +69,14 @@ def test_worst_case_search_reaches_the_hinf_norm_of_an_lti_error_system(user_mod
           f"({found / norm:.4f}), random {pair.worst.random_gain:.4g}")
     assert 0.95 * norm <= found <= norm * (1 + 1e-9)
     assert found >= pair.worst.random_gain
-    assert pair.worst.evaluations == 3 + 2 + 2 * 6  # +-v1, random, DE (init + 1 generation)
+    # +-v1, random, then three restarts of DE (init + 1 generation)
+    assert pair.worst.evaluations == 3 + 2 + RESTARTS * 2 * 6
+    assert max(pair.worst.restart_gains) == found
+    # the infinite-horizon norm of the measured error system (its realization) is the LTI
+    # error system's; the finite-horizon gain is below it
+    assert pair.worst.hinf.method == "realization"
+    assert pair.worst.hinf.value == pytest.approx(norm, rel=1e-4)
+    assert pair.worst.linear_gain <= pair.worst.hinf.value
 
 
 def test_ms_hinf_found_gain_against_its_gamma_is_reported():
