@@ -5,8 +5,9 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-runtime
 TEST_STAMP := $(VENV)/.installed-test
+DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test lint bench clean venv
+.PHONY: demo test lint bench docs docs-generated clean venv
 
 define pip_install
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -26,6 +27,10 @@ $(TEST_STAMP): $(STAMP)
 	$(call pip_install,.[test])
 	@touch $(TEST_STAMP)
 
+$(DOCS_STAMP): $(STAMP)
+	$(call pip_install,.[docs])
+	@touch $(DOCS_STAMP)
+
 venv: $(STAMP)
 
 demo: $(STAMP)
@@ -42,5 +47,17 @@ lint: $(TEST_STAMP)
 bench: $(TEST_STAMP)
 	$(PY) scripts/benchmark.py --json runs/benchmark.json
 
+# The site: docs/*.md (MyST), the tutorial notebook (executed while building) and the API
+# reference from the docstrings, into build/docs/html; any warning fails the build.
+docs: $(DOCS_STAMP) docs-generated
+	rm -rf docs/api
+	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs build/docs/html
+	@echo "open build/docs/html/index.html"
+
+# What is generated from the code: the CLI reference from the parser (run it after adding or
+# changing a command or an option; tests/test_cli_reference.py fails until then).
+docs-generated: $(STAMP)
+	$(PY) scripts/cli_reference.py
+
 clean:
-	rm -rf $(VENV) runs build dist *.egg-info
+	rm -rf $(VENV) runs build dist *.egg-info docs/api

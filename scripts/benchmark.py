@@ -4,7 +4,7 @@ Usage::
 
     python scripts/benchmark.py --json runs/benchmark.json          # everything (~20 min)
     python scripts/benchmark.py --quick --json runs/benchmark.json  # without the two long ones
-    python scripts/benchmark.py --markdown runs/b1.json runs/b2.json [--readme README.md]
+    python scripts/benchmark.py --markdown runs/b1.json runs/b2.json [--doc docs/performance.md]
 
 Measured (the median of ``--repeats`` timed blocks of ``--calls`` calls after a warm-up; the
 blocks of the quantities compared in a ratio are interleaved, because the machine may be
@@ -570,16 +570,19 @@ def provenance(results: list[dict[str, Any]]) -> str:
                "met the target." if len(results) > 1 else "one run."))
 
 
-README_START, README_END = "<!-- benchmark-table:start -->", "<!-- benchmark-table:end -->"
+#: The markers of the table in docs/performance.md (``--doc``).
+TABLE_START, TABLE_END = "<!-- benchmark-table:start -->", "<!-- benchmark-table:end -->"
+#: Where the repository keeps the table.
+PERFORMANCE_DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
 
 
-def update_readme(path: Path, table: str, note: str) -> None:
+def update_doc(path: Path, table: str, note: str) -> None:
     """Replace the text between the benchmark-table markers of ``path`` (atomically)."""
     text = path.read_text()
-    start, end = text.find(README_START), text.find(README_END)
+    start, end = text.find(TABLE_START), text.find(TABLE_END)
     if start < 0 or end < start:
-        raise ValueError(f"{path} has no {README_START} ... {README_END} markers")
-    new = f"{text[:start]}{README_START}\n{note}\n\n{table}\n{text[end:]}"
+        raise ValueError(f"{path} has no {TABLE_START} ... {TABLE_END} markers")
+    new = f"{text[:start]}{TABLE_START}\n{note}\n\n{table}\n{text[end:]}"
     with atomic_path(path) as tmp:
         Path(tmp).write_text(new)
 
@@ -627,18 +630,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")
     parser.add_argument("--markdown", nargs="+", metavar="JSON",
                         help="print the Markdown table of these results and exit")
-    parser.add_argument("--readme", help="with --markdown: write the table into this file "
-                                         "between its benchmark-table markers")
+    parser.add_argument("--doc", "--readme", dest="doc", metavar="PATH",
+                        help="with --markdown: write the table into this file between its "
+                             "benchmark-table markers (the repository's: docs/performance.md)")
     args = parser.parse_args(argv)
     if args.markdown:
         results = [json.loads(Path(p).read_text()) for p in args.markdown]
         table = markdown(results)
         print(table)
-        if args.readme:
-            update_readme(Path(args.readme), table, provenance(results))
+        if args.doc:
+            update_doc(Path(args.doc), table, provenance(results))
         return 0
-    if args.readme:
-        parser.error("--readme needs --markdown")
+    if args.doc:
+        parser.error("--doc needs --markdown")
     if args.smoke:
         calls, repeats, mode = SMOKE_CALLS, SMOKE_REPEATS, "smoke"
     else:

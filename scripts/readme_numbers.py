@@ -1,11 +1,14 @@
-"""Regenerate the measured numbers of the README from the commands it shows.
+"""Regenerate the measured numbers of the README and the docs from the commands they show.
 
 Each block between ``<!-- numbers:NAME:start -->`` and ``<!-- numbers:NAME:end -->`` in
-README.md is produced here by parsing the command line printed in the block with the CLI's own
-parser (so the numbers are those of that command) and running it through the runner.
+README.md or any docs/*.md (:func:`doc_files`) is produced here by parsing the command line
+printed in the block with the CLI's own parser (so the numbers are those of that command) and
+running it through the runner. Blocks are found by their markers, wherever they are: a block
+moves with its text from one file to another without a change here. Every block of
+:data:`BLOCKS` must appear exactly once among the files, and every marker must name one.
 
-    python scripts/readme_numbers.py            # rewrite README.md in place
-    python scripts/readme_numbers.py --check    # exit 1 if README.md is out of date
+    python scripts/readme_numbers.py            # rewrite the files in place
+    python scripts/readme_numbers.py --check    # exit 1 if a block is out of date
 
 ``--check`` compares the text with every number replaced by a placeholder exactly, and the
 numbers to a relative tolerance (:data:`RTOL`). Why a tolerance: on the same machine and
@@ -32,9 +35,11 @@ from testbed.experiment import runner
 from testbed.io import atomic_path
 from testbed.outputs.units import display
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
 #: Relative tolerance of ``--check`` (see the module docstring).
 RTOL = 2e-3
+#: A block's start marker; group 1 is its name.
+_START = re.compile(r"<!-- numbers:([A-Za-z0-9_-]+):start -->")
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
@@ -154,33 +159,80 @@ BLOCKS: dict[str, Callable[[], str]] = {"demo": demo, "ms-hinf": ms_hinf,
                                          "vehicle": vehicle, "profiles": profiles}
 
 
-def render(text: str) -> str:
-    """README text with every numbers block regenerated."""
-    for name, make in BLOCKS.items():
+def doc_files(root: Path = ROOT) -> list[Path]:
+    """The files whose numbers blocks this script keeps: README.md, then docs/*.md sorted."""
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
+def find_blocks(texts: dict[Path, str]) -> dict[str, Path]:
+    """Which file holds each numbers block.
+
+    Parameters
+    ----------
+    texts : dict of Path to str
+        The files' texts.
+
+    Returns
+    -------
+    dict of str to Path
+        Every name of :data:`BLOCKS`, with the one file that holds its block.
+
+    Raises
+    ------
+    ValueError
+        A marker names no block of :data:`BLOCKS`, a block appears twice (in one file or
+        two), or a block of :data:`BLOCKS` appears nowhere.
+    """
+    where: dict[str, Path] = {}
+    for path, text in texts.items():
+        for name in _START.findall(text):
+            if name not in BLOCKS:
+                raise ValueError(f"{path}: numbers:{name}: no such block (known: "
+                                 f"{', '.join(BLOCKS)})")
+            if name in where:
+                raise ValueError(f"{path}: numbers:{name}: block also in {where[name]}")
+            where[name] = path
+    missing = [name for name in BLOCKS if name not in where]
+    if missing:
+        raise ValueError(f"no file has the numbers block(s) {', '.join(missing)}")
+    return where
+
+
+def render(text: str, names: list[str] | None = None) -> str:
+    """``text`` with its numbers blocks ``names`` (default: every block of :data:`BLOCKS`)
+    regenerated; a block named but missing is a ``ValueError``."""
+    for name in BLOCKS if names is None else names:
         pattern = re.compile(rf"(<!-- numbers:{name}:start -->\n).*?(<!-- numbers:{name}:end -->)",
                              re.S)
         if not pattern.search(text):
-            raise SystemExit(f"README.md has no numbers:{name} block")
-        body = make()
+            raise ValueError(f"no numbers:{name} block (or no end marker)")
+        body = BLOCKS[name]()
         text = pattern.sub(lambda m, body=body: m.group(1) + body + "\n" + m.group(2), text)
     return text
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="fail if README.md is stale")
+    parser.add_argument("--check", action="store_true", help="fail if a block is stale")
     args = parser.parse_args(argv)
-    old = README.read_text()
-    new = render(old)
-    if args.check:
-        found = differences(old, new)
-        for line in found:
-            print(f"README.md: {line}", file=sys.stderr)
-        return int(bool(found))
-    with atomic_path(README) as tmp:
-        tmp.write_text(new)
-    print(f"wrote {README}")
-    return 0
+    texts = {path: path.read_text() for path in doc_files()}
+    where = find_blocks(texts)
+    stale = False
+    for path, old in texts.items():
+        names = [name for name, found in where.items() if found == path]
+        if not names:
+            continue
+        new = render(old, names)
+        shown = path.relative_to(ROOT)
+        if args.check:
+            for line in differences(old, new):
+                print(f"{shown}: {line}", file=sys.stderr)
+                stale = True
+            continue
+        with atomic_path(path) as tmp:
+            tmp.write_text(new)
+        print(f"wrote {shown}")
+    return int(stale)
 
 
 if __name__ == "__main__":

@@ -62,7 +62,7 @@ def test_smoke_run_reports_every_metric_with_its_target(smoke):
     assert len(smoke["settings"]["mc_vs_raw_pairs"]) == bench_mc.SMOKE["repeats"]
 
 
-def test_markdown_table_and_readme_update(smoke, tmp_path):
+def test_markdown_table_and_doc_update(smoke, tmp_path):
     table = benchmark.markdown([smoke, smoke])
     lines = table.splitlines()
     assert lines[0] == "| metric | value | target | met |"
@@ -72,26 +72,27 @@ def test_markdown_table_and_readme_update(smoke, tmp_path):
         if entry["met"] is not None:
             assert row.endswith(f"| {entry['target']} | {2 * int(entry['met'])}/2 |")
     readme = tmp_path / "README.md"
-    readme.write_text(f"# x\n\n## Speed\n\n{benchmark.README_START}\nold\n{benchmark.README_END}"
+    readme.write_text(f"# x\n\n## Speed\n\n{benchmark.TABLE_START}\nold\n{benchmark.TABLE_END}"
                       "\n\n## Next\nkept\n")
     paths = []
     for i in range(2):
         paths.append(tmp_path / f"b{i}.json")
         paths[-1].write_text(json.dumps(smoke))
-    assert benchmark.main(["--markdown", *map(str, paths), "--readme", str(readme)]) == 0
+    assert benchmark.main(["--markdown", *map(str, paths), "--doc", str(readme)]) == 0
     text = readme.read_text()
     assert "old" not in text and table in text and text.endswith("## Next\nkept\n")
     assert "from 2 smoke run(s)" in text
     bare = tmp_path / "bare.md"
     bare.write_text("no markers\n")
     with pytest.raises(ValueError, match="markers"):
-        benchmark.main(["--markdown", str(paths[0]), "--readme", str(bare)])
+        benchmark.main(["--markdown", str(paths[0]), "--doc", str(bare)])
     assert bare.read_text() == "no markers\n"
 
 
-def test_repository_readme_has_the_table_markers():
-    text = (SCRIPTS.parent / "README.md").read_text()
-    start, end = text.find(benchmark.README_START), text.find(benchmark.README_END)
+def test_performance_doc_has_the_table_markers():
+    assert benchmark.PERFORMANCE_DOC == SCRIPTS.parent / "docs" / "performance.md"
+    text = benchmark.PERFORMANCE_DOC.read_text()
+    start, end = text.find(benchmark.TABLE_START), text.find(benchmark.TABLE_END)
     assert 0 < start < end
     section = text[start:end]
     for key in ("mc_vs_raw", "mc_vehicle_vs_raw", "env_overhead_ratio", "mshinf_vs_kf",

@@ -211,12 +211,13 @@ def test_no_progress_bar_off_a_terminal(tmp_path):
         assert inspect.signature(function).parameters["progress"].default is False
 
 
-def test_the_readme_toml_snippet_is_its_example_file():
+def test_the_cli_guide_toml_snippet_is_its_example_file():
     import re
 
-    snippet = re.search(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    guide = (ROOT / "docs" / "cli.md").read_text()
+    snippet = re.search(r"```toml\n(.*?)```", guide, re.S).group(1)
     example = ROOT / "docs" / "examples" / "helicopter_kalman.toml"
-    assert f"`docs/examples/{example.name}`" in (ROOT / "README.md").read_text()
+    assert f"`docs/examples/{example.name}`" in guide
     assert tomllib.loads(snippet) == tomllib.loads(example.read_text())
 
 

@@ -383,7 +383,7 @@ vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the 
                                  "model's A; the matched design's bias random walks are not "
                                  "validated with the output-injection design")
 
-#: Built-in estimators: name -> factory(design, **options).
+#: Built-in estimators: name -> ``factory(design, **options)``.
 ESTIMATORS: dict[str, Factory] = {
     "kalman": kalman,
     "kalman-bucy": kalman_bucy,

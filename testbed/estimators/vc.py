@@ -68,7 +68,7 @@ Assumption: the plant of the theorem is Schur stable: (11) bounds the plant's ow
 covariance, which a free integrator (the helicopter's pitch and yaw angles) does not have.
 
 Plants with free integrators: the output-injection loop
-------------------------------------------------------
+-------------------------------------------------------
 The estimator knows ``u`` and ``y``, so it may close a loop of its own around the plant::
 
     x(k+1) = (F - L0 H) x(k) + B u(k) + L0 (y(k) - D u(k)) + (D1 - L0 D2) w(k)

@@ -193,7 +193,7 @@ def claims_height_in(claims: Sequence[Claim | dict[str, str]], *, wrap: int = 15
 def draw_claims(ax: Any, claims: Sequence[Claim | dict[str, str]], *, wrap: int = 150,
                 fontsize: float = 8.0) -> None:
     """Draw the claims in ``ax`` (frame hidden), one block per claim: the verdict in
-    colour, then ``claim: paper ...; ours ... (why)`` wrapped to ``wrap`` characters.
+    colour, then ``claim: paper P; ours O (why)`` wrapped to ``wrap`` characters.
 
     Parameters
     ----------

@@ -2,10 +2,10 @@
 
 Per entry (one job; jobs run locally, in processes or on Ray) and estimator:
 
-1. the entry's scenario is built by :func:`testbed.experiment.runner.build` with the estimator (a
-factory
-   that raises ``ValueError`` or a failed build skips the pair, with the message); the
-   scenario's disturbance becomes a :class:`~testbed.rigs.disturbances.SampledDisturbance` (the
+1. the entry's scenario is built by :func:`testbed.experiment.runner.build` with the
+   estimator (a factory that raises ``ValueError`` or a failed build skips the pair, with
+   the message); the scenario's disturbance becomes a
+   :class:`~testbed.rigs.disturbances.SampledDisturbance` (the
    named signal sampled at the control instants: the same numbers the simulator would
    compute, plus the disturbance channel of the worst-case search);
 2. one batched Monte-Carlo run with the per-run seeds ``runner.run_seeds(seed, runs)`` (the

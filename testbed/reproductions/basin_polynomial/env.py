@@ -31,10 +31,12 @@ class PolynomialCubicEnv(PlantEnv):
     ``E = [0, 1]^T``); the plant :class:`~testbed.reproductions.basin_polynomial.plant.
     PolynomialPlant`. The common contract (validation, escape, info) is :class:`PlantEnv`'s.
 
-    | space       | shape | content                                                       |
-    |-------------|-------|---------------------------------------------------------------|
-    | action      | (1,)  | input ``u`` added to ``dx2/dt`` (1/s^2), in [-10, 10]          |
-    | observation | (1,)  | ``y = x1 + w2`` averaged over the last control period          |
+    ===========  =====  =====================================================
+    space        shape  content
+    ===========  =====  =====================================================
+    action       (1,)   input ``u`` added to ``dx2/dt`` (1/s^2), in [-10, 10]
+    observation  (1,)   ``y = x1 + w2`` averaged over the last control period
+    ===========  =====  =====================================================
 
     After :meth:`reset` the observation is ``x1(0) + w2(0)`` (deterministic part); with white
     ``w2`` of intensity ``q2`` a sample has variance ``q2 / dt_s``. ``info["disturbance"]``:

@@ -43,10 +43,12 @@ class UncertainLinearEnv(PlantEnv):
     (validation, escape beyond ``1e10``, info) is :class:`PlantEnv`'s; reward 0; truncated
     after 1000 steps (registration).
 
-    | space       | shape | content                                                       |
-    |-------------|-------|---------------------------------------------------------------|
-    | action      | (k,)  | normalized input ``u`` through ``B`` (default ``B = 0``), [-1, 1] |
-    | observation | (p,)  | the measurement of the last step; zeros after ``reset``         |
+    ===========  =====  =================================================================
+    space        shape  content
+    ===========  =====  =================================================================
+    action       (k,)   normalized input ``u`` through ``B`` (default ``B = 0``), [-1, 1]
+    observation  (p,)   the measurement of the last step; zeros after ``reset``
+    ===========  =====  =================================================================
 
     After a step ``k -> k+1`` the observation is the measurement of that step (discrete
     ``y(k)``, continuous the average of ``y(t)`` over the step), so a filter ``xhat(k+1) =

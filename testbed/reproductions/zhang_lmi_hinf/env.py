@@ -24,10 +24,12 @@ class NonlinearDiscreteEnv(PlantEnv):
     (``disturbance=None``). Dimensionless; one step is one time unit (``info["t"] = k``).
     The common contract (validation, escape, info) is :class:`PlantEnv`'s.
 
-    | space       | shape | content                                                     |
-    |-------------|-------|-------------------------------------------------------------|
-    | action      | (1,)  | perturbation of ``v_k``, in [-10, 10]                        |
-    | observation | (2,)  | ``y_{k+1} = 0.5 x + v sin(x)`` (schedule's ``v_{k+1}``)      |
+    ===========  =====  =======================================================
+    space        shape  content
+    ===========  =====  =======================================================
+    action       (1,)   perturbation of ``v_k``, in [-10, 10]
+    observation  (2,)   ``y_{k+1} = 0.5 x + v sin(x)`` (schedule's ``v_{k+1}``)
+    ===========  =====  =======================================================
 
     ``info`` adds ``disturbance`` and ``action_applied`` (``[v_k]``), ``noise`` (``w_k``)
     and ``z = 0.1 x1 + 0.1 x2``. Reward ``-z^2``. The episode terminates if the state

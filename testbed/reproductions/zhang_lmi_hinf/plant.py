@@ -56,7 +56,7 @@ FILTER_G = 0.5 * np.eye(2)
 C_Z = np.array([[0.1, 0.1]])
 STATE_NAMES = ("x1", "x2")
 MEASUREMENT_NAMES = ("y1", "y2")
-#: State magnitude beyond which the state has escaped (never reached from |x0| <~ 3).
+#: State magnitude beyond which the state has escaped (never reached from ``|x0| <~ 3``).
 ESCAPE_BOUND = 1e6
 
 
@@ -186,7 +186,9 @@ class NonlinearDiscretePlant:
 
 class StochasticLinearPlant:
     """The system (44) of Example 5.2 driven by a known disturbance, as a
-    :class:`~testbed.experiment.numpy_plant.NumpyPlant`::
+    :class:`~testbed.experiment.numpy_plant.NumpyPlant`.
+
+    The system::
 
         x_{k+1} = A x + B v_k + (A_w x + B_w v_k) w_k,   y_k = C_y x_k + D_y v_k
 

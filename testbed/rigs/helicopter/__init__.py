@@ -1,4 +1,4 @@
-"""The 2-DOF helicopter rig (``helicopter_2dof.xml`` beside :mod:`.rig`)."""
+"""The 2-DOF helicopter rig (``helicopter_2dof.xml`` beside :mod:`testbed.rigs.helicopter.rig`)."""
 
 from testbed.rigs.helicopter.hardware import HelicopterHardware
 from testbed.rigs.helicopter.rig import (

@@ -1,4 +1,4 @@
-"""The vehicle roll rig (``vehicle_roll.xml`` beside :mod:`.rig`)."""
+"""The vehicle roll rig (``vehicle_roll.xml`` beside :mod:`testbed.rigs.vehicle_roll.rig`)."""
 
 from testbed.rigs.vehicle_roll.model import (
     A_Y_LIMIT_M_S2,

@@ -113,7 +113,9 @@ class VehicleRollParams(Params):
 
 @dataclass(frozen=True)
 class PaperModel:
-    """Zhang et al.'s discrete vehicle-roll model (52)::
+    """Zhang et al.'s discrete vehicle-roll model (52).
+
+    The model::
 
         x_{k+1} = A x_k + C x_k w_k + B v_k
         y_k     = H x_k + L v_k

@@ -1,7 +1,8 @@
 """The vehicle roll rig: the :class:`~testbed.rigs.base.Rig` of ``vehicle_roll.xml``.
 
-Parameters, Zhang et al.'s model and the physical one are in :mod:`.model`, the channels in
-:mod:`.sensors`, the LMI design system in :mod:`.lmi`.
+Parameters, Zhang et al.'s model and the physical one are in
+:mod:`testbed.rigs.vehicle_roll.model`, the channels in :mod:`testbed.rigs.vehicle_roll.sensors`,
+the LMI design system in :mod:`testbed.rigs.vehicle_roll.lmi`.
 """
 
 from __future__ import annotations
