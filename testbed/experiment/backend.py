@@ -3,13 +3,27 @@
 ``testbed sweep`` (one Monte-Carlo study per grid point) and ``testbed score`` (one suite
 entry per job) hand their jobs to :func:`map_jobs`; results come back in job order and do
 not depend on the backend or the number of workers (the jobs carry their own seeds).
+
+Nothing outlives the call. An exception or an interrupt in the caller (SIGINT, the CLI's
+SIGTERM) cancels the jobs not started and stops the running ones: local workers are
+terminated (SIGTERM, then SIGKILL after :data:`STOP_GRACE_S`) and reaped before the
+exception goes on; Ray tasks are cancelled (``ray.cancel(force=True)``) and a Ray instance
+started here is shut down. Local workers ignore SIGINT (a Ctrl-C in the terminal reaches the
+whole process group: the caller stops them) and, on Linux, get SIGKILL when the caller dies
+(``PR_SET_PDEATHSIG``, even when the caller is killed by SIGKILL); elsewhere a watchdog
+thread ends them within :data:`WATCHDOG_PERIOD_S` of the caller's death.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
-from collections.abc import Callable, Sequence
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from typing import Any
@@ -18,6 +32,15 @@ from typing import Any
 BACKENDS = ("local", "ray")
 #: Seconds to wait for a Ray cluster address to accept a connection.
 RAY_CONNECT_TIMEOUT_S = 10.0
+#: Seconds a terminated local worker has to exit before it is killed (SIGKILL).
+STOP_GRACE_S = 1.0
+#: Seconds between two checks of the watchdog that ends a worker whose caller died (where
+#: the parent-death signal is not available).
+WATCHDOG_PERIOD_S = 0.5
+#: The signals that stop a study: held back while the local workers are being started.
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: ``prctl`` option: the signal a process gets when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
 
 
 def check_backend(backend: str, workers: int | None, address: str | None) -> int:
@@ -126,14 +149,7 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
             done(i)
         return out
     if backend == "local":
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
-                                 mp_context=get_context("spawn")) as pool:
-            submitted = {i: pool.submit(fn, *jobs[i]) for i in order}
-            futures = [submitted[i] for i in range(len(jobs))]
-            for i, future in enumerate(futures):
-                out.append(future.result())
-                done(i)
-        return out
+        return _local_pool(fn, jobs, order, min(workers, len(jobs)), done)
     try:
         import ray
     except ImportError as exc:
@@ -144,14 +160,139 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
             ray.init(address=address, log_to_driver=False)
         else:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    launched: dict[int, Any] = {}
     try:
         task = ray.remote(num_cpus=1)(fn)
-        launched = {i: task.remote(*jobs[i]) for i in order}
+        for i in order:
+            launched[i] = task.remote(*jobs[i])
         refs = [launched[i] for i in range(len(jobs))]
         for i, ref in enumerate(refs):
             out.append(ray.get(ref))
             done(i)
         return out
+    except BaseException:  # a failure or an interrupt: no task goes on
+        for ref in launched.values():
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        raise
     finally:
         if started_here:
             ray.shutdown()
+
+
+def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
+                workers: int, done: Callable[[int], None]) -> list[Any]:
+    """The jobs on ``workers`` spawned processes, started in ``order``; results in job
+    order. Any exception (an interrupt included) stops every worker before it goes on."""
+    out: list[Any] = []
+    pool: ProcessPoolExecutor | None = None
+    try:
+        # no SIGINT/SIGTERM handler runs while the workers start (an interrupt there could
+        # leave a started worker unknown to the pool); one that came is raised right after
+        with _stop_signals_held():
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                                       initializer=_worker_started, initargs=(os.getpid(),))
+            submitted = {i: pool.submit(fn, *jobs[i]) for i in order}
+        futures = [submitted[i] for i in range(len(jobs))]
+        for i, future in enumerate(futures):
+            out.append(future.result())
+            done(i)
+    except BaseException:
+        if pool is not None:
+            stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+    return out
+
+
+def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
+    """Cancel the queued jobs of ``pool`` and end its processes now: SIGTERM, then SIGKILL
+    for those still alive after ``grace_s`` seconds; every one reaped."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            process.terminate()
+    deadline = time.monotonic() + grace_s
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            process.join(max(0.0, deadline - time.monotonic()))
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+            if process.is_alive():
+                process.kill()
+                process.join(grace_s)
+
+
+@contextlib.contextmanager
+def _stop_signals_held() -> Iterator[None]:
+    """Within the block SIGINT and SIGTERM are blocked in this thread and their Python
+    handlers only remember them; afterwards each remembered signal is raised again (to the
+    handlers in force before the block). Processes started within the block inherit the
+    blocked mask (:func:`_worker_started` unblocks it once the worker's own handling is in
+    place). Outside the main thread, or without ``pthread_sigmask``, nothing is held."""
+    if threading.current_thread() is not threading.main_thread() \
+            or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    arrived: list[int] = []
+
+    def remember(signum: int, frame: Any) -> None:
+        arrived.append(signum)
+
+    previous = {}
+    for sig in _STOP_SIGNALS:
+        handler = signal.getsignal(sig)
+        if callable(handler):  # a Python handler (not SIG_IGN / SIG_DFL)
+            previous[sig] = signal.signal(sig, remember)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a pending one calls remember()
+        for sig, handler in previous.items():
+            if signal.getsignal(sig) is remember:
+                signal.signal(sig, handler)
+        for sig in dict.fromkeys(arrived):
+            signal.raise_signal(sig)
+
+
+def _worker_started(parent_pid: int) -> None:
+    """Initializer of a local worker: SIGINT ignored (the caller stops its workers),
+    SIGTERM back to its default (the caller's :func:`stop_pool`), both unblocked; ended
+    when the caller dies (:func:`die_with_parent`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+    die_with_parent(parent_pid)
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """End this process (SIGKILL) when the process ``parent_pid``, its parent, dies.
+
+    On Linux the kernel sends the signal (``prctl(PR_SET_PDEATHSIG, SIGKILL)``: also when
+    the parent is killed by SIGKILL); elsewhere a daemon thread checks ``os.getppid()``
+    every :data:`WATCHDOG_PERIOD_S` seconds. A parent already gone ends this process now.
+
+    Parameters
+    ----------
+    parent_pid : int
+        The process id of the parent that started this one.
+    """
+    armed = False
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            import ctypes
+
+            armed = ctypes.CDLL(None, use_errno=True).prctl(
+                _PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+    if os.getppid() != parent_pid:  # died before the signal was armed
+        os._exit(1)
+    if not armed:
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(WATCHDOG_PERIOD_S)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="testbed-parent-watchdog", daemon=True).start()
