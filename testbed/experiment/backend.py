@@ -259,13 +259,25 @@ def _stop_signals_held() -> Iterator[None]:
 
 def _worker_started(parent_pid: int) -> None:
     """Initializer of a local worker: SIGINT ignored (the caller stops its workers),
-    SIGTERM back to its default (the caller's :func:`stop_pool`), both unblocked; ended
-    when the caller dies (:func:`die_with_parent`)."""
+    SIGTERM ends it at once (:func:`_worker_terminated`), both unblocked; ended when the
+    caller dies (:func:`die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _worker_terminated)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     die_with_parent(parent_pid)
+
+
+def _worker_terminated(signum: int, frame: Any) -> None:
+    """SIGTERM in a local worker (:func:`stop_pool`): the job is abandoned and the process
+    ends now, after multiprocessing's own exit steps (the semaphores this worker made, a
+    progress bar's lock for one, are released: the resource tracker has nothing left to
+    warn about)."""
+    from multiprocessing import util
+
+    with contextlib.suppress(Exception):
+        util._exit_function()
+    os._exit(128 + signum)
 
 
 def die_with_parent(parent_pid: int) -> None:
