@@ -32,6 +32,8 @@ from typing import Any
 BACKENDS = ("local", "ray")
 #: Seconds to wait for a Ray cluster address to accept a connection.
 RAY_CONNECT_TIMEOUT_S = 10.0
+#: Seconds of each wait for a Ray task (an interrupt is acted on between two waits).
+RAY_POLL_S = 0.2
 #: Seconds a terminated local worker has to exit before it is killed (SIGKILL).
 STOP_GRACE_S = 1.0
 #: Seconds between two checks of the watchdog that ends a worker whose caller died (where
@@ -155,19 +157,28 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
     except ImportError as exc:
         raise ValueError("backend 'ray' needs Ray: pip install -e '.[ray]'") from exc
     started_here = not ray.is_initialized()
-    if started_here:
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
     launched: dict[int, Any] = {}
     try:
+        if started_here:
+            with _own_signal_handlers():  # ray.init replaces them (SIGTERM: sys.exit(15))
+                if address:
+                    ray.init(address=address, log_to_driver=False)
+                else:
+                    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
         task = ray.remote(num_cpus=1)(fn)
         for i in order:
             launched[i] = task.remote(*jobs[i])
         refs = [launched[i] for i in range(len(jobs))]
         for i, ref in enumerate(refs):
-            out.append(ray.get(ref))
+            ready: list[Any] = []
+            while not ready:
+                # a signal handler that raises inside ray.get/ray.wait is not seen until
+                # the task ends (Ray catches only KeyboardInterrupt there): within each
+                # short wait the handlers only remember, and run between two waits
+                with _stop_signals_held(block=False):
+                    ready, _ = ray.wait([ref], timeout=RAY_POLL_S)
+                    if ready:
+                        out.append(ray.get(ref))
             done(i)
         return out
     except BaseException:  # a failure or an interrupt: no task goes on
@@ -225,16 +236,35 @@ def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
 
 
 @contextlib.contextmanager
-def _stop_signals_held() -> Iterator[None]:
-    """Within the block SIGINT and SIGTERM are blocked in this thread and their Python
-    handlers only remember them; afterwards each remembered signal is raised again (to the
-    handlers in force before the block). Processes started within the block inherit the
-    blocked mask (:func:`_worker_started` unblocks it once the worker's own handling is in
-    place). Outside the main thread, or without ``pthread_sigmask``, nothing is held."""
-    if threading.current_thread() is not threading.main_thread() \
-            or not hasattr(signal, "pthread_sigmask"):
+def _own_signal_handlers() -> Iterator[None]:
+    """The SIGINT and SIGTERM handlers in force before the block are put back after it
+    (main thread only): ``ray.init`` installs its own (SIGTERM: ``sys.exit(15)``, and a
+    native handler that prints a stack trace), which would turn an interrupt into a
+    failure."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    previous = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def _stop_signals_held(block: bool = True) -> Iterator[None]:
+    """Within the block the Python handlers of SIGINT and SIGTERM only remember the signals;
+    afterwards each remembered signal is raised again (to the handlers in force before the
+    block, which may raise). With ``block`` both are also blocked in this thread, and
+    processes started within the block inherit the blocked mask (:func:`_worker_started`
+    unblocks it once the worker's own handling is in place). Outside the main thread
+    nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    block = block and hasattr(signal, "pthread_sigmask")
     arrived: list[int] = []
 
     def remember(signum: int, frame: Any) -> None:
@@ -245,11 +275,12 @@ def _stop_signals_held() -> Iterator[None]:
         handler = signal.getsignal(sig)
         if callable(handler):  # a Python handler (not SIG_IGN / SIG_DFL)
             previous[sig] = signal.signal(sig, remember)
-    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS) if block else None
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a pending one calls remember()
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a pending one: remember()
         for sig, handler in previous.items():
             if signal.getsignal(sig) is remember:
                 signal.signal(sig, handler)
