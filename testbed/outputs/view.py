@@ -120,8 +120,11 @@ def _check(path: str | os.PathLike, ports: tuple[int, ...]) -> Path:
     p = Path(path)
     if p.suffix != ".rrd":
         raise ValueError(f"testbed view expects a .rrd file, got {str(path)!r}")
-    if not p.is_file():
+    if not p.exists():
         raise ValueError(f"no such recording: {str(path)!r}")
+    if not p.is_file():  # a directory, a FIFO, a device (through a symbolic link or not)
+        raise ValueError(f"{str(path)!r} is not a regular file; testbed view expects a .rrd "
+                         "recording file")
     for port in ports:
         if not (isinstance(port, int) and 0 < port < 65536):
             raise ValueError(f"ports must be numbers 1-65535, got {port!r}")
