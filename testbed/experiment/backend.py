@@ -24,7 +24,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from typing import Any
 
@@ -168,19 +168,18 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
         task = ray.remote(num_cpus=1)(fn)
         for i in order:
             launched[i] = task.remote(*jobs[i])
-        refs = [launched[i] for i in range(len(jobs))]
-        for i, ref in enumerate(refs):
-            ready: list[Any] = []
-            while not ready:
-                # a signal handler that raises inside ray.get/ray.wait is not seen until
-                # the task ends (Ray catches only KeyboardInterrupt there): within each
-                # short wait the handlers only remember, and run between two waits
-                with _stop_signals_held(block=False):
-                    ready, _ = ray.wait([ref], timeout=RAY_POLL_S)
-                    if ready:
-                        out.append(ray.get(ref))
-            done(i)
-        return out
+        index = {ref: i for i, ref in launched.items()}
+        pending, in_order = list(launched.values()), _InOrder(len(jobs), done)
+        while pending:
+            # a signal handler that raises inside ray.get/ray.wait is not seen until the
+            # task ends (Ray catches only KeyboardInterrupt there): within each short wait
+            # the handlers only remember, and run between two waits
+            with _stop_signals_held(block=False):
+                ready, pending = ray.wait(pending, num_returns=1, timeout=RAY_POLL_S)
+                results = [(index[ref], ray.get(ref)) for ref in ready]  # a failure: now
+            for i, result in results:
+                in_order.add(i, result)
+        return in_order.results()
     except BaseException:  # a failure or an interrupt: no task goes on
         for ref in launched.values():
             with contextlib.suppress(Exception):
@@ -191,11 +190,27 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
             ray.shutdown()
 
 
+class _InOrder:
+    """Results arriving in any order, handed to ``done`` in job order."""
+
+    def __init__(self, n: int, done: Callable[[int], None]):
+        self._results: dict[int, Any] = {}
+        self._n, self._next, self._done = n, 0, done
+
+    def add(self, i: int, result: Any) -> None:
+        self._results[i] = result
+        while self._next in self._results:
+            self._done(self._next)
+            self._next += 1
+
+    def results(self) -> list[Any]:
+        return [self._results[i] for i in range(self._n)]
+
+
 def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
                 workers: int, done: Callable[[int], None]) -> list[Any]:
     """The jobs on ``workers`` spawned processes, started in ``order``; results in job
     order. Any exception (an interrupt included) stops every worker before it goes on."""
-    out: list[Any] = []
     pool: ProcessPoolExecutor | None = None
     try:
         # no SIGINT/SIGTERM handler runs while the workers start (an interrupt there could
@@ -204,10 +219,11 @@ def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
             pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
                                        initializer=_worker_started, initargs=(os.getpid(),))
             submitted = {i: pool.submit(fn, *jobs[i]) for i in order}
-        futures = [submitted[i] for i in range(len(jobs))]
-        for i, future in enumerate(futures):
-            out.append(future.result())
-            done(i)
+        index = {future: i for i, future in submitted.items()}
+        in_order = _InOrder(len(jobs), done)
+        for future in as_completed(index):  # a failed job is seen when it fails
+            in_order.add(index[future], future.result())
+        out = in_order.results()
     except BaseException:
         if pool is not None:
             stop_pool(pool)
