@@ -5,6 +5,7 @@ cleaned by the next call."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import operator
@@ -163,9 +164,18 @@ def test_a_worker_whose_parent_died_before_it_was_armed_ends():
 
 
 # ---------------------------------------------------------------- the command line
-@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_mc_with_workers_stops_within_3_s_and_leaves_no_process(tmp_path, sig, code):
-    proc = _start([*LONG_MC, "--json", "out.json"], tmp_path)
+#: A sweep of four long points on two workers (each point's study makes a progress bar,
+#: whose lock is a semaphore of the worker: released when the worker is stopped).
+LONG_SWEEP = ["sweep", "helicopter", "--grid", "process_noise=0,1,2,3", "--runs", "100",
+              "--duration", "10", "--workers", "2", "--no-progress"]
+
+
+@pytest.mark.parametrize("command, sig, code", [(LONG_MC, signal.SIGTERM, 143),
+                                                (LONG_MC, signal.SIGINT, 130),
+                                                (LONG_SWEEP, signal.SIGTERM, 143)])
+def test_studies_with_workers_stop_within_3_s_and_leave_no_process(tmp_path, command, sig,
+                                                                   code):
+    proc = _start([*command, "--json", "out.json"], tmp_path)
     try:
         _wait_for(lambda: len(_workers(proc.pid)) == 2, 90, proc)
         time.sleep(1.0)  # the workers are simulating
@@ -226,6 +236,27 @@ def test_a_signal_as_the_results_are_written_leaves_all_or_nothing(tmp_path):
             assert files == ["out.json"] and json.loads((tmp_path / "out.json").read_text())
         else:
             assert proc.returncode == 143 and files == [], stderr
+    finally:
+        _kill_session(proc)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="needs Ray")
+def test_a_ray_study_stops_on_sigterm_within_seconds(tmp_path):
+    """Ray's get does not act on a handler that raises until the task ends: the waits are
+    short, the handlers run between them; the local instance is shut down."""
+    proc = _start(["mc", "helicopter", "--runs", "4000", "--duration", "10", "--workers", "2",
+                   "--backend", "ray", "--no-progress"], tmp_path)
+    try:
+        _wait_for(lambda: sum("ray::_mc_shard" in cmd for _, _, cmd in _session(proc.pid))
+                  == 2, 120, proc)
+        time.sleep(1.0)
+        start = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+        assert proc.returncode == 143, stderr
+        assert time.monotonic() - start < 6.0  # ray.shutdown takes 1.5 s of it
+        assert stderr.strip().splitlines()[-1].startswith("testbed: terminated (SIGTERM)")
     finally:
         _kill_session(proc)
 
