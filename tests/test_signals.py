@@ -5,6 +5,7 @@ cleaned by the next call."""
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import json
 import math
@@ -164,6 +165,38 @@ def test_a_worker_whose_parent_died_before_it_was_armed_ends():
 
 
 # ---------------------------------------------------------------- the command line
+@pytest.mark.parametrize("sig, code, name", [(signal.SIGINT, 130, "SIGINT"),
+                                             (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_command_that_returns_after_catching_a_signal_is_still_interrupted(
+        tmp_path, capsys, sig, code, name):
+    """``run --serve`` stops serving on Ctrl-C and returns; a library may swallow the
+    exception of a signal: the command's exit code is still the signal's, and outputs not
+    yet in place are dropped."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signals need the main thread")
+    import argparse
+
+    from testbed.io import atomic_path
+
+    cli_main = importlib.import_module("testbed.cli.main")  # the module (not main())
+
+    def command(args: argparse.Namespace) -> int:
+        with atomic_path(tmp_path / "late.json") as tmp:
+            tmp.write_text("{}")
+        try:
+            os.kill(os.getpid(), sig)
+            time.sleep(1.0)
+        except BaseException:  # noqa: BLE001 - as a library (or --serve) would
+            pass
+        return 0
+
+    args = argparse.Namespace(command="run", debug=False)
+    with cli_main._sigterm_raises():
+        assert cli_main._run_command(command, args) == code
+    assert capsys.readouterr().err.strip() == f"testbed: stopped ({name})"
+    assert list(tmp_path.iterdir()) == []
+
+
 #: A sweep of four long points on two workers (each point's study makes a progress bar,
 #: whose lock is a semaphore of the worker: released when the worker is stopped).
 LONG_SWEEP = ["sweep", "helicopter", "--grid", "process_noise=0,1,2,3", "--runs", "100",

@@ -235,6 +235,8 @@ def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
 def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
     """Cancel the queued jobs of ``pool`` and end its processes now: SIGTERM, then SIGKILL
     for those still alive after ``grace_s`` seconds; every one reaped."""
+    # the pool's own table of its processes (Python 3.8 to 3.14; 3.14 adds
+    # terminate_workers() doing the same): the processes must end, not only their queue
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
