@@ -36,6 +36,8 @@ RAY_CONNECT_TIMEOUT_S = 10.0
 RAY_POLL_S = 0.2
 #: Seconds a terminated local worker has to exit before it is killed (SIGKILL).
 STOP_GRACE_S = 1.0
+#: Seconds to wait for a killed (SIGKILL) worker to be reaped (on a loaded machine).
+KILLED_JOIN_S = 10.0
 #: Seconds between two checks of the watchdog that ends a worker whose caller died (where
 #: the parent-death signal is not available).
 WATCHDOG_PERIOD_S = 0.5
@@ -250,7 +252,7 @@ def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
         with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
             if process.is_alive():
                 process.kill()
-                process.join(grace_s)
+                process.join(KILLED_JOIN_S)  # SIGKILL cannot be refused: only the reaping
 
 
 @contextlib.contextmanager
