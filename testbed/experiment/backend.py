@@ -162,11 +162,20 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[tuple], *, backend: str = "l
     launched: dict[int, Any] = {}
     try:
         if started_here:
+            terminated = False
             with _own_signal_handlers():  # ray.init replaces them (SIGTERM: sys.exit(15))
-                if address:
-                    ray.init(address=address, log_to_driver=False)
-                else:
-                    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+                try:
+                    if address:
+                        ray.init(address=address, log_to_driver=False)
+                    else:
+                        ray.init(num_cpus=workers, include_dashboard=False,
+                                 log_to_driver=False)
+                except SystemExit as exc:  # a SIGTERM, through Ray's handler
+                    if exc.code != signal.SIGTERM:
+                        raise
+                    terminated = True
+            if terminated:  # to the handler in force before (the CLI's: exit 143)
+                signal.raise_signal(signal.SIGTERM)
         task = ray.remote(num_cpus=1)(fn)
         for i in order:
             launched[i] = task.remote(*jobs[i])
