@@ -23,6 +23,16 @@ class _Terminated(BaseException):
     """SIGTERM, raised in the main thread so that ``finally`` blocks remove temporaries."""
 
 
+class _StoppedBySignal(BaseException):
+    """A command that ended normally after it caught SIGINT or SIGTERM as its way to stop
+    (``run --serve`` serves until Ctrl-C): still an interrupted command (exit 130/143);
+    the outputs it had made appear are kept, any others are not."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
 @contextlib.contextmanager
 def _sigterm_raises() -> Iterator[None]:
     """Within the block, SIGTERM raises :class:`_Terminated` and SIGINT
@@ -128,12 +138,15 @@ def _run_command(command: Callable[[argparse.Namespace], int],
         with outputs_together():  # all of the command's outputs, or none of them
             check_outputs(args)
             code = command(args)
+            if _SIGNALLED:  # caught by the command to stop (run --serve: Ctrl-C)
+                raise _StoppedBySignal(_SIGNALLED[-1])
             _done_with_signals()
         say_written()
         return code
     except BaseException as exc:
         say_written(done=False)
-        if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated):
+        if _debug(args) and not isinstance(exc, SystemExit | KeyboardInterrupt | _Terminated
+                                           | _StoppedBySignal):
             traceback.print_exc()
         return _failure_code(exc, args)
 
@@ -160,6 +173,10 @@ def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
     from testbed.plugins import EstimatorFailed, describe
     from testbed.sim.simulator import SimulationDiverged
 
+    if isinstance(exc, _StoppedBySignal):
+        name = "SIGTERM" if exc.signum == signal.SIGTERM else "SIGINT"
+        return _fail(EXIT_SIGTERM if exc.signum == signal.SIGTERM else EXIT_SIGINT,
+                     f"testbed: stopped ({name})")
     if _SIGNALLED and not isinstance(exc, KeyboardInterrupt | _Terminated):
         # the signal landed in a library, which turned it into another exception
         exc = _Terminated() if _SIGNALLED[-1] == signal.SIGTERM else KeyboardInterrupt()

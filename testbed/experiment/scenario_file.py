@@ -31,6 +31,7 @@ import dataclasses
 import json
 import math
 import os
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,10 @@ from testbed.experiment.scenario import Scenario
 
 #: File suffixes read and written.
 SUFFIXES = (".toml", ".json")
+#: Largest scenario file read, in bytes (1 MiB; a scenario is a few hundred bytes).
+MAX_FILE_BYTES = 1 << 20
+#: Deepest nesting of arrays and tables in a scenario file (a grid is 3 levels deep).
+MAX_NESTING = 32
 #: Keys of the optional ``[study]`` table and their types.
 STUDY_KEYS = {"runs": "a positive integer", "grid": "a table NAME = [V1, V2, ...]"}
 #: Scenario fields whose value in a file is a name (the Python API also takes objects).
@@ -187,20 +192,21 @@ def read(path: str | os.PathLike) -> ScenarioFile:
     text_path = os.fspath(path)
     source = ScenarioFile(text_path)
     suffix = Path(text_path).suffix.lower()
-    try:
-        raw = Path(text_path).read_bytes()
-    except OSError as exc:
-        raise ScenarioFileError(f"{text_path}: cannot read the scenario file: "
-                                f"{exc.strerror or exc}") from None
+    raw = read_regular_file(text_path, MAX_FILE_BYTES, "scenario file")
+    kind = "JSON" if suffix == ".json" else "TOML"
     try:
         if suffix == ".json":
             data = json.loads(raw.decode("utf-8"))
         else:
             data = tomllib.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        kind = "JSON" if suffix == ".json" else "TOML"
         raise ScenarioFileError(f"{text_path}: not valid {kind}: {exc}".replace("\n", " ")
                                 ) from None
+    except RecursionError:  # deeper than the parser can go
+        data = None
+    if data is None or _depth(data, MAX_NESTING) > MAX_NESTING:
+        raise ScenarioFileError(f"{text_path}: not a scenario file: {kind} arrays or tables "
+                                f"nested more than {MAX_NESTING} deep")
     if not isinstance(data, dict):
         raise ScenarioFileError(f"{text_path}: expected a table of scenario fields, got "
                                 f"{_describe(data)}")
@@ -214,6 +220,73 @@ def read(path: str | os.PathLike) -> ScenarioFile:
         else:
             source.fields[key] = _checked(source, key, _kind(fields[key]), value)
     return source
+
+
+def read_regular_file(path: str | os.PathLike, max_bytes: int, what: str) -> bytes:
+    """The bytes of ``path``, a regular file (followed through symbolic links) of at most
+    ``max_bytes`` bytes: never a FIFO (opened without waiting for a writer), a device
+    (``/dev/zero`` would never end) or a directory.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    max_bytes : int
+        Largest size accepted, in bytes.
+    what : str
+        What the file is, for the messages (``"scenario file"``).
+
+    Raises
+    ------
+    ScenarioFileError
+        One line naming the file: it cannot be opened, is not a regular file, or is larger
+        than ``max_bytes``.
+    """
+    text_path = os.fspath(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(text_path, flags)
+    except OSError as exc:
+        raise ScenarioFileError(f"{text_path}: cannot read the {what}: "
+                                f"{exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise ScenarioFileError(f"{text_path}: not a regular file ({_file_kind(mode)}); "
+                                    f"the {what} must be a regular file")
+        chunks, size = [], 0
+        while size <= max_bytes:  # the size is read, not trusted: the file may grow
+            chunk = os.read(fd, min(1 << 16, max_bytes + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        if size > max_bytes:
+            raise ScenarioFileError(f"{text_path}: larger than {max_bytes:,} bytes, the limit "
+                                    f"of a {what}")
+        return b"".join(chunks)
+    except OSError as exc:
+        raise ScenarioFileError(f"{text_path}: cannot read the {what}: "
+                                f"{exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+
+
+def _file_kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _depth(value: Any, limit: int) -> int:
+    """Nesting depth of lists and dicts in ``value`` (a scalar: 0), counted up to
+    ``limit + 1`` (deeper is not explored)."""
+    if not isinstance(value, list | dict) or limit < 0:
+        return 0
+    children = value.values() if isinstance(value, dict) else value
+    return 1 + max((_depth(child, limit - 1) for child in children), default=0)
 
 
 def merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:

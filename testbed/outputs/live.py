@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -40,6 +39,7 @@ from urllib.parse import quote
 import numpy as np
 
 from testbed.experiment.trajectory import Trajectory
+from testbed.outputs.view import parent_death_preexec
 from testbed.outputs.viz import (
     Layout,
     log_static,
@@ -92,40 +92,11 @@ def _host(address: str) -> str:
 
 def rerun_executable() -> str:
     """The Rerun viewer binary of this Python environment (the binary itself, not the
-    ``rerun`` launcher script, so that stopping it stops the server)."""
-    try:
-        import rerun_cli
+    ``rerun`` launcher script, so that stopping it stops the server):
+    :func:`testbed.outputs.view.rerun_binary`."""
+    from testbed.outputs.view import rerun_binary
 
-        binary = os.path.join(os.path.dirname(rerun_cli.__file__), "rerun")
-        if os.path.isfile(binary) and os.access(binary, os.X_OK):
-            return binary
-    except ImportError:
-        pass
-    script = os.path.join(os.path.dirname(sys.executable), "rerun")
-    if os.path.exists(script):
-        return script
-    found = shutil.which("rerun")
-    if found is None:
-        raise ValueError("the Rerun viewer ('rerun', from rerun-sdk) is not installed")
-    return found
-
-
-def _parent_death_signal() -> Any:
-    """On Linux, a ``preexec_fn`` making the child get SIGTERM when this process dies (even
-    by SIGKILL): a served viewer never outlives the run. None elsewhere."""
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        import ctypes
-
-        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
-    except (OSError, AttributeError):
-        return None
-
-    def preexec() -> None:
-        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
-
-    return preexec
+    return rerun_binary()
 
 
 def _launch(argv: list[str], *, outlive: bool = False) -> subprocess.Popen:
@@ -136,7 +107,7 @@ def _launch(argv: list[str], *, outlive: bool = False) -> subprocess.Popen:
     return subprocess.Popen([rerun_executable(), *argv], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
                             start_new_session=True,
-                            preexec_fn=None if outlive else _parent_death_signal())
+                            preexec_fn=None if outlive else parent_death_preexec())
 
 
 def _wait_listening(proc: subprocess.Popen, host: str, ports: list[int], what: str) -> None:

@@ -1,10 +1,12 @@
 """``testbed view FILE.rrd [--web]``: open a recording in Rerun's viewer, leave nothing behind.
 
-The ``rerun`` console script of this environment is a launcher that starts the real viewer
-binary as a child process. :func:`view` therefore starts it in a process group of its own
-(a new session) and, when it returns for any reason (the viewer closed, Ctrl-C, SIGTERM,
-an error), terminates the whole group: first SIGTERM, then SIGKILL for what is left after
-:data:`GRACE_S` seconds. No viewer, web server or gRPC server outlives the command.
+:func:`view` starts the viewer binary itself (:func:`rerun_binary`, not the ``rerun`` console
+script, a launcher that would start it as a grandchild) in a process group of its own (a
+new session) and, when it returns for any reason (the viewer closed, Ctrl-C, SIGTERM, an
+error), terminates the whole group: first SIGTERM, then SIGKILL for what is left after
+:data:`GRACE_S` seconds. On Linux the viewer also gets SIGTERM when this process dies, even
+by SIGKILL (:func:`parent_death_preexec`). No viewer, web server or gRPC server outlives the
+command.
 
 - native (default): the desktop viewer opens the file (needs a display);
 - ``web=True``: for a headless machine. Rerun hosts its web viewer and a gRPC server that
@@ -16,6 +18,7 @@ an error), terminates the whole group: first SIGTERM, then SIGKILL for what is l
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -35,10 +38,66 @@ GRACE_S = 3.0
 START_TIMEOUT_S = 30.0
 
 
+#: ``prctl`` option: the signal a process gets when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
+
+
+def rerun_binary() -> str:
+    """The Rerun viewer binary of this Python environment (the binary itself, not the
+    ``rerun`` launcher script, so that stopping it stops the servers); else the launcher of
+    this environment, else ``rerun`` on ``PATH``.
+
+    Raises
+    ------
+    ValueError
+        No Rerun viewer is installed.
+    """
+    try:
+        import rerun_cli
+
+        binary = os.path.join(os.path.dirname(rerun_cli.__file__), "rerun")
+        if os.path.isfile(binary) and os.access(binary, os.X_OK):
+            return binary
+    except ImportError:
+        pass
+    script = Path(sys.executable).with_name("rerun")
+    if script.exists():
+        return str(script)
+    found = shutil.which("rerun")
+    if found is None:
+        raise ValueError("the Rerun viewer ('rerun', from rerun-sdk) is not installed")
+    return found
+
+
 def rerun_executable() -> str:
-    """The ``rerun`` launcher of this Python environment (else the one on ``PATH``)."""
-    exe = Path(sys.executable).with_name("rerun")
-    return str(exe) if exe.exists() else "rerun"
+    """What :func:`view` starts: :func:`rerun_binary`."""
+    return rerun_binary()
+
+
+def parent_death_preexec(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
+    """On Linux, a ``preexec_fn`` for :class:`subprocess.Popen` giving the child ``sig`` when
+    this process dies (even by SIGKILL; ``prctl(PR_SET_PDEATHSIG)``, kept across ``exec``);
+    a child whose parent died before the call ends at once. None elsewhere.
+
+    The signal comes when the thread that started the child ends: start children from a
+    thread that lives as long as they should (the main thread).
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before the signal was armed
+            os._exit(1)
+
+    return preexec
 
 
 def web_url(web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT) -> str:
@@ -61,8 +120,11 @@ def _check(path: str | os.PathLike, ports: tuple[int, ...]) -> Path:
     p = Path(path)
     if p.suffix != ".rrd":
         raise ValueError(f"testbed view expects a .rrd file, got {str(path)!r}")
-    if not p.is_file():
+    if not p.exists():
         raise ValueError(f"no such recording: {str(path)!r}")
+    if not p.is_file():  # a directory, a FIFO, a device (through a symbolic link or not)
+        raise ValueError(f"{str(path)!r} is not a regular file; testbed view expects a .rrd "
+                         "recording file")
     for port in ports:
         if not (isinstance(port, int) and 0 < port < 65536):
             raise ValueError(f"ports must be numbers 1-65535, got {port!r}")
@@ -141,9 +203,11 @@ def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PO
             if _answers(port):
                 raise OSError(f"port {port} on {BIND} is in use (choose another with "
                               "--grpc-port / --web-port)")
+    env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "off")}
     proc = subprocess.Popen(viewer_command(p, web=web, grpc_port=grpc_port, web_port=web_port),
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
+                            stderr=subprocess.DEVNULL, start_new_session=True, env=env,
+                            preexec_fn=parent_death_preexec())
     try:
         if web:
             deadline = time.monotonic() + START_TIMEOUT_S

@@ -29,10 +29,15 @@ when asked for).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
+import os
+import shutil
+import stat
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -466,12 +471,77 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
-    with tempfile.TemporaryDirectory(prefix="testbed-designs-") as designs:
+    with designs_directory() as designs:
         jobs = [(e, estimators, seed, worst_case, 1, reference, designs) for e in entries]
         return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
                         on_done=None if progress is None else lambda i: progress(
                             jobs[i][0].name),
                         costs=[entry_cost(e) for e in entries])
+
+
+#: Name prefix of the temporary directory through which one ``score`` call's workers share
+#: their designs: ``testbed-designs-<pid>-<random>`` (``pid``: the process that made it).
+DESIGNS_PREFIX = "testbed-designs-"
+
+
+@contextlib.contextmanager
+def designs_directory(parent: str | os.PathLike[str] | None = None) -> Iterator[str]:
+    """A new private directory (mode 0700) for the designs the workers of one call share,
+    removed when the block ends (an exception or an interrupt included).
+
+    Its name carries this process's id. A process killed by SIGKILL cannot remove its own;
+    the next call removes it: every ``testbed-designs-<pid>-*`` directory of this user in
+    ``parent`` whose process no longer exists (:func:`remove_stale_designs`).
+
+    Parameters
+    ----------
+    parent : path-like, optional
+        Where to make it (default ``tempfile.gettempdir()``).
+    """
+    parent = tempfile.gettempdir() if parent is None else os.fspath(parent)
+    remove_stale_designs(parent)
+    with tempfile.TemporaryDirectory(prefix=f"{DESIGNS_PREFIX}{os.getpid()}-",
+                                     dir=parent) as designs:
+        yield designs
+
+
+def remove_stale_designs(parent: str | os.PathLike[str] | None = None) -> list[str]:
+    """Remove the design directories (:func:`designs_directory`) of this user in ``parent``
+    (default the temporary directory) left by processes that no longer exist; the removed
+    paths. Directories of other users, of live processes, symbolic links and names
+    without a process id are left alone."""
+    parent = tempfile.gettempdir() if parent is None else os.fspath(parent)
+    removed: list[str] = []
+    try:
+        names = os.listdir(parent)
+    except OSError:
+        return removed
+    for name in names:
+        pid = name[len(DESIGNS_PREFIX):].split("-", 1)[0]
+        if not (name.startswith(DESIGNS_PREFIX) and pid.isdigit()) or _alive(int(pid)):
+            continue
+        path = os.path.join(parent, name)
+        try:
+            st = os.lstat(path)
+        except OSError:
+            continue
+        if stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid():
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (this one counts as alive)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, another user's
+        return True
+    return True
 
 
 @dataclass
