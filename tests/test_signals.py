@@ -178,7 +178,7 @@ def test_a_command_that_returns_after_catching_a_signal_is_still_interrupted(
 
     from testbed.io import atomic_path
 
-    cli_main = importlib.import_module("testbed.cli.main")  # the module (not main())
+    cli_main = importlib.import_module("testbed.cli.entry")  # the entry module
 
     def command(args: argparse.Namespace) -> int:
         with atomic_path(tmp_path / "late.json") as tmp:

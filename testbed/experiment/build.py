@@ -103,7 +103,8 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     design_rig = (build_rig(type(rig), rig.params, physics_dt_s=scenario.physics_dt_s,
                             profile=scenario.profile, options=rig.options)
                   if matched else control_rig)
-    with blame("design_options"):
+    # a design's failure is the design options' when some were given (else the scenario's)
+    with blame("design_options" if scenario.design_options else "scenario"):
         design = design_rig.design_model(sim.sensors, sim.dt_s, sim.known_disturbance,
                                          **scenario.design_options)
         control_design = design

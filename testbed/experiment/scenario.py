@@ -176,6 +176,12 @@ class Resolved:
     factory: Any
 
 
+#: The MuJoCo step a scenario may ask for, s: below a microsecond a run of seconds is
+#: billions of steps; above 0.1 s no rig's dynamics are resolved (the rigs' fastest time
+#: constants are tens of milliseconds).
+MIN_PHYSICS_DT_S, MAX_PHYSICS_DT_S = 1e-6, 0.1
+#: Largest process-noise scale (the rigs' intensities are already physical at 1).
+MAX_PROCESS_NOISE = 1e6
 #: Scenario fields left out of :meth:`Scenario.describe` while empty (added after suite v2).
 OMITTED_AT_DEFAULT = ("rig_options", "nominal_params")
 
@@ -334,6 +340,9 @@ class Scenario:
         _number("ambient_noise", self.ambient_noise)
         _number("reset_noise_scale", self.reset_noise_scale)
         dt_s = _number("physics_dt_s", self.physics_dt_s, positive=True)
+        if not MIN_PHYSICS_DT_S <= dt_s <= MAX_PHYSICS_DT_S:
+            raise ScenarioError("physics_dt_s", f"physics_dt_s must be between "
+                                f"{MIN_PHYSICS_DT_S:g} and {MAX_PHYSICS_DT_S:g} s, got {dt_s:g}")
         if not _is_int(self.frame_skip) or self.frame_skip < 1:
             raise ScenarioError("frame_skip", f"frame_skip must be a positive integer, got "
                                 f"{self.frame_skip!r}")
@@ -385,6 +394,10 @@ class Scenario:
                 raise ScenarioError("design_options", f"design option {key} must be a word "
                                     f"(default {default!r}), got {value!r}")
         noise = _number("process_noise", self.process_noise)
+        if noise > MAX_PROCESS_NOISE:
+            raise ScenarioError("process_noise", f"process_noise must be at most "
+                                f"{MAX_PROCESS_NOISE:g} (a scale of the rig's process noise), "
+                                f"got {noise:g}")
         if noise > 0 and rig_cls.process_noise_matrix is Rig.process_noise_matrix:
             raise ScenarioError("process_noise", f"rig {rig_cls.name!r} has no process-noise "
                                 "model; process_noise must be 0")

@@ -230,6 +230,11 @@ class _Transaction:
             if isinstance(exc, OSError) and not isinstance(exc, OutputError):
                 raise OutputError(failed, exc) from exc
             raise
+        # a directory made on the way to a file that is not inside it (``nosuchdir/../o.json``
+        # creates ``nosuchdir``): removed again, when empty
+        kept = {Path(os.path.realpath(final)).parent for final in done}
+        kept |= {parent for path in kept for parent in path.parents}
+        _remove_empty([d for d in self.created if Path(os.path.realpath(d)) not in kept])
         self.created.clear()
         return done
 

@@ -41,7 +41,17 @@ def scaled_copy(params: P, scales: dict[str, Any]) -> P:
         if not np.isfinite(factor) or factor < 0.0:
             raise ValueError(f"params[{key!r}] must be a finite non-negative scale factor, "
                              f"got {factor}")
-        changes[key] = getattr(params, key) * factor
+        value = getattr(params, key) * factor
+        if not np.isfinite(value):
+            raise ValueError(f"params[{key!r}] = {factor!r} scales {key} out of range "
+                             f"({getattr(params, key)!r} x {factor!r} is not finite)")
+        changes[key] = value
     out = dataclasses.replace(params, **changes)
-    out.validate()
+    with np.errstate(over="raise", invalid="raise"):
+        try:
+            out.validate()
+        except (OverflowError, FloatingPointError) as exc:
+            given = ", ".join(f"{k}={v!r}" for k, v in scales.items())
+            raise ValueError(f"params {given}: the scaled parameters are out of range "
+                             f"({exc})") from None
     return out
