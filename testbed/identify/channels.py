@@ -62,6 +62,9 @@ class ChannelInfo:
     bias : bool
         Whether a bias is fitted by default: every channel but a direct state without a
         declared bias (an encoder's zero is the rig's zero; a gyro has a bias).
+    delay : int
+        The declared delay in whole samples (a hold counts half its length): where the fit
+        starts.
     max_delay : int
         Largest whole-sample delay searched by default: twice the declared delay plus the
         declared hold, 0 for a channel with neither.
@@ -77,6 +80,7 @@ class ChannelInfo:
     D: np.ndarray
     direct_state: int | None
     bias: bool
+    delay: int
     max_delay: int
     is_input: bool
 
@@ -104,7 +108,7 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
         out[name] = ChannelInfo(
             name=name, unit=sensor.units[j], core=sensor, column=j, C=model.C[j].copy(),
             D=model.D[j].copy(), direct_state=direct, bias=direct is None or biased,
-            max_delay=2 * delay + hold, is_input=bool(inputs[j]))
+            delay=delay + hold // 2, max_delay=2 * delay + hold, is_input=bool(inputs[j]))
 
 
 def channel_plan(sensors: Sensor) -> dict[str, ChannelInfo]:
