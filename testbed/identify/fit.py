@@ -170,6 +170,11 @@ class Identification:
     time_s, measured, predicted : ndarray
         The recording's times (N,), its channels (N, m) and their prediction (N, m).
     channels, units : tuple of str
+    holdout : float
+        The held-out fraction.
+    sensor_preset : str
+        The sensor preset the channels were read with (``""``: the profile's default;
+        ``"<custom>"``: a sensor object the caller passed).
     """
 
     rig: str
@@ -196,6 +201,8 @@ class Identification:
     predicted: np.ndarray
     channels: tuple[str, ...]
     units: tuple[str, ...]
+    holdout: float = 0.0
+    sensor_preset: str = ""
 
     def params_scales(self) -> dict[str, float]:
         """Scale factors of the fitted parameters relative to nominal (held ones omitted)."""
@@ -219,7 +226,9 @@ class Identification:
             else list(self.still_segment_s),
             "recording_sha256": self.recording_sha256,
             "recording_source": self.recording_source, "dt_s": self.dt_s,
-            "n_samples": len(self.time_s), "n_fit": self.n_fit, "timings": self.timings,
+            "n_samples": len(self.time_s), "n_fit": self.n_fit, "holdout": self.holdout,
+            "sensor_preset": self.sensor_preset, "channels": list(self.channels),
+            "timings": self.timings,
         }
 
 
@@ -738,7 +747,9 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
         recording_sha256=recording.sha256, recording_source=recording.source,
         dt_s=model.dt_s, n_fit=n_fit, timings=timings, time_s=np.asarray(recording.time_s),
         measured=model.y, predicted=predicted, channels=model.names,
-        units=tuple(i.unit for i in infos))
+        units=tuple(i.unit for i in infos), holdout=float(holdout),
+        sensor_preset=sensors if isinstance(sensors, str) else
+        ("" if sensors is None else "<custom>"))
 
 
 def sensor_model_of(identification: Identification, names: tuple[str, ...]

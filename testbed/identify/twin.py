@@ -83,6 +83,10 @@ class Twin:
     fit_percent, holdout_fit_percent : dict of str to float
     testbed_version, method : str
     segment_s, dt_s : float
+    holdout : float
+        The held-out fraction of the identifying recording.
+    sensor_preset : str
+        The sensor preset of the channels (``""``: the profile's default).
     """
 
     path: str
@@ -99,6 +103,8 @@ class Twin:
     method: str
     segment_s: float
     dt_s: float
+    holdout: float = 0.0
+    sensor_preset: str = ""
 
     def rig_class(self) -> type:
         """The rig's class (from the registry)."""
@@ -155,7 +161,8 @@ def twin_dict(identification: Identification) -> dict[str, Any]:
             "method": ident.method, "method_reason": ident.method_reason,
             "segment_s": ident.segment_s, "dt_s": ident.dt_s,
             "recording_sha256": ident.recording_sha256,
-            "recording_source": ident.recording_source, "options": dict(ident.options),
+            "recording_source": ident.recording_source, "holdout": ident.holdout,
+            "sensor_preset": ident.sensor_preset, "options": dict(ident.options),
             "parameters": params, "sensors": sensors, "fit_percent": dict(ident.fit_percent),
             "holdout_fit_percent": dict(ident.holdout_fit_percent)}
 
@@ -282,6 +289,8 @@ def read_twin(path: str | os.PathLike) -> Twin:
                 fit_percent=fits, holdout_fit_percent=hold,
                 testbed_version=_get(data, "testbed_version", str, "", p, "unknown"),
                 method=method, segment_s=float(_get(data, "segment_s", (int, float), "", p)),
-                dt_s=float(_get(data, "dt_s", (int, float), "", p)))
+                dt_s=float(_get(data, "dt_s", (int, float), "", p)),
+                holdout=float(_get(data, "holdout", (int, float), "", p, 0.0)),
+                sensor_preset=_get(data, "sensor_preset", str, "", p, ""))
     twin.params()  # the values must make a physical rig
     return twin
