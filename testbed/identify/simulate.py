@@ -41,6 +41,8 @@ from testbed.sim.simulator import SimulationDiverged, Simulator
 
 _INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _ACT = int(mujoco.mjtState.mjSTATE_ACT)
+_QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
+_QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
 #: Largest physics step, s (the rigs' default).
 PHYSICS_DT_MAX_S = 0.001
 #: Window of the local fits giving a segment's initial state, s.
@@ -147,6 +149,12 @@ class RecordingModel:
         offset = sum(mujoco.mj_stateSize(self.rig.model, 1 << b) for b in range(16)
                      if (_INTEGRATION & (1 << b)) and (1 << b) < _ACT)
         self._act_cols = slice(offset, offset + self.na)
+        qpos = sum(mujoco.mj_stateSize(self.rig.model, 1 << b) for b in range(16)
+                   if (_INTEGRATION & (1 << b)) and (1 << b) < _QPOS)
+        qvel = sum(mujoco.mj_stateSize(self.rig.model, 1 << b) for b in range(16)
+                   if (_INTEGRATION & (1 << b)) and (1 << b) < _QVEL)
+        self._qpos_cols = qpos + self.rig.qpos_adr
+        self._qvel_cols = qvel + self.rig.dof_adr
         self._act_track: np.ndarray | None = None
         self.rollouts = 0  # member-steps simulated (for timings)
         # joint ranges of limited joints (a measured position just past a stop is clipped)
@@ -197,7 +205,7 @@ class RecordingModel:
         fallback = self.rig.default_x0()
         x = np.array([initial_state(self.infos, self.y, self.u_prev, int(s), self.dt_s, self.j,
                                     bias, delay, window, fallback) for s in starts])
-        return self.clip_state(x)
+        return np.clip(x, -self.rig.envelope, self.rig.envelope)
 
     def actuator_track(self) -> np.ndarray:
         """The actuator states (N, na) of a free run at nominal parameters over the whole
@@ -244,17 +252,22 @@ class RecordingModel:
                            self.n_samples - 1)
         seg_u = self.u[index]  # (S, L, nu), the last input held past the end
         u_all = np.tile(seg_u, (P, 1, 1))  # member p * S + s
-        sim.reset(options={"x0": np.tile(x0, (P, 1)),
+        x0 = np.tile(np.asarray(x0, float), (P, 1))
+        sim.reset(options={"x0": self.clip_state(x0),
                            "params": [_as_scales(self.nominal, p) for p in params
                                       for _ in range(S)]})
         rows = sim.physics.state
+        # the measured state itself, where the reset took it clipped onto a stop (a rig
+        # resting on its stop sinks into the soft contact, past what validate_x0 accepts)
+        rows[:, self._qpos_cols] = x0[:, :self.j]
+        rows[:, self._qvel_cols] = x0[:, self.j:]
         if act0 is not None and self.na:
             rows[:, self._act_cols] = np.tile(np.asarray(act0, float).reshape(S, self.na),
                                               (P, 1))
         states = np.full((k, length, self.n), np.nan)
         applied = np.zeros((k, length, self.rig.n_actions))
         acts = np.zeros((k, length, self.na)) if with_act else None
-        states[:, 0] = sim.info["state"]
+        states[:, 0] = x0
         if with_act:
             acts[:, 0] = rows[:, self._act_cols]
         alive = np.arange(k)
@@ -377,7 +390,7 @@ def simulate_recording(rig_cls: type[Rig], recording: Recording, *, profile: str
     if x0 is None:
         start = model.initial_states(np.array([0]), b, d)
     else:
-        start = model.clip_state(model.rig.validate_x0(x0))[None]
+        start = np.asarray(model.rig.validate_x0(x0), float)[None]
     states, u_prev = model.rollout(sets, start, np.array([0]), model.n_samples)
     h = model.measure(states[:, 0], u_prev[:, 0], d)
     return b + (1.0 + s) * h

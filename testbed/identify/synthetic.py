@@ -45,7 +45,7 @@ def simulated_recording(rig_cls: type[Rig], inputs: Any, *, dt_s: float,
                         profile: str = "paper", options: dict[str, Any] | None = None,
                         scales: dict[str, float] | None = None, x0: Any = None,
                         sensors: Any = None, seed: int = 0, ambient_noise: float = 0.0,
-                        noise_free: bool = False) -> Recording:
+                        noise_free: bool = False, settle_s: float = 0.0) -> Recording:
     """A recording of a simulated unit.
 
     Parameters
@@ -71,6 +71,9 @@ def simulated_recording(rig_cls: type[Rig], inputs: Any, *, dt_s: float,
     noise_free : bool
         Record the core channels without noise (the suite's quantization, noise, biases and
         delays left out).
+    settle_s : float
+        Simulated before the recording starts, with the first input held (a rig resting on
+        its stops settles into them), s.
 
     Returns
     -------
@@ -103,6 +106,9 @@ def simulated_recording(rig_cls: type[Rig], inputs: Any, *, dt_s: float,
     if scales:
         opts["params"] = dict(scales)
     sim.reset(seeds=[int(seed)], options=opts)
+    first = np.zeros((1, rig.n_actions)) if controller is not None else inputs[:1]
+    for _ in range(int(round(settle_s / dt_s))):
+        sim.step(first)
     n = len(inputs)
     obs = np.empty((n, sensors.dim))
     obs[0] = sim.obs[0]
