@@ -176,7 +176,8 @@ def smoothed(y: np.ndarray, start: int, window: int) -> tuple[np.ndarray, np.nda
 
 def initial_state(infos: list[ChannelInfo], y: np.ndarray, u_prev: np.ndarray, start: int,
                   dt_s: float, n_positions: int, bias: np.ndarray, delay: np.ndarray,
-                  window: int, fallback: np.ndarray) -> np.ndarray:
+                  window: int, fallback: np.ndarray,
+                  still: tuple[int, int] | None = None) -> np.ndarray:
     """The state at sample ``start`` from the recorded channels.
 
     Positions from the channels measuring them directly (encoders); rates from the
@@ -201,6 +202,9 @@ def initial_state(infos: list[ChannelInfo], y: np.ndarray, u_prev: np.ndarray, s
         The sensor model's bias (channel units) and delay (samples) per channel.
     window : int
     fallback : ndarray, shape (n,)
+    still : (int, int), optional
+        Samples where the rig is at rest (inputs constant, channels still): a start among
+        them takes the channels' means there and zero rates.
 
     Returns
     -------
@@ -209,12 +213,18 @@ def initial_state(infos: list[ChannelInfo], y: np.ndarray, u_prev: np.ndarray, s
     n = 2 * n_positions
     m = len(infos)
     values, slopes = np.zeros(m), np.zeros(m)
+    at_rest = still is not None and still[0] <= start < still[1]
     for i in range(m):
+        if at_rest:
+            values[i] = float(np.mean(y[still[0]:still[1], i])) - bias[i]
+            continue
         at = min(start + int(delay[i]), len(y) - 1)
         v, s = smoothed(y[:, i:i + 1], at, window)
         values[i], slopes[i] = v[0] - bias[i], s[0] / dt_s
     x = np.array(fallback, float)
     known = np.zeros(n, bool)
+    if at_rest:
+        x[n_positions:], known[n_positions:] = 0.0, True
     for i, info in enumerate(infos):
         if info.direct_state is not None and not info.is_input:
             j = info.direct_state

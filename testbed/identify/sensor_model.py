@@ -103,6 +103,17 @@ def still_segment(u: np.ndarray, y: np.ndarray, dt_s: float, steps: np.ndarray,
     return best
 
 
+def still_start(u: np.ndarray, y: np.ndarray, steps: np.ndarray) -> tuple[int, int] | None:
+    """``(0, stop)`` when the recording starts at rest: its inputs constant until ``stop``
+    (at least 10 samples) and its channels still there (:func:`still_segment`'s test);
+    else None."""
+    changed = np.flatnonzero(np.any(np.diff(u, axis=0) != 0.0, axis=1))
+    stop = int(changed[0]) + 1 if len(changed) else len(u)
+    if stop < 10 or not _is_still(y[:stop], steps):
+        return None
+    return (0, stop)
+
+
 def _is_still(seg: np.ndarray, steps: np.ndarray) -> bool:
     jitter = np.std(np.diff(seg, axis=0), axis=0) / np.sqrt(2.0)
     spread = np.std(seg, axis=0)

@@ -34,6 +34,7 @@ from testbed.identify.channels import (
     initial_state,
     measure_noise_free,
 )
+from testbed.identify.sensor_model import quantization_step, still_start
 from testbed.io.recording import Recording
 from testbed.rigs.base import Params, Rig
 from testbed.sensors import NoiseStreams, StateChannel, Suite
@@ -143,6 +144,15 @@ class RecordingModel:
         self.j = len(self.rig.joints)
         self.nominal: Params = self.rig.params
         self._sims: dict[int, Simulator] = {}
+        steps = np.array([quantization_step(self.y[:, c]) for c in range(len(self.infos))])
+        #: The quantization step of each channel (0: none).
+        self.steps = steps
+        #: ``(0, stop)`` when the recording starts at rest (:func:`still_start`): a rollout
+        #: from its first sample starts from the channels' means there, rates zero.
+        self.rest = still_start(self.u, self.y, steps)
+        #: Channels whose bias the initial states are read with: those with a declared bias
+        #: (a gyro's); a quantized position's fitted offset is not one.
+        self.x0_bias_mask = np.array([i.bias for i in self.infos], bool)
         #: MuJoCo actuator states (the hardware profile's rotor lag) in the integration state
         #: rows: not measured; multiple shooting starts them from :meth:`actuator_track`.
         self.na = int(self.rig.model.na)
@@ -204,7 +214,8 @@ class RecordingModel:
         window = max(3, int(round(window_s / self.dt_s)))
         fallback = self.rig.default_x0()
         x = np.array([initial_state(self.infos, self.y, self.u_prev, int(s), self.dt_s, self.j,
-                                    bias, delay, window, fallback) for s in starts])
+                                    bias, delay, window, fallback, self.rest)
+                      for s in starts])
         return np.clip(x, -self.rig.envelope, self.rig.envelope)
 
     def actuator_track(self) -> np.ndarray:
