@@ -282,23 +282,32 @@ class RecordingModel:
         if with_act:
             acts[:, 0] = rows[:, self._act_cols]
         alive = np.arange(k)
+        info_state, info_applied = sim.info["state"], sim.info["action_applied"]
+        u_steps = np.ascontiguousarray(u_all.transpose(1, 0, 2))  # (L, k, nu)
+        step_fn, act_cols = sim.step, self._act_cols
+        whole = True
         for step in range(length - 1):
             try:
-                if len(alive) == k:
-                    sim.step(u_all[:, step])
-                else:
-                    sim.step(u_all[alive, step], members=alive)
+                if whole:  # every member (the common case: basic slices, no gathers)
+                    step_fn(u_steps[step], checked=True)
+                    states[:, step + 1] = info_state
+                    applied[:, step + 1] = info_applied
+                    if with_act:
+                        acts[:, step + 1] = rows[:, act_cols]
+                    continue
+                sim.step(u_steps[step, alive], members=alive)
             except SimulationDiverged as err:
                 alive = np.setdiff1d(alive, err.members)
+                whole = False
                 if not len(alive):
                     break
                 states[alive, step + 1] = sim.physics.states(alive)
                 applied[alive, step + 1] = np.clip(u_all[alive, step], sim._low, sim._high)
                 continue
-            states[alive, step + 1] = sim.info["state"][alive]
-            applied[alive, step + 1] = sim.info["action_applied"][alive]
+            states[alive, step + 1] = info_state[alive]
+            applied[alive, step + 1] = info_applied[alive]
             if with_act:
-                acts[alive, step + 1] = rows[alive, self._act_cols]
+                acts[alive, step + 1] = rows[alive, act_cols]
         self.rollouts += k * (length - 1)
         shape = (P, S, length)
         out = (states.reshape(*shape, self.n), applied.reshape(*shape, -1))
