@@ -617,15 +617,15 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                     bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_iterations,
                     xtol=1e-10, ftol=1e-12, gtol=1e-10)
                 s_cur = sol.x
+                last = (sol, chosen, delay, x0_bias)
                 _, bias_now, _ = problem.residuals([s_cur])
                 new_delay = (choose_delays(s_cur, chosen, x0_bias) if np.any(max_delays)
                              else delay)
                 new_x0_bias = np.where(model.x0_bias_mask, bias_now[0], 0.0)
                 moved = np.max(np.abs(new_x0_bias - x0_bias) / sigma)
-                same = np.array_equal(new_delay, delay) and moved < 0.05
+                if np.array_equal(new_delay, delay) and moved < 0.05:
+                    break  # (the solve's own delays and bias kept: its Jacobian is final)
                 delay, x0_bias = new_delay, new_x0_bias
-                if same:
-                    break
             if not polish:
                 break
             # multiple shooting's initial states carry the measurement noise into the fit
@@ -644,9 +644,11 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
             after = oe_rms / max(ms_rms, 1e-300)
             if after <= DRIFT_RATIO:
                 chosen, s_cur = "output-error", sol.x
+                last = (sol, chosen, delay, x0_bias)
                 reason += (f"; output error from the multiple-shooting estimate follows the "
                            f"recording (residual {after:.3g} times the segments'): used (no "
                            "errors in variables)")
+                break
             else:
                 reason += (f"; output error from its estimate still drifts (residual "
                            f"{after:.3g} times the segments')")
@@ -655,8 +657,12 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
             s_vec[free.index(n)] = v
         problem = _Problem(model, names, held, chosen, segment_len, n_fit, sigma, fit_bias,
                            fit_scale_v, delay, x0_bias)
-        r_star = problem.fun(s_cur)
-        J = problem.jac(s_cur, lo, hi)
+        sol_last, method_last, delay_last, bias_last = last
+        if (method_last == chosen and delay_last is delay and bias_last is x0_bias
+                and np.array_equal(sol_last.x, s_cur)):
+            r_star, J = sol_last.fun, sol_last.jac  # the solve's own, at its solution
+        else:
+            r_star, J = problem.fun(s_cur), problem.jac(s_cur, lo, hi)
         _, half = sysid.calculate_intervals([r_star], J)
         inflation, bandwidth, hac = _hac_inflation(J, r_star, n_fit, m)
         half = np.asarray(half, float) * np.sqrt(inflation)
@@ -711,8 +717,8 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
         predicted[n_fit:] = pred_hold
         holdout_fit = dict(zip(model.names, fit_percent(model.y[n_fit:], pred_hold).tolist(),
                                strict=True))
-    free_pred = predict_channels(model, [params], bias_fit, scale_fit, delay, "output-error",
-                                 segment_len, 0, n_fit)[0]
+    free_pred = pred_fit if chosen == "output-error" else predict_channels(
+        model, [params], bias_fit, scale_fit, delay, "output-error", segment_len, 0, n_fit)[0]
     fits = dict(zip(model.names, fit_percent(model.y[:n_fit], pred_fit).tolist(), strict=True))
     free_fits = dict(zip(model.names, fit_percent(model.y[:n_fit], free_pred).tolist(),
                          strict=True))
