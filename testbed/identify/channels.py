@@ -219,8 +219,12 @@ def initial_state(infos: list[ChannelInfo], y: np.ndarray, u_prev: np.ndarray, s
             values[i] = float(np.mean(y[still[0]:still[1], i])) - bias[i]
             continue
         at = min(start + int(delay[i]), len(y) - 1)
-        v, s = smoothed(y[:, i:i + 1], at, window)
-        values[i], slopes[i] = v[0] - bias[i], s[0] / dt_s
+        # the input's feedthrough (the accelerometer's a_y) steps within the window: it is
+        # taken out before the fit and put back at the start
+        feed = u_prev[at:at + max(window, 3)] @ infos[i].D
+        seg = y[at:at + len(feed), i] - feed
+        v, s = smoothed(seg[:, None], 0, window)
+        values[i], slopes[i] = v[0] + feed[0] - bias[i], s[0] / dt_s
     x = np.array(fallback, float)
     known = np.zeros(n, bool)
     if at_rest:

@@ -85,8 +85,8 @@ from testbed.io.recording import Recording
 from testbed.rigs.base import Params, Rig
 
 METHODS = ("auto", "output-error", "multiple-shooting")
-#: ``auto``: multiple shooting when the nominal free run's residual exceeds the
-#: multiple-shooting residual by this factor (drift).
+#: ``auto``: the output-error refit from the multiple-shooting estimate is kept when its
+#: residual is at most this factor times the segments' (its free run follows the recording).
 DRIFT_RATIO = 2.0
 #: Correlation above which two parameters are not separately determined. (0.99 flags the
 #: vehicle's damping and centre-of-mass height from 10 s of random steps, both within 2 %
@@ -584,13 +584,15 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
 
     polish = False
     if method == "auto":
+        # multiple shooting first (its short segments keep the fit out of the free run's
+        # local minima: a frequency far off, a drift), then output error from its estimate,
+        # kept where its free run follows the recording (no errors in variables)
         ratio = drift_ratio(model.nominal)
-        chosen = "multiple-shooting" if ratio > DRIFT_RATIO else "output-error"
-        polish = chosen == "multiple-shooting"
+        chosen, polish = "multiple-shooting", True
         reason = (f"auto: the nominal free run's residual is {ratio:.3g} times the "
                   f"{segment_s:g}-s multiple-shooting residual "
-                  f"({'above' if ratio > DRIFT_RATIO else 'within'} {DRIFT_RATIO:g}: "
-                  f"{'the free run drifts' if ratio > DRIFT_RATIO else 'no drift'})")
+                  f"({'the free run drifts' if ratio > DRIFT_RATIO else 'no drift'}); fitted "
+                  "by multiple shooting")
     else:
         chosen, reason = method, "chosen by the caller"
 
@@ -645,14 +647,13 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
             if after <= DRIFT_RATIO:
                 chosen, s_cur = "output-error", sol.x
                 last = (sol, chosen, delay, x0_bias)
-                reason += (f"; output error from the multiple-shooting estimate follows the "
-                           f"recording (residual {after:.3g} times the segments'): used (no "
-                           "errors in variables)")
-                break
+                reason += (f", then output error from its estimate (its residual "
+                           f"{after:.3g} times the segments', within {DRIFT_RATIO:g}: used, "
+                           "no errors in variables)")
             else:
-                reason += (f"; output error from its estimate still drifts (residual "
-                           f"{after:.3g} times the segments')")
-                break
+                reason += (f"; output error from its estimate drifts (residual {after:.3g} "
+                           f"times the segments', above {DRIFT_RATIO:g}): not used")
+            break
         for n, v in zip(names, s_cur, strict=True):
             s_vec[free.index(n)] = v
         problem = _Problem(model, names, held, chosen, segment_len, n_fit, sigma, fit_bias,

@@ -46,7 +46,7 @@ _QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
 _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
 #: Largest physics step, s (the rigs' default).
 PHYSICS_DT_MAX_S = 0.001
-#: Window of the local fits giving a segment's initial state, s.
+#: Window of the local fits giving a segment's initial state, s (at least 9 samples).
 INIT_WINDOW_S = 0.03
 
 
@@ -211,7 +211,7 @@ class RecordingModel:
     def initial_states(self, starts: np.ndarray, bias: np.ndarray, delay: np.ndarray,
                        window_s: float = INIT_WINDOW_S) -> np.ndarray:
         """Measured states at the sample indices ``starts`` (S,): shape (S, n)."""
-        window = max(3, int(round(window_s / self.dt_s)))
+        window = max(9, int(round(window_s / self.dt_s)))
         fallback = self.rig.default_x0()
         x = np.array([initial_state(self.infos, self.y, self.u_prev, int(s), self.dt_s, self.j,
                                     bias, delay, window, fallback, self.rest)

@@ -26,12 +26,26 @@ from testbed.sensors import Bias, Quantize, StateChannel, Suite, WhiteNoise
 
 
 def _inside(result, scales):
+    """Per free parameter: the truth inside its 95 % interval (a held one is a miss)."""
     out = []
     for name, truth in scales.items():
         p = result.parameters[name]
-        assert p.identifiable, (name, p.reason)
+        if not p.identifiable:
+            out.append(False)
+            continue
         lo, hi = np.asarray(p.ci95) / p.nominal
         out.append(bool(lo <= truth <= hi))
+    return out
+
+
+def _fit_floor(result) -> dict:
+    """95 %, or less where the channel's own noise caps the fit: ``100 (1 - noise / spread)``
+    (the noise from the still segment), less 3 points."""
+    out = {}
+    for c, name in enumerate(result.channels):
+        y = result.measured[:result.n_fit, c]
+        ceiling = 100.0 * (1.0 - result.sensors[name]["noise_std"] / np.std(y))
+        out[name] = min(95.0, ceiling - 3.0)
     return out
 
 
@@ -81,8 +95,9 @@ def test_helicopter_hardware_noisy_short(tmp_path):
     rec, scales = helicopter_unit(0, duration_s=3.0)
     res = identify(HelicopterRig, rec, free=list(HELI_FREE), sensors="encoders+gyros",
                    holdout=0.2)
-    # the yaw integrates: the nominal free run drifts, multiple shooting starts the fit
+    # the yaw integrates: the nominal free run drifts; multiple shooting starts the fit
     assert "the free run drifts" in res.method_reason
+    assert "fitted by multiple shooting" in res.method_reason
     assert res.method in ("multiple-shooting", "output-error")
     for name, truth in scales.items():  # well excited: within 5 %
         assert res.parameters[name].scale == pytest.approx(truth, rel=0.05), name
@@ -102,7 +117,8 @@ def test_tiny_rig_coverage_short():
         rec, scales = tiny_unit(seed)
         res = identify(TinyRig, rec, profile="paper", free=list(TINY_FREE))
         inside += _inside(res, scales)
-        assert min(res.fit_percent.values()) >= 90.0  # 1 cm of noise on +-0.5 m
+        floor = _fit_floor(res)
+        assert all(res.fit_percent[c] >= floor[c] for c in floor), (res.fit_percent, floor)
     assert np.mean(inside) >= 0.9, inside
 
 
@@ -118,11 +134,11 @@ def test_coverage_across_units(rig):
         elif rig == "vehicle":
             rec, scales = vehicle_unit(seed, duration_s=10.0)
             res = identify(VehicleRollRig, rec, free=list(VEHICLE_FREE))
-            assert min(res.fit_percent.values()) >= 95.0 or res.fit_percent["lateral_accel"] > 99
         else:
             rec, scales = helicopter_unit(seed, duration_s=4.0)
             res = identify(HelicopterRig, rec, free=list(HELI_FREE), sensors="encoders+gyros")
-            assert min(res.fit_percent.values()) >= 95.0
+        floor = _fit_floor(res)
+        assert all(res.fit_percent[c] >= floor[c] for c in floor), (res.fit_percent, floor)
         inside += _inside(res, scales)
         close += [abs(res.parameters[n].scale / s - 1) < 0.05 for n, s in scales.items()]
     assert np.mean(inside) >= 0.9, np.mean(inside)
