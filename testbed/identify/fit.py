@@ -498,7 +498,14 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                                   "need at least 20")
     infos = model.infos
     steps = model.steps
-    fit_bias = np.array([i.bias for i in infos])
+    # a quantized position of a joint without limits (a yaw encoder) is known to a step: its
+    # offset is fitted (a free joint's offset changes no dynamics); on a limited joint the
+    # position against the stop is physics and stays as measured
+    limited = {i for i, _, _ in model._ranges}
+    fit_bias = np.array([i.bias or (steps[c] > 0 and i.direct_state is not None
+                                    and i.direct_state < model.j
+                                    and i.direct_state not in limited)
+                         for c, i in enumerate(infos)])
     fit_scale_v = np.full(m, bool(fit_scale)) & np.array([i.direct_state is None
                                                           for i in infos])
     max_delays = np.array([i.max_delay if max_delay is None else max_delay for i in infos])
@@ -582,13 +589,14 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                          x0_bias)
         return rms(oe) / max(rms(ms), 1e-300)
 
-    polish = False
+    polish = nominal_follows = False
     if method == "auto":
         # multiple shooting first (its short segments keep the fit out of the free run's
         # local minima: a frequency far off, a drift), then output error from its estimate,
         # kept where its free run follows the recording (no errors in variables)
         ratio = drift_ratio(model.nominal)
         chosen, polish = "multiple-shooting", True
+        nominal_follows = ratio <= DRIFT_RATIO
         reason = (f"auto: the nominal free run's residual is {ratio:.3g} times the "
                   f"{segment_s:g}-s multiple-shooting residual "
                   f"({'the free run drifts' if ratio > DRIFT_RATIO else 'no drift'}); fitted "
@@ -609,6 +617,7 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
         lo = np.array([bounds[n][0] for n in names])
         hi = np.array([bounds[n][1] for n in names])
         s_cur = np.clip(s_cur, lo + 1e-9, hi - 1e-9)
+        s_start = s_cur.copy()
         while True:
             for _ in range(3):  # rounds: delays and the initial states' bias follow the fit
                 rounds += 1
@@ -642,12 +651,20 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                 trial.fun, s_cur, jac=lambda s, p=trial, a=lo, b=hi: p.jac(s, a, b),
                 bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_iterations,
                 xtol=1e-10, ftol=1e-12, gtol=1e-10)
+            start_note = "its estimate"
+            if nominal_follows:  # the free run from the start may find a better minimum
+                other = scipy.optimize.least_squares(
+                    trial.fun, s_start, jac=lambda s, p=trial, a=lo, b=hi: p.jac(s, a, b),
+                    bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_iterations,
+                    xtol=1e-10, ftol=1e-12, gtol=1e-10)
+                if other.cost < sol.cost:
+                    sol, start_note = other, "nominal (a lower residual than from its estimate)"
             oe_rms = float(np.sqrt(np.mean(sol.fun ** 2)))
             after = oe_rms / max(ms_rms, 1e-300)
             if after <= DRIFT_RATIO:
                 chosen, s_cur = "output-error", sol.x
                 last = (sol, chosen, delay, x0_bias)
-                reason += (f", then output error from its estimate (its residual "
+                reason += (f", then output error from {start_note} (its residual "
                            f"{after:.3g} times the segments', within {DRIFT_RATIO:g}: used, "
                            "no errors in variables)")
             else:

@@ -35,7 +35,7 @@ def draw_scales(rng: np.random.Generator, rig_cls: type, free: tuple[str, ...]) 
 
 
 def helicopter_controller(rng: np.random.Generator, dt_s: float, n: int, still_s: float = 0.5):
-    """A PD loop on pitch and yaw about random setpoint steps, gravity compensated with the
+    """A PID loop on pitch and yaw about random setpoint steps, gravity compensated with the
     nominal parameters (the unit's own differ): a closed-loop recording."""
     nominal = HelicopterParams()
     inverse = np.linalg.inv(nominal.torque_gains)
@@ -47,12 +47,18 @@ def helicopter_controller(rng: np.random.Generator, dt_s: float, n: int, still_s
         ref[k:k + hold] = [rng.uniform(-0.35, 0.3), rng.uniform(-1.0, 1.0)]
         k += hold
 
+    integral = np.zeros(2)
+
     def control(k: int, y: np.ndarray) -> np.ndarray:
         if k < first:
             return np.zeros(2)
         pitch, yaw, pitch_rate, yaw_rate = y[:4]
-        torque = np.array([nominal.pitch_inertia * (25 * (ref[k, 0] - pitch) - 8 * pitch_rate),
-                           nominal.yaw_inertia * (9 * (ref[k, 1] - yaw) - 5 * yaw_rate)])
+        error = ref[k] - np.array([pitch, yaw])
+        integral[:] = np.clip(integral + error * dt_s, -0.5, 0.5)  # lifts a weak unit
+        torque = np.array([nominal.pitch_inertia * (25 * error[0] + 20 * integral[0]
+                                                    - 8 * pitch_rate),
+                           nominal.yaw_inertia * (9 * error[1] + 3 * integral[1]
+                                                  - 5 * yaw_rate)])
         return gravity_voltage(nominal, pitch) + inverse @ torque
 
     return control
