@@ -107,17 +107,21 @@ def compare(source: Any, recording: Recording, *, profile: str | None = None,
             names, {n: table[n].get("bias", 0.0) for n in names if n in table},
             {n: table[n].get("scale", 0.0) for n in names if n in table},
             {n: table[n].get("delay_samples", 0) for n in names if n in table})
+        x0_bias = np.array([float(table[n]["initial_state_bias"])
+                            if n in table and "initial_state_bias" in table[n]
+                            else bias[i] * model.x0_bias_mask[i] for i, n in enumerate(names)])
     else:
         bias, scale, delay = sensor_vectors(names, None, None, None)
+        x0_bias = bias
     N = model.n_samples
     n_fit = int(math.floor(N * (1.0 - holdout)))
     segment_len = max(int(round(segment_s / model.dt_s)), 10)
     predicted = predict_channels(model, [params], bias, scale, delay, method, segment_len, 0,
-                                 n_fit)[0]
+                                 n_fit, x0_bias)[0]
     hold: dict[str, float] = {}
     if n_fit < N:
         rest = predict_channels(model, [params], bias, scale, delay, method, segment_len,
-                                n_fit, N)[0]
+                                n_fit, N, x0_bias)[0]
         hold = dict(zip(names, fit_percent(model.y[n_fit:], rest).tolist(), strict=True))
         predicted = np.vstack([predicted, rest])
     fits = dict(zip(names, fit_percent(model.y[:n_fit], predicted[:n_fit]).tolist(),

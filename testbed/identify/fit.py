@@ -157,7 +157,7 @@ class Identification:
     sensors : dict of str to dict
         Per channel: ``bias``, ``scale``, ``delay_samples``, ``noise_std``,
         ``noise_density``, ``quantization_step``, ``still_bias`` (None without a still
-        segment).
+        segment), ``initial_state_bias`` (what the initial states were read with).
     fit_percent, holdout_fit_percent, free_run_fit_percent : dict of str to float
         NRMSE fit per channel ``100 (1 - |y - y_hat| / |y - mean(y)|)``: the method's
         prediction over the fitted part and over the held-out end (empty without one); the
@@ -526,6 +526,10 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
         still_bias = np.where(fit_bias, still_bias, 0.0)
         sigma = np.maximum(sigma, np.maximum(still_std, steps / np.sqrt(12.0)))
     x0_bias = np.where(np.isfinite(still_bias) & model.x0_bias_mask, still_bias, 0.0)
+    # with a still segment the initial states are read with its biases, fixed: the fit's
+    # own bias and the states read with it could feed each other (a wrong roll from a
+    # wrongly biased accelerometer); without one they follow the fit's rounds
+    x0_fixed = still is not None
     # a quantized channel's error is a function of the signal between level changes (no new
     # information while it stays on a level): its samples count as many as its changes
     for c in np.flatnonzero(steps > 0):
@@ -632,7 +636,8 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                 _, bias_now, _ = problem.residuals([s_cur])
                 new_delay = (choose_delays(s_cur, chosen, x0_bias) if np.any(max_delays)
                              else delay)
-                new_x0_bias = np.where(model.x0_bias_mask, bias_now[0], 0.0)
+                new_x0_bias = (x0_bias if x0_fixed
+                               else np.where(model.x0_bias_mask, bias_now[0], 0.0))
                 moved = np.max(np.abs(new_x0_bias - x0_bias) / sigma)
                 if np.array_equal(new_delay, delay) and moved < 0.05:
                     break  # (the solve's own delays and bias kept: its Jacobian is final)
@@ -725,18 +730,19 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
     else:
         bias_fit, scale_fit = np.where(fit_bias, x0_bias, 0.0), np.zeros(m)
     pred_fit = predict_channels(model, [params], bias_fit, scale_fit, delay, chosen,
-                                segment_len, 0, n_fit)[0]
+                                segment_len, 0, n_fit, x0_bias)[0]
     predicted = np.full_like(model.y, np.nan)
     predicted[:n_fit] = pred_fit
     holdout_fit: dict[str, float] = {}
     if n_fit < N:
         pred_hold = predict_channels(model, [params], bias_fit, scale_fit, delay, chosen,
-                                     segment_len, n_fit, N)[0]
+                                     segment_len, n_fit, N, x0_bias)[0]
         predicted[n_fit:] = pred_hold
         holdout_fit = dict(zip(model.names, fit_percent(model.y[n_fit:], pred_hold).tolist(),
                                strict=True))
     free_pred = pred_fit if chosen == "output-error" else predict_channels(
-        model, [params], bias_fit, scale_fit, delay, "output-error", segment_len, 0, n_fit)[0]
+        model, [params], bias_fit, scale_fit, delay, "output-error", segment_len, 0, n_fit,
+        x0_bias)[0]
     fits = dict(zip(model.names, fit_percent(model.y[:n_fit], pred_fit).tolist(), strict=True))
     free_fits = dict(zip(model.names, fit_percent(model.y[:n_fit], free_pred).tolist(),
                          strict=True))
@@ -763,6 +769,7 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
             "unit": info.unit, "bias": float(bias_fit[c]), "bias_fitted": bool(fit_bias[c]),
             "scale": float(scale_fit[c]), "scale_fitted": bool(fit_scale_v[c]),
             "delay_samples": int(delay[c]), "delay_s": float(delay[c] * model.dt_s),
+            "initial_state_bias": float(x0_bias[c]),
             "noise_std": noise_std, "noise_density": noise_std * math.sqrt(model.dt_s),
             "noise_from": "still segment" if np.isfinite(still_std[c]) else "fit residual",
             "quantization_step": float(steps[c]),

@@ -50,7 +50,7 @@ from testbed.io import atomic_path
 FORMAT = "testbed-twin"
 FORMAT_VERSION = 1
 _SENSOR_NUMBERS = ("bias", "scale", "noise_std", "noise_density", "quantization_step",
-                   "delay_s")
+                   "delay_s", "initial_state_bias")
 
 
 class TwinError(ValueError):
