@@ -40,12 +40,12 @@ def _inside(result, scales):
 
 def _fit_floor(result) -> dict:
     """95 %, or less where the channel's own noise caps the fit: ``100 (1 - noise / spread)``
-    (the noise from the still segment), less 3 points."""
+    (the noise from the still segment), less 5 points."""
     out = {}
     for c, name in enumerate(result.channels):
         y = result.measured[:result.n_fit, c]
         ceiling = 100.0 * (1.0 - result.sensors[name]["noise_std"] / np.std(y))
-        out[name] = min(95.0, ceiling - 3.0)
+        out[name] = min(95.0, ceiling - 5.0)
     return out
 
 
