@@ -342,6 +342,17 @@ class HelicopterRig(Rig):
     #: in the hover voltage and in ``m g l / J``. The scoring suite's mismatch entries scale
     #: these fields together.
     mismatch_range = {"mass_kg": 0.2, "pitch_damping": 0.2, "yaw_damping": 0.2}
+    #: What a recording identifies (``testbed identify``), bounds as factors of nominal: the
+    #: dampings, total inertias and the four torque gains. The moving mass and the centre of
+    #: mass are weighed and measured (the gravity torque ``m g l`` fixes the pitch axis's
+    #: scale); the pitch inertia stays above ``m l^2`` (0.56 of nominal) and the yaw inertia
+    #: above ``m l^2 + stage`` (0.55). The yaw axis's scale is seen through the pitch
+    #: coupling only (``J_y(pitch)``, the centrifugal torque): a recording with little
+    #: pitch motion leaves ``yaw_inertia`` to the identifiability check.
+    identifiable = {"pitch_damping": (0.2, 5.0), "yaw_damping": (0.2, 5.0),
+                    "pitch_inertia": (0.6, 3.0), "yaw_inertia": (0.6, 3.0),
+                    "K_pp": (0.2, 5.0), "K_py": (0.2, 5.0), "K_yp": (0.2, 5.0),
+                    "K_yy": (0.2, 5.0)}
     profiles = ("paper", "hardware")
     render_camera = "overview"
     #: Pitch past 90 deg would put the body through the base (the stops are at 40.5 deg);

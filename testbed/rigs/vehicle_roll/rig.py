@@ -95,6 +95,15 @@ class VehicleRollRig(Rig):
     #: centre-of-mass height (load) also scale the input ``m_s h_cr / I_xx``, which a
     #: norm-bounded ``Delta A`` does not cover, so they are not in the range.
     mismatch_range = {"roll_stiffness": 0.2, "roll_damping": 0.2}
+    #: What a recording identifies (``testbed identify``), bounds as factors of nominal. The
+    #: roll dynamics divided by ``I_xx`` see ``m_s h_cr / I_xx``, ``K_R / I_xx`` and
+    #: ``C_R / I_xx`` only: the mass and the height enter as their product, and scaling
+    #: ``m_s h_cr``, ``I_xx``, ``K_R`` and ``C_R`` together changes nothing. Weigh the
+    #: vehicle (``sprung_mass_kg``) and free at most three of the other four, or the
+    #: identifiability check holds the undetermined ones at nominal.
+    identifiable = {"sprung_mass_kg": (0.5, 2.0), "com_height_m": (0.4, 2.5),
+                    "roll_inertia": (0.4, 2.5), "roll_stiffness": (0.2, 5.0),
+                    "roll_damping": (0.2, 5.0)}
     #: ``hardware`` changes the default sensors only (the input is a physical acceleration,
     #: there is no actuator): the ``hardware`` preset with offsets, sensitivity errors and
     #: CAN latency.
