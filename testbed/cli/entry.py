@@ -17,6 +17,8 @@ EXIT_FAILURE, EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 1, 2, 3, 4, 
 
 
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+#: The reader of stdout went away (as a shell reports SIGPIPE: 128 + 13).
+EXIT_PIPE = 141
 
 
 class _Terminated(BaseException):
@@ -194,6 +196,10 @@ def _failure_code(exc: BaseException, args: argparse.Namespace) -> int:
         return _fail(EXIT_DIVERGED, f"testbed: {exc}")
     if isinstance(exc, OutputError):
         return _fail(EXIT_OUTPUT, f"testbed: {_output_flag(args, exc.path)}{exc}")
+    if isinstance(exc, BrokenPipeError):  # the reader went away (testbed ... | head)
+        with contextlib.suppress(OSError):
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - nothing more to print
+        return EXIT_PIPE
     if isinstance(exc, OSError):
         return _fail(EXIT_OUTPUT, f"testbed: {exc}")
     if isinstance(exc, KeyboardInterrupt):

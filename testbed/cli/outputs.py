@@ -49,6 +49,8 @@ def output_paths(args: argparse.Namespace) -> dict[str, str]:
     that names it in messages."""
     paths = {}
     for attr in OUTPUTS:
+        if attr == "twin" and args.command != "identify":
+            continue  # elsewhere --twin is read, not written
         path = getattr(args, attr, None)
         if path is not None:
             paths["--" + attr.replace("_", "-")] = path

@@ -26,6 +26,8 @@ COMMANDS = {
     "describe": "a rig's inputs, sensor channels, units, options and identifiable parameters",
     "replay": "an estimator over a recorded run (a unit's log): consistency from its "
               "innovations, RMSE against a held-out channel",
+    "identify": "fit a rig's parameters and sensor model to a recording; write its twin",
+    "compare": "simulate a rig or a twin with a recording's inputs; fit per channel",
 }
 
 DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")

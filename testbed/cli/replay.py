@@ -105,6 +105,14 @@ def read_log(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
                        "params": params, "twin": twin}
 
 
+def twin_provenance(path: str) -> dict[str, str]:
+    """``{"path", "sha256"}`` of a twin file (what an output says it used)."""
+    import hashlib
+
+    with open(path, "rb") as file:
+        return {"path": path, "sha256": hashlib.sha256(file.read()).hexdigest()}
+
+
 def command(args: argparse.Namespace) -> int:
     """``testbed replay``: the estimator over the recording, its consistency and outputs."""
     from testbed.experiment.replay import replay
@@ -120,7 +128,7 @@ def command(args: argparse.Namespace) -> int:
                     progress=not args.no_progress and sys.stderr.isatty())
     summary = result.to_json()
     if unit["twin"] is not None:
-        summary["twin"] = {"path": args.twin, "sha256": unit["twin"].sha256}
+        summary["twin"] = twin_provenance(args.twin)
     print(format_replay(summary))
     if args.json:
         from testbed.io import write_json

@@ -84,6 +84,10 @@ def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     p.add_argument("--design-option", type=values.name_setting, action="append", default=[],
                    metavar="NAME=VALUE", help="design option the rig declares (e.g. "
                    "process_noise_floor=0.05); repeatable (testbed describe RIG)")
+    p.add_argument("--twin", metavar="FILE.toml", default=None,
+                   help="a twin of a real unit (testbed identify --twin): its rig, profile, "
+                   "options and identified parameters become the nominal ones of the "
+                   "simulated rig and of the designer (--param scales on top)")
     p.add_argument("--param", type=values.name_value, action="append", default=[],
                    metavar="NAME=SCALE", help="scale a physical parameter of the simulated "
                    "rig (model mismatch), e.g. --param mass_kg=1.1; repeatable")
@@ -128,7 +132,16 @@ def scenario_and_file(args: argparse.Namespace
     every = set(ARG_FIELDS)
     given = getattr(args, deferred.GIVEN, every) if source is not None else every
     from_file = source.fields if source is not None else {}
-    rig_name = args.rig if args.rig is not None else from_file.get("rig")
+    twin = None
+    if getattr(args, "twin", None) is not None:
+        from testbed.identify.twin import read_twin
+
+        twin = read_twin(args.twin)
+        if args.rig is not None and resolve_rig(args.rig).name != twin.rig:
+            raise ValueError(f"--twin {args.twin}: a twin of rig {twin.rig!r}, not "
+                             f"{args.rig!r}")
+    rig_name = args.rig if args.rig is not None else twin.rig if twin is not None else \
+        from_file.get("rig")
     if rig_name is None:
         raise ValueError(f"rig: give a rig ({', '.join(RIGS)} or package.module:RigClass) "
                          "or --scenario FILE")
@@ -140,6 +153,8 @@ def scenario_and_file(args: argparse.Namespace
     typed = _cli_fields(args, rig, given)
     defaults = {k: v for k, v in _cli_fields(args, rig, every).items() if k not in from_file}
     values = scenario_file.merge(scenario_file.merge(defaults, from_file), typed)
+    if twin is not None:
+        values.update(twin_fields(twin, values, getattr(args, deferred.GIVEN, every)))
     scenario = Scenario(**values)
 
     def message(field: str, text: str) -> str:
@@ -154,6 +169,22 @@ def scenario_and_file(args: argparse.Namespace
     except ScenarioError as exc:
         raise ValueError(message(exc.field, str(exc))) from None
     return scenario, source
+
+
+def twin_fields(twin: Any, values: dict[str, Any], typed: set[str]) -> dict[str, Any]:
+    """The scenario fields a twin sets: its rig, its options (under those typed), its
+    identified parameters as the nominal ones, and its profile and sensor preset unless
+    ``--profile`` / ``--sensors`` were typed."""
+    fields: dict[str, Any] = {
+        "rig": twin.rig,
+        "rig_options": {**twin.options, **values.get("rig_options", {})},
+        "nominal_params": {name: p.value for name, p in twin.parameters.items()
+                           if p.identifiable}}
+    if "profile" not in typed:
+        fields["profile"] = twin.profile
+    if "sensors" not in typed and twin.sensor_preset:
+        fields["sensors"] = twin.sensor_preset
+    return fields
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:

@@ -76,3 +76,37 @@ def initial_state(value: Any, n: int, bound: float = np.inf,
 def action_array(action: Any, k: int) -> np.ndarray:
     """``action`` as a finite real array of shape (k,)."""
     return real_array(action, "action", shape=(k,))
+
+
+def with_twin(rig: Any, kwargs: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The rig and :func:`~testbed.sim.build_simulator` keywords of an environment made with
+    ``twin=FILE`` (``gym.make("testbed/Aero2DOF-v0", twin="twin.toml")``): the twin's rig
+    (it must be the environment's), profile (unless ``profile`` is given), options (under
+    those given) and identified parameters as the nominal ones.
+
+    Parameters
+    ----------
+    rig : str, Rig subclass or Rig
+        The environment's rig.
+    kwargs : dict
+        The environment's other keywords; ``twin`` is taken out.
+
+    Returns
+    -------
+    rig, kwargs
+    """
+    kwargs = dict(kwargs)
+    path = kwargs.pop("twin", None)
+    if path is None:
+        return rig, kwargs
+    from testbed.identify.twin import read_twin
+    from testbed.rigs import resolve_rig
+
+    twin = read_twin(path)
+    name = getattr(rig, "name", None) if not isinstance(rig, str) else resolve_rig(rig).name
+    if name != twin.rig:
+        raise ValueError(f"twin: {path} is a twin of rig {twin.rig!r}, not {name!r}")
+    kwargs.setdefault("profile", twin.profile)
+    kwargs["rig_options"] = {**twin.options, **(kwargs.get("rig_options") or {})}
+    kwargs["nominal_params"] = twin.params()
+    return twin.rig, kwargs

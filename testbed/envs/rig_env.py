@@ -49,7 +49,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from filters import real_array
-from testbed.envs.common import check_seed
+from testbed.envs.common import check_seed, with_twin
 from testbed.sim import build_simulator
 from testbed.sim.simulator import positive_int
 
@@ -80,6 +80,7 @@ class RigEnv(gym.Env):
                 raise ValueError(f"render_mode='rgb_array': {exc}") from None
         self.render_mode = render_mode
         self._renderer = None
+        rig, kwargs = with_twin(rig, kwargs)
         self.sim = build_simulator(rig, 1, num_threads=1, **kwargs)
         self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.sim.dt_s}
         self.rig = self.sim.rig
@@ -207,6 +208,7 @@ class RigVectorEnv(VectorEnv):
         if max_episode_steps is not None:
             positive_int(max_episode_steps, "max_episode_steps")
         positive_int(num_envs, "num_envs")
+        rig, kwargs = with_twin(rig, kwargs)
         self.sim = build_simulator(rig, int(num_envs), num_threads=num_threads, **kwargs)
         self.num_envs = self.sim.num
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
