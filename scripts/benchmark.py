@@ -144,6 +144,11 @@ METRICS: dict[str, tuple[str, str]] = {
     "mc_ray_speedup": ("", "mc --backend ray wall time 1 worker / 2 workers"),
     "score_replay_vs_simulate": ("", "testbed score: a Monte Carlo replayed on recorded "
                                  "episodes / simulated (helicopter, Kalman, 16 x 2 s)"),
+    "identify_wall_s": ("s", "testbed identify: 30 s helicopter recording at 1 kHz, hardware "
+                        "profile, 6 free parameters (scripts/bench_identify.py)"),
+    "identify_vs_rollout": ("", "identify_wall_s / one rollout of the same recording"),
+    "replay_real_time_factor": ("", "testbed replay: kalman over a 30 s, 1 kHz helicopter "
+                                "recording, simulated seconds per wall second"),
     "lmi_solve_s": ("s", "LMI (48) solve, Zhang, Deng & Zhang (2018) Example 5.2 (median)"),
     "gamma_bisection_s": ("s", "gamma bisection on the same LMI (median)"),
 }
@@ -164,6 +169,8 @@ TARGETS: dict[str, tuple[str, float]] = {
     "sweep_ray_speedup": (">=", 1.6),
     "mc_ray_speedup": (">=", 1.6),
     "score_replay_vs_simulate": ("<=", 0.5),
+    "identify_wall_s": ("<=", 60.0),
+    "replay_real_time_factor": (">=", 100.0),
     "lmi_solve_s": ("<", 0.1),
     "gamma_bisection_s": ("<", 2.0),
 }
@@ -587,6 +594,25 @@ def update_doc(path: Path, table: str, note: str) -> None:
         Path(tmp).write_text(new)
 
 
+# ------------------------------------------------------------------------------- twins
+def bench_twin(duration_s: float) -> dict[str, float]:
+    """``identify`` of a 1 kHz recording against one rollout of it
+    (:func:`bench_identify.identify_vs_rollout`), and ``replay`` of a 1 kHz recording with
+    ``kalman`` as a real-time factor (best of three)."""
+    from bench_identify import identify_vs_rollout
+
+    from testbed.experiment.replay import replay, simulate_recording
+    from testbed.experiment.scenario import Scenario
+
+    ident = identify_vs_rollout(duration_s)
+    recording = simulate_recording(Scenario(rig="helicopter", duration_s=duration_s,
+                                            frame_skip=1))
+    factor = max(replay(recording, rig="helicopter").real_time_factor for _ in range(3))
+    return {"identify_wall_s": ident["identify_wall_s"],
+            "identify_vs_rollout": ident["identify_vs_rollout"],
+            "replay_real_time_factor": factor}
+
+
 # ------------------------------------------------------------------------------- main
 def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
     """Every benchmark; ``mode`` is ``"full"``, ``"quick"`` or ``"smoke"``."""
@@ -599,6 +625,7 @@ def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
     values.update(bench_reference_env(calls, repeats))
     values.update(bench_score(repeats, duration_s=0.2 if mode == "smoke" else 2.0))
     values.update(bench_lmi(**({"repeats": 1, "bisections": 1} if mode == "smoke" else {})))
+    values.update(bench_twin(2.0 if mode == "smoke" else 30.0))
     settings: dict[str, Any] = {"calls": calls, "repeats": repeats, "mode": mode}
     if mc:
         scale = bench_scale(mode)
