@@ -24,6 +24,7 @@ from testbed.sensors import (
     Delay,
     Sample,
     SampleAndHold,
+    ScaleFactor,
     Sensor,
     StateChannel,
     Suite,
@@ -62,6 +63,9 @@ class ChannelInfo:
     bias : bool
         Whether a bias is fitted by default: every channel but a direct state without a
         declared bias (an encoder's zero is the rig's zero; a gyro has a bias).
+    scale : bool
+        Whether a scale factor is fitted by default: a declared sensitivity error
+        (:class:`~testbed.sensors.ScaleFactor`).
     delay : int
         The declared delay in whole samples (a hold counts half its length): where the fit
         starts.
@@ -80,17 +84,19 @@ class ChannelInfo:
     D: np.ndarray
     direct_state: int | None
     bias: bool
+    scale: bool
     delay: int
     max_delay: int
     is_input: bool
 
 
-def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, ChannelInfo]
-          ) -> None:
-    """Collect the core channels of ``sensor`` with the delay, hold and bias above them."""
+def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, ChannelInfo],
+          scaled: bool = False) -> None:
+    """Collect the core channels of ``sensor`` with the delay, hold, bias and scale factor
+    above them."""
     if isinstance(sensor, Suite):
         for part in sensor.sensors:
-            _walk(part, delay, hold, biased, out)
+            _walk(part, delay, hold, biased, out, scaled)
         return
     if isinstance(sensor, Decorator):
         if isinstance(sensor, Delay):
@@ -99,7 +105,9 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
             hold += sensor.every - 1
         elif isinstance(sensor, Bias | BiasRandomWalk):
             biased = True
-        _walk(sensor.inner, delay, hold, biased, out)
+        elif isinstance(sensor, ScaleFactor):
+            scaled = bool(np.any(sensor.initial_std > 0) or np.any(sensor.error != 0))
+        _walk(sensor.inner, delay, hold, biased, out, scaled)
         return
     model = sensor.linear_model()
     inputs = model.inputs if model.inputs is not None else np.zeros(sensor.dim, bool)
@@ -108,6 +116,7 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
         out[name] = ChannelInfo(
             name=name, unit=sensor.units[j], core=sensor, column=j, C=model.C[j].copy(),
             D=model.D[j].copy(), direct_state=direct, bias=direct is None or biased,
+            scale=scaled,
             delay=delay + hold // 2, max_delay=2 * delay + hold, is_input=bool(inputs[j]))
 
 

@@ -430,7 +430,7 @@ def _hac_inflation(J: np.ndarray, r: np.ndarray, T: int, m: int
 def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardware",
              options: dict[str, Any] | None = None, free: Any = None, holdout: float = 0.0,
              method: str = "auto", channels: Any = None, sensors: Any = None,
-             fit_scale: bool = False, max_delay: int | None = None, segment_s: float = 1.0,
+             fit_scale: bool | str = False, max_delay: int | None = None, segment_s: float = 1.0,
              max_iterations: int = 40) -> Identification:
     """Fit a rig's identifiable parameters and its sensor model to a recording.
 
@@ -452,8 +452,12 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
         Channels to fit (default: every recorded state channel of the rig's sensors).
     sensors : Sensor or str, optional
         The sensor suite or preset that made the recording (default: the profile's).
-    fit_scale : bool
-        Also fit a scale factor per channel (besides the bias).
+    fit_scale : bool or "declared"
+        Fit a scale factor per channel (besides the bias): True every channel but a direct
+        state, ``"declared"`` the channels whose sensors declare a sensitivity error
+        (:class:`~testbed.sensors.ScaleFactor`), False (default) none. A scale trades
+        against the physical gains (the vehicle's centre-of-mass height against its
+        accelerometer's sensitivity): free it when the recording separates them.
     max_delay : int, optional
         Largest whole-sample delay searched per channel (default: from the sensors'
         declared delays and holds; 0 for channels without).
@@ -491,6 +495,9 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
     if not (isinstance(holdout, int | float) and not isinstance(holdout, bool)
             and 0.0 <= holdout < 0.9):
         raise IdentificationError(f"holdout must be a fraction in [0, 0.9), got {holdout!r}")
+    if fit_scale not in (True, False, "declared"):
+        raise IdentificationError(f"fit_scale must be True, False or 'declared', got "
+                                  f"{fit_scale!r}")
     if method not in METHODS:
         raise IdentificationError(f"method must be one of {METHODS}, got {method!r}")
     if not (isinstance(segment_s, int | float) and np.isfinite(segment_s) and segment_s > 0):
@@ -518,8 +525,11 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                                     and i.direct_state < model.j
                                     and i.direct_state not in limited)
                          for c, i in enumerate(infos)])
-    fit_scale_v = np.full(m, bool(fit_scale)) & np.array([i.direct_state is None
-                                                          for i in infos])
+    if fit_scale == "declared":  # the sensors' declared sensitivity errors
+        fit_scale_v = np.array([i.scale for i in infos])
+    else:
+        fit_scale_v = np.full(m, bool(fit_scale)) & np.array([i.direct_state is None
+                                                              for i in infos])
     max_delays = np.array([i.max_delay if max_delay is None else max_delay for i in infos])
 
     # sensor model from a still segment

@@ -79,16 +79,22 @@ def helicopter_unit(seed: int, duration_s: float = 4.0, dt_s: float = 0.002,
 
 def vehicle_unit(seed: int, duration_s: float = 8.0, dt_s: float = 0.01,
                  noise_free: bool = False, scales: dict | None = None,
-                 free: tuple[str, ...] = VEHICLE_FREE):
+                 free: tuple[str, ...] = VEHICLE_FREE, scale_errors: bool = True):
     """Random lateral-acceleration steps on a vehicle (hardware profile: the ``hardware``
-    sensor preset; noise-free: the ``imu`` preset's channels): ``(recording, scales)``."""
+    sensor preset, its sensitivity errors left out with ``scale_errors=False``; noise-free:
+    the ``imu`` preset's channels): ``(recording, scales)``."""
     rng = np.random.default_rng(2000 + seed)
     scales = draw_scales(rng, VehicleRollRig, free) if scales is None else scales
     n = int(round(duration_s / dt_s))
     u = random_steps(rng, n, dt_s, [-7.0], [7.0], hold_s=(0.15, 0.8), still_s=1.0)
+    sensors = None
+    if noise_free:
+        sensors = "imu"
+    elif not scale_errors:
+        sensors = VehicleRollRig(profile="hardware").sensors(
+            "hardware", dt_s=dt_s, scale_factor_std=0.0, speed_scale_std=0.0)
     rec = simulated_recording(VehicleRollRig, u, dt_s=dt_s, profile="hardware", scales=scales,
-                              seed=seed, sensors="imu" if noise_free else None,
-                              noise_free=noise_free)
+                              seed=seed, sensors=sensors, noise_free=noise_free)
     return rec, scales
 
 
