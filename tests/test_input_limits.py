@@ -41,11 +41,11 @@ def _nested_toml(tmp_path: Path, depth: int) -> Path:
 
 
 @pytest.mark.parametrize("make, needle", [
-    (lambda tmp: Path("/dev/zero"), "not a regular file (a character device)"),
+    (lambda tmp: Path("/dev/zero"), "a character device; the scenario file must be a regular file"),
     (lambda tmp: (tmp / "zero.toml").symlink_to("/dev/zero") or tmp / "zero.toml",
-     "not a regular file (a character device)"),
-    (_fifo, "not a regular file (a FIFO)"),
-    (lambda tmp: tmp, "not a regular file (a directory)"),
+     "a character device; the scenario file must be a regular file"),
+    (_fifo, "a FIFO; the scenario file must be a regular file"),
+    (lambda tmp: tmp, "a directory; the scenario file must be a regular file"),
     (lambda tmp: _nested_json(tmp, 100_000), f"nested more than {MAX_NESTING} deep"),
     (lambda tmp: _nested_toml(tmp, 5_000), f"nested more than {MAX_NESTING} deep"),
     (lambda tmp: _nested_json(tmp, MAX_NESTING + 1), f"nested more than {MAX_NESTING} deep"),

@@ -13,12 +13,16 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-EXIT_FAILURE, EXIT_USAGE, EXIT_FILTER, EXIT_DIVERGED, EXIT_OUTPUT = 1, 2, 3, 4, 5
-
-
-EXIT_SIGINT, EXIT_SIGTERM = 130, 143
-#: The reader of stdout went away (as a shell reports SIGPIPE: 128 + 13).
-EXIT_PIPE = 141
+from testbed.cli.exits import (
+    EXIT_DIVERGED,
+    EXIT_FAILURE,
+    EXIT_FILTER,
+    EXIT_OUTPUT,
+    EXIT_PIPE,
+    EXIT_SIGINT,
+    EXIT_SIGTERM,
+    EXIT_USAGE,
+)
 
 
 class _Terminated(BaseException):

@@ -10,7 +10,7 @@ from typing import Any, NoReturn
 
 from testbed import __version__
 from testbed.cli import deferred
-from testbed.cli.entry import EXIT_USAGE
+from testbed.cli.exits import EXIT_USAGE
 from testbed.completion import add_completion
 
 #: The commands, in ``--help`` order, with their one-line help: ``testbed.cli.NAME`` has

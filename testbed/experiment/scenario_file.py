@@ -31,7 +31,6 @@ import dataclasses
 import json
 import math
 import os
-import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from testbed.experiment.scenario import Scenario
+from testbed.io.bounded import read_bounded
 
 #: File suffixes read and written.
 SUFFIXES = (".toml", ".json")
@@ -192,7 +192,8 @@ def read(path: str | os.PathLike) -> ScenarioFile:
     text_path = os.fspath(path)
     source = ScenarioFile(text_path)
     suffix = Path(text_path).suffix.lower()
-    raw = read_regular_file(text_path, MAX_FILE_BYTES, "scenario file")
+    raw = read_bounded(text_path, MAX_FILE_BYTES, what="scenario file",
+                       error=ScenarioFileError)
     kind = "JSON" if suffix == ".json" else "TOML"
     try:
         if suffix == ".json":
@@ -220,64 +221,6 @@ def read(path: str | os.PathLike) -> ScenarioFile:
         else:
             source.fields[key] = _checked(source, key, _kind(fields[key]), value)
     return source
-
-
-def read_regular_file(path: str | os.PathLike, max_bytes: int, what: str) -> bytes:
-    """The bytes of ``path``, a regular file (followed through symbolic links) of at most
-    ``max_bytes`` bytes: never a FIFO (opened without waiting for a writer), a device
-    (``/dev/zero`` would never end) or a directory.
-
-    Parameters
-    ----------
-    path : str or PathLike
-    max_bytes : int
-        Largest size accepted, in bytes.
-    what : str
-        What the file is, for the messages (``"scenario file"``).
-
-    Raises
-    ------
-    ScenarioFileError
-        One line naming the file: it cannot be opened, is not a regular file, or is larger
-        than ``max_bytes``.
-    """
-    text_path = os.fspath(path)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
-    try:
-        fd = os.open(text_path, flags)
-    except OSError as exc:
-        raise ScenarioFileError(f"{text_path}: cannot read the {what}: "
-                                f"{exc.strerror or exc}") from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            raise ScenarioFileError(f"{text_path}: not a regular file ({_file_kind(mode)}); "
-                                    f"the {what} must be a regular file")
-        chunks, size = [], 0
-        while size <= max_bytes:  # the size is read, not trusted: the file may grow
-            chunk = os.read(fd, min(1 << 16, max_bytes + 1 - size))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-        if size > max_bytes:
-            raise ScenarioFileError(f"{text_path}: larger than {max_bytes:,} bytes, the limit "
-                                    f"of a {what}")
-        return b"".join(chunks)
-    except OSError as exc:
-        raise ScenarioFileError(f"{text_path}: cannot read the {what}: "
-                                f"{exc.strerror or exc}") from None
-    finally:
-        os.close(fd)
-
-
-def _file_kind(mode: int) -> str:
-    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return name
-    return "not a regular file"
 
 
 def _depth(value: Any, limit: int) -> int:

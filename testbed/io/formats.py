@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from testbed.io import atomic_path, check_output_path
+from testbed.io import atomic_path, bounded, check_output_path
 from testbed.io.mapping import ColumnMap, Mapping, load_mapping
 from testbed.io.recording import Recording, RecordingError
 
@@ -78,69 +78,13 @@ _MAT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,62}$")
 
 
 # ---------------------------------------------------------------------------- bounded input
-def _file_kind(mode: int) -> str:
-    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return kind
-    return "not a regular file"
-
-
 def read_bounded(path: str | os.PathLike, limit: int | None = None, *,
                  what: str = "recording") -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes.
-
-    The file is opened without blocking (a FIFO with no writer does not hang), then checked
-    on its descriptor: FIFOs, devices (``/dev/zero``), sockets and directories are refused,
-    and so is a file larger than ``limit``, before a byte is read; a file that grows past
-    ``limit`` while being read is refused too.
-
-    Parameters
-    ----------
-    path : str or PathLike
-    limit : int, optional
-        Largest size accepted, bytes (default :data:`MAX_RECORDING_BYTES`).
-    what : str
-        What the file is, for messages.
-
-    Raises
-    ------
-    RecordingError
-        One line naming the file.
-    """
-    name = os.fspath(path)
-    limit = MAX_RECORDING_BYTES if limit is None else int(limit)
-    try:
-        fd = os.open(name, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
-                     | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise RecordingError(f"{name}: no such {what} file") from None
-    except OSError as exc:
-        raise RecordingError(f"{name}: cannot open the {what} ({exc.strerror or exc})") from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise RecordingError(f"{name}: {_file_kind(info.st_mode)}; a {what} must be a "
-                                 "regular file")
-        if info.st_size > limit:
-            raise RecordingError(f"{name}: {info.st_size} bytes, more than the {what} size "
-                                 f"limit of {limit} bytes ({limit / 2**30:g} GiB)")
-        chunks, total = [], 0
-        while True:
-            chunk = os.read(fd, min(1 << 24, limit + 1 - total))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-            if total > limit:
-                raise RecordingError(f"{name}: grew past the {what} size limit of {limit} "
-                                     "bytes while being read")
-        return b"".join(chunks)
-    except OSError as exc:
-        raise RecordingError(f"{name}: cannot read the {what} ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
+    """The bytes of a regular file of at most ``limit`` bytes (default
+    :data:`MAX_RECORDING_BYTES`; :func:`testbed.io.bounded.read_bounded`), or a one-line
+    :class:`RecordingError` naming the file."""
+    return bounded.read_bounded(path, MAX_RECORDING_BYTES if limit is None else int(limit),
+                                what=what, error=RecordingError)
 
 
 def _check_kind(name: str) -> None:
@@ -153,7 +97,8 @@ def _check_kind(name: str) -> None:
         raise RecordingError(f"{name}: cannot read the recording ({exc.strerror or exc})"
                              ) from None
     if not stat.S_ISREG(mode):
-        raise RecordingError(f"{name}: {_file_kind(mode)}; a recording must be a regular file")
+        raise RecordingError(f"{name}: {bounded.file_kind(mode)}; a recording must be a regular "
+                             "file")
 
 
 # ---------------------------------------------------------------------------- parsed tables

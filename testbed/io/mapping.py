@@ -215,10 +215,10 @@ def load_mapping(path: str | os.PathLike) -> Mapping:
     RecordingError
         One line naming the file and the key (or the TOML syntax error's line).
     """
-    from testbed.io.formats import read_bounded
+    from testbed.io.bounded import read_bounded
 
     name = os.fspath(path)
-    data = read_bounded(path, MAX_MAPPING_BYTES, what="mapping")
+    data = read_bounded(path, MAX_MAPPING_BYTES, what="mapping", error=RecordingError)
     try:
         doc = tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:

@@ -442,12 +442,12 @@ def test_size_limit_checked_before_reading(tmp_path, monkeypatch):
     with pytest.raises(RecordingError) as exc:
         read_recording(big)
     assert time.perf_counter() - start < 1.0
-    one_line(exc, str(big), f"{3 << 30} bytes", "limit of 2147483648 bytes (2 GiB)")
+    one_line(exc, str(big), f"{3 << 30} bytes", "larger than 2,147,483,648 bytes")
     small = _bad_csv(tmp_path, None, None)
     monkeypatch.setattr(formats, "MAX_RECORDING_BYTES", 64)
     with pytest.raises(RecordingError) as exc:
         read_recording(small)
-    one_line(exc, str(small), "limit of 64 bytes")
+    one_line(exc, str(small), "larger than 64 bytes")
 
 
 def test_writer_refuses_bad_recordings_and_names(tmp_path):
