@@ -117,13 +117,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = None
     try:
-        if _startup.end_of_startup():  # a Ctrl-C while the command started (its imports)
-            raise KeyboardInterrupt
+        # the start-up: the named command's module and its imports (MuJoCo, SciPy...), and
+        # the Gymnasium ids for plug-ins that make environments; a Ctrl-C in it is deferred
         words = list(sys.argv[1:] if argv is None else argv)
         named = command_named(words)
         only = [named] if named else [] if "--print-completion" not in words else None
-        args = build_parser(only).parse_args(words)
-        testbed.register()  # the Gymnasium ids, for plug-ins that make environments
+        parser = build_parser(only)
+        if named is not None:
+            testbed.register()
+        if _startup.end_of_startup():  # a Ctrl-C while the command started
+            raise KeyboardInterrupt
+        args = parser.parse_args(words)
         command = command_module(args.command).command
         with _sigterm_raises(), _mujoco_warnings_logged():
             return _run_command(command, args)
