@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-runtime
 TEST_STAMP := $(VENV)/.installed-test
 DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test lint bench docs docs-generated clean venv
+.PHONY: demo test test-slow lint bench docs docs-generated clean venv
 
 define pip_install
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -39,7 +39,12 @@ demo: $(STAMP)
 
 test: $(TEST_STAMP)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# the long cases (full reproductions, coverage over many units, level and power at the
+# standard size, the README's numbers under both OpenBLAS kernels); CI runs them too
+test-slow: $(TEST_STAMP)
+	$(PY) -m pytest -q -m slow
 
 lint: $(TEST_STAMP)
 	$(VENV)/bin/ruff check .
