@@ -1,6 +1,6 @@
 """``testbed compare LOG --twin FILE`` (or ``--rig RIG``: the nominal rig): the rig simulated
 with the recording's inputs from its initial state, over the recording; fit per channel, and
-overlays as PNG and Rerun (:func:`testbed.identify.compare`)."""
+overlays as PNG and Rerun (:func:`testbed.identify.comparison.compare`)."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ a twin with a recording's inputs and scores the fit; :func:`plot_identification`
 """
 
 from testbed.identify.channels import IdentificationError
-from testbed.identify.compare import compare, compare_json
+from testbed.identify.comparison import compare, compare_json
 from testbed.identify.fit import Identification, ParameterEstimate, fit_percent, identify
 from testbed.identify.plots import plot_compare, plot_identification
 from testbed.identify.simulate import simulate_recording

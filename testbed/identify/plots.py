@@ -73,7 +73,7 @@ def plot_identification(result: Any, path: str | os.PathLike) -> Path:
 
 
 def plot_compare(result: dict[str, Any], path: str | os.PathLike) -> Path:
-    """Overlays of :func:`~testbed.identify.compare.compare`'s prediction on the recording,
+    """Overlays of :func:`~testbed.identify.comparison.compare`'s prediction on the recording,
     with residuals, as one PNG."""
     series = result["series"]
     what = f"twin {result['twin']}" if result["source"] == "twin" else "nominal parameters"

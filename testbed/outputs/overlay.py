@@ -29,7 +29,7 @@ from testbed.outputs.viz import (
 
 def write_overlay_rrd(result: dict[str, Any], path: str | os.PathLike, *,
                       degrees: bool = True, application_id: str = "testbed-compare") -> Path:
-    """Write :func:`testbed.identify.compare`'s result as a Rerun ``.rrd``.
+    """Write :func:`testbed.identify.comparison.compare`'s result as a Rerun ``.rrd``.
 
     Parameters
     ----------

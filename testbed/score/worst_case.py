@@ -268,7 +268,7 @@ def realize(t: np.ndarray, rows: int = 100, rtol: float = 1e-6, max_order: int =
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A state-space realization ``(A, B, C, D)`` of an impulse response by the eigensystem
     realization algorithm (Ho & Kalman 1966; Juang & Pappa 1985): the SVD of the block
-    Hankel matrix of ``t_1 .. t_(2 rows)``, truncated at the singular values above ``rtol``
+    Hankel matrix of ``t_1`` to ``t_(2 rows)``, truncated at the singular values above ``rtol``
     times the largest (at most ``max_order``), ``A`` from the shifted Hankel matrix,
     ``D = t_0``.
 
