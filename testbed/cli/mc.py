@@ -80,6 +80,8 @@ def command(args: argparse.Namespace) -> int:
                          envelope_points=200 if args.plot else None, backend=args.backend,
                          workers=args.workers, address=args.address)
     _print_mc(result)
+    if args.save_npz:
+        wrote(args.save_npz)
     if args.json:
         wrote(write_json(args.json, result))
     if args.plot:
