@@ -144,6 +144,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "mc_ray_speedup": ("", "mc --backend ray wall time 1 worker / 2 workers"),
     "score_replay_vs_simulate": ("", "testbed score: a Monte Carlo replayed on recorded "
                                  "episodes / simulated (helicopter, Kalman, 16 x 2 s)"),
+    "version_vs_python": ("", "wall time of `testbed --version` / `python -c pass` (start-up; "
+                          "median of interleaved runs)"),
     "identify_wall_s": ("s", "testbed identify: 30 s helicopter recording at 1 kHz, hardware "
                         "profile, 6 free parameters (scripts/bench_identify.py)"),
     "identify_vs_rollout": ("", "identify_wall_s / one rollout of the same recording"),
@@ -169,6 +171,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "sweep_ray_speedup": (">=", 1.6),
     "mc_ray_speedup": (">=", 1.6),
     "score_replay_vs_simulate": ("<=", 0.5),
+    "version_vs_python": ("<=", 5.0),
     "identify_wall_s": ("<=", 60.0),
     "replay_real_time_factor": (">=", 100.0),
     "lmi_solve_s": ("<", 0.1),
@@ -594,6 +597,25 @@ def update_doc(path: Path, table: str, note: str) -> None:
         Path(tmp).write_text(new)
 
 
+# ------------------------------------------------------------------------------- start-up
+def bench_startup(repeats: int) -> dict[str, float]:
+    """``testbed --version`` against a bare interpreter, as whole processes (each the median
+    of ``repeats`` interleaved runs, at least 3)."""
+    import subprocess
+
+    testbed_cmd = [str(Path(sys.executable).with_name("testbed")), "--version"]
+    if not Path(testbed_cmd[0]).exists():
+        testbed_cmd = [sys.executable, "-m", "testbed", "--version"]
+    python_cmd = [sys.executable, "-c", "pass"]
+    times: dict[str, list[float]] = {"testbed": [], "python": []}
+    for _ in range(max(3, repeats)):
+        for name, cmd in (("testbed", testbed_cmd), ("python", python_cmd)):
+            start = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            times[name].append(time.perf_counter() - start)
+    return {"version_vs_python": float(np.median(times["testbed"]) / np.median(times["python"]))}
+
+
 # ------------------------------------------------------------------------------- twins
 def bench_twin(duration_s: float) -> dict[str, float]:
     """``identify`` of a 1 kHz recording against one rollout of it
@@ -625,6 +647,7 @@ def run(calls: int, repeats: int, mode: str, mc: bool) -> dict[str, Any]:
     values.update(bench_reference_env(calls, repeats))
     values.update(bench_score(repeats, duration_s=0.2 if mode == "smoke" else 2.0))
     values.update(bench_lmi(**({"repeats": 1, "bisections": 1} if mode == "smoke" else {})))
+    values.update(bench_startup(repeats))
     values.update(bench_twin(2.0 if mode == "smoke" else 30.0))
     settings: dict[str, Any] = {"calls": calls, "repeats": repeats, "mode": mode}
     if mc:
