@@ -205,6 +205,34 @@ def _mismatch(rig) -> Any:
     return None if declared is None else declared()
 
 
+def rate_noise(n_states: int, n_joints: int, intensity: float,
+               disturbance: Any = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """A design's process noise: ``intensity`` on each velocity row (unmodelled
+    accelerations), plus the disturbance's white-noise intensity; and its ``G``.
+
+    Parameters
+    ----------
+    n_states, n_joints : int
+        The state ``[positions (n_joints), velocities]``.
+    intensity : float
+        Per velocity row, (unit/s)^2 / s.
+    disturbance : testbed.rigs.disturbances.Disturbance, optional
+
+    Returns
+    -------
+    Q : ndarray, shape (n, n)
+    G : ndarray, shape (n, s), or None
+    """
+    Q = np.zeros((n_states, n_states))
+    Q[n_joints:, n_joints:] += intensity * np.eye(n_states - n_joints)
+    G = None
+    if disturbance is not None:
+        if disturbance.intensity is not None:
+            Q = Q + disturbance.intensity
+        G = disturbance.G
+    return Q, G
+
+
 def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=None, *,
                               process_noise: float = 0.01, prior_std: float = 0.1
                               ) -> DesignModel:
@@ -218,22 +246,15 @@ def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=Non
     for name, value in (("process_noise", process_noise), ("prior_std", prior_std)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be finite and >= 0, got {value}")
-    nominal = rig.params_type()
+    nominal = rig.params  # the designer's rig: nominal, or a twin's values
     A, B = rig.linearize()
-    n, j = rig.n_states, len(rig.joints)
-    Q = np.zeros((n, n))
-    Q[j:, j:] += process_noise * np.eye(n - j)
-    G = None
-    if disturbance is not None:
-        if disturbance.intensity is not None:
-            Q = Q + disturbance.intensity
-        G = disturbance.G
+    Q, G = rate_noise(rig.n_states, len(rig.joints), process_noise, disturbance)
 
     def relative_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
         return u - rig.operating_input(nominal, x_hat)
 
     return build_design(rig, sensors, dt_s, A, B, Q, rig.default_x0(),
-                        prior_std**2 * np.eye(n), disturbance_matrix=G,
+                        prior_std**2 * np.eye(rig.n_states), disturbance_matrix=G,
                         input_transform=relative_input)
 
 

@@ -63,6 +63,7 @@ from testbed.experiment.loop import EstimatorStage, LoopResult, Tape, check_esti
 from testbed.experiment.trajectory import Trajectory
 from testbed.io.recording import Recording
 from testbed.rigs import resolve_rig
+from testbed.rigs.base import build_rig
 from testbed.score.consistency import (
     CONSISTENT,
     OVERCONFIDENT,
@@ -492,15 +493,11 @@ def _params(cls: type, params: Any) -> Any:
 
 def _rig(cls: type, params: Any, physics_dt_s: float, profile: str,
          options: dict[str, Any] | None) -> Any:
-    kwargs: dict[str, Any] = {"params": params, "physics_dt_s": physics_dt_s, "profile": profile}
-    if options:
-        kwargs["options"] = dict(options)
+    """The designer's rig (:func:`testbed.rigs.base.build_rig`), its options checked."""
     try:
-        return cls(**kwargs)
+        return build_rig(cls, params, physics_dt_s=physics_dt_s, profile=profile,
+                         options=cls.resolve_options(options))
     except TypeError as err:
-        if options:
-            raise ValueError(f"rig {cls.name!r} takes no construction options, got "
-                             f"{sorted(options)}") from None
         raise ValueError(f"rig {cls.name!r}: {err}") from None
 
 

@@ -37,6 +37,7 @@ from testbed.identify.channels import (
 from testbed.identify.sensor_model import quantization_step, still_start
 from testbed.io.recording import Recording
 from testbed.rigs.base import Params, Rig
+from testbed.rigs.base import build_rig as base_build_rig
 from testbed.sensors import NoiseStreams, StateChannel, Suite
 from testbed.sim.simulator import SimulationDiverged, Simulator
 
@@ -62,10 +63,10 @@ class _ZeroStreams(NoiseStreams):
 
 def build_rig(rig_cls: type[Rig], physics_dt_s: float, profile: str,
               options: dict[str, Any] | None) -> Rig:
-    """``rig_cls`` at nominal parameters (options only passed to rigs that declare some)."""
-    resolved = rig_cls.resolve_options(options)
-    kwargs = {"options": resolved} if rig_cls.rig_options else {}
-    return rig_cls(physics_dt_s=physics_dt_s, profile=profile, **kwargs)
+    """``rig_cls`` at nominal parameters with its options checked
+    (:func:`testbed.rigs.base.build_rig`)."""
+    return base_build_rig(rig_cls, physics_dt_s=physics_dt_s, profile=profile,
+                          options=rig_cls.resolve_options(options))
 
 
 def check_recording(recording: Any, rig_cls: type[Rig]) -> None:

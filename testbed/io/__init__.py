@@ -96,7 +96,7 @@ def check_output_path(path: str | os.PathLike, name: str,
     return final
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
     """Whether process ``pid`` exists (on this machine)."""
     if pid == os.getpid():
         return True
@@ -129,13 +129,10 @@ def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:
         return removed
     for entry in final.parent.glob(f"{glob.escape(prefix)}*"):
         pid = entry.name[len(prefix):].split(".", 1)[0]
-        if not (entry.name.endswith((".tmp", ".tmpdir")) and pid.isdigit()) or _alive(int(pid)):
+        if not (entry.name.endswith((".tmp", ".tmpdir")) and pid.isdigit()) \
+                or process_alive(int(pid)):
             continue
-        with contextlib.suppress(OSError):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry)
-            else:
-                entry.unlink()
+        if _remove_entry(entry):
             removed.append(entry)
     return removed
 
@@ -179,11 +176,19 @@ def remove_own_temporaries(path: str | os.PathLike, keep: tuple[Path, ...] = ())
     for entry in final.parent.glob(f"{glob.escape(_own_prefix(final))}*"):
         if os.path.abspath(entry) in kept or not entry.name.endswith((".tmp", ".tmpdir")):
             continue
-        with contextlib.suppress(OSError):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry)
-            else:
-                entry.unlink()
+        _remove_entry(entry)
+
+
+def _remove_entry(entry: Path) -> bool:
+    """Remove a temporary file or directory (not following a symlink); whether it went."""
+    try:
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
+    except OSError:
+        return False
+    return True
 
 
 def _make_parents(final: Path) -> list[Path]:

@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from testbed.io import atomic_path
 from testbed.outputs.names import entity_parts
 from testbed.outputs.units import display
 from testbed.outputs.viz import (
@@ -22,8 +21,7 @@ from testbed.outputs.viz import (
     MEASUREMENT_COLOR,
     MEASUREMENT_SIZE,
     TIMELINE,
-    new_recording,
-    release_recordings,
+    write_series,
 )
 
 
@@ -78,22 +76,4 @@ def write_overlay_rrd(result: dict[str, Any], path: str | os.PathLike, *,
         rrb.Horizontal(rrb.TextDocumentView(origin="/about", name="about"),
                        rrb.Grid(*views, grid_columns=1), column_shares=[1.0, 3.0]),
         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
-    rec = new_recording(application_id)
-    try:
-        with atomic_path(path) as tmp:
-            rec.save(tmp, default_blueprint=blueprint)
-            try:
-                rec.log("about", rr.TextDocument(about, media_type=rr.MediaType.MARKDOWN),
-                        static=True)
-                for entity, style in styles:
-                    rec.log(entity, style, static=True)
-                for entity, times, values in columns:
-                    rec.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)],
-                                     columns=rr.Scalars.columns(scalars=values))
-                rec.flush()
-            finally:
-                rec.disconnect()
-    finally:
-        del rec
-        release_recordings()
-    return Path(path)
+    return write_series(path, application_id, blueprint, about, styles, columns)

@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from testbed.experiment.replay import ReplayResult
-from testbed.io import atomic_path
 from testbed.outputs.axes import steady_state_limit
 from testbed.outputs.names import entity_parts
 from testbed.outputs.plots import figure_legend, mark_clipped, new_figure, save_figure, set_title
@@ -39,8 +38,7 @@ from testbed.outputs.viz import (
     SIGMA_COLOR,
     SIGMA_WIDTH,
     TIMELINE,
-    new_recording,
-    release_recordings,
+    write_series,
 )
 
 _COLORS = [f"C{i}" for i in range(10)]
@@ -240,24 +238,5 @@ def log_replay_rerun(result: ReplayResult, path: str | os.PathLike, *,
         rrb.Horizontal(rrb.TextDocumentView(origin="/about", name="about"),
                        rrb.Grid(*views, grid_columns=2), column_shares=[1.0, 3.0]),
         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
-    rec = new_recording(application_id)
-    try:
-        with atomic_path(path) as tmp:
-            rec.save(tmp, default_blueprint=blueprint)
-            try:
-                rec.log("about", rr.TextDocument(_description(result),
-                                                 media_type=rr.MediaType.MARKDOWN),
-                        static=True)
-                for entity, style in styles:
-                    rec.log(entity, style, static=True)
-                for entity, times, values in series:
-                    rec.send_columns(entity,
-                                     indexes=[rr.TimeColumn(TIMELINE, duration=times)],
-                                     columns=rr.Scalars.columns(scalars=values))
-                rec.flush()
-            finally:
-                rec.disconnect()
-    finally:
-        del rec
-        release_recordings()
-    return Path(path)
+    return write_series(path, application_id, blueprint, _description(result), styles,
+                        series)

@@ -706,3 +706,37 @@ def rrd_summary(path: str | os.PathLike) -> dict[str, int]:
             else 0
         counts[entity] = counts.get(entity, 0) + rows
     return dict(sorted(counts.items()))
+
+
+def write_series(path: str | os.PathLike, application_id: str, blueprint: Any, about: str,
+                 styles: Sequence[tuple[str, Any]],
+                 series: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> Path:
+    """Time series as a Rerun ``.rrd``, written atomically: an ``about`` text (Markdown),
+    each entity's static style, then each ``(entity, times_s (K,), values (K,))`` in one
+    column on :data:`TIMELINE` (``testbed replay`` and ``testbed compare`` write so).
+
+    Returns
+    -------
+    Path
+    """
+    import rerun as rr
+
+    rec = new_recording(application_id)
+    try:
+        with atomic_path(path) as tmp:
+            rec.save(tmp, default_blueprint=blueprint)
+            try:
+                rec.log("about", rr.TextDocument(about, media_type=rr.MediaType.MARKDOWN),
+                        static=True)
+                for entity, style in styles:
+                    rec.log(entity, style, static=True)
+                for entity, times, values in series:
+                    rec.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)],
+                                     columns=rr.Scalars.columns(scalars=values))
+                rec.flush()
+            finally:
+                rec.disconnect()
+    finally:
+        del rec
+        release_recordings()
+    return Path(path)

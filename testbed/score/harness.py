@@ -47,6 +47,7 @@ from filters import FilterError
 from testbed.estimators import EstimatorWrapper, PerMember, memo, paper_design_only
 from testbed.experiment import runner
 from testbed.experiment.backend import check_backend, map_jobs
+from testbed.io import process_alive
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import build_rig
 from testbed.rigs.disturbances import SampledDisturbance
@@ -518,7 +519,7 @@ def remove_stale_designs(parent: str | os.PathLike[str] | None = None) -> list[s
         return removed
     for name in names:
         pid = name[len(DESIGNS_PREFIX):].split("-", 1)[0]
-        if not (name.startswith(DESIGNS_PREFIX) and pid.isdigit()) or _alive(int(pid)):
+        if not (name.startswith(DESIGNS_PREFIX) and pid.isdigit()) or process_alive(int(pid)):
             continue
         path = os.path.join(parent, name)
         try:
@@ -529,18 +530,6 @@ def remove_stale_designs(parent: str | os.PathLike[str] | None = None) -> list[s
             shutil.rmtree(path, ignore_errors=True)
             removed.append(path)
     return removed
-
-
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` exists (this one counts as alive)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, another user's
-        return True
     return True
 
 

@@ -23,28 +23,13 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.rigs.base import GRAVITY_M_S2
+from testbed.rigs.helicopter.imu import (  # the same pivot IMU geometry
+    accel_x_gradient,
+    accel_x_value,
+    gyro_yaw_gradient,
+    gyro_yaw_value,
+)
 from testbed.sensors import Noise, Sample, Sensor, SensorModel, no_input_gradient
-
-
-def gyro_yaw_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``gyro_yaw = yaw_rate cos(pitch)``, shape (M,) for ``x`` (M, 4)."""
-    return x[:, 3] * np.cos(x[:, 0])
-
-
-def gyro_yaw_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``d gyro_yaw / dx``, shape (M, 4)."""
-    zero = np.zeros(len(x))
-    return np.stack([-x[:, 3] * np.sin(x[:, 0]), zero, zero, np.cos(x[:, 0])], axis=1)
-
-
-def accel_x_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``accel_x = g sin(pitch)``, shape (M,) (pitch first in either state)."""
-    return g * np.sin(x[:, 0])
-
-
-def accel_x_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``d accel_x / dx``, shape (M, n) for ``x`` (M, n) (n = 4, or 2 yaw locked)."""
-    return np.concatenate([g * np.cos(x[:, :1]), np.zeros_like(x[:, 1:])], axis=1)
 
 
 class AeroIMU(Sensor):

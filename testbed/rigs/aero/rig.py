@@ -480,20 +480,14 @@ class AeroRig(Rig):
             Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics: the
             Coulomb friction, the stiffness a real unit shows).
         """
-        from testbed.design import build_design
+        from testbed.design import build_design, rate_noise
 
         if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
             raise ValueError(f"process_noise_floor must be finite and >= 0, got "
                              f"{process_noise_floor}")
-        n, j = self.n_states, len(self.joints)
+        n = self.n_states
         A, B = quanser_model(self.params, self.yaw_locked)  # the designer's, never the truth
-        Q = np.zeros((n, n))
-        Q[j:, j:] += process_noise_floor * np.eye(n - j)
-        G = None
-        if disturbance is not None:
-            if disturbance.intensity is not None:
-                Q = Q + disturbance.intensity
-            G = disturbance.G
+        Q, G = rate_noise(n, len(self.joints), process_noise_floor, disturbance)
         P0 = X0_STD**2 * np.eye(n)
         paper = build_design(self, sensors, dt_s, A, B, Q, self.default_x0(), P0,
                              disturbance_matrix=G, extras={"quanser_model": (A, B)})

@@ -38,13 +38,14 @@ def gyro_yaw_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
 
 
 def accel_x_value(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``accel_x = g sin(pitch)``, shape (M,)."""
+    """``accel_x = g sin(pitch)``, shape (M,) (pitch first in the state)."""
     return g * np.sin(x[:, 0])
 
 
 def accel_x_gradient(x: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-    """``d accel_x / dx``, shape (M, 4)."""
-    return np.stack([g * np.cos(x[:, 0])] + [np.zeros(len(x))] * 3, axis=1)
+    """``d accel_x / dx``, shape (M, n) for ``x`` (M, n) (pitch first: the 4 states, or the
+    Aero's 2 with its yaw axis locked)."""
+    return np.concatenate([g * np.cos(x[:, :1]), np.zeros_like(x[:, 1:])], axis=1)
 
 
 class HelicopterIMU(Sensor):

@@ -624,19 +624,13 @@ class HelicopterRig(Rig):
         process_noise_floor : float
             Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
         """
-        from testbed.design import build_design
+        from testbed.design import build_design, rate_noise
 
         if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
             raise ValueError(f"process_noise_floor must be finite and >= 0, got "
                              f"{process_noise_floor}")
         model = paper_model()
-        Q = np.zeros((4, 4))
-        Q[2:, 2:] += process_noise_floor * np.eye(2)
-        G = None
-        if disturbance is not None:
-            if disturbance.intensity is not None:
-                Q += disturbance.intensity
-            G = disturbance.G
+        Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
         nominal = self.params  # what the designer knows (nominal or a twin's): never the truth
 
         unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
