@@ -17,6 +17,7 @@ thread ends them within :data:`WATCHDOG_PERIOD_S` of the caller's death.
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
 import signal
 import socket
@@ -223,6 +224,7 @@ def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
     """The jobs on ``workers`` spawned processes, started in ``order``; results in job
     order. Any exception (an interrupt included) stops every worker before it goes on."""
     pool: ProcessPoolExecutor | None = None
+    children_before = set(multiprocessing.active_children())
     try:
         # no SIGINT/SIGTERM handler runs while the workers start (an interrupt there could
         # leave a started worker unknown to the pool); one that came is raised right after
@@ -237,19 +239,46 @@ def _local_pool(fn: Callable[..., Any], jobs: Sequence[tuple], order: list[int],
         out = in_order.results()
     except BaseException:
         if pool is not None:
-            stop_pool(pool)
+            stop_pool(pool, children_before=children_before)
         raise
     pool.shutdown(wait=True)
     return out
 
 
-def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S) -> None:
+def stop_pool(pool: ProcessPoolExecutor, grace_s: float = STOP_GRACE_S, *,
+              children_before: set[Any] | None = None) -> None:
     """Cancel the queued jobs of ``pool`` and end its processes now: SIGTERM, then SIGKILL
-    for those still alive after ``grace_s`` seconds; every one reaped."""
+    for those still alive after ``grace_s`` seconds; every one reaped.
+
+    ``children_before``: this process's children before the pool was made; any child started
+    since (a worker the pool was starting as the interrupt came, not yet in its table) is
+    ended too."""
     # the pool's own table of its processes (Python 3.8 to 3.14; 3.14 adds
     # terminate_workers() doing the same): the processes must end, not only their queue
-    processes = list((getattr(pool, "_processes", None) or {}).values())
+    # the table itself, not a copy: the pool's manager thread may still add a process to it
+    # (one it was starting when the interrupt came)
+    table = getattr(pool, "_processes", None) or {}
     pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + grace_s + KILLED_JOIN_S
+    while True:  # until no process of the pool is alive (one may start while we end others)
+        late = [] if children_before is None else \
+            [c for c in multiprocessing.active_children() if c not in children_before]
+        alive = [p for p in {id(p): p for p in [*list(table.values()), *late]}.values()
+                 if _is_alive(p)]
+        if not alive or time.monotonic() > deadline:
+            break
+        _end(alive, grace_s)
+
+
+def _is_alive(process: Any) -> bool:
+    try:
+        return bool(process.is_alive())
+    except (AssertionError, ValueError, AttributeError):  # not started by us, or closed
+        return False
+
+
+def _end(processes: list[Any], grace_s: float) -> None:
+    """SIGTERM to ``processes``, SIGKILL to those alive after ``grace_s`` s; all reaped."""
     for process in processes:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             process.terminate()
