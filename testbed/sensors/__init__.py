@@ -15,6 +15,7 @@ from testbed.sensors.base import (
     SensorModel,
     Suite,
     no_input_gradient,
+    reads_actuators,
 )
 from testbed.sensors.channels import LinearChannel, StateChannel
 from testbed.sensors.decorators import (
@@ -32,4 +33,4 @@ from testbed.sensors.decorators import (
 __all__ = ["Bias", "BiasRandomWalk", "ChannelFunctions", "Decorator", "Delay", "Drawn",
            "LinearChannel", "Noise", "NoiseStreams", "Quantize", "Sample", "SampleAndHold",
            "ScaleFactor", "Sensor", "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise",
-           "no_input_gradient"]
+           "no_input_gradient", "reads_actuators"]

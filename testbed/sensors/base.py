@@ -49,6 +49,9 @@ class Sample:
         Deterministic disturbance at the sample time (``s = 0`` without one).
     members : ndarray of int (k,) or slice
         Which of the ``num`` allocated members these rows are.
+    act : ndarray, shape (k, na), or None
+        MuJoCo's actuator states (``act``: a rotor lag's state) at the sample time, given
+        only to a suite with a sensor that reads them (:func:`reads_actuators`); else None.
     """
 
     x: np.ndarray
@@ -56,6 +59,7 @@ class Sample:
     u: np.ndarray
     w: np.ndarray
     members: Members = field(default_factory=lambda: slice(None))
+    act: np.ndarray | None = None
 
     @property
     def k(self) -> int:
@@ -434,6 +438,19 @@ class Suite(Sensor):
     def describe(self) -> str:
         """The members' descriptions joined by ``+``."""
         return " + ".join(s.describe() for s in self.sensors)
+
+
+def reads_actuators(sensor: Sensor) -> bool:
+    """Whether ``sensor`` (a suite, a decorator or a channel) has a channel reading MuJoCo's
+    actuator states (``Sample.act``): a channel declaring ``reads_act = True``, found
+    through suites (``sensors``) and wrappers (``inner``)."""
+    if getattr(sensor, "reads_act", False):
+        return True
+    parts = getattr(sensor, "sensors", None)
+    if isinstance(parts, tuple):
+        return any(reads_actuators(s) for s in parts)
+    inner = getattr(sensor, "inner", None)
+    return isinstance(inner, Sensor) and reads_actuators(inner)
 
 
 def as_array(value: Any, size: int, name: str, *, non_negative: bool = True) -> np.ndarray:

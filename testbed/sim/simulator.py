@@ -48,7 +48,7 @@ import numpy as np
 from filters import real_array
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.disturbances import Disturbance
-from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
+from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor, reads_actuators
 from testbed.sensors.fused import as_slice, measure_one, state_row_plan
 from testbed.sim import native
 
@@ -59,6 +59,7 @@ _XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
 _USERDATA = int(mujoco.mjtState.mjSTATE_USERDATA)
 _QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
 _QVEL = int(mujoco.mjtState.mjSTATE_QVEL)
+_ACT = int(mujoco.mjtState.mjSTATE_ACT)
 RESET_OPTION_KEYS = ("x0", "params", "setpoints", "manoeuvre", "manoeuvre_params")
 
 
@@ -200,6 +201,9 @@ class Physics:
         x = _state_offset(model, _INTEGRATION, _XFRC)
         self._ctrl, self._qfrc = slice(c, c + self.nu), slice(f, f + self.nv)
         self._xfrc = slice(x, x + 6 * self.nbody)
+        a = _state_offset(model, _INTEGRATION, _ACT)
+        #: The actuator states' columns of the state rows (MuJoCo ``act``).
+        self._act_cols = slice(a, a + model.na)
         qpos, qvel = (_state_offset(model, _INTEGRATION, b) for b in (_QPOS, _QVEL))
         self._qpos_cols, self._qvel_cols = qpos + rig.qpos_adr, qvel + rig.dof_adr
         self._gather = np.concatenate([self._qpos_cols, self._qvel_cols])
@@ -400,6 +404,10 @@ class Physics:
             state = self.state if members == _ALL else self.state[members]
             return state.take(self._gather, axis=1)
         return self.state[np.asarray(members)[:, None], self._gather]
+
+    def actuator_states(self, members: Any = slice(None)) -> np.ndarray:
+        """MuJoCo actuator states (``act``) of the members, shape (k, na) (a copy)."""
+        return self.state[members, self._act_cols].copy()
 
     def set_inputs(self, members: Any, inputs: dict[str, np.ndarray],
                    qfrc: np.ndarray | None) -> None:
@@ -720,6 +728,11 @@ class Simulator:
         #: offset of the plan's normals in the step's draw; else None.
         plan = state_row_plan(self.sensors) if n == 1 else None
         self._row_plan = plan if plan is not None and plan.draws == self._sensor_draws else None
+        #: Whether a sensor reads the actuator states (``Sample.act``; they are then read
+        #: for it at every sample, and the state-only row plan is not used).
+        self._reads_act = reads_actuators(self.sensors)
+        if self._reads_act:
+            self._row_plan = None
         self._sensor_offset = rig.step_noise_dim + self._dist_draws
         self.noise = NoiseStreams(n, max(64 * max(self._dist_draws + rig.step_noise_dim
                                                   + self.sensors.dim + rig.x0_draws, 4),
@@ -1090,7 +1103,8 @@ class Simulator:
         for key in ("action_applied", "action_clipped", "manoeuvre", "process_accel",
                     "step_noise"):
             info[key][index] = 0
-        sample = Sample(x, t, np.zeros((k, self._nu)), np.asarray(w), index)
+        sample = Sample(x, t, np.zeros((k, self._nu)), np.asarray(w), index,
+                        self.physics.actuator_states(index) if self._reads_act else None)
         noise = self.noise.view(index)
         self.sensors.reset(sample, noise)
         self.obs[index] = self.sensors.measure(sample, noise)
@@ -1224,7 +1238,9 @@ class Simulator:
         if self._terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index, common) if has_signal else zero_w
-        self.obs[sel] = self._measure(Sample(x, t, applied, w_now, sel), noise, xi)
+        self.obs[sel] = self._measure(
+            Sample(x, t, applied, w_now, sel,
+                   physics.actuator_states(sel) if self._reads_act else None), noise, xi)
         info["state"][sel] = x
         info["t"][sel] = t
         info["setpoint"][sel] = ref
@@ -1356,7 +1372,8 @@ class Simulator:
         if y is None:
             t = np.array((t_now,))
             w_now = self._signal(t, index, True) if has_signal else self._zero_w
-            y = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all, xi,
+            act = physics.actuator_states(sel) if self._reads_act else None
+            y = self._measure(Sample(x, t, applied_rows, w_now, sel, act), self._noise_all, xi,
                               one=True)
             if row_plan is not None and not has_signal:  # (the suite was fused again)
                 plan = state_row_plan(self.sensors)
