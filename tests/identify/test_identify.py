@@ -73,6 +73,43 @@ def test_newey_west_inflation_of_an_ar1_mean():
     assert white[0] == pytest.approx(1.0, abs=0.1)
 
 
+def test_newey_west_interval_of_a_regression_with_ar1_noise_has_its_closed_form():
+    """``y = X beta + e``, ``e`` AR(1) (``rho``, innovations ``s``): least squares has the
+    covariance ``(X'X)^-1 X' Sigma X (X'X)^-1`` with ``Sigma_ij = s^2 rho^|i-j| / (1 - rho^2)``.
+    The prewhitened sandwich's variances are within 10 % of it (a Bartlett window alone
+    falls 20 % short), the white ones far below (rho = 0.8: 9 times); intervals
+    from the inflated white variances cover beta in about 95 % of 200 draws (the white ones
+    in far fewer)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(5)
+    T, rho, s = 2000, 0.8, 0.3
+    t = np.arange(T) / T
+    X = np.column_stack([np.ones(T), np.sin(2 * np.pi * 3 * t), t])
+    beta = np.array([0.5, -1.0, 2.0])
+    lag = np.abs(np.subtract.outer(np.arange(T), np.arange(T)))
+    Sigma = s**2 * rho**lag / (1 - rho**2)
+    XtX_inv = np.linalg.inv(X.T @ X)
+    exact = XtX_inv @ X.T @ Sigma @ X @ XtX_inv
+    hits_hac, hits_white, ratios = [], [], []
+    for _ in range(200):
+        v = rng.normal(0.0, s, T)
+        v[0] /= np.sqrt(1 - rho**2)  # stationary from the start
+        e = lfilter([1.0], [1.0, -rho], v)  # e_k = rho e_(k-1) + v_k
+        y = X @ beta + e
+        b = XtX_inv @ X.T @ y
+        r = y - X @ b
+        J = -X  # the Jacobian of the residual r = y - X b
+        inflation, _, hac = _hac_inflation(J, r, T, 1)
+        white = r @ r / (T - 3) * np.diag(XtX_inv)
+        ratios.append(np.diag(hac) / np.diag(exact))
+        hits_white.append(np.abs(b - beta) <= 1.96 * np.sqrt(white))
+        hits_hac.append(np.abs(b - beta) <= 1.96 * np.sqrt(white * inflation))
+    np.testing.assert_allclose(np.median(ratios, axis=0), 1.0, atol=0.1)  # 0.93-0.98
+    assert 0.92 <= np.mean(hits_hac) <= 0.98, np.mean(hits_hac, axis=0)  # 0.94-0.965
+    assert np.mean(hits_white) < 0.6, np.mean(hits_white)
+
+
 def test_quantization_step_is_the_greatest_common_step():
     rng = np.random.default_rng(1)
     q = 2 * np.pi / 4096
