@@ -724,7 +724,7 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                 trial.fun, s_cur, jac=lambda s, p=trial, a=lo, b=hi: p.jac(s, a, b),
                 bounds=(lo, hi), method="trf", x_scale=1.0, max_nfev=max_iterations,
                 xtol=1e-10, ftol=1e-12, gtol=1e-10)
-            start_note = "its estimate"
+            start_note, polish_delay = "its estimate", delay
             if nominal_follows:  # the free run from the start may find a better minimum
                 # (from the declared delays: the segments' rounds may have moved them to a
                 # local minimum)
@@ -736,19 +736,22 @@ def identify(rig_cls: type[Rig], recording: Recording, *, profile: str = "hardwa
                     xtol=1e-10, ftol=1e-12, gtol=1e-10)
                 if other.cost < sol.cost:
                     sol, start_note = other, "nominal (a lower residual than from its estimate)"
-                    delay = declared_delay
+                    polish_delay = declared_delay
             oe_rms = float(np.sqrt(np.mean(sol.fun ** 2)))
             after = oe_rms / max(ms_rms, 1e-300)
             if after <= POLISH_RATIO:
-                chosen, s_cur = "output-error", sol.x
+                chosen, s_cur, delay = "output-error", sol.x, polish_delay
                 last = (sol, chosen, delay, x0_bias)
                 reason += (f", then output error from {start_note} (its residual "
                            f"{after:.3g} times the segments', within {POLISH_RATIO:g}: used, "
                            "no errors in variables)")
-                # its rounds again: the delays (searched at the multiple-shooting estimate)
-                # and the initial states' bias follow the output-error fit (a vehicle unit
-                # kept a roll-rate delay one sample short, its estimates 18 % off)
-                continue
+                # its rounds again where the delays (searched at the multiple-shooting
+                # estimate) or the initial states' bias can follow the output-error fit (a
+                # vehicle unit kept a roll-rate delay one sample short, its estimates 18 %
+                # off)
+                if np.any(max_delays > 0) or not x0_fixed:
+                    continue
+                break
             reason += (f"; output error from its estimate does not follow the recording "
                        f"(residual {after:.3g} times the segments', above "
                        f"{POLISH_RATIO:g}): not used")
