@@ -637,6 +637,7 @@ class HelicopterRig(Rig):
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                              np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                              input_transform=unbalanced_input,
+                             held_noise=self.hardware is None,
                              extras={"paper_model": model, "gamma": PAPER_GAMMA,
                                      "initial_weight": PAPER_INITIAL_WEIGHT})
         if self.hardware is None:

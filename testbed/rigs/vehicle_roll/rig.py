@@ -289,7 +289,8 @@ class VehicleRollRig(Rig):
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
                               output_matrix=paper_model().M, input_transform=transform,
-                              input_noise_cov=input_noise_cov)
+                              input_noise_cov=input_noise_cov,
+                              held_noise=self.profile == "paper")
         design.extras["input_noise_cov"] = input_noise_cov
         from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_system
 
