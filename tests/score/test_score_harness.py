@@ -14,7 +14,7 @@ from testbed.experiment.scenario import Scenario
 from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.score import report
 from testbed.score.harness import score, score_pair
-from testbed.score.suite import WorstCaseSpec, calibration_entry, get_suite
+from testbed.score.suite import WorstCaseSpec, basin_ms_hinf_entry, calibration_entry, get_suite
 from testbed.score.worst_case import RESTARTS
 
 HERE = Path(__file__).resolve().parent
@@ -82,7 +82,7 @@ def test_worst_case_search_reaches_the_hinf_norm_of_an_lti_error_system(user_mod
 def test_ms_hinf_found_gain_against_its_gamma_is_reported():
     """Basin et al.'s filter on its scenario: the found gain and gamma = 1.1 are reported
     (whether the bound holds is the result, not an assertion)."""
-    entry = next(e for e in get_suite("standard") if e.name == "basin-ms-hinf")
+    entry = basin_ms_hinf_entry()
     entry = entry.replace(runs=2, scenario=entry.scenario.replace(duration_s=2.0),
                           worst_case=WorstCaseSpec(energy=1.0, horizon_s=2.0, random_draws=2,
                                                    generations=0))
