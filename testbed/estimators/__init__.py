@@ -72,7 +72,7 @@ from typing import Any
 
 import numpy as np
 
-from filters import KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
+from filters import DiscreteLinearSystem, KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
 from testbed import plugins
 from testbed.design import DesignModel
 
@@ -218,9 +218,26 @@ def design_for(name: str | Factory, design: DesignModel) -> tuple[DesignModel, s
     return paper, reason
 
 
-def kalman(design: DesignModel) -> Any:
-    """Discrete Kalman filter on ``design.discrete`` (exact ZOH at the control period)."""
-    est = KalmanFilter(design.discrete, design.x0, design.P0)
+def kalman(design: DesignModel, constants: str = "consider") -> Any:
+    """Discrete Kalman filter on ``design.discrete`` (exact ZOH at the control period).
+
+    A design that declares constant errors (``design.extras["consider"]``: the hardware
+    profiles' per-run sensitivity and speed-scale errors) gets a Schmidt-Kalman filter
+    (:class:`filters.schmidt.SchmidtKalmanFilter`) that considers them, with ``R`` without
+    their white-noise stand-in; ``constants="white"``: the Kalman filter with the stand-in.
+    """
+    if constants not in ("consider", "white"):
+        raise ValueError(f"constants must be 'consider' or 'white', got {constants!r}")
+    consider = design.extras.get("consider")
+    if consider and constants == "consider":
+        from filters.schmidt import SchmidtKalmanFilter
+
+        d = design.discrete
+        system = DiscreteLinearSystem(F=d.F, B=d.B, H=d.H, D=d.D, Q=d.Q, R=consider["R"],
+                                      dt_s=d.dt_s)
+        est = SchmidtKalmanFilter(system, design.x0, design.P0, consider["parameters"])
+    else:
+        est = KalmanFilter(design.discrete, design.x0, design.P0)
     est.batched = True
     return _select(est, design)
 

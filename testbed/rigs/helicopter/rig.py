@@ -708,7 +708,7 @@ class HelicopterRig(Rig):
         return build_matched_design(
             self, sensors, dt_s, A, B, Qm, x0, P0,
             extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
-            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
             input_transform=matched_input, disturbance_matrix=G,
             extra_inputs=(("stop_reaction", "rad/s^2"),),
             extras={"paper_model": paper.extras["paper_model"],

@@ -357,7 +357,8 @@ class VehicleRollRig(Rig):
                 extra_R[int(ch)] = (e.scale_std**2 + speed_scale**2) * DESIGN_A_Y_M_S2**2
         return build_matched_design(
             self, sensors, dt_s, A0, B0, Q0, x0, P0, extra_states=extra, channels=index,
-            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
+            input_scales={0: speed_scale} if tap is not None else None,
             input_memory_std=None if tap is not None else np.array([a_y_std]),
             input_transform=paper.input_transform, output_matrix=paper.output_matrix,
             input_noise_cov=(paper.extras.get("input_noise_cov")),
