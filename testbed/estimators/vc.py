@@ -11,7 +11,7 @@ for a plant with norm-bounded uncertainty. This module builds that plant
 
 ``F, H, Q, R`` are the discrete design model's (exact ZOH), ``G_d`` the held scenario
 disturbance matrix when the design has one (the noise part is
-:func:`testbed.estimators.lmi.design_system`'s, so ``gamma`` bounds the gain from the
+:func:`testbed.estimators.stochastic_system.design_system`'s, so ``gamma`` bounds the gain from the
 scenario's ``w`` to ``z`` as lmi-hinf's does), ``||Fu||_2 <= 1``.
 
 The uncertainty ``M Fu N`` (first order in the declared parameter mismatch)
@@ -145,7 +145,7 @@ from filters.variance_discrete import (
     solve_state_bound_discrete,
 )
 from testbed.estimators import memo
-from testbed.estimators.lmi import design_system
+from testbed.estimators.stochastic_system import design_system
 
 #: Name of the family in the estimator registry (error messages).
 FAMILY = "vc-discrete"
