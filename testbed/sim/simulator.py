@@ -41,7 +41,6 @@ layout) and :mod:`testbed.sim.errors` (:class:`SimulationDiverged`).
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -53,9 +52,18 @@ from testbed.rigs.disturbances import Disturbance
 from testbed.sensors import Drawn, NoiseStreams, Sample, Sensor
 from testbed.sensors.fused import as_slice, state_row_plan
 from testbed.sim.errors import SimulationDiverged
+from testbed.sim.layout import (
+    DisturbanceInputs,
+    Draws,
+    InfoLayout,
+    Limits,
+    Scoring,
+    Sizes,
+    WholeBatch,
+)
 from testbed.sim.outputs import _INFO_KEYS, Outputs, _joined
 from testbed.sim.physics import _ALL, Physics, default_num_threads, positive_int
-from testbed.sim.signals import Signals
+from testbed.sim.signals import Schedules, Signals
 from testbed.sim.step import BatchStep
 from testbed.sim.step_one import OneMemberStep
 
@@ -72,6 +80,53 @@ def _defines_with(cls: type, method: str, companion: str) -> bool:
         if method in klass.__dict__:
             return companion in klass.__dict__
     return False
+
+
+def _scoring(rig: Rig) -> Scoring:
+    """The rig's tracked states and termination hooks as a step reads them."""
+    tracked = rig.tracked_index
+    lo, hi = (int(tracked[0]), int(tracked[-1]) + 1) if len(tracked) else (0, 0)
+    cols = slice(lo, hi) if np.array_equal(tracked, np.arange(lo, hi)) else tracked
+    return Scoring(tracked, len(tracked), cols, tracked.tolist(),
+                   type(rig).terminated is not Rig.terminated,
+                   _defines_with(type(rig), "terminated", "terminated_row"))
+
+
+def _whole_batch(limits: Limits, sizes: Sizes, n: int, dt_s: float, nv: int) -> WholeBatch:
+    """The batch step's read-only rows (one per member: numpy's ufuncs between arrays of one
+    shape skip the broadcasting machinery, which costs more than the arithmetic on a few
+    columns; the same values, bitwise) and its acceleration rows (n, nv)."""
+    every = np.arange(n)
+    zero_u, zero_accel, zero_w = (np.zeros((n, sizes.actions)), np.zeros((n, sizes.joints)),
+                                  np.zeros((n, 0)))
+    low, high = np.tile(limits.low, (n, 1)), np.tile(limits.high, (n, 1))
+    envelope = np.tile(limits.envelope, (n, 1))
+    dt, one = np.full(n, dt_s), np.ones(n, dtype=np.int64)
+    for a in (every, zero_u, zero_accel, zero_w, low, high, envelope, dt, one):
+        a.flags.writeable = False
+    return WholeBatch(every, zero_u, zero_accel, zero_w, low, high, envelope, dt, one,
+                      np.zeros((n, nv)),
+                      (every, _ALL, n, low, high, envelope, zero_u, zero_accel, zero_w))
+
+
+def _info_layout(sizes: Sizes, tracked: int, step_noise_dim: int, n: int) -> InfoLayout:
+    """``info``'s float entries as column blocks of one (n, width) array, in
+    :data:`~testbed.sim.outputs._INFO_KEYS` order."""
+    widths = {"state": sizes.states, "t": 1, "disturbance": sizes.signal, "setpoint": tracked,
+              "action_applied": sizes.actions, "manoeuvre": sizes.actions,
+              "process_accel": sizes.joints, "step_noise": step_noise_dim}
+    assert tuple(widths) == _INFO_KEYS
+    columns: dict[str, slice] = {}
+    start = 0
+    for key, width in widths.items():
+        columns[key] = slice(start, start + width)
+        start += width
+    # (t: its column index, the entry is a float, no block is sliced for it)
+    slices = tuple(cols.start if key == "t" else cols for key, cols in columns.items())
+    state_t = _joined(columns, "state", "t")
+    setpoint_action = _joined(columns, "setpoint", "action_applied")
+    step = slice(state_t.start, setpoint_action.stop) if sizes.signal == 0 else None
+    return InfoLayout(np.zeros((n, start)), columns, slices, state_t, setpoint_action, step)
 
 
 class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
@@ -133,7 +188,7 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
         self.frame_skip = int(frame_skip)
         self.dt_s = float(rig.model.opt.timestep) * self.frame_skip
         self.nominal_params = rig.params.scaled(params or {})
-        self.disturbance = disturbance or Disturbance(n_positions=len(rig.joints))
+        self.disturbance = dist = disturbance or Disturbance(n_positions=len(rig.joints))
         mismatched = sorted(p for p in sensors.sample_periods_s()
                             if not np.isclose(p, self.dt_s, rtol=1e-9, atol=0.0))
         if mismatched:
@@ -142,73 +197,40 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
                              f"{self.frame_skip} x timestep {rig.model.opt.timestep} s)")
         self.sensors = copy.deepcopy(sensors)
         self.sensors.allocate(n)
-        self._low = np.asarray(rig.action_low, float)
-        self._high = np.asarray(rig.action_high, float)
-        self._nu, self._nx = rig.n_actions, rig.n_states
-        self._j = len(rig.joints)
-        self._tracked = rig.tracked_index
-        self._r = len(self._tracked)  # tracked states (reward terms)
-        lo, hi = (int(self._tracked[0]), int(self._tracked[-1]) + 1) if len(self._tracked) \
-            else (0, 0)
-        #: The tracked columns as a slice when contiguous (a view instead of a gather).
-        self._tracked_cols = (slice(lo, hi) if np.array_equal(self._tracked, np.arange(lo, hi))
-                              else self._tracked)
-        self._envelope = rig.envelope
-        #: A one-member simulator steps on Python floats (:meth:`_step_single`): its limits,
-        #: envelope and tracked columns as lists.
+        j = len(rig.joints)
+        self.sizes = Sizes(rig.n_states, rig.n_actions, j, len(dist.signal(0.0)))
+        low, high = np.asarray(rig.action_low, float), np.asarray(rig.action_high, float)
+        self.limits = Limits(low, high, rig.envelope, low.tolist(), high.tolist(),
+                             rig.envelope.tolist())
+        self.scoring = _scoring(rig)
+        #: A one-member simulator steps on Python floats (:mod:`testbed.sim.step_one`).
         self._single = n == 1
-        self._low_list, self._high_list = self._low.tolist(), self._high.tolist()
-        self._envelope_list = self._envelope.tolist()
-        self._tracked_list = self._tracked.tolist()
         table = setpoints if setpoints is not None else (rig.default_setpoints or None)
-        r = len(self._tracked)
-        self._tables = [rig.validate_setpoints(table) if table is not None
-                        else np.zeros((1, 1 + r))]
-        self._table_times = self._tables[0][:, 0].tolist()
-        self._table_rows = [row[None, 1:] for row in self._tables[0]]  # (1, r) views
-        self._table_lists = [row[1:].tolist() for row in self._tables[0]]
-        #: The default table's row found last and the times it holds for, ``lo <= t < hi``
-        #: (:meth:`_table_row`).
-        self._row_cache = (math.inf, -math.inf, 0)
-        self._table_of = np.zeros(n, dtype=int)
-        self._schedules: list[Any] = [self._resolve_manoeuvre(manoeuvre, manoeuvre_params)]
-        self._schedule_of = np.zeros(n, dtype=int)
-        #: No member has an input profile (updated when a reset registers one).
-        self._no_manoeuvre = self._schedules[0] is None
-        self._w_dim = len(self.disturbance.signal(0.0))
-        self._dist_draws = 0 if self.disturbance.b is None else self.disturbance.b.shape[1]
+        table = (rig.validate_setpoints(table) if table is not None
+                 else np.zeros((1, 1 + self.scoring.count)))
+        self.schedules = Schedules.default(table, self._resolve_manoeuvre(manoeuvre,
+                                                                          manoeuvre_params), n)
         self.physics = Physics(rig, n, self.frame_skip, num_threads)
         self.physics.reset(range(n), [self.nominal_params] * n,
                            np.tile(rig.default_x0(), (n, 1)))
-        #: The sensors' normals per sample when they declare a fixed number (drawn with the
-        #: step's own in one call, :class:`~testbed.sensors.Drawn`), else None.
-        self._sensor_draws = self.sensors.draws_per_sample()
-        #: Normals a step draws in one call: the rig's step noise, the disturbance's, then
-        #: (when declared) the sensors'.
-        self._step_draws = (rig.step_noise_dim + self._dist_draws
-                            + (self._sensor_draws or 0))
+        d_draws = 0 if dist.b is None else dist.b.shape[1]
+        s_draws = self.sensors.draws_per_sample()
+        self.draws = Draws(d_draws, s_draws, rig.step_noise_dim + d_draws + (s_draws or 0),
+                           rig.step_noise_dim + d_draws)
         #: A one-member simulator's sensors measured from the state list alone (a fused
-        #: plan's steps on a row, :func:`~testbed.sensors.fused.state_row_plan`), with the
-        #: offset of the plan's normals in the step's draw; else None.
+        #: plan's steps on a row, :func:`~testbed.sensors.fused.state_row_plan`); else None.
         plan = state_row_plan(self.sensors) if n == 1 else None
-        self._row_plan = plan if plan is not None and plan.draws == self._sensor_draws else None
-        self._sensor_offset = rig.step_noise_dim + self._dist_draws
-        self.noise = NoiseStreams(n, max(64 * max(self._dist_draws + rig.step_noise_dim
+        self._row_plan = plan if plan is not None and plan.draws == s_draws else None
+        self.noise = NoiseStreams(n, max(64 * max(d_draws + rig.step_noise_dim
                                                   + self.sensors.dim + rig.x0_draws, 4),
-                                         self._step_draws))
+                                         self.draws.step))
         self._noise_all = self.noise.view(slice(None))
         self._no_draws = Drawn(np.zeros((n, 0)))  # for sensors that draw nothing
-        # fixed for the simulator's life: read once, not per step
-        self._has_signal, self._dist_active = self.disturbance.has_signal, self.disturbance.active
-        #: No signal, disturbance forces or step noise: a one-member step skips their inputs
-        #: (:meth:`_step_single`).
-        self._plain_inputs = not (self._has_signal or self._dist_active or rig.step_noise_dim)
-        dist = self.disturbance
-        #: The disturbance's velocity rows of G and b (None without), sqrt(dt) and the rig's
-        #: dof addresses: what a step turns into joint accelerations.
-        self._dist_rows = (None if dist.G is None else dist.G[self._j:],
-                           None if dist.b is None else dist.b[self._j:], np.sqrt(self.dt_s),
-                           rig.dof_adr)
+        self.inputs = DisturbanceInputs(
+            dist.has_signal, dist.active,
+            not (dist.has_signal or dist.active or rig.step_noise_dim),
+            None if dist.G is None else dist.G[j:], None if dist.b is None else dist.b[j:],
+            np.sqrt(self.dt_s), rig.dof_adr, as_slice(rig.dof_adr))
         self.steps = np.zeros(n, dtype=np.int64)
         #: Whether every member has the same step count (the common case of a batch reset and
         #: stepped together): the references, input profiles and disturbance signals are then
@@ -216,62 +238,15 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
         self._same_steps = False
         self._ready = np.zeros(n, dtype=bool)
         self._all_ready = False
-        self._terminates = type(rig).terminated is not Rig.terminated
-        #: Whether the rig's class that defines ``terminated`` defines ``terminated_row``
-        #: too (else a one-member step calls ``terminated``).
-        self._terminated_row = _defines_with(type(rig), "terminated", "terminated_row")
-        self.x0 = np.zeros((n, self._nx))
+        self.x0 = np.zeros((n, self.sizes.states))
         self.obs = np.zeros((n, self.sensors.dim))
         self.reward = np.zeros(n)
         self.terminated = np.zeros(n, dtype=bool)
         self.record_poses = False
-        self._all = np.arange(n)  # read-only constants of the step
-        self._zero_input, self._zero_accel = np.zeros((n, self._nu)), np.zeros((n, self._j))
-        self._zero_w = np.zeros((n, 0))
-        # the step's constants with one row per member: numpy's ufuncs between arrays of one
-        # shape skip the broadcasting machinery, which costs more than the arithmetic on a few
-        # columns (the same values, bitwise)
-        self._low_rows, self._high_rows = np.tile(self._low, (n, 1)), np.tile(self._high, (n, 1))
-        self._envelope_rows = np.tile(self._envelope, (n, 1))
-        self._dt_rows, self._one_rows = np.full(n, self.dt_s), np.ones(n, dtype=np.int64)
-        for a in (self._all, self._zero_input, self._zero_accel, self._zero_w, self._low_rows,
-                  self._high_rows, self._envelope_rows, self._dt_rows, self._one_rows):
-            a.flags.writeable = False
-        #: The whole batch's joint accelerations in generalized coordinates (num, nv): zero
-        #: but in the rig's dof columns, which :meth:`_forces` overwrites every step.
-        self._accel_rows = np.zeros((n, self.physics.nv))
-        #: The rig's dof columns: a slice when they are consecutive (a basic-index write).
-        self._dof_cols = as_slice(rig.dof_adr)
-        #: What a step of the whole batch reads for its members: their indices, selection,
-        #: number, action limits, envelope and zero input, acceleration and signal rows.
-        self._whole = (self._all, _ALL, n, self._low_rows, self._high_rows,
-                       self._envelope_rows, self._zero_input, self._zero_accel, self._zero_w)
-        widths = {"state": self._nx, "t": 1, "disturbance": self._w_dim, "setpoint": r,
-                  "action_applied": self._nu, "manoeuvre": self._nu, "process_accel": self._j,
-                  "step_noise": rig.step_noise_dim}
-        # the float entries of info are column blocks of one array, so one member's info is
-        # one row copy (:meth:`member_info`)
-        self._info_rows = np.zeros((n, sum(widths.values())))
-        self._info_columns: dict[str, slice] = {}
-        start = 0
-        for key, width in widths.items():
-            self._info_columns[key] = slice(start, start + width)
-            start += width
-        #: The column blocks in the order of :meth:`member_info`'s dict display (``t`` its
-        #: column index: the entry is a float, no block is sliced for it).
-        assert tuple(widths) == _INFO_KEYS
-        self._info_slices = tuple(cols.start if key == "t" else cols
-                                  for key, cols in self._info_columns.items())
-        #: Adjacent column blocks a one-member step writes at once: state and t, setpoint
-        #: and action_applied.
-        self._state_t_cols = _joined(self._info_columns, "state", "t")
-        self._setpoint_action_cols = _joined(self._info_columns, "setpoint", "action_applied")
-        #: Both blocks as one when the disturbance's columns between them are none.
-        self._step_cols = (slice(self._state_t_cols.start, self._setpoint_action_cols.stop)
-                           if self._w_dim == 0 else None)
+        self.rows = _whole_batch(self.limits, self.sizes, n, self.dt_s, self.physics.nv)
+        self.layout = _info_layout(self.sizes, self.scoring.count, rig.step_noise_dim, n)
         self.info: dict[str, np.ndarray] = {}
-        self._info_views(np.zeros((n, self._nu), dtype=bool))
-
+        self._info_views(np.zeros((n, self.sizes.actions), dtype=bool))
 
     # ------------------------------------------------------------------ declarations
     @property
@@ -378,22 +353,22 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
         nominal = self.nominal_params  # (validated when built; frozen: shared, not copied)
         params = [nominal.scaled(o["params"]) if o.get("params") else nominal for o in per]
         x0 = np.array([self.rig.validate_x0(o["x0"]) if o.get("x0") is not None
-                       else self.rig.default_x0() for o in per]).reshape(k, self._nx)
+                       else self.rig.default_x0() for o in per]).reshape(k, self.sizes.states)
         tables = [0 if o.get("setpoints") is None else
-                  self._index(self._tables, self.rig.validate_setpoints(o["setpoints"]))
+                  self._index(self.schedules.tables, self.rig.validate_setpoints(o["setpoints"]))
                   for o in per]
         schedules = []
         for o in per:
             if "manoeuvre" in o:
                 fn = self._resolve_manoeuvre(o["manoeuvre"], o.get("manoeuvre_params"))
             elif o.get("manoeuvre_params"):
-                default = self._schedules[0]
+                default = self.schedules.profiles[0]
                 if default is None:
                     raise ValueError("options['manoeuvre_params'] given without a manoeuvre")
                 fn = self._resolve_manoeuvre(default.name, o["manoeuvre_params"])
             else:
-                fn = self._schedules[0]
-            schedules.append(self._index(self._schedules, fn))
+                fn = self.schedules.profiles[0]
+            schedules.append(self._index(self.schedules.profiles, fn))
         # validated: now change state
         for i, seed in zip(index.tolist(), seeds, strict=True):
             self.noise.seed(i, None if seed is None else int(seed))
@@ -402,9 +377,10 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
             xi = self.noise.view(index[drawn]).normal(self.rig.x0_draws)
             x0[drawn] = self.rig.random_x0(xi * self.reset_noise_scale)
         self.physics.reset(index.tolist(), params, x0)
-        self._table_of[index] = tables
-        self._schedule_of[index] = schedules
-        self._no_manoeuvre = len(self._schedules) == 1 and self._schedules[0] is None
+        self.schedules.table_of[index] = tables
+        self.schedules.profile_of[index] = schedules
+        self.schedules.none = (len(self.schedules.profiles) == 1
+                               and self.schedules.profiles[0] is None)
         self._ready[index] = True
         self._all_ready = bool(self._ready.all())
         self.steps[index] = 0
@@ -421,7 +397,7 @@ class Simulator(BatchStep, OneMemberStep, Signals, Outputs):
         for key in ("action_applied", "action_clipped", "manoeuvre", "process_accel",
                     "step_noise"):
             info[key][index] = 0
-        sample = Sample(x, t, np.zeros((k, self._nu)), np.asarray(w), index)
+        sample = Sample(x, t, np.zeros((k, self.sizes.actions)), np.asarray(w), index)
         noise = self.noise.view(index)
         self.sensors.reset(sample, noise)
         self.obs[index] = self.sensors.measure(sample, noise)

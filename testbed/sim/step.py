@@ -24,12 +24,12 @@ class BatchStep:
     def check_actions(self, actions: Any, k: int) -> np.ndarray:
         """``actions`` as a finite float array of shape (k, nu), else ``ValueError``."""
         if (type(actions) is np.ndarray and actions.dtype == np.float64
-                and actions.shape == (k, self._nu)
+                and actions.shape == (k, self.sizes.actions)
                 and np.count_nonzero(np.isfinite(actions)) == actions.size):
             return actions  # used as it is: a step keeps none of it
         u = real_array(actions, "actions", finite=False)
-        if u.shape != (k, self._nu):
-            raise ValueError(f"actions must have shape ({k}, {self._nu}) "
+        if u.shape != (k, self.sizes.actions):
+            raise ValueError(f"actions must have shape ({k}, {self.sizes.actions}) "
                              f"({', '.join(self.rig.action_names)} per member), got shape "
                              f"{u.shape}")
         if not np.isfinite(u).all():
@@ -52,23 +52,23 @@ class BatchStep:
                 self._step_single((actions if checked
                                    else self.check_actions(actions, 1)).tolist()[0])
                 return
-            index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self._whole
+            index, sel, k, low, high, envelope, zero_u, zero_accel, zero_w = self.rows.whole
             common = self._same_steps
         else:
             index = sel = np.asarray(members, int)
             k = len(index)
             if np.count_nonzero(self._ready[index]) != k:
                 raise RuntimeError("reset() every member before stepping it")
-            low, high, envelope = self._low, self._high, self._envelope
-            zero_u, zero_accel = self._zero_input[:k], self._zero_accel[:k]
-            zero_w = self._zero_w[:k]
+            low, high, envelope = self.limits.low, self.limits.high, self.limits.envelope
+            zero_u, zero_accel = self.rows.zero_input[:k], self.rows.zero_accel[:k]
+            zero_w = self.rows.zero_w[:k]
             common = False
         u = actions if checked else self.check_actions(actions, k)
         rig, physics, info = self.rig, self.physics, self.info
-        has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
-                                                 self._no_manoeuvre)
+        has_signal, dist_active, no_manoeuvre = (self.inputs.has_signal, self.inputs.active,
+                                                 self.schedules.none)
         # every member at one time with the one default profile: the profile from a float
-        one_profile = common and not no_manoeuvre and len(self._schedules) == 1
+        one_profile = common and not no_manoeuvre and len(self.schedules.profiles) == 1
         t = None
         if has_signal or not (no_manoeuvre or one_profile):
             t = self.steps[sel] * self.dt_s
@@ -91,10 +91,10 @@ class BatchStep:
         # the step's normals in one draw, in stream order: step noise, disturbance, sensors
         if members is None:  # (every stream: drawn without the view's selection test)
             noise = self._noise_all
-            xi = self.noise.draw_all(self._step_draws) if self._step_draws else None
+            xi = self.noise.draw_all(self.draws.step) if self.draws.step else None
         else:
             noise = self.noise.view(index)
-            xi = noise.normal(self._step_draws) if self._step_draws else None
+            xi = noise.normal(self.draws.step) if self.draws.step else None
         n_step = rig.step_noise_dim
         step_noise = None
         if n_step:  # applied by the physics threads, before each member's step
@@ -109,9 +109,9 @@ class BatchStep:
         warned = physics.step(index, need_mass=dist_active, need_poses=self.record_poses,
                               step_noise=step_noise)
         if members is None:
-            steps = self.steps + self._one_rows  # (faster than an in-place np.add(out=))
+            steps = self.steps + self.rows.one  # (faster than an in-place np.add(out=))
             self.steps[...] = steps
-            t = steps * self._dt_rows
+            t = steps * self.rows.dt
         else:
             steps = self.steps[sel] + 1
             self.steps[sel] = steps
@@ -121,19 +121,19 @@ class BatchStep:
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
-        r = self._r
-        one_row = common and len(self._tables) == 1
+        r = self.scoring.count
+        one_row = common and len(self.schedules.tables) == 1
         if one_row:  # one row (1, r), broadcast, not repeated
             row = self._table_row(t.item(0))
-            ref = self._table_rows[row]
+            ref = self.schedules.table_rows[row]
         else:
             ref = self._reference(t, sel, common)
         if one_row and r == 1:  # the tracked column (1-D: numpy's one loop) minus the row's
             # float: the same differences and squares
-            e = x[:, self._tracked_list[0]] - self._table_lists[row][0]
+            e = x[:, self.scoring.columns[0]] - self.schedules.table_lists[row][0]
             total = e * e
         else:
-            e = x[:, self._tracked_cols] - ref
+            e = x[:, self.scoring.cols] - ref
             sq = e * e
             if r == 2:  # the two squares' sum is add.reduce's, bitwise (squares are >= +0)
                 total = sq[:, 0] + sq[:, 1]
@@ -143,7 +143,7 @@ class BatchStep:
             np.negative(total, self.reward)
         else:
             self.reward[sel] = -total
-        if self._terminates:  # the base Rig.terminated never ends an episode
+        if self.scoring.terminates:  # the base Rig.terminated never ends an episode
             self.terminated[sel] = rig.terminated(x)
         w_now = self._signal(t, index, common) if has_signal else zero_w
         self.obs[sel] = self._measure(Sample(x, t, applied, w_now, sel), noise, xi)
@@ -168,9 +168,10 @@ class BatchStep:
         there is none; None when there is neither a signal nor ``G``: no one reads it), the
         joint accelerations ``G w + b xi / sqrt(dt)`` (k, j) and the generalized forces
         ``M(q) a`` (k, nv) of the members."""
-        G_rows, b_rows, sqrt_dt, dof_adr = self._dist_rows
+        inputs = self.inputs
+        G_rows, b_rows, sqrt_dt = inputs.G_rows, inputs.b_rows, inputs.sqrt_dt
         w = None
-        if self._has_signal:
+        if inputs.has_signal:
             w = self._signal(t, index, common)
         elif G_rows is not None:
             w = self.info["disturbance"][sel]
@@ -179,18 +180,18 @@ class BatchStep:
             accel = accel + np.matvec(G_rows, w)
         if b_rows is not None:
             n_step = self.rig.step_noise_dim
-            drawn = xi[:, n_step:n_step + self._dist_draws]
+            drawn = xi[:, n_step:n_step + self.draws.disturbance]
             # accel + (b xi) / sqrt(dt): the division and the sum into the new product
             noise = np.matvec(b_rows, drawn)
             np.divide(noise, sqrt_dt, out=noise)
             accel = np.add(accel, noise, out=noise)
         if isinstance(sel, slice):  # the whole batch: its rows, zero outside the dof columns
-            a = self._accel_rows
-            a[:, self._dof_cols] = accel
+            a = self.rows.accel
+            a[:, inputs.dof_cols] = accel
             mass = self.physics.mass  # (every row: the array itself, as its view would be)
         else:
             a = np.zeros((len(index), self.physics.nv))
-            a[:, dof_adr] = accel
+            a[:, inputs.dof_adr] = accel
             mass = self.physics.mass[sel]
         return w, accel, np.matvec(mass, a)
 
@@ -201,17 +202,17 @@ class BatchStep:
         member, the row as :func:`~testbed.sensors.fused.measure_one` gives it (a list of
         floats (m,) or a (1, m) array: the same values)."""
         sensors = self.sensors
-        if self._sensor_draws is None:  # the sensors draw from the streams themselves
+        if self.draws.sensors is None:  # the sensors draw from the streams themselves
             return measure_one(sensors, sample, noise) if one else sensors.measure(sample, noise)
-        drawn_ahead = (Drawn(xi[:, self._sensor_offset:])
-                       if self._sensor_draws else self._no_draws)
+        drawn_ahead = (Drawn(xi[:, self.draws.sensor_offset:])
+                       if self.draws.sensors else self._no_draws)
         y = (measure_one(sensors, sample, drawn_ahead) if one
              else sensors.measure(sample, drawn_ahead))
-        if drawn_ahead.position != self._sensor_draws:
+        if drawn_ahead.position != self.draws.sensors:
             self._no_draws.position = 0
             raise RuntimeError(f"the sensors ({self.sensors.describe()}) drew "
                                f"{drawn_ahead.position} normals per sample but declare "
-                               f"{self._sensor_draws} (draws_per_sample)")
+                               f"{self.draws.sensors} (draws_per_sample)")
         return y
 
     def _diverged(self, index: np.ndarray, unstable: np.ndarray, outside: np.ndarray,
@@ -228,10 +229,10 @@ class BatchStep:
         elif not np.all(np.isfinite(x[j])):
             reason, why = "non-finite state", "the state is not finite"
         else:
-            c = int(np.flatnonzero(np.abs(x[j]) > self._envelope)[0])
+            c = int(np.flatnonzero(np.abs(x[j]) > self.limits.envelope)[0])
             reason = "outside envelope"
             why = (f"{names[c]} = {x[j, c]:.6g} {units[c]} is outside the rig's envelope "
-                   f"|{names[c]}| <= {self._envelope[c]:g} {units[c]}")
+                   f"|{names[c]}| <= {self.limits.envelope[c]:g} {units[c]}")
         state = ", ".join(f"{n} {v:.6g}" for n, v in zip(names, x[j], strict=True))
         raise SimulationDiverged(
             f"simulation diverged at t = {t[j]:.6g} s (member {int(index[j])}"

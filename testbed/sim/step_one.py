@@ -43,7 +43,7 @@ class OneMemberStep:
         if not self._single:
             raise RuntimeError("step_row steps a one-member simulator")
         self._step_single(action)
-        return self._obs_row.copy(), self.reward.item(0), self.terminated.item(0)
+        return self.views.obs.copy(), self.reward.item(0), self.terminated.item(0)
 
     def _step_single(self, ul: list[float]) -> None:
         """:meth:`step` of a one-member simulator (``ul`` its checked action, Python floats
@@ -61,9 +61,9 @@ class OneMemberStep:
         list, the operations the sample's measurement runs, without the sample.
         """
         rig, physics, info = self.rig, self.physics, self.info
-        has_signal, dist_active, no_manoeuvre = (self._has_signal, self._dist_active,
-                                                 self._no_manoeuvre)
-        index, sel = self._all, _ALL
+        limits, schedules, scoring, inputs = self.limits, self.schedules, self.scoring, self.inputs
+        has_signal, dist_active, no_manoeuvre = inputs.has_signal, inputs.active, schedules.none
+        index, sel = self.rows.all, _ALL
         # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
         # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
         t = None
@@ -74,27 +74,27 @@ class OneMemberStep:
             # (only a zero's sign changes, and -0.0 == 0.0)
             profile = None
             applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
-                       for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
+                       for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
             clipped = list(map(_ne, applied, ul))
         else:
             clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
-                         for v, lo, hi in zip(ul, self._low_list, self._high_list, strict=True)]
+                         for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
             profile = self._manoeuvre(t, sel, True)
             total = list(map(operator.add, clipped_u, profile.tolist()[0]))
-            applied = list(map(min, map(max, total, self._low_list), self._high_list))
+            applied = list(map(min, map(max, total, limits.low_list), limits.high_list))
             clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
                                                                strict=True)]
         # (1, nu): a view of the new (nu,) array (one numpy call less than ((applied,)))
         applied_rows = np.array(applied)[None]
-        xi = self._noise_all.normal(self._step_draws) if self._step_draws else None
+        xi = self._noise_all.normal(self.draws.step) if self.draws.step else None
         step_noise = qfrc = None
-        if not self._plain_inputs:  # step noise, disturbance forces or a signal
+        if not inputs.plain:  # step noise, disturbance forces or a signal
             n_step = rig.step_noise_dim
             if n_step:
                 step_noise = xi[:, :n_step]
                 info["step_noise"][sel] = step_noise
             if dist_active:
-                w, accel, qfrc = self._forces(t, index, sel, True, xi, self._zero_accel)
+                w, accel, qfrc = self._forces(t, index, sel, True, xi, self.rows.zero_accel)
             elif has_signal:
                 w = self._signal(t, index, True)
         physics.set_inputs(sel, rig.physics_inputs(applied_rows, physics.constants), qfrc)
@@ -108,52 +108,52 @@ class OneMemberStep:
         t_now = steps * self.dt_s
         x = physics.states(sel)
         xl = x.tolist()[0]
-        if warned or not all(map(_le, map(abs, xl), self._envelope_list)):
-            inside = np.less_equal(np.abs(x), self._envelope)
+        if warned or not all(map(_le, map(abs, xl), limits.envelope_list)):
+            inside = np.less_equal(np.abs(x), limits.envelope)
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x,
                            np.array((t_now,)))
-        lo, hi, table_row = self._row_cache
-        if lo <= t_now < hi and len(self._tables) == 1:  # the default table's row as before
-            ref = self._table_lists[table_row]  # (read only: the info list is built anew)
+        lo, hi, table_row = schedules.row_cache
+        if lo <= t_now < hi and len(schedules.tables) == 1:  # the default table's row as before
+            ref = schedules.table_lists[table_row]  # (read only: the info list is built anew)
         else:
             ref = self._single_reference(t_now)
-        r = self._r
+        r = scoring.count
         if r == 2:  # (the batch step's e * e summed, in the same order)
-            c0, c1 = self._tracked_list
+            c0, c1 = scoring.columns
             e0, e1 = xl[c0] - ref[0], xl[c1] - ref[1]
             total = e0 * e0 + e1 * e1
         elif r == 1:
-            e0 = xl[self._tracked_list[0]] - ref[0]
+            e0 = xl[scoring.columns[0]] - ref[0]
             total = e0 * e0
         else:  # (numpy's sum of the squares, as the batch step)
-            e = x[:, self._tracked_cols] - np.array((ref,)).reshape(1, r)
+            e = x[:, scoring.cols] - np.array((ref,)).reshape(1, r)
             total = np.add.reduce(e * e, axis=1).item(0)
         self.reward[0] = -total
-        if self._terminates:
-            self.terminated[0] = (rig.terminated_row(xl) if self._terminated_row
+        if scoring.terminates:
+            self.terminated[0] = (rig.terminated_row(xl) if scoring.terminated_row
                                   else rig.terminated(x)[0])
         row_plan = self._row_plan
         y = None
         if row_plan is not None and not has_signal:  # sensors that read the state only: the
             # plan's steps on the state list, without the sample (times, signal) made for them
-            y = row_plan.measure_state_row(
-                self.sensors, xl, None if xi is None else xi.tolist()[0][self._sensor_offset:],
-                sel)
+            drawn = None if xi is None else xi.tolist()[0][self.draws.sensor_offset:]
+            y = row_plan.measure_state_row(self.sensors, xl, drawn, sel)
         if y is None:
             t = np.array((t_now,))
-            w_now = self._signal(t, index, True) if has_signal else self._zero_w
+            w_now = self._signal(t, index, True) if has_signal else self.rows.zero_w
             y = self._measure(Sample(x, t, applied_rows, w_now, sel), self._noise_all, xi,
                               one=True)
             if row_plan is not None and not has_signal:  # (the suite was fused again)
                 plan = state_row_plan(self.sensors)
-                self._row_plan = (plan if plan is not None and plan.draws == self._sensor_draws
+                self._row_plan = (plan if plan is not None and plan.draws == self.draws.sensors
                                   else None)
+        row_views = self.views
         if type(y) is list:  # (the plan's row of floats, into the 1-D view of the row)
-            self._obs_row[...] = y
+            row_views.obs[...] = y
         else:
             self.obs[...] = y
         xl.append(t_now)  # (state and t: adjacent columns, as setpoint and action_applied)
-        views = self._step_views
+        views = row_views.step
         if len(views) == 1:  # no disturbance columns between: one write
             xl += ref
             xl += applied
@@ -161,7 +161,7 @@ class OneMemberStep:
         else:
             views[0][...] = xl
             views[1][...] = ref + applied
-        self._clipped_row[...] = clipped
+        row_views.clipped[...] = clipped
         if has_signal:
             info["disturbance"][sel] = w
         if profile is not None:
@@ -172,6 +172,6 @@ class OneMemberStep:
     def _single_reference(self, t: float) -> list[float]:
         """The reference of the one member at ``t``, a list of floats (r,) (read only: the
         default table's may be returned)."""
-        if len(self._tables) == 1:
-            return self._table_lists[self._table_row(t)]
-        return self._reference(np.array((t,)), self._all).tolist()[0]
+        if len(self.schedules.tables) == 1:
+            return self.schedules.table_lists[self._table_row(t)]
+        return self._reference(np.array((t,)), self.rows.all).tolist()[0]
