@@ -18,7 +18,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -43,6 +43,9 @@ class Disturbance:
     w: Callable[[float], np.ndarray] | None = None
     b: np.ndarray | None = None
     n_positions: int = 2
+    #: The signal differs between members: the simulator asks ``member_signal(t_s, members)``
+    #: (:class:`SampledDisturbance`) instead of ``w(t_s)``.
+    per_member: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         if self.G is not None and self.w is None:
@@ -144,6 +147,8 @@ class SampledDisturbance(Disturbance):
         White-noise input matrix (as in :class:`Disturbance`).
     n_positions : int
     """
+
+    per_member: ClassVar[bool] = True
 
     def __init__(self, G: np.ndarray | None, values: np.ndarray, dt_s: float,
                  b: np.ndarray | None = None, n_positions: int = 2):

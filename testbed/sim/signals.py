@@ -197,7 +197,6 @@ class Signals:
     def _signal(self, t: np.ndarray, index: np.ndarray, common: bool = False) -> np.ndarray:
         """The disturbance signal (k, s) of the members ``index`` at their times ``t`` (k,);
         ``common``: every entry of ``t`` is the same time."""
-        member_signal = getattr(self.disturbance, "member_signal", None)
-        if member_signal is not None:  # one sequence per member (SampledDisturbance)
-            return member_signal(t, index)
+        if self.disturbance.per_member:  # one sequence per member (SampledDisturbance)
+            return self.disturbance.member_signal(t, index)
         return _per_time(self.disturbance.signal, t, self.sizes.signal, common)
