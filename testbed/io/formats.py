@@ -70,6 +70,7 @@ from testbed.io.readers import (  # (the constants re-exported)
     sample_label,
 )
 from testbed.io.recording import Recording, RecordingError
+from testbed.sensors.base import Sensor
 
 __all__ = ["CSV_META_PREFIX", "MAX_RECORDING_BYTES", "META_KEY", "RATE_TOLERANCE", "SUFFIXES",
            "TIME", "check_recording", "read_bounded", "read_recording", "write_recording"]
@@ -147,12 +148,11 @@ def _declared(rig: Any, sensors: Any) -> _Declared | None:
                 raise RecordingError(f"read_recording: sensors: {exc}") from None
             channels = dict(zip(suite.names, suite.units, strict=True))
     if sensors is not None and not isinstance(sensors, str):
-        names = getattr(sensors, "names", None)
-        if names is None:
+        if not isinstance(sensors, Sensor):
             raise RecordingError(f"read_recording: sensors must be a sensor suite (with names) "
                                  f"or a preset name, got {sensors!r}")
-        units = tuple(getattr(sensors, "units", ())) or ("",) * len(names)
-        channels = dict(zip(names, units, strict=True))
+        units = tuple(sensors.units) or ("",) * len(sensors.names)
+        channels = dict(zip(sensors.names, units, strict=True))
     elif sensors is not None and rig is None:
         raise RecordingError(f"read_recording: sensors={sensors!r} names a preset: give the rig")
     return _Declared(label, inputs, channels)

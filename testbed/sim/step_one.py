@@ -4,7 +4,7 @@ same order (bitwise the same values), without numpy's per-call overhead on array
 A second implementation of the step, kept for its speed (docs/architecture.md gives the
 measured cost of the batch step at N = 1): a change to
 :meth:`testbed.sim.step.BatchStep.step` must be made in :meth:`OneMemberStep._step_single`
-too; ``tests/test_batch_physics.py::test_one_member_step_equals_a_member_of_a_batch`` and
+too; ``tests/sim/test_batch_physics.py::test_one_member_step_equals_a_member_of_a_batch`` and
 ``tests/test_state_row_plan.py`` fail when they drift.
 """
 
