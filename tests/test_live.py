@@ -16,6 +16,7 @@ import pytest
 from testbed.cli import main
 from testbed.experiment import runner
 from testbed.experiment.scenario import Scenario
+from testbed.outputs.view import rerun_binary
 
 RERUN = Path(sys.executable).with_name("rerun")
 ENV = {**os.environ, "RERUN_ANALYTICS": "off"}
@@ -222,7 +223,7 @@ def test_spawn_starts_this_environments_viewer(monkeypatch):
     try:
         assert url is None and calls == [["--bind", "127.0.0.1", "--port", str(port)]]
         assert connected == [f"rerun+http://127.0.0.1:{port}/proxy"]
-        assert Path(live.rerun_executable()).name == "rerun"
+        assert Path(rerun_binary()).name == "rerun"
     finally:
         stop(rec)
     with pytest.raises(ValueError, match="exactly one"):

@@ -268,7 +268,10 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     """
     det = design.deterministic_index
     if sampled:
-        from testbed.estimators.lmi import sampled_ms_hinf_estimator, sampled_two_channel_system
+        from testbed.estimators.stochastic_system import (
+            sampled_ms_hinf_estimator,
+            sampled_two_channel_system,
+        )
 
         est, meta = sampled_ms_hinf_estimator(design, gamma=gamma, gamma_factor=gamma_factor)
         est.design_meta = meta
@@ -309,7 +312,7 @@ def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: floa
     from the discrete design model (:mod:`testbed.estimators.lmi`: the full LMI (48) on a
     stable plant, its error block on a plant with free integrators; ``plant_block`` forces
     either)."""
-    from testbed.estimators.lmi import lmi_estimator, verified_estimator
+    from testbed.estimators.stochastic_system import lmi_estimator, verified_estimator
 
     rig_system = design.extras.get("lmi_system")
     if rig_system is None:

@@ -69,11 +69,6 @@ def rerun_binary() -> str:
     return found
 
 
-def rerun_executable() -> str:
-    """What :func:`view` starts: :func:`rerun_binary`."""
-    return rerun_binary()
-
-
 def parent_death_preexec(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
     """On Linux, a ``preexec_fn`` for :class:`subprocess.Popen` giving the child ``sig`` when
     this process dies (even by SIGKILL; ``prctl(PR_SET_PDEATHSIG)``, kept across ``exec``);
@@ -109,7 +104,7 @@ def web_url(web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT) -> str:
 def viewer_command(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PORT,
                    web_port: int = WEB_PORT) -> list[str]:
     """The command line that shows ``path`` (the native viewer, or the web viewer)."""
-    cmd = [rerun_executable()]
+    cmd = [rerun_binary()]
     if web:
         cmd += ["--web-viewer", "--bind", BIND, "--port", str(grpc_port),
                 "--web-viewer-port", str(web_port)]

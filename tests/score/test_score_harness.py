@@ -155,10 +155,10 @@ def test_score_rejects_bad_arguments_before_running():
 
 
 def test_lmi_filter_designed_from_the_calibration_model_keeps_its_gamma():
-    """The generic LMI design (testbed.estimators.lmi) on the stable calibration plant: its gamma
-    covers the scenario's channel, and the measured worst case must stay below it; on the
-    helicopter (free integrators) the error block of LMI (48) is designed (the plant block
-    only certifies the plant's stability) and its gamma holds on the sampled loop too."""
+    """The generic LMI design (testbed.estimators.stochastic_system) on the stable calibration
+    plant: its gamma covers the scenario's channel, and the measured worst case must stay below
+    it; on the helicopter (free integrators) the error block of LMI (48) is designed (the plant
+    block only certifies the plant's stability) and its gamma holds on the sampled loop too."""
     spec = WorstCaseSpec(energy=1.0, horizon_s=3.0, channel=((0.0,), (1.0,)), random_draws=2,
                          generations=0)
     pair = score_pair(calibration_entry(2, 0.5, spec), "lmi-hinf", 0)

@@ -2,7 +2,7 @@
 
 Parameters, Zhang et al.'s model and the physical one are in
 :mod:`testbed.rigs.vehicle_roll.model`, the channels in :mod:`testbed.rigs.vehicle_roll.sensors`,
-the LMI design system in :mod:`testbed.rigs.vehicle_roll.lmi`.
+the LMI design system in :mod:`testbed.rigs.vehicle_roll.stochastic_system`.
 """
 
 from __future__ import annotations
@@ -292,7 +292,7 @@ class VehicleRollRig(Rig):
                               input_noise_cov=input_noise_cov,
                               held_noise=self.profile == "paper")
         design.extras["input_noise_cov"] = input_noise_cov
-        from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_system
+        from testbed.rigs.vehicle_roll.stochastic_system import vehicle_lmi_system
 
         design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_system,

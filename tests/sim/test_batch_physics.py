@@ -176,7 +176,7 @@ def test_whole_batch_step_equals_the_members_step_bitwise():
     runs = []
     for members in (None, np.arange(4)):
         sim = build_simulator("vehicle-roll", 4, num_threads=1, manoeuvre="double-lane-change")
-        assert sim._dist_active and not sim._no_manoeuvre  # the paths under test
+        assert sim.inputs.active and not sim.schedules.none  # the paths under test
         sim.reset(None, [3, 1, 4, 1])
         rng = np.random.default_rng(5)
         high = np.asarray(sim.rig.action_high) * 1.2
