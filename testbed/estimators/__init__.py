@@ -469,6 +469,14 @@ def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
     return est
 
 
+def nonlinear_model(design: DesignModel, **options: Any) -> Any:
+    """The nonlinear model ``f, F, h, H`` of ``design`` in the loop's input, for plug-ins
+    (:class:`testbed.estimators.model.NonlinearModel`; ``docs/extending.md``)."""
+    from testbed.estimators.model import nonlinear_model as make
+
+    return make(design, **options)
+
+
 class PerMember:
     """N instances of a non-batched estimator presented as one batched estimator.
 
