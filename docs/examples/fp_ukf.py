@@ -54,5 +54,4 @@ class FilterpyUKF:
         return self.kf.x
 
 
-def make(design, alpha=1e-3, beta=2.0, kappa=0.0):
-    return FilterpyUKF(design, alpha=alpha, beta=beta, kappa=kappa)
+make = FilterpyUKF  # the factory: make(design, alpha=..., beta=..., kappa=...)
