@@ -540,7 +540,7 @@ def _rmse_panel(ax: Any, scenario: str, group: list[dict[str, Any]], unit: str,
             right = max(right, hi)
     ax.set_xlim(0.0, right * 1.35 if right > 0 else 1.0)
     ax.set_ylim(len(states) - 0.5, -0.5)
-    names = [r["estimator"] for r in group]
+    names = [short_name(r["estimator"]) for r in group]
     ax.set_yticks([i + (j - (rows - 1) / 2) * spacing for i in range(len(states))
                    for j in range(rows)], names * len(states), minor=True)
     ax.set_yticks(range(len(states)), states if len(states) > 1 else [""])
@@ -577,7 +577,8 @@ def _nees_panel(ax: Any, scenario: str, with_cov: list[dict[str, Any]],
     ax.set_yscale("log")
     ax.set_xlabel("step", fontsize=FONT_PT)
     ax.set_ylabel(f"NEES (dim {with_cov[0]['nees_test']['dim']})", fontsize=FONT_PT)
-    verdicts = "; ".join(f"{r['estimator']} {r['nees_test']['verdict']}" for r in with_cov)
+    verdicts = "; ".join(f"{short_name(r['estimator'])} {r['nees_test']['verdict']}"
+                         for r in with_cov)
     ax.set_title(f"{with_cov[0]['runs']}-run average NEES per step vs 95 % band: {verdicts}",
                  fontsize=FONT_PT, wrap=True)
     ax.tick_params(labelsize=MIN_FONT_PT)
@@ -615,7 +616,8 @@ def _gain_panel(ax: Any, scenario: str, searched: list[dict[str, Any]],
         right = max([right] + [v for v in values.values() if v is not None])
     ax.set_xlim(0.0, right * 1.1 if right > 0 else 1.0)
     ax.set_ylim(len(searched) - 0.5, -0.5)
-    ax.set_yticks(range(len(searched)), [r["estimator"] for r in searched], fontsize=FONT_PT)
+    ax.set_yticks(range(len(searched)), [short_name(r["estimator"]) for r in searched],
+                  fontsize=FONT_PT)
     ax.set_xlabel("gain [output unit / unit of w]", fontsize=FONT_PT)
     ax.set_ylabel("estimator", fontsize=FONT_PT)
     probe = (f"sensors without quantization ({', '.join(sorted(removed))})" if removed
@@ -625,6 +627,18 @@ def _gain_panel(ax: Any, scenario: str, searched: list[dict[str, Any]],
     ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
     ax.xaxis.get_offset_text().set_fontsize(MIN_FONT_PT)
     ax.grid(axis="x", color="0.9")
+
+
+#: Characters of an estimator's name on the figure's axes (longer names are shortened in the
+#: middle; the legend, the key, keeps them whole where they fit).
+AXIS_NAME_CHARS = 20
+
+
+def short_name(name: str) -> str:
+    """An estimator's name on the figure's axes (:data:`AXIS_NAME_CHARS` at most)."""
+    from testbed.outputs.plots import shorten
+
+    return shorten(str(name), AXIS_NAME_CHARS)
 
 
 def _legend_handles(estimators: list[str], colors: dict[str, str], verdicts: set,
@@ -686,7 +700,7 @@ def score_figure(summary: dict[str, Any]) -> Any:
     ``gain-worst|...``, ``gain-random|...``, ``gain-linear|...``, ``gain-gamma|...``) for
     tests.
     """
-    from testbed.outputs.plots import FONT_PT, new_figure, set_title
+    from testbed.outputs.plots import FONT_PT, fitted_legend, new_figure, set_title
 
     groups = [(s, [r for r in g if not r["skipped"]]) for s, g in _rows(summary)]
     groups = [(s, g) for s, g in groups if g]
@@ -739,8 +753,7 @@ def score_figure(summary: dict[str, Any]) -> Any:
              if any(r["estimator"] == n for _, g in groups for r in g)]
     handles, labels = _legend_handles(shown, colors, verdicts,
                                       any(lay[3] for lay in layouts), gains)
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 5),
-               fontsize=FONT_PT)
+    fitted_legend(fig, handles, labels, 5, fontsize=FONT_PT)
     set_title(fig, [f"testbed score, suite {summary['suite']} (seed {summary['seed']}), "
                     f"reference {reference}"], fontsize=FONT_PT + 2)
     return fig
