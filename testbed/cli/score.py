@@ -18,7 +18,7 @@ def add_arguments(sc: argparse.ArgumentParser) -> None:
                     help=f"{', '.join(ESTIMATORS)}, package.module:factory or "
                          "path/to/file.py:factory, optionally LABEL= (default label: the "
                          "plug-in's name attribute, else file:factory); repeatable "
-                         "(--estimator: the same); default: the suite's built-in lineup")
+                         "(--estimator: the same)")
     sc.add_argument("--suite", default="quick", help="quick or standard")
     sc.add_argument("--list", action="store_true", help="list the suite's scenarios and exit")
     sc.add_argument("--scenario", action="append", default=None, metavar="NAME",
@@ -103,10 +103,11 @@ def command(args: argparse.Namespace) -> int:
     from testbed import estimators
     from testbed.score.suite import LINEUP
 
-    names = args.estimator or list(LINEUP)
     if not args.estimator:
-        print(f"note: no --filter given: scoring the suite's built-in lineup {', '.join(LINEUP)}"
-              " (--filter NAME chooses; repeatable)", file=sys.stderr)
+        raise ValueError("give the estimators: --filter NAME (or --estimator; repeatable), "
+                         f"e.g. --filter kalman --filter ekf; the suite's lineup: "
+                         f"{' '.join(LINEUP)}; or --list")
+    names = args.estimator
     chosen = []
     for name in [*names, args.reference]:  # loaded (a plug-in's failure named) before any work
         try:
