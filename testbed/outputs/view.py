@@ -131,6 +131,17 @@ def _check(path: str | os.PathLike, ports: tuple[int, ...]) -> Path:
     return p
 
 
+def loading_note(path: str | os.PathLike) -> str:
+    """What the page shows while it loads: the browser downloads and compiles Rerun's web
+    viewer, then streams the recording from the gRPC server; until then the page shows
+    Rerun's welcome screen (measured: 45 s, the recording after 90 s on a busy two-core
+    machine in headless Chromium)."""
+    size_mb = Path(path).stat().st_size / 1e6
+    return (f"loading: the page shows Rerun's welcome screen until the web viewer has "
+            f"started and received the recording ({size_mb:.1f} MB); this can take a minute "
+            "or two on a busy machine. Keep this command running while you look.")
+
+
 def _answers(port: int) -> bool:
     try:
         with socket.create_connection((BIND, port), timeout=0.2):
@@ -219,7 +230,16 @@ def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PO
                     raise OSError(f"the Rerun web viewer did not answer on port {web_port} "
                                   f"within {START_TIMEOUT_S:g} s")
                 time.sleep(0.1)
+            while not _answers(grpc_port):  # the file's server: the recording is being read
+                if proc.poll() is not None:
+                    raise OSError(f"the Rerun viewer exited with code {proc.returncode} "
+                                  "before serving")
+                if time.monotonic() > deadline:
+                    raise OSError(f"the Rerun gRPC server did not answer on port {grpc_port} "
+                                  f"within {START_TIMEOUT_S:g} s")
+                time.sleep(0.1)
             echo(f"open {web_url(web_port, grpc_port)} in a browser (Ctrl-C stops the viewer)")
+            echo(loading_note(p))
         try:
             return proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
