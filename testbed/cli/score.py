@@ -116,6 +116,13 @@ def command(args: argparse.Namespace) -> int:
             flag = "--reference" if len(chosen) == len(names) else "--filter"
             raise ValueError(f"{flag}: {exc}") from None
     *chosen, reference = chosen
+    for factory in chosen:  # a plug-in class that runs one instance per run, said up front
+        target = factory if isinstance(factory, str) else getattr(factory, "_target", None)
+        cls = target() if callable(target) else None
+        if isinstance(cls, type) and not getattr(cls, "batched", False):
+            print(f"note: {factory.__name__} has no batched = True: it runs one instance per "
+                  "run (up to the largest entry's runs per step); expect a cost of several "
+                  "times a batched estimator's", file=sys.stderr)
     bar = None if args.no_progress else Progress(args, len(chosen))
     try:
         run = harness.score(chosen, args.suite, seed=args.seed, runs=args.runs,
