@@ -158,7 +158,11 @@ def test_web_view_says_it_is_loading_and_stops_without_claiming_outputs(rrd):
         assert first.startswith("open http://127.0.0.1:")
         assert second.startswith("loading: ") and " MB)" in second
         with socket.create_connection(("127.0.0.1", grpc), timeout=5):
-            pass  # the file's server answers before the URL is printed
+            # the file's server answers before the URL is printed; a client connected to it
+            # is reported (a browser's viewer would be)
+            if sys.platform.startswith("linux"):
+                third = cli.stdout.readline()
+                assert third.startswith("the web viewer has connected"), third
         cli.send_signal(signal.SIGTERM)
         _, err = cli.communicate(timeout=30)
     finally:
