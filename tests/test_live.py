@@ -138,7 +138,9 @@ def test_cli_run_connect(grpc_sink, capsys):
     assert "RMSE" in c.texts["about"]  # the description with the run's metrics
     # the final blueprint: error views fitted to the steady state, the description shown
     assert c.view("roll error [deg]").y_range is not None
-    assert c.view("roll [deg]").time_range_s == pytest.approx((0.0, 0.5))
+    from testbed.outputs.viz import time_axis_range
+
+    assert c.view("roll [deg]").time_range_s == pytest.approx(time_axis_range((0.0, 0.5)))
     assert c.view("about") and c.view("rig").eye_position is not None
 
 
