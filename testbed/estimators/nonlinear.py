@@ -67,6 +67,12 @@ from scipy.linalg import expm
 from filters import ExtendedKalmanFilter, UnscentedKalmanFilter
 from testbed.design import DesignModel, InputStates
 from testbed.estimators import EstimatorWrapper
+from testbed.estimators.jacobians import (
+    differences,
+    linearization_steps,
+    period_tangent,
+    perturbed,
+)
 
 if TYPE_CHECKING:  # the designer's rig: its class comes with the design (extras["rig_type"])
     from testbed.rigs.base import Rig
@@ -77,55 +83,13 @@ _XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
 #: Default finite-difference step of the Jacobians (state units).
 FD_EPS = 1e-6
 #: Jacobian methods of :class:`MujocoProcessModel`.
-JACOBIAN_METHODS = ("rollout", "transition")
+JACOBIAN_METHODS = ("step", "rollout", "transition")
 
 
 def _offset(model: mujoco.MjModel, spec: int, component: int) -> int:
     """Offset of one component in a ``spec`` state vector (components in bit order)."""
     return sum(mujoco.mj_stateSize(model, 1 << k) for k in range(component.bit_length() - 1)
                if spec & (1 << k))
-
-
-def perturbed(x: np.ndarray, eps: float, centered: bool) -> np.ndarray:
-    """Rows ``x`` followed by their coordinate perturbations, for finite differences.
-
-    Parameters
-    ----------
-    x : ndarray, shape (M, d)
-    eps : float
-    centered : bool
-
-    Returns
-    -------
-    ndarray, shape (M, 1 + d, d) or (M, 1 + 2 d, d)
-        Row ``i``: ``[x_i, x_i + eps e_1 ... x_i + eps e_d]`` (then ``x_i - eps e_j`` when
-        ``centered``).
-    """
-    M, d = x.shape
-    steps = eps * np.eye(d)
-    parts = [x[:, None, :], x[:, None, :] + steps]
-    if centered:
-        parts.append(x[:, None, :] - steps)
-    return np.concatenate(parts, axis=1)
-
-
-def differences(values: np.ndarray, eps: float, centered: bool) -> np.ndarray:
-    """Jacobians from the values at :func:`perturbed` points.
-
-    Parameters
-    ----------
-    values : ndarray, shape (M, 1 + d, r) or (M, 1 + 2 d, r)
-
-    Returns
-    -------
-    ndarray, shape (M, r, d)
-    """
-    d = (values.shape[1] - 1) // (2 if centered else 1)
-    if centered:
-        J = (values[:, 1:1 + d] - values[:, 1 + d:]) / (2.0 * eps)
-    else:
-        J = (values[:, 1:1 + d] - values[:, :1]) / eps
-    return np.swapaxes(J, 1, 2)
 
 
 def can_touch(model: mujoco.MjModel) -> bool:
@@ -153,11 +117,20 @@ class MujocoProcessModel:
         Central differences (``2 n`` perturbed rollouts per row) or forward differences
         (default: ``n``, half the cost; first-order accurate in ``eps``, an error of order
         ``eps`` relative, far below what a filter notices).
-    jacobian : {"rollout", "transition"}
-        ``"rollout"`` (default): finite differences of the whole control-period map, all
-        perturbed initial states of all rows in one :func:`mujoco.rollout.rollout` call;
-        ``"transition"``: the product of MuJoCo's per-physics-step transition derivatives
-        (:func:`mujoco.mjd_transitionFD`) along each row's trajectory (the reference).
+    jacobian : {"step", "rollout", "transition"}
+        ``"step"`` (default): the one-physics-step derivatives at ``jacobian_points``
+        linearization steps of each row's trajectory, held in between and composed over the
+        period (:mod:`testbed.estimators.jacobians`: ``1 + n`` single physics steps per row
+        and point, all in one rollout call); ``"rollout"``: finite differences of the whole
+        control-period map, all perturbed initial states of all rows in one
+        :func:`mujoco.rollout.rollout` call (``n`` extra periods per row); ``"transition"``:
+        the product of MuJoCo's per-physics-step transition derivatives
+        (:func:`mujoco.mjd_transitionFD`) along each row's trajectory (the reference, a
+        Python loop per row and physics step).
+    jacobian_points : int
+        ``"step"``: linearization points per control period, ``1 .. frame_skip`` (1: the
+        derivatives at the period's start held over it; ``frame_skip``: the exact product of
+        the per-step derivatives).
     nthread : int
         Threads of the rollout calls (0: the calling thread). The result does not depend on
         it: each rollout is independent and deterministic.
@@ -178,7 +151,8 @@ class MujocoProcessModel:
     """
 
     def __init__(self, rig: Rig, dt_s: float, *, eps: float = FD_EPS,
-                 centered: bool = False, jacobian: str = "rollout", nthread: int = 0) -> None:
+                 centered: bool = False, jacobian: str = "step", jacobian_points: int = 1,
+                 nthread: int = 0) -> None:
         model = rig.model
         step = float(model.opt.timestep)
         frame_skip = int(round(float(dt_s) / step))
@@ -228,13 +202,16 @@ class MujocoProcessModel:
         self._spec = (_CTRL if "ctrl" in keys else 0) | (_XFRC if "xfrc" in keys else 0)
         self._ncontrol = mujoco.mj_stateSize(model, self._spec) if self._spec else 0
         self._A = np.zeros((2 * model.nv + model.na, 2 * model.nv + model.na))
-        self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.points = int(linearization_steps(frame_skip, jacobian_points).size)
+        self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._models: dict[int, list[mujoco.MjModel]] = {}
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._pool: Any = None  # mujoco.rollout.Rollout with nthread threads, made on use
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_buffers"], state["_pool"] = {}, None  # scratch and threads: not copied
+        state["_models"] = {}
         return state
 
     # ------------------------------------------------------------------ inputs
@@ -270,33 +247,57 @@ class MujocoProcessModel:
         M = len(x)
         state0 = np.tile(self._template, (M, 1))
         state0[:, self._gather] = x
-        nstep = self.frame_skip
+        u = np.asarray(u, float)
+        w = u[:, None, :] if u.ndim == 2 else u
+        return self.roll(state0, w, self.frame_skip)[:, -1][:, self._gather]
+
+    def roll(self, state0: np.ndarray, w: np.ndarray, nstep: int) -> np.ndarray:
+        """Full physics states of ``nstep`` physics steps from ``state0`` under inputs ``w``.
+
+        Parameters
+        ----------
+        state0 : ndarray, shape (M, nstate)
+            ``mjSTATE_FULLPHYSICS`` initial states.
+        w : ndarray, shape (M, nstep, k) or (M, 1, k)
+            Absolute rig inputs per physics step (or held).
+        nstep : int
+
+        Returns
+        -------
+        ndarray, shape (M, nstep, nstate)
+            One :func:`mujoco.rollout.rollout` call; a scratch buffer of this model, valid
+            until its next rollout of the same shape.
+        """
+        M = len(state0)
         control = None
         if self._spec:
-            u = np.asarray(u, float)
-            if u.ndim == 2:
+            if w.shape[1] == 1:
                 control = np.ascontiguousarray(np.broadcast_to(
-                    self._control_vectors(self.controls(u), M)[:, None, :],
+                    self._control_vectors(self.controls(w[:, 0]), M)[:, None, :],
                     (M, nstep, self._ncontrol)))
             else:
-                flat = u.reshape(M * nstep, self.k)
+                flat = w.reshape(M * nstep, self.k)
                 control = self._control_vectors(self.controls(flat), M * nstep).reshape(
                     M, nstep, self._ncontrol)
-        if M not in self._buffers:
-            self._buffers[M] = (np.zeros((M, nstep, len(self._template))),
-                                np.zeros((M, nstep, self.model.nsensordata)))
-        state, sensordata = self._buffers[M]
+        key = (M, nstep)
+        if key not in self._buffers:
+            self._buffers[key] = (np.zeros((M, nstep, len(self._template))),
+                                  np.zeros((M, nstep, self.model.nsensordata)))
+        state, sensordata = self._buffers[key]
+        models = self._models.get(M)
+        if models is None:
+            models = self._models[M] = [self.model] * M
         if self.nthread > 1:  # this model's own pool (not the module-wide persistent one)
             if self._pool is None:
                 self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
-            self._pool.rollout([self.model] * M, self._datas, state0, control,
+            self._pool.rollout(models, self._datas, state0, control,
                                control_spec=self._spec, skip_checks=True, nstep=nstep,
                                state=state, sensordata=sensordata)
         else:
-            mujoco.rollout.rollout([self.model] * M, [self._data], state0, control,
+            mujoco.rollout.rollout(models, [self._data], state0, control,
                                    control_spec=self._spec, skip_checks=True, nstep=nstep,
                                    state=state, sensordata=sensordata)
-        return state[:, -1][:, self._gather]
+        return state
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``f(x, u)``: states after one control period, shape (M, n).
@@ -321,6 +322,8 @@ class MujocoProcessModel:
     def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``F(x, u) = df/dx``, shape (M, n, n), by finite differences (:attr:`method`).
 
+        ``"step"``: the tangent recursion of the one-step derivatives
+        (:func:`testbed.estimators.jacobians.period_tangent`, :attr:`points` per period).
         ``"rollout"``: forward (or :attr:`centered`) differences of the control-period map,
         step :attr:`eps`, every perturbed initial state of every row in one rollout call.
         ``"transition"``: for each row the product ``A_s ... A_1`` of the transition
@@ -328,6 +331,11 @@ class MujocoProcessModel:
         along the row's own trajectory, in the rig's state order. Either way ``f(x, u)`` is
         cached for the next :meth:`__call__` at the same arguments.
         """
+        if self.method == "step":
+            x, u = np.asarray(x, float), np.asarray(u, float)
+            out, J = period_tangent(self, x, u[:, None, :], None, self.n, self.points)
+            self._cache = (x.copy(), u.copy(), out)
+            return J
         if self.method == "rollout":
             M, n = x.shape
             points = perturbed(np.asarray(x, float), self.eps, self.centered)
@@ -603,24 +611,44 @@ class AugmentedProcessModel:
         self.nonlinear = tuple(ch for ch, d in delays.items() if d and ch in declared)
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The ``[p, e]`` part of ``f`` (M, d) and the first physical input ``w_0``."""
+    def _inputs(self, x: np.ndarray, u: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The physical inputs of a period's physics steps from ``x``'s ``[p, e]`` columns.
+
+        Returns
+        -------
+        W : ndarray, shape (M, N, k_rig), or (M, 1, k_rig) for a plain input (held)
+        E_N : ndarray, shape (M, n_e), or None (plain)
+            The extra states at the period's end, before re-referencing.
+        off : ndarray, shape (M, k_rig), or None (plain)
+            The operating input at the period's start.
+        """
         nr, inp = self.nr, self.input
-        p, e = x[:, :nr], x[:, nr:self.d]
         if inp.plain:
-            w0 = u[:, :inp.kr]
-            return self.process.rollout(p, w0), w0
+            return u[:, None, :inp.kr], None, None
+        p, e = x[:, :nr], x[:, nr:self.d]
         off = inp.offset(p)
         rel = inp.relative(p, u)
         # e_i, i = 0..N: Phi^i e + Gamma_i rel
         E = np.einsum("iab,mb->mia", self._Phi, e) + np.einsum("iak,mk->mia", self._Gam, rel)
         base = off + rel @ inp.spec.from_input.T  # (M, k_rig)
         W = base[:, None, :] + E[:, :-1] @ inp.spec.from_states.T  # (M, N, k_rig)
-        p_next = self.process.rollout(p, W)
-        e_next = E[:, -1]
-        if np.any(inp.spec.relative):
-            e_next = e_next + (off - inp.offset(p_next)) @ inp.spec.relative.T
-        return np.concatenate([p_next, e_next], axis=1), W[:, 0]
+        return W, E[:, -1], off
+
+    def _ends(self, p_next: np.ndarray, E_N: np.ndarray, off: np.ndarray) -> np.ndarray:
+        """The extra states at the period's end, re-referenced to ``p_next`` (M, n_e)."""
+        relative = self.input.spec.relative
+        if np.any(relative):
+            return E_N + (off - self.input.offset(p_next)) @ relative.T
+        return E_N
+
+    def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ``[p, e]`` part of ``f`` (M, d) and the first physical input ``w_0``."""
+        W, E_N, off = self._inputs(x, u)
+        p_next = self.process.rollout(x[:, :self.nr], W)
+        if E_N is None:
+            return p_next, W[:, 0]
+        return np.concatenate([p_next, self._ends(p_next, E_N, off)], axis=1), W[:, 0]
 
     def _pe_unique(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_pe` with each bitwise-distinct ``([p, e], u)`` row rolled out once (the
@@ -637,6 +665,11 @@ class AugmentedProcessModel:
 
     def _full(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         pe, w0 = self._pe_unique(x, u)
+        return np.concatenate([pe, self._rest(x, u, w0)], axis=1)
+
+    def _rest(self, x: np.ndarray, u: np.ndarray, w0: np.ndarray) -> np.ndarray:
+        """The bias, delay and memory rows of ``f`` (M, n - d), ``w0`` the first physical
+        input of the period (M, k_rig)."""
         rest = x @ self._F_rest.T + u @ self._B_rest.T
         if self._rows:
             p = x[:, :self.nr]
@@ -646,7 +679,7 @@ class AugmentedProcessModel:
                 w = self.input(p, x[:, self.nr:self.d], mem)
             for row, value, _, _ in self._rows:
                 rest[:, row] = value(p, w, self.g)
-        return np.concatenate([pe, rest], axis=1)
+        return rest
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``f(x, u)``, shape (M, n), for ``x`` (M, n) and absolute ``u`` (M, k)."""
@@ -656,8 +689,15 @@ class AugmentedProcessModel:
         return self._full(np.asarray(x, float), np.asarray(u, float))
 
     def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``F(x, u) = df/dx``, shape (M, n, n); caches ``f(x, u)`` for :meth:`__call__`."""
+        """``F(x, u) = df/dx``, shape (M, n, n); caches ``f(x, u)`` for :meth:`__call__`.
+
+        The ``[p, e]`` block as the process model's :attr:`MujocoProcessModel.method` says
+        (``"step"``: :meth:`_jacobian_step`; otherwise finite differences of the whole
+        period); the other entries as the class docstring says.
+        """
         x, u = np.asarray(x, float), np.asarray(u, float)
+        if self.process.method == "step":
+            return self._jacobian_step(x, u)
         M, n, d = len(x), self.n, self.d
         pts = perturbed(x[:, :d], self.eps, self.centered)
         P = pts.shape[1]
@@ -675,6 +715,55 @@ class AugmentedProcessModel:
             if self._memory is not None:
                 for row in rows:
                     J[:, row, self._memory] = self._memory_gradient(x, u, row - d)
+        return J
+
+    def _jacobian_step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """:meth:`jacobian` by the tangent recursion of the one-physics-step derivatives
+        (:func:`testbed.estimators.jacobians.period_tangent`): ``dw_i/d[p, e]``, the end
+        extra states' and the nonlinear delay rows' derivatives by finite differences of
+        their closed forms (no physics), the rig block from ``1 + n_rig + k_rig`` single
+        physics steps per row and linearization point."""
+        M, n, d, nr = len(x), self.n, self.d, self.nr
+        eps, centered = self.eps, self.centered
+        pts = perturbed(x[:, :d], eps, centered)
+        P = pts.shape[1]
+        uu = np.repeat(u, P, axis=0)
+        Wf, ENf, offf = self._inputs(pts.reshape(M * P, d), uu)
+        Wp = Wf.reshape(M, P, *Wf.shape[1:])
+        W = Wp[:, 0]
+        dW = None
+        if ENf is not None:
+            N, kr = W.shape[1:]
+            dW = differences(Wp.reshape(M, P, N * kr), eps, centered).reshape(M, N, kr, d)
+        p_next, T = period_tangent(self.process, x[:, :nr], W, dW, d, self.process.points)
+        if ENf is None:
+            pe_next, J_pe = p_next, T
+        else:
+            relative = self.input.spec.relative
+            ne = ENf.shape[1]
+            G = ENf + offf @ relative.T  # E_N + R o(p): its derivative in [p, e]
+            J_e = differences(G.reshape(M, P, ne), eps, centered)
+            if np.any(relative):  # - R do/dp(p_next) T
+                q = perturbed(p_next, eps, centered)
+                o = self.input.offset(q.reshape(-1, nr)).reshape(M, q.shape[1], -1)
+                J_e = J_e - relative @ (differences(o, eps, centered) @ T)
+            E_N, off = ENf.reshape(M, P, ne)[:, 0], offf.reshape(M, P, -1)[:, 0]
+            pe_next = np.concatenate([p_next, self._ends(p_next, E_N, off)], axis=1)
+            J_pe = np.concatenate([T, J_e], axis=1)
+        X = np.repeat(x[:, None, :], P, axis=1)
+        X[:, :, :d] = pts
+        rest = self._rest(X.reshape(M * P, n), uu, Wf[:, 0]).reshape(M, P, n - d)
+        self._cache = (x.copy(), u.copy(), np.concatenate([pe_next, rest[:, 0]], axis=1))
+        J = np.zeros((M, n, n))
+        J[:, :d, :d] = J_pe
+        J[:, d:] = self._F_rest
+        if self._rows:
+            rows = np.array([row for row, *_ in self._rows])
+            J[:, d + rows] = 0.0
+            J[:, d + rows, :d] = differences(rest[:, :, rows], eps, centered)
+            if self._memory is not None:
+                for row in rows:
+                    J[:, d + row, self._memory] = self._memory_gradient(x, u, row)
         return J
 
     def _memory_gradient(self, x: np.ndarray, u: np.ndarray, row: int) -> np.ndarray:
@@ -754,7 +843,7 @@ def nominal_rig(design: DesignModel) -> Rig:
 
 
 def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool = False,
-                     jacobian: str = "rollout", nthread: int = 0
+                     jacobian: str = "step", jacobian_points: int = 1, nthread: int = 0
                      ) -> tuple[Rig, MujocoProcessModel | AugmentedProcessModel,
                                 MeasurementModel]:
     """The nominal rig, the process model at ``design.dt_s`` and the measurement model.
@@ -774,7 +863,8 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
         raise ValueError(f"the nonlinear filters model the rig's state {list(rig.state_names)}; "
                          f"this design's state is {list(design.state_names)}")
     process = MujocoProcessModel(rig, design.dt_s, eps=eps, centered=centered,
-                                 jacobian=jacobian, nthread=nthread)
+                                 jacobian=jacobian, jacobian_points=jacobian_points,
+                                 nthread=nthread)
     measure = MeasurementModel(design, rig)
     if design.augmented:
         if not np.array_equal(design.physical, np.arange(rig.n_states)):
@@ -786,7 +876,8 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
 
 def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
                         centered: bool = False, alpha: float = 1e-3, beta: float = 2.0,
-                        kappa: float = 0.0, nthread: int = 0) -> AbsoluteInput:
+                        kappa: float = 0.0, jacobian: str = "step", jacobian_points: int = 1,
+                        nthread: int = 0) -> AbsoluteInput:
     """An EKF (``kind="ekf"``) or UKF (``"ukf"``) on the rig's nominal MuJoCo model.
 
     ``Q``, ``R`` and the prior are the design's (``design.discrete``, ``x0``, ``P0``); the
@@ -804,6 +895,9 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
         Central or forward (default) differences for the EKF's Jacobian.
     alpha, beta, kappa : float
         The UKF's sigma-point parameters (Wan & van der Merwe's defaults).
+    jacobian : {"step", "rollout", "transition"}
+        The EKF's Jacobian method (:class:`MujocoProcessModel`); ``jacobian_points`` its
+        linearization points per period (``"step"``).
     nthread : int
         Threads of the rollout calls (0: the calling thread; results do not depend on it).
 
@@ -813,7 +907,8 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
         The batched filter (``x`` (N, n) after a batched reset) with the input correction.
     """
     rig, process, measure = nonlinear_models(design, eps=eps, centered=centered,
-                                             nthread=nthread)
+                                             jacobian=jacobian,
+                                             jacobian_points=jacobian_points, nthread=nthread)
     plant = design.discrete
     k = len(design.input_names)
     if kind == "ekf":
