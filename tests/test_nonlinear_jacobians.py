@@ -133,3 +133,14 @@ def test_ekf_on_the_step_jacobian_follows_the_old_path():
         assert new["rmse"][k] == pytest.approx(v, rel=1e-2)
     assert new["nees_mean"] == pytest.approx(old["nees_mean"], rel=2e-2)
     assert new["rmse"] != old["rmse"]  # a different Jacobian: not the same numbers
+
+
+def test_powers_by_doubling_are_the_matrix_powers():
+    from testbed.estimators.jacobians import _powers
+
+    A = np.random.default_rng(3).normal(0, 0.5, (4, 3, 3))
+    for count in (1, 2, 3, 7, 10):
+        P = _powers(A, count)
+        for k in range(count):
+            np.testing.assert_allclose(P[:, k], np.linalg.matrix_power(A, k), rtol=1e-12,
+                                       atol=1e-12)

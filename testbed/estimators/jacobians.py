@@ -186,6 +186,14 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
                             inputs=dW is not None)
     A = A.reshape(M, S, nr, nr)
     B = None if B is None else B.reshape(M, S, nr, -1)
+    if S == 1:  # T_N = A^N [I, 0] + sum_i A^(N-1-i) B dw_i, the powers by doubling
+        A1 = A[:, 0]
+        powers = _powers(A1, N)  # (M, N, nr, nr): A^0 .. A^(N-1)
+        T = np.zeros((M, nr, d))
+        T[:, :, :nr] = powers[:, -1] @ A1
+        if B is not None:
+            T += (powers[:, ::-1] @ (B[:, 0, None] @ dW)).sum(axis=1)
+        return p_next, T
     segment = (np.arange(N) * S) // N  # the segment of each physics step
     T = np.zeros((M, nr, d))
     T[:, :, :nr] = np.eye(nr)
@@ -194,3 +202,19 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
         if B is not None:
             T += B[:, segment[i]] @ dW[:, i]
     return p_next, T
+
+
+def _powers(A: np.ndarray, count: int) -> np.ndarray:
+    """``A^0 .. A^(count - 1)`` of a stack ``A`` (M, r, r): shape (M, count, r, r), by
+    doubling (``log2(count)`` stacked products)."""
+    M, r, _ = A.shape
+    out = np.empty((M, count, r, r))
+    out[:, 0] = np.eye(r)
+    k, Ak = 1, A
+    while k < count:
+        c = min(k, count - k)
+        out[:, k:k + c] = Ak[:, None] @ out[:, :c]
+        k += c
+        if k < count:
+            Ak = Ak @ Ak
+    return out
