@@ -227,7 +227,7 @@ class AugmentedProcessModel:
         if ENf is not None:
             N, kr = W.shape[1:]
             dW = differences(Wp.reshape(M, P, N * kr), eps, centered).reshape(M, N, kr, d)
-        p_next, T = period_tangent(self.process, x[:, :nr], W, dW, d, self.process.points)
+        p_next, T = period_tangent(self.process, x[:, :nr], W, dW, d)
         if ENf is None:
             pe_next, J_pe = p_next, T
         else:

@@ -31,7 +31,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from testbed.estimators.nonlinear import MujocoProcessModel
+    from testbed.estimators.mujoco_model import MujocoProcessModel
+
+#: ``eps I_d`` by ``(d, eps)`` (read-only).
+_STEPS: dict[tuple[int, float], np.ndarray] = {}
 
 
 def perturbed(x: np.ndarray, eps: float, centered: bool) -> np.ndarray:
@@ -50,7 +53,10 @@ def perturbed(x: np.ndarray, eps: float, centered: bool) -> np.ndarray:
         ``centered``).
     """
     M, d = x.shape
-    steps = eps * np.eye(d)
+    steps = _STEPS.get((d, eps))
+    if steps is None:
+        steps = _STEPS[(d, eps)] = eps * np.eye(d)
+        steps.flags.writeable = False
     parts = [x[:, None, :], x[:, None, :] + steps]
     if centered:
         parts.append(x[:, None, :] - steps)
@@ -145,8 +151,7 @@ def step_derivatives(process: MujocoProcessModel, states: np.ndarray, w: np.ndar
 
 
 def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
-                   dW: np.ndarray | None, d: int, points: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   dW: np.ndarray | None, d: int) -> tuple[np.ndarray, np.ndarray]:
     """The state after one control period and its Jacobian by the tangent recursion.
 
     Parameters
@@ -160,8 +165,11 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
         ``dw_i/dz`` (None: the inputs do not depend on ``z``).
     d : int
         ``dim z >= n_rig``; ``z``'s first ``n_rig`` entries are the start state.
-    points : int
-        Linearization points per period (:func:`linearization_steps`).
+
+    Notes
+    -----
+    The linearization steps are ``process.linearization`` (:func:`linearization_steps` of
+    the model's ``jacobian_points``).
 
     Returns
     -------
@@ -172,7 +180,7 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
     """
     M, nr = p.shape
     N = process.frame_skip
-    steps = linearization_steps(N, points)
+    steps = process.linearization
     state0 = np.tile(process._template, (M, 1))
     state0[:, process._gather] = p
     traj = process.roll(state0, W, N)

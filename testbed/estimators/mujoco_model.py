@@ -152,7 +152,10 @@ class MujocoProcessModel:
         self._spec = (_CTRL if "ctrl" in keys else 0) | (_XFRC if "xfrc" in keys else 0)
         self._ncontrol = mujoco.mj_stateSize(model, self._spec) if self._spec else 0
         self._A = np.zeros((2 * model.nv + model.na, 2 * model.nv + model.na))
-        self.points = int(linearization_steps(frame_skip, jacobian_points).size)
+        #: The physics steps of a period at which ``"step"`` linearizes.
+        self.linearization = linearization_steps(frame_skip, jacobian_points)
+        self.points = int(self.linearization.size)
+        self._broadcast: dict[int, np.ndarray] = {}
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._models: dict[int, list[mujoco.MjModel]] = {}
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -161,14 +164,17 @@ class MujocoProcessModel:
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_buffers"], state["_pool"] = {}, None  # scratch and threads: not copied
-        state["_models"] = {}
+        state["_models"], state["_broadcast"] = {}, {}
         return state
 
     # ------------------------------------------------------------------ inputs
     def controls(self, u: np.ndarray) -> dict[str, np.ndarray]:
         """MuJoCo inputs of absolute inputs ``u`` (M, k) (:meth:`Rig.actuation` at the
         nominal member constants): ``"ctrl"`` (M, nu) and/or ``"xfrc"`` (M, nbody, 6)."""
-        constants = np.broadcast_to(self._constants, (len(u), len(self._constants)))
+        constants = self._broadcast.get(len(u))
+        if constants is None:  # (a read-only view, one per row count)
+            constants = self._broadcast[len(u)] = np.broadcast_to(
+                self._constants, (len(u), len(self._constants)))
         return self.rig.actuation(np.asarray(u, float), constants)
 
     def _control_vectors(self, inputs: dict[str, np.ndarray], M: int) -> np.ndarray:
@@ -222,9 +228,8 @@ class MujocoProcessModel:
         control = None
         if self._spec:
             if w.shape[1] == 1:
-                control = np.ascontiguousarray(np.broadcast_to(
-                    self._control_vectors(self.controls(w[:, 0]), M)[:, None, :],
-                    (M, nstep, self._ncontrol)))
+                control = np.repeat(self._control_vectors(self.controls(w[:, 0]), M)[:, None, :],
+                                    nstep, axis=1)
             else:
                 flat = w.reshape(M * nstep, self.k)
                 control = self._control_vectors(self.controls(flat), M * nstep).reshape(
@@ -283,7 +288,7 @@ class MujocoProcessModel:
         """
         if self.method == "step":
             x, u = np.asarray(x, float), np.asarray(u, float)
-            out, J = period_tangent(self, x, u[:, None, :], None, self.n, self.points)
+            out, J = period_tangent(self, x, u[:, None, :], None, self.n)
             self._cache = (x.copy(), u.copy(), out)
             return J
         if self.method == "rollout":
@@ -365,11 +370,8 @@ class PhysicalInput:
         spec.check(self.kr, self.k, self.ne)
         self.spec = spec
         self.offsets = design.input_transform is not None
-
-    @property
-    def plain(self) -> bool:
-        """``w`` is ``u``'s rig columns (no extra states, ``S_u = [I, 0]``)."""
-        return self.ne == 0 and np.array_equal(self.spec.from_input, np.eye(self.kr, self.k))
+        #: ``w`` is ``u``'s rig columns (no extra states, ``S_u = [I, 0]``).
+        self.plain = self.ne == 0 and np.array_equal(spec.from_input, np.eye(self.kr, self.k))
 
     def offset(self, p: np.ndarray) -> np.ndarray:
         """``o(x)`` (M, k_rig) of the rig states ``p`` (M, n_rig)."""

@@ -213,8 +213,10 @@ class AbsoluteInput(EstimatorWrapper):
         x = np.asarray(self.inner.x)
         xb = x if x.ndim == 2 else x[None]
         extra = np.asarray(self.offset(xb), float)
-        if extra.shape[1] < self.k:
-            extra = np.pad(extra, ((0, 0), (0, self.k - extra.shape[1])))
+        if extra.shape[1] < self.k:  # [o(x), 0] (np.pad's values, without its overhead)
+            padded = np.zeros((len(extra), self.k))
+            padded[:, :extra.shape[1]] = extra
+            extra = padded
         extra = extra if x.ndim == 2 else extra[0]
         u_abs = extra if u is None else np.asarray(u, float) + extra
         return self.inner.step(y, u_abs)
