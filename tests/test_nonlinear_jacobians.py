@@ -144,3 +144,31 @@ def test_powers_by_doubling_are_the_matrix_powers():
         for k in range(count):
             np.testing.assert_allclose(P[:, k], np.linalg.matrix_power(A, k), rtol=1e-12,
                                        atol=1e-12)
+
+
+@pytest.mark.parametrize(("rig", "options"), [
+    ("helicopter", {}), ("vehicle-roll", {"a_y_source": "measured"}),
+    ("vehicle-roll", {"a_y_source": "oracle"}), ("aero", {})])
+def test_every_matched_design_every_step_linearized_is_the_period_differences(rig, options):
+    """The chain rule through the inputs (operating input, actuator and bias states, input
+    memory, nonlinear delay rows) with a linearization at every physics step equals the
+    whole-period central differences, on each rig's matched hardware design."""
+    experiment = runner.build(Scenario(rig=rig, profile="hardware", duration_s=0.1,
+                                       design_options=options), 1, num_threads=1)
+    experiment.close()
+    design = experiment.design
+    rng = np.random.default_rng(5)
+    x = np.array(design.x0, float) + 0.02 * rng.standard_normal((3, design.n))
+    u = 0.5 * rng.standard_normal((3, len(design.input_names)))
+    _, ref, _ = nonlinear_models(design, jacobian="rollout", centered=True)
+    _, new, _ = nonlinear_models(design, jacobian_points=new_points(design))
+    J_ref, J = ref.jacobian(x, u), new.jacobian(x, u)
+    np.testing.assert_allclose(J, J_ref, rtol=0, atol=2e-6 * max(1.0, np.abs(J_ref).max()))
+    np.testing.assert_array_equal(new(x, u), ref(x, u))  # the same f, bitwise
+
+
+def new_points(design) -> int:
+    """Every physics step of the design's control period."""
+    from testbed.estimators.nonlinear import nominal_rig
+
+    return int(round(design.dt_s / float(nominal_rig(design).model.opt.timestep)))

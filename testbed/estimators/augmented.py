@@ -211,52 +211,99 @@ class AugmentedProcessModel:
 
     def _jacobian_step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """:meth:`jacobian` by the tangent recursion of the one-physics-step derivatives
-        (:func:`testbed.estimators.jacobians.period_tangent`): ``dw_i/d[p, e]``, the end
-        extra states' and the nonlinear delay rows' derivatives by finite differences of
-        their closed forms (no physics), the rig block from ``1 + n_rig + k_rig`` single
-        physics steps per row and linearization point."""
+        (:func:`testbed.estimators.jacobians.period_tangent`).
+
+        The inputs are linear in the extra states and in the operating input ``o(p)``
+        (:meth:`_inputs`), so their derivatives are the constant maps of
+        :meth:`_input_maps` times ``do/dp`` (finite differences of ``o`` alone, no physics);
+        the nonlinear delay rows take the sensors' declared gradients in the rig state and
+        the input, chained through ``dw_0/d[p, e]``. The rig block: ``1 + n_rig + k_rig``
+        single physics steps per row and linearization point.
+        """
         M, n, d, nr = len(x), self.n, self.d, self.nr
-        eps, centered = self.eps, self.centered
-        pts = perturbed(x[:, :d], eps, centered)
-        P = pts.shape[1]
-        uu = np.repeat(u, P, axis=0)
-        Wf, ENf, offf = self._inputs(pts.reshape(M * P, d), uu)
-        Wp = Wf.reshape(M, P, *Wf.shape[1:])
-        W = Wp[:, 0]
-        dW = None
-        if ENf is not None:
-            N, kr = W.shape[1:]
-            dW = differences(Wp.reshape(M, P, N * kr), eps, centered).reshape(M, N, kr, d)
-        p_next, T = period_tangent(self.process, x[:, :nr], W, dW, d)
-        if ENf is None:
+        W, E_N, off = self._inputs(x, u)
+        p = x[:, :nr]
+        dW = do_p = None
+        if E_N is not None:
+            maps = self._input_maps()
+            if self.input.offsets:
+                q = perturbed(p, self.eps, self.centered)
+                o = self.input.offset(q.reshape(-1, nr)).reshape(M, q.shape[1], -1)
+                do_p = differences(o, self.eps, self.centered)  # at p (the start)
+            dW = np.zeros((M, *maps["W_e"].shape[:2], d))  # (M, N, k_rig, d)
+            dW[..., nr:] = maps["W_e"]
+            if do_p is not None:
+                dW[..., :nr] = maps["W_o"] @ do_p[:, None]
+        p_next, T = period_tangent(self.process, p, W, dW, d)
+        if E_N is None:
             pe_next, J_pe = p_next, T
         else:
+            e_next = self._ends(p_next, E_N, off)
+            J_e = np.zeros((M, self.ne, d))
+            J_e[..., nr:] = maps["E_e"]
             relative = self.input.spec.relative
-            ne = ENf.shape[1]
-            G = ENf + offf @ relative.T  # E_N + R o(p): its derivative in [p, e]
-            J_e = differences(G.reshape(M, P, ne), eps, centered)
-            if np.any(relative):  # - R do/dp(p_next) T
-                q = perturbed(p_next, eps, centered)
-                o = self.input.offset(q.reshape(-1, nr)).reshape(M, q.shape[1], -1)
-                J_e = J_e - relative @ (differences(o, eps, centered) @ T)
-            E_N, off = ENf.reshape(M, P, ne)[:, 0], offf.reshape(M, P, -1)[:, 0]
-            pe_next = np.concatenate([p_next, self._ends(p_next, E_N, off)], axis=1)
+            if do_p is not None:
+                J_e[..., :nr] = maps["E_o"] @ do_p
+                if np.any(relative):  # - R do/dp(p_next) T
+                    q = perturbed(p_next, self.eps, self.centered)
+                    o = self.input.offset(q.reshape(-1, nr)).reshape(M, q.shape[1], -1)
+                    J_e -= relative @ (differences(o, self.eps, self.centered) @ T)
+            pe_next = np.concatenate([p_next, e_next], axis=1)
             J_pe = np.concatenate([T, J_e], axis=1)
-        X = np.repeat(x[:, None, :], P, axis=1)
-        X[:, :, :d] = pts
-        rest = self._rest(X.reshape(M * P, n), uu, Wf[:, 0]).reshape(M, P, n - d)
-        self._cache = (x.copy(), u.copy(), np.concatenate([pe_next, rest[:, 0]], axis=1))
+        rest = self._rest(x, u, W[:, 0])
+        self._cache = (x.copy(), u.copy(), np.concatenate([pe_next, rest], axis=1))
         J = np.zeros((M, n, n))
         J[:, :d, :d] = J_pe
         J[:, d:] = self._F_rest
         if self._rows:
-            rows = np.array([row for row, *_ in self._rows])
-            J[:, d + rows] = 0.0
-            J[:, d + rows, :d] = differences(rest[:, :, rows], eps, centered)
-            if self._memory is not None:
-                for row in rows:
-                    J[:, d + row, self._memory] = self._memory_gradient(x, u, row)
+            self._delay_rows(J, x, u, W[:, 0], dW, do_p)
         return J
+
+    def _input_maps(self) -> dict[str, np.ndarray]:
+        """The constant derivative maps of :meth:`_inputs` (made once).
+
+        ``W_e`` (N, k_rig, n_e) = ``dw_i/de = S_e Phi^i``; ``W_o`` (N, k_rig, k_rig) =
+        ``dw_i/do = I - S_u,r - S_e Gamma_i,r``; ``E_e`` = ``Phi^N``; ``E_o`` (n_e, k_rig) =
+        ``d(E_N + R o)/do = R - Gamma_N,r`` (``,r``: the columns of the rig's inputs);
+        ``m_o`` (k_rig, k_rig) = ``I - S_u,r`` (the input of a remembered input ``u``).
+        """
+        maps = getattr(self, "_maps", None)
+        if maps is None:
+            spec, kr, N = self.input.spec, self.input.kr, self.process.frame_skip
+            Su_r = np.asarray(spec.from_input, float)[:, :kr]
+            Se = np.asarray(spec.from_states, float)
+            Gam_r = self._Gam[:, :, :kr]
+            maps = self._maps = {
+                "W_e": Se @ self._Phi[:N], "W_o": np.eye(kr) - Su_r - Se @ Gam_r[:N],
+                "E_e": self._Phi[N], "E_o": np.asarray(spec.relative, float) - Gam_r[N],
+                "m_o": np.eye(kr) - Su_r}
+        return maps
+
+    def _delay_rows(self, J: np.ndarray, x: np.ndarray, u: np.ndarray, w0: np.ndarray,
+                    dW: np.ndarray | None, do_p: np.ndarray | None) -> None:
+        """The nonlinear delay rows of ``J`` (in place): ``grad_x + grad_w dw/d[p, e]`` with
+        ``w`` the period's first input (or that of the input memory), and their memory
+        columns."""
+        d, nr = self.d, self.nr
+        p = x[:, :nr]
+        if self._memory is None:
+            w, dw = w0, (None if dW is None else dW[:, 0])
+        else:  # w = o(p) + S_u (m - [o(p), 0]) + S_e e of the remembered input m
+            w = self.input(p, x[:, nr:d], x[:, self._memory])
+            dw = None
+            if not self.input.plain:
+                maps = self._input_maps()
+                dw = np.zeros((len(x), self.input.kr, d))
+                dw[..., nr:] = np.asarray(self.input.spec.from_states, float)
+                if do_p is not None:
+                    dw[..., :nr] = maps["m_o"] @ do_p
+        for row, _, grad_x, grad_w in self._rows:
+            J[:, d + row] = 0.0
+            J[:, d + row, :nr] = grad_x(p, w, self.g)
+            if dw is not None:
+                J[:, d + row, :d] += np.einsum("mk,mkd->md", grad_w(p, w, self.g), dw)
+            if self._memory is not None:
+                J[:, d + row, self._memory] = self._memory_gradient(x, u, row)
 
     def _memory_gradient(self, x: np.ndarray, u: np.ndarray, row: int) -> np.ndarray:
         """d(first delay state)/d(input memory) of a nonlinear delayed channel (M, k)."""
