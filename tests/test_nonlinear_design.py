@@ -384,8 +384,9 @@ def test_hardware_helicopter_targets_10s(name):
     assert 2.0 <= s["nees_mean"] <= 8.0
 
 
-def test_a_hardware_batch_equals_the_single_runs_and_threads_change_nothing():
-    sc = Scenario(rig="helicopter", profile="hardware", estimator="ukf", duration_s=0.3,
+@pytest.mark.parametrize("name", ["ekf", "ukf"])
+def test_a_hardware_batch_equals_the_single_runs_and_threads_change_nothing(name):
+    sc = Scenario(rig="helicopter", profile="hardware", estimator=name, duration_s=0.3,
                   seed=0)
     result = runner.monte_carlo(sc, runs=2, progress=False)
     for i, seed in enumerate(result["seeds"]):

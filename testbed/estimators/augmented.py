@@ -233,7 +233,9 @@ class AugmentedProcessModel:
             dW = np.zeros((M, *maps["W_e"].shape[:2], d))  # (M, N, k_rig, d)
             dW[..., nr:] = maps["W_e"]
             if do_p is not None:
-                dW[..., :nr] = maps["W_o"] @ do_p[:, None]
+                W_o = maps["W_o"]  # (N, k_rig, k_rig): one product per member
+                dW[..., :nr] = (W_o.reshape(-1, W_o.shape[2]) @ do_p).reshape(
+                    M, *W_o.shape[:2], nr)
         p_next, T = period_tangent(self.process, p, W, dW, d)
         if E_N is None:
             pe_next, J_pe = p_next, T

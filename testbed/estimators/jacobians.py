@@ -199,8 +199,11 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
         powers = _powers(A1, N)  # (M, N, nr, nr): A^0 .. A^(N-1)
         T = np.zeros((M, nr, d))
         T[:, :, :nr] = powers[:, -1] @ A1
-        if B is not None:
-            T += (powers[:, ::-1] @ (B[:, 0, None] @ dW)).sum(axis=1)
+        if B is not None:  # one product per member: [A^(N-1) .. A^0] [B dw_0; ..; B dw_N-1]
+            kr = B.shape[3]
+            BdW = B[:, 0] @ dW.transpose(0, 2, 1, 3).reshape(M, kr, N * d)  # (M, nr, N d)
+            BdW = BdW.reshape(M, nr, N, d).transpose(0, 2, 1, 3).reshape(M, N * nr, d)
+            T += powers[:, ::-1].transpose(0, 2, 1, 3).reshape(M, nr, N * nr) @ BdW
         return p_next, T
     segment = (np.arange(N) * S) // N  # the segment of each physics step
     T = np.zeros((M, nr, d))
@@ -221,7 +224,9 @@ def _powers(A: np.ndarray, count: int) -> np.ndarray:
     k, Ak = 1, A
     while k < count:
         c = min(k, count - k)
-        out[:, k:k + c] = Ak[:, None] @ out[:, :c]
+        # A^k [A^0 | .. | A^(c-1)]: one product per member
+        H = out[:, :c].transpose(0, 2, 1, 3).reshape(M, r, c * r)
+        out[:, k:k + c] = (Ak @ H).reshape(M, r, c, r).transpose(0, 2, 1, 3)
         k += c
         if k < count:
             Ak = Ak @ Ak

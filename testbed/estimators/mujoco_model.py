@@ -373,6 +373,21 @@ class PhysicalInput:
         #: ``w`` is ``u``'s rig columns (no extra states, ``S_u = [I, 0]``).
         self.plain = self.ne == 0 and np.array_equal(spec.from_input, np.eye(self.kr, self.k))
 
+    def jacobian(self, p: np.ndarray) -> np.ndarray:
+        """``dw/d[p, e]`` (M, k_rig, n_rig + n_e) at rig states ``p`` (M, n_rig): ``[(I -
+        S_u,r) do/dp, S_e]`` (``w`` is linear in ``e``, in ``u`` and in ``o(p)``; ``S_u,r`` the
+        rig's input columns of ``S_u``), ``do/dp`` by central differences of ``o`` (step
+        :data:`FD_EPS`)."""
+        M, nr, kr = len(p), self.nr, self.kr
+        out = np.zeros((M, kr, nr + self.ne))
+        out[:, :, nr:] = self.spec.from_states
+        if self.offsets:
+            q = perturbed(p, FD_EPS, True)
+            o = self.offset(q.reshape(-1, nr)).reshape(M, q.shape[1], kr)
+            from_input = np.eye(kr) - np.asarray(self.spec.from_input, float)[:, :kr]
+            out[:, :, :nr] = from_input @ differences(o, FD_EPS, True)
+        return out
+
     def offset(self, p: np.ndarray) -> np.ndarray:
         """``o(x)`` (M, k_rig) of the rig states ``p`` (M, n_rig)."""
         if not self.offsets:

@@ -167,14 +167,7 @@ class MeasurementModel:
         p, e = self._split(x)
         w = self.input(p, e, u)
         nr = self.input.nr
-        dw = None
-        if not self.input.plain:  # dw / d[p, e] (M, k_rig, nr + ne)
-            pe = x[:, :self._d]
-            pts = perturbed(pe, FD_EPS, True)
-            M, P, d = pts.shape
-            flat = pts.reshape(M * P, d)
-            ws = self.input(flat[:, :nr], flat[:, nr:], np.repeat(u, P, axis=0))
-            dw = differences(ws.reshape(M, P, -1), FD_EPS, True)
+        dw = None if self.input.plain else self.input.jacobian(p)  # dw/d[p, e]
         for row, _, grad_x, grad_w in self._rows:
             H[:, row, :self._d] = 0.0
             H[:, row, :nr] = grad_x(p, w, self.g)
