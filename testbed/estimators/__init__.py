@@ -345,15 +345,17 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
 
 
 def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False,
-        nthread: int = 0) -> Any:
+        jacobian: str = "step", jacobian_points: int = 1, nthread: int = 0) -> Any:
     """Extended Kalman filter on the rig's nominal MuJoCo model, composed with a matched
-    design's actuator, bias and delay states (Jacobians by finite differences of the
-    control-period map over one batched rollout: step ``eps``, forward or ``centered``;
-    ``nthread`` rollout threads), ``Q``/``R`` of ``design.discrete``
+    design's actuator, bias and delay states (Jacobians from one-physics-step derivatives
+    at ``jacobian_points`` points per period, or ``jacobian="rollout"``: finite differences
+    of the control-period map over one batched rollout; step ``eps``, forward or
+    ``centered``; ``nthread`` rollout threads), ``Q``/``R`` of ``design.discrete``
     (:mod:`testbed.estimators.nonlinear`)."""
     from testbed.estimators.nonlinear import nonlinear_estimator
 
     return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered,
+                                       jacobian=jacobian, jacobian_points=jacobian_points,
                                        nthread=nthread), design)
 
 

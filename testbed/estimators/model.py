@@ -49,6 +49,9 @@ class NonlinearModel:
         Central instead of forward differences for ``F``.
     nthread : int
         Rollout threads (0: the calling thread; the results do not depend on it).
+    jacobian, jacobian_points
+        The method of ``F``, as the built-in ``ekf``'s
+        (:class:`testbed.estimators.mujoco_model.MujocoProcessModel`).
 
     Attributes
     ----------
@@ -64,11 +67,14 @@ class NonlinearModel:
     """
 
     def __init__(self, design: DesignModel, *, eps: float | None = None,
-                 centered: bool = False, nthread: int = 0) -> None:
+                 centered: bool = False, nthread: int = 0, jacobian: str = "step",
+                 jacobian_points: int = 1) -> None:
         from testbed.estimators.nonlinear import FD_EPS, nonlinear_models
 
         rig, process, measure = nonlinear_models(design, eps=FD_EPS if eps is None else eps,
-                                                 centered=centered, nthread=nthread)
+                                                 centered=centered, nthread=nthread,
+                                                 jacobian=jacobian,
+                                                 jacobian_points=jacobian_points)
         self._process, self._measure = process, measure
         self._rig, self._params, self._nr = rig, rig.params, rig.n_states
         self._offsets = design.input_transform is not None
@@ -137,8 +143,9 @@ class NonlinearModel:
         return out[0] if single else out
 
     def F(self, x: npt.ArrayLike, u: npt.ArrayLike, x_hat: npt.ArrayLike) -> np.ndarray:
-        """``df/dx`` at the applied input (finite differences of the whole period), (n, n)
-        or (M, n, n)."""
+        """``df/dx`` at the applied input, (n, n) or (M, n, n): the built-in ``ekf``'s
+        Jacobian (``jacobian``: one physics step's derivatives held over the period by
+        default, ``"rollout"`` finite differences of the whole period)."""
         X, ua, single = self._rows(x, u, x_hat)
         out = np.asarray(self._process.jacobian(X, ua), float)
         return out[0] if single else out
@@ -162,7 +169,7 @@ class NonlinearModel:
 
 def nonlinear_model(design: DesignModel, **options: Any) -> NonlinearModel:
     """The nonlinear model of ``design`` for a plug-in (:class:`NonlinearModel`; options:
-    ``eps``, ``centered``, ``nthread``).
+    ``eps``, ``centered``, ``nthread``, ``jacobian``, ``jacobian_points``).
 
     Raises
     ------

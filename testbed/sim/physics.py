@@ -379,7 +379,12 @@ class Physics:
         if step_noise is not None:
             self._apply_step_noise(sel, step_noise)
         if self._act is None:
-            batch.step(ids, self.frame_skip)
+            if ids is None and self._c_step is not None:  # (step_plain's C call)
+                failed = self._c_step(None, self.frame_skip, _STAGE_NONE)
+                if failed:
+                    batch._check(None, failed)
+            else:
+                batch.step(ids, self.frame_skip)
         elif self._native is not None and native.installed():  # ctrl set in C, from the
             # command held in userdata
             state, cols, held = self.state, self._ctrl, self._native[1]
