@@ -7,6 +7,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from testbed.io import atomic_path
 from testbed.outputs.units import display
 from testbed.score.consistency import verdict_text
@@ -177,6 +179,50 @@ def leaderboard(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+_SHORT_VERDICT = {"consistent": "ok", "overconfident": "over", "underconfident": "under",
+                  "inconclusive": "inconcl.", "no verdict": "-"}
+
+
+def summary_cell(res: dict[str, Any], state: str, reference: str) -> str:
+    """One cell of :func:`summary_table`: the RMSE ratio to the reference on ``state``
+    (the square root of the paired MSE ratio, with its 95 % interval) and the consistency
+    verdict, e.g. ``1.41 [1.38, 1.44] ok``; ``ref`` for the reference, ``skipped``."""
+    if res["skipped"]:
+        return "skipped"
+    test = res["nees_test"]
+    verdict = "-" if test is None else _SHORT_VERDICT.get(test["verdict"], test["verdict"])
+    if res["estimator"] == reference:
+        return f"ref, {verdict}"
+    versus = res["versus_reference"]
+    if versus is None or state not in versus["states"]:
+        return f"-, {verdict}"
+    c = versus["states"][state]
+    lo, hi = (float(np.sqrt(max(v, 0.0))) for v in c["ratio_ci"])
+    return f"{np.sqrt(c['ratio']):.3g} [{lo:.3g}, {hi:.3g}], {verdict}"
+
+
+def summary_table(summary: dict[str, Any]) -> list[str]:
+    """The one-screen summary: entries x estimators, each cell :func:`summary_cell` on the
+    entry's first state (pitch, roll or position), as Markdown lines."""
+    names = list(summary.get("estimators") or [])
+    reference = summary["reference"]
+    lines = ["## Summary", "",
+             f"RMSE ratio to `{reference}` on each entry's first state (the square root of the "
+             "paired MSE ratio, 95 % interval) and the consistency verdict of the mean test "
+             "at 5 % (ok, over(confident), under(confident), inconcl(usive); - no NEES). "
+             "Every state, and the paired verdicts, in the entries' tables below.", "",
+             "| entry (state) | " + " | ".join(names) + " |",
+             "|---|" + "---|" * len(names)]
+    for scenario, group in _rows(summary):
+        by_name = {res["estimator"]: res for res in group}
+        states = next((list(r["rmse"]) for r in group if not r["skipped"] and r["rmse"]), [])
+        state = states[0] if states else ""
+        cells = [summary_cell(by_name[n], state, reference) if n in by_name else ""
+                 for n in names]
+        lines.append(f"| {scenario} ({state}) | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     """The leaderboard as Markdown (one table per scenario, then the remarks)."""
     units = summary["units"]
@@ -199,6 +245,7 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
            "trajectory-step and relative to the Kalman filter timed in the same run; mismatch "
            "= RMSE at the mismatched parameters / nominal (largest over the states). "
            "Definitions: docs/scoring.md.", ""]
+    out += summary_table(summary)
     descriptions = {s["name"]: s for s in summary["scenarios"]}
     for scenario, group in _rows(summary):
         desc = descriptions.get(scenario, {})
