@@ -305,7 +305,8 @@ class RecordingModel:
                 if not len(alive):
                     break
                 states[alive, step + 1] = sim.physics.states(alive)
-                applied[alive, step + 1] = np.clip(u_all[alive, step], sim._low, sim._high)
+                applied[alive, step + 1] = np.clip(u_all[alive, step], sim.limits.low,
+                                                   sim.limits.high)
                 continue
             states[alive, step + 1] = info_state[alive]
             applied[alive, step + 1] = info_applied[alive]

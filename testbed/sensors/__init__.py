@@ -5,6 +5,7 @@ generic channels and :mod:`testbed.sensors.decorators` for quantization, noise, 
 delay and sample-and-hold.
 """
 
+from testbed.sensors import fused as _fused  # noqa: F401  (sets Suite.fuse: the fused plans)
 from testbed.sensors.base import (
     ChannelFunctions,
     Drawn,

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -389,14 +389,19 @@ class Suite(Sensor):
         #: :meth:`allocate`; None: measured sensor by sensor.
         self._plan: Any = None
 
+    #: What fuses an allocated suite's decorators across its channels: ``suite -> plan or
+    #: None``. :mod:`testbed.sensors.fused` sets it to its ``build_plan`` where it defines it
+    #: (imported with :mod:`testbed.sensors`), so that this contract imports nothing above
+    #: it; None: every suite is measured sensor by sensor (the same values).
+    fuse: ClassVar[Callable[[Suite], Any] | None] = None
+
     def allocate(self, num: int) -> None:
         """Allocate every member sensor; then fuse their decorators across channels where
-        they allow it (:func:`testbed.sensors.fused.build_plan`)."""
-        from testbed.sensors.fused import build_plan
-
+        they allow it (:attr:`fuse`: :func:`testbed.sensors.fused.build_plan`)."""
         for s in self.sensors:
             s.allocate(num)
-        self._plan = None if self._state_index is not None else build_plan(self)
+        fuse = self.fuse
+        self._plan = None if self._state_index is not None or fuse is None else fuse(self)
 
     def reset(self, sample: Sample, noise: Noise) -> None:
         """Reset every member sensor, in order."""
@@ -412,9 +417,7 @@ class Suite(Sensor):
         plan = self._plan
         if plan is not None:  # the decorators across channels, bitwise the same values
             if not plan.current():  # a decorator's state was replaced: fuse it again
-                from testbed.sensors.fused import build_plan
-
-                plan = self._plan = build_plan(self)
+                plan = self._plan = self.fuse(self)
             if plan is not None:
                 return plan.measure(sample, noise)
         if len(self.sensors) == 1:

@@ -495,7 +495,8 @@ class AeroRig(Rig):
         Q, G = rate_noise(n, len(self.joints), process_noise_floor, disturbance)
         P0 = X0_STD**2 * np.eye(n)
         paper = build_design(self, sensors, dt_s, A, B, Q, self.default_x0(), P0,
-                             disturbance_matrix=G, extras={"quanser_model": (A, B)})
+                             disturbance_matrix=G, extras={"quanser_model": (A, B)},
+                             held_noise=self.hardware is None)
         if self.hardware is None:
             return paper
         return self._matched_design(paper, sensors, dt_s, Q, G)
