@@ -218,7 +218,9 @@ class _SampledFilter:
 
     # ------------------------------------------------------------ validation
     def _vector(self, name: str, v: npt.ArrayLike, dim: int) -> FloatArray:
-        """Validate ``y`` or ``u``: shape ``(dim,)`` or broadcastable ``(..., dim)``, finite."""
+        """Validate ``y`` or ``u``: shape ``(dim,)`` or broadcastable ``(..., dim)``, finite;
+        C-contiguous (numpy's batched products take another kernel for a strided batch: a
+        member would differ in the last bit from the same filter alone)."""
         if type(v) is not np.ndarray or v.dtype != np.float64:
             v = to_float_array(name, v)
         if not self._batch:
@@ -243,7 +245,7 @@ class _SampledFilter:
                 )
         if not all_finite(v):
             raise ValueError(f"{name} must be finite, got non-finite entries")
-        return v
+        return np.ascontiguousarray(v)
 
     def _input(self, u: npt.ArrayLike | None) -> FloatArray | None:
         """Validate ``u`` (``None`` = zero input); returns ``None`` when it has no effect."""

@@ -118,8 +118,12 @@ class EstimatorStage:
         self._checked = False
 
     def select(self, y: np.ndarray) -> np.ndarray:
-        """The channels of ``y`` (..., m) the estimator receives."""
-        return y if self.channels is None else np.asarray(y)[..., self.channels]
+        """The channels of ``y`` (..., m) the estimator receives, C-contiguous: numpy's
+        batched products (``vecmat``) take another kernel for a strided batch, so a member
+        of a batch would differ from the same run alone in the last bit (a view of the
+        reset's measurements is strided)."""
+        return np.ascontiguousarray(y if self.channels is None
+                                    else np.asarray(y)[..., self.channels])
 
     @property
     def x(self) -> np.ndarray:
@@ -200,6 +204,8 @@ class EstimatorStage:
         u = u_applied
         if self.input_transform is not None:
             u = self.input_transform(u, np.asarray(est.x))
+        if u is not None:
+            u = np.ascontiguousarray(u)
         try:
             x_hat = np.asarray(est.step(self.select(y), u))
         except (FilterError, FloatingPointError):  # typed numerical failures, as they are
