@@ -403,6 +403,19 @@ class KalmanFilter(_SampledFilter):
         return None if shared is None else shared.reshape(shared.shape[-2:])
 
     @property
+    def shared_innovation_cov(self) -> FloatArray | None:
+        """The innovation covariance of the last update that every member of a batch
+        shares, shape ``(m, m)`` (do not write it: copy it), or None (no update yet, a single
+        filter, or a batch of several members whose stack :attr:`innovation_cov` holds):
+        what :attr:`innovation_cov` repeats, without making the stack."""
+        S = self._innovation_cov
+        if S is None or not self._batch:
+            return None
+        if S.shape[:-2] != self._batch or math.prod(self._batch) == 1:
+            return S.reshape(S.shape[-2:])
+        return None
+
+    @property
     def gain(self) -> FloatArray | None:
         """Kalman gain of the last update, shape ``(..., n, m)``, or None."""
         return self._stacked("_gain")
@@ -593,8 +606,10 @@ class KalmanFilter(_SampledFilter):
         """
         if not self._batch:
             return None
+        if math.prod(self._batch) == 1:  # a batch of one: its member (the same operations)
+            return P.reshape(P.shape[-2:])
         first = shared_member(P)
-        if first.shape == P.shape:  # a batch of one: the stack
+        if first.shape == P.shape:  # members that differ
             return None
         return first.reshape(P.shape[-2:])
 

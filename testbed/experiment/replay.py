@@ -57,6 +57,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from filters import KalmanFilter
 from testbed import estimators
 from testbed.design import DesignModel, channel_effects
 from testbed.experiment.loop import EstimatorStage, LoopResult, Tape, check_estimate, sensor_taps
@@ -85,8 +86,6 @@ _SCENARIO_META = ("rig", "profile", "sensors", "sensor_options", "physics_dt_s",
                   "ambient_noise", "manoeuvre")
 #: Relative tolerance of a uniform sample period and of ``period_s`` as a whole multiple.
 _PERIOD_TOLERANCE = 1e-6
-#: Step a batched estimator as a batch of two copies (see :func:`replay`).
-_PAD_BATCH = True
 
 
 # ---------------------------------------------------------------------- from a simulation
@@ -290,30 +289,102 @@ class _NoTruth:
         self.count += 1
 
 
-class _FirstRow:
-    """An input transform of a padded batch (:func:`replay`): member 0's row computed as
-    a batch of one (a rig's transform may use BLAS products whose rounding depends on the
-    number of rows, and member 0 must get the bits it gets alone), repeated for the copy."""
-
-    def __init__(self, transform: Any):
-        self.transform = transform
-
-    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-        return np.repeat(self.transform(u[:1], x_hat[:1]), len(u), axis=0)
+def _innermost(est: Any) -> Any:
+    """The :class:`filters.KalmanFilter` inside wrappers that change none of ``x``, ``P`` and
+    the innovations (:class:`~testbed.estimators.ChannelSelect` and the plain
+    :class:`~testbed.estimators.EstimatorWrapper`), else ``est`` itself."""
+    inner = est
+    while type(inner) in (estimators.EstimatorWrapper, estimators.ChannelSelect):
+        inner = inner.inner
+    return inner if isinstance(inner, KalmanFilter) else est
 
 
-def _shares_covariance(est: Any) -> bool:
-    """Whether the estimator is (a wrapper of) a :class:`filters.KalmanFilter`, whose
-    members share one covariance recursion in a batch of two or more."""
-    from filters import KalmanFilter
+def _restore_taps(taps: Sequence[Any], columns: Sequence[Sequence[int]],
+                  y: np.ndarray) -> None:
+    """Set each tap's latest values to the recorded channels of row ``y`` (1, m)."""
+    for tap, cols in zip(taps, columns, strict=True):
+        tap.last[:] = y[:, cols]
 
-    for _ in range(8):
-        if isinstance(est, KalmanFilter):
-            return True
-        est = est.__dict__.get("inner") if hasattr(est, "__dict__") else None
-        if est is None:
-            return False
-    return False
+
+class _Collect:
+    """The replay's per-step record: the physical estimate, its variances and the
+    innovations, into arrays allocated once.
+
+    A :class:`filters.KalmanFilter` (possibly behind a channel selection) is read through
+    its batch of one's shared members (``shared_P``, ``shared_innovation_cov``: the
+    recursion's own arrays, the same object while the covariance has settled, whose
+    physical diagonal is then taken once); any other estimator through ``P``,
+    ``innovation`` and ``innovation_cov``.
+
+    Parameters
+    ----------
+    K : int
+        Steps.
+    stage : EstimatorStage
+    inner : estimator
+        What the innovations are read from (:func:`_innermost`, or a per-member
+        estimator's one instance).
+    has_P : bool
+        Whether the estimator reports a covariance.
+    """
+
+    def __init__(self, K: int, stage: EstimatorStage, inner: Any, has_P: bool):
+        self.stage, self.inner, self.K = stage, inner, K
+        n = len(stage.prior[0]) if stage.physical_index is None else len(stage.physical_index)
+        self.x_hat = np.empty((K + 1, n))
+        self.P_diag = np.empty((K + 1, n)) if has_P else None
+        self.nu: np.ndarray | None = None
+        self.S: np.ndarray | None = None
+        self.has_innovation = True
+        self._last_P: Any = None
+        self._last_diag: Any = None
+        kalman = isinstance(inner, KalmanFilter) and has_P
+        self.collect = self._kalman if kalman else self._generic
+
+    def _allocate(self, nu: Any) -> None:
+        p = np.shape(nu)[-1]
+        self.nu, self.S = np.empty((self.K, p)), np.empty((self.K, p, p))
+
+    def _kalman(self, j: int, x: np.ndarray) -> None:
+        """Row ``j`` of a Kalman filter's batch of one (``x``: the physical estimate)."""
+        self.x_hat[j] = x[0]
+        inner = self.inner
+        P = inner.shared_P
+        if P is not self._last_P:  # a new covariance (not a settled one's memo)
+            self._last_P = P
+            self._last_diag = self.stage._physical_block(P).diagonal()
+        self.P_diag[j] = self._last_diag  # type: ignore[index]
+        if j:
+            if self.nu is None:
+                self._allocate(inner.innovation)
+            self.nu[j - 1] = inner.innovation[0]  # type: ignore[index]
+            self.S[j - 1] = inner.shared_innovation_cov  # type: ignore[index]
+
+    def _generic(self, j: int, x: np.ndarray) -> None:
+        """Row ``j`` of any estimator."""
+        self.x_hat[j] = x[0]
+        if self.P_diag is not None:
+            self.P_diag[j] = self.stage.P[0].diagonal()
+        if not j or not self.has_innovation:
+            return
+        inner = self.inner
+        nu = getattr(inner, "innovation", None)
+        S = getattr(inner, "innovation_cov", None)
+        if self.nu is None and nu is not None and S is not None:
+            self._allocate(nu)
+        try:
+            # (N, p) and (N, p, p), or one member's (p,) and (p, p)
+            self.nu[j - 1] = nu[0 if np.ndim(nu) == 2 else ()]  # type: ignore[index]
+            self.S[j - 1] = S[0 if np.ndim(S) == 3 else ()]  # type: ignore[index]
+        except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
+            self.has_innovation = False
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
+                              np.ndarray | None, bool]:
+        """``x_hat`` (K+1, n), ``P_diag`` (K+1, n) or None, the innovations (K, p) and
+        their covariances (K, p, p) (None: none exposed), and whether there were any."""
+        return (self.x_hat, self.P_diag, self.nu, self.S,
+                self.has_innovation and self.nu is not None)
 
 
 @dataclass
@@ -619,17 +690,11 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     batched = bool(getattr(est, "batched", False))
     if not batched:
         est = estimators.PerMember([est])
-    # a Kalman filter steps two copies of the recording: the members share one covariance,
-    # whose recursion it then computes once and reuses where it has settled
-    # (filters.KalmanFilter), which a batch of one does not do (6 times faster here); member
-    # 0 is the result, the same bits as alone (the input transform sees it alone: _FirstRow)
-    num = 2 if _PAD_BATCH and batched and _shares_covariance(est) else 1
+    # one member (a Kalman filter's batch of one shares its covariance with itself: its
+    # recursion is computed once, ahead, and reused where it has settled; filters.KalmanFilter)
     P = getattr(est, "P", None)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
-    transform = design.input_transform
-    if transform is not None and num > 1:
-        transform = _FirstRow(transform)
-    stage = EstimatorStage(est, transform, _NoTruth(period), prior,
+    stage = EstimatorStage(est, design.input_transform, _NoTruth(period), prior,
                            channels=estimators.channels_for(est, design),
                            physical_index=design.physical, name=name)
     used = np.arange(len(names)) if stage.channels is None else stage.channels
@@ -650,60 +715,31 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
                          for n in names])
     U = np.column_stack([np.asarray(recording.inputs[n], float)[rows]
                          for n in cls.action_names])
-    Yb = np.ascontiguousarray(np.repeat(np.nan_to_num(Y)[:, None, :], num, axis=1))
-    Ub = np.ascontiguousarray(np.repeat(U[:, None, :], num, axis=1))
+    # row j as the (1, m) and (1, nu) the stage takes: views of contiguous rows
+    Yb = np.ascontiguousarray(np.nan_to_num(Y)[:, None, :])
+    Ub = np.ascontiguousarray(U[:, None, :])
     tap_columns = [[names.index(n) for n in tap.names] for tap in taps]
-    suite.allocate(1)  # one unit: the taps hold member 0's channels (the copy gets its inputs)
-    x0_hat, P0 = stage.priors(num, [None] * num)
-
-    n_phys = len(design.physical)
-    x_hat = np.empty((K + 1, n_phys))
-    P_diag = None if P is None else np.empty((K + 1, n_phys))
-    nu_arr: np.ndarray | None = None
-    S_arr: np.ndarray | None = None
-    nu_pick: Any = ()
-    S_pick: Any = ()
-    has_innovation = True
-
-    def restore_taps(j: int) -> None:
-        for tap, cols in zip(taps, tap_columns, strict=True):
-            tap.last[:] = Yb[j, :1][:, cols]
-
-    inner = est.instances[0] if isinstance(est, estimators.PerMember) else est
-    step = stage.step
+    suite.allocate(1)
+    x0_hat, P0 = stage.priors(1, [None])
+    inner = est.instances[0] if isinstance(est, estimators.PerMember) else _innermost(est)
+    loop = _Collect(K, stage, inner, P is not None)
     bar = tqdm(total=K, desc=f"replay {cls.name}", unit="step", disable=not progress,
                leave=False)
+    step = stage.step
+    collect = loop.collect
     start = time.perf_counter()
     with bar, threadpool_limits(1):
-        restore_taps(0)
+        _restore_taps(taps, tap_columns, Yb[0])
         stage.reset(Yb[0].copy(), None, x0_hat, P0)
-        x_hat[0] = stage.x[0]
-        if P_diag is not None:
-            P_diag[0] = stage.P[0].diagonal()
+        collect(0, stage.x)
         for j in range(1, K + 1):
             if taps:
-                restore_taps(j)
-            step(Yb[j], Ub[j - 1], None, None)
-            x_hat[j] = stage.x[0]
-            if P_diag is not None:
-                P_diag[j] = stage.P[0].diagonal()
-            if has_innovation:
-                nu = getattr(inner, "innovation", None)
-                S = getattr(inner, "innovation_cov", None)
-                if nu_arr is None and nu is not None and S is not None:
-                    # (N, p) and (N, p, p), or one member's (p,) and (p, p)
-                    nu_pick = 0 if np.ndim(nu) == 2 else ()
-                    S_pick = 0 if np.ndim(S) == 3 else ()
-                    p = np.shape(nu)[-1]
-                    nu_arr, S_arr = np.empty((K, p)), np.empty((K, p, p))
-                try:
-                    nu_arr[j - 1] = nu[nu_pick]
-                    S_arr[j - 1] = S[S_pick]
-                except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
-                    has_innovation = False
+                _restore_taps(taps, tap_columns, Yb[j])
+            collect(j, step(Yb[j], Ub[j - 1], None, None))
             if progress and j % 1000 == 0:
                 bar.update(1000)
         bar.update(K - bar.n)
+    x_hat, P_diag, nu_arr, S_arr, has_innovation = loop.arrays()
     wall = time.perf_counter() - start
 
     notes: list[str] = []
