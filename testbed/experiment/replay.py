@@ -299,85 +299,101 @@ def _innermost(est: Any) -> Any:
     return inner if isinstance(inner, KalmanFilter) else est
 
 
-def _restore_taps(taps: Sequence[Any], columns: Sequence[Sequence[int]],
-                  y: np.ndarray) -> None:
-    """Set each tap's latest values to the recorded channels of row ``y`` (1, m)."""
-    for tap, cols in zip(taps, columns, strict=True):
-        tap.last[:] = y[:, cols]
-
-
 class _Collect:
-    """The replay's per-step record: the physical estimate, its variances and the
-    innovations, into arrays allocated once.
+    """The replay's steps and their record: the physical estimate, its variances and the
+    innovations, into arrays allocated once, a block of steps at a time.
 
     A :class:`filters.KalmanFilter` (possibly behind a channel selection) is read through
-    its batch of one's shared members (``shared_P``, ``shared_innovation_cov``: the
-    recursion's own arrays, the same object while the covariance has settled, whose
-    physical diagonal is then taken once); any other estimator through ``P``,
-    ``innovation`` and ``innovation_cov``.
+    its batch of one's shared members (``shared_P``, ``shared_innovation_cov``): each step's
+    arrays are kept by reference (the filter replaces them, never writes them) and copied
+    into the record once per block; any other estimator is read after each step through
+    ``P``, ``innovation`` and ``innovation_cov``.
 
     Parameters
     ----------
-    K : int
-        Steps.
     stage : EstimatorStage
     inner : estimator
         What the innovations are read from (:func:`_innermost`, or a per-member
         estimator's one instance).
     has_P : bool
         Whether the estimator reports a covariance.
+    Y, U : ndarray, shape (K+1, 1, m) and (K+1, 1, nu)
+        The channels and inputs of the samples used, as the stage takes them.
+    taps : list of (Tap, list of int)
+        The sensors' taps and the channels they hold.
     """
 
-    def __init__(self, K: int, stage: EstimatorStage, inner: Any, has_P: bool):
-        self.stage, self.inner, self.K = stage, inner, K
+    #: Steps per block.
+    BLOCK = 1024
+
+    def __init__(self, stage: EstimatorStage, inner: Any, has_P: bool, Y: np.ndarray,
+                 U: np.ndarray, taps: Sequence[tuple[Any, Sequence[int]]]):
+        self.stage, self.inner, self.Y, self.U, self.taps = stage, inner, Y, U, taps
+        self.K = K = len(Y) - 1
         n = len(stage.prior[0]) if stage.physical_index is None else len(stage.physical_index)
         self.x_hat = np.empty((K + 1, n))
         self.P_diag = np.empty((K + 1, n)) if has_P else None
         self.nu: np.ndarray | None = None
         self.S: np.ndarray | None = None
         self.has_innovation = True
-        self._last_P: Any = None
-        self._last_diag: Any = None
-        kalman = isinstance(inner, KalmanFilter) and has_P
-        self.collect = self._kalman if kalman else self._generic
+        self.block = self._kalman if isinstance(inner, KalmanFilter) and has_P \
+            else self._generic
+
+    def restore_taps(self, j: int) -> None:
+        """Set each tap's latest values to the recorded channels of row ``j``."""
+        for tap, cols in self.taps:
+            tap.last[:] = self.Y[j][:, cols]
+
+    def first(self) -> None:
+        """Row 0: the estimate after the stage's reset."""
+        self.x_hat[0] = self.stage.x[0]
+        if self.P_diag is not None:
+            self.P_diag[0] = self.stage.P[0].diagonal()
 
     def _allocate(self, nu: Any) -> None:
         p = np.shape(nu)[-1]
         self.nu, self.S = np.empty((self.K, p)), np.empty((self.K, p, p))
 
-    def _kalman(self, j: int, x: np.ndarray) -> None:
-        """Row ``j`` of a Kalman filter's batch of one (``x``: the physical estimate)."""
-        self.x_hat[j] = x[0]
-        inner = self.inner
-        P = inner.shared_P
-        if P is not self._last_P:  # a new covariance (not a settled one's memo)
-            self._last_P = P
-            self._last_diag = self.stage._physical_block(P).diagonal()
-        self.P_diag[j] = self._last_diag  # type: ignore[index]
-        if j:
-            if self.nu is None:
-                self._allocate(inner.innovation)
-            self.nu[j - 1] = inner.innovation[0]  # type: ignore[index]
-            self.S[j - 1] = inner.shared_innovation_cov  # type: ignore[index]
+    def _kalman(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` of a Kalman filter's batch of one."""
+        step, inner, Y, U, taps = self.stage.step, self.inner, self.Y, self.U, self.taps
+        xs, nus, Ss, Ps = [], [], [], []
+        for j in range(j0, j1):
+            if taps:
+                self.restore_taps(j)
+            xs.append(step(Y[j], U[j - 1], None, None))
+            nus.append(inner.innovation)
+            Ss.append(inner.shared_innovation_cov)
+            Ps.append(inner.shared_P)
+        self.x_hat[j0:j1] = np.concatenate(xs)
+        if self.nu is None:
+            self._allocate(nus[0])
+        self.nu[j0 - 1:j1 - 1] = np.concatenate(nus)  # type: ignore[index]
+        self.S[j0 - 1:j1 - 1] = Ss  # type: ignore[index]
+        self.P_diag[j0:j1] = np.diagonal(  # type: ignore[index]
+            self.stage._physical_block(np.stack(Ps)), axis1=-2, axis2=-1)
 
-    def _generic(self, j: int, x: np.ndarray) -> None:
-        """Row ``j`` of any estimator."""
-        self.x_hat[j] = x[0]
-        if self.P_diag is not None:
-            self.P_diag[j] = self.stage.P[0].diagonal()
-        if not j or not self.has_innovation:
-            return
-        inner = self.inner
-        nu = getattr(inner, "innovation", None)
-        S = getattr(inner, "innovation_cov", None)
-        if self.nu is None and nu is not None and S is not None:
-            self._allocate(nu)
-        try:
-            # (N, p) and (N, p, p), or one member's (p,) and (p, p)
-            self.nu[j - 1] = nu[0 if np.ndim(nu) == 2 else ()]  # type: ignore[index]
-            self.S[j - 1] = S[0 if np.ndim(S) == 3 else ()]  # type: ignore[index]
-        except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
-            self.has_innovation = False
+    def _generic(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` of any estimator."""
+        step, stage, inner, Y, U = self.stage.step, self.stage, self.inner, self.Y, self.U
+        for j in range(j0, j1):
+            if self.taps:
+                self.restore_taps(j)
+            self.x_hat[j] = step(Y[j], U[j - 1], None, None)[0]
+            if self.P_diag is not None:
+                self.P_diag[j] = stage.P[0].diagonal()
+            if not self.has_innovation:
+                continue
+            nu = getattr(inner, "innovation", None)
+            S = getattr(inner, "innovation_cov", None)
+            if self.nu is None and nu is not None and S is not None:
+                self._allocate(nu)
+            try:
+                # (N, p) and (N, p, p), or one member's (p,) and (p, p)
+                self.nu[j - 1] = nu[0 if np.ndim(nu) == 2 else ()]  # type: ignore[index]
+                self.S[j - 1] = S[0 if np.ndim(S) == 3 else ()]  # type: ignore[index]
+            except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
+                self.has_innovation = False
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
                               np.ndarray | None, bool]:
@@ -718,27 +734,22 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     # row j as the (1, m) and (1, nu) the stage takes: views of contiguous rows
     Yb = np.ascontiguousarray(np.nan_to_num(Y)[:, None, :])
     Ub = np.ascontiguousarray(U[:, None, :])
-    tap_columns = [[names.index(n) for n in tap.names] for tap in taps]
+    tap_columns = [(tap, [names.index(n) for n in tap.names]) for tap in taps]
     suite.allocate(1)
     x0_hat, P0 = stage.priors(1, [None])
     inner = est.instances[0] if isinstance(est, estimators.PerMember) else _innermost(est)
-    loop = _Collect(K, stage, inner, P is not None)
+    loop = _Collect(stage, inner, P is not None, Yb, Ub, tap_columns)
     bar = tqdm(total=K, desc=f"replay {cls.name}", unit="step", disable=not progress,
                leave=False)
-    step = stage.step
-    collect = loop.collect
     start = time.perf_counter()
     with bar, threadpool_limits(1):
-        _restore_taps(taps, tap_columns, Yb[0])
+        loop.restore_taps(0)
         stage.reset(Yb[0].copy(), None, x0_hat, P0)
-        collect(0, stage.x)
-        for j in range(1, K + 1):
-            if taps:
-                _restore_taps(taps, tap_columns, Yb[j])
-            collect(j, step(Yb[j], Ub[j - 1], None, None))
-            if progress and j % 1000 == 0:
-                bar.update(1000)
-        bar.update(K - bar.n)
+        loop.first()
+        for j0 in range(1, K + 1, loop.BLOCK):
+            j1 = min(K + 1, j0 + loop.BLOCK)
+            loop.block(j0, j1)
+            bar.update(j1 - j0)
     x_hat, P_diag, nu_arr, S_arr, has_innovation = loop.arrays()
     wall = time.perf_counter() - start
 

@@ -633,7 +633,7 @@ class HelicopterRig(Rig):
         Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
         nominal = self.params  # what the designer knows (nominal or a twin's): never the truth
 
-        unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
+        unbalanced_input = _UnbalancedInput(nominal)
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                              np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                              input_transform=unbalanced_input,
@@ -695,9 +695,11 @@ class HelicopterRig(Rig):
         accel_row = A[2].copy()
         resting = PITCH_LIMIT_RAD - STOP_TOLERANCE_RAD
 
+        gravity = _UnbalancedInput(nominal).voltage
+
         def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
             pitch = x_hat[:, 0]
-            v_g = gravity_voltage(nominal, pitch)
+            v_g = gravity(pitch)
             volts = current_limited(deadband(u, consts[:2]), x_hat[:, 4:6] + v_g,
                                     consts[2:4], consts[4:6])
             accel = x_hat[:, :6] @ accel_row  # the model's pitch acceleration now
@@ -717,10 +719,31 @@ class HelicopterRig(Rig):
                                                 from_states=np.eye(2), relative=np.eye(2))})
 
 
-def _unbalanced_input(nominal: HelicopterParams, u: np.ndarray,
-                      x_hat: np.ndarray) -> np.ndarray:
-    """The design's input transform: the applied voltages minus the gravity voltage."""
-    return u - gravity_voltage(nominal, x_hat[:, 0])
+class _UnbalancedInput:
+    """The design's input transform: the applied voltages minus :func:`gravity_voltage` at
+    the estimated pitch, with the parameters' constants (``m g l`` and the volts per N m)
+    computed once instead of on every step (the same operations on the same numbers: the
+    same values bitwise); picklable.
+
+    Parameters
+    ----------
+    nominal : HelicopterParams
+        The designer's parameters.
+    """
+
+    def __init__(self, nominal: HelicopterParams):
+        self.nominal = nominal
+        self._torque_n_m = nominal.mass_kg * GRAVITY_M_S2 * nominal.com_m  # times cos(pitch)
+        self._volts_per_n_m = _volts_per_pitch_newton_metre(nominal)
+
+    def voltage(self, pitch_rad: np.ndarray) -> np.ndarray:
+        """:func:`gravity_voltage` ``(nominal, pitch_rad)``, shape (..., 2), V."""
+        torque = self._torque_n_m * np.cos(np.asarray(pitch_rad, float))
+        return torque[..., None] * self._volts_per_n_m
+
+    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+        """``u`` (N, 2) V minus the gravity voltage at ``x_hat[:, 0]`` (N,) rad."""
+        return u - self.voltage(x_hat[:, 0])
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):
