@@ -760,12 +760,16 @@ def hardware_imu(hardware: HelicopterHardware, dt_s: float):
     if not (np.isfinite(dt_s) and dt_s > 0):
         raise ValueError(f"dt_s must be a positive sampling period in s, got {dt_s}")
     hw = hardware
+    # control periods per IMU sample (a loop faster than the IMU holds its sample; one
+    # slower reads its latest sample every period); the IMU's own period, rounded to whole
+    # control periods, is what its noise and bias walk are per sample
+    hold = max(1, int(round(1.0 / (hw.imu_rate_hz * dt_s))))
+    imu_dt_s = hold * dt_s if hold > 1 else dt_s
     imu = ScaleFactor(HelicopterIMU(), initial_std=hw.scale_factor_std)
-    imu = BiasRandomWalk(imu, walk=[hw.gyro_bias_walk, hw.gyro_bias_walk, 0.0], dt_s=dt_s,
+    imu = BiasRandomWalk(imu, walk=[hw.gyro_bias_walk, hw.gyro_bias_walk, 0.0], dt_s=imu_dt_s,
                          initial_std=[hw.gyro_bias0_std, hw.gyro_bias0_std, hw.accel_bias0_std])
     imu = WhiteNoise(imu, density=[hw.gyro_noise_density, hw.gyro_noise_density,
-                                   hw.accel_noise_density], dt_s=dt_s)
-    hold = int(round(1.0 / (hw.imu_rate_hz * dt_s)))
+                                   hw.accel_noise_density], dt_s=imu_dt_s)
     if hold > 1:
         imu = SampleAndHold(imu, hold)
     return Delay(imu, max(1, int(round(hw.imu_delay_s / dt_s))))
