@@ -209,17 +209,69 @@ def _from_trajectory(traj: Trajectory, source: str) -> Recording:
 
 def _recording(y: np.ndarray, applied: np.ndarray, dt_s: float, action_names: tuple[str, ...],
                channel_names: tuple[str, ...], meta: dict[str, Any], source: str) -> Recording:
-    """The arrays in the loop's convention (``applied[k + 1]`` over step ``k``) as rows in
-    the recording's (:data:`INPUT_CONVENTION`)."""
-    T1 = len(y)
-    if T1 < 2:
-        raise ValueError(f"a recording needs at least 2 samples, the run has {T1}")
-    held = np.concatenate([applied[1:], applied[-1:]], axis=0)  # row k: over [t_k, t_k+1)
-    time_s = np.arange(T1) * dt_s
+    """The arrays in the loop's convention (``applied[k + 1]`` over step ``k``) as a
+    recording (:func:`episode_recording`)."""
+    if len(y) < 2:
+        raise ValueError(f"a recording needs at least 2 samples, the run has {len(y)}")
+    return episode_recording(y, applied[1:], dt_s, action_names=action_names,
+                             channel_names=channel_names, meta=meta, source=source)
+
+
+def episode_recording(measurement: np.ndarray, applied: np.ndarray, dt_s: float, *,
+                      action_names: Sequence[str], channel_names: Sequence[str],
+                      meta: dict[str, Any] | None = None,
+                      source: str = "<simulation>") -> Recording:
+    """What a recording of a simulated episode holds: the one definition, used by
+    :func:`recording_from_result` (``testbed run --save-log``) and by the Gymnasium wrapper
+    :class:`~testbed.envs.recording.RecordLog`.
+
+    An episode of ``T`` steps gives ``T + 1`` samples: row ``k`` has the time ``k dt_s``, the
+    measurement after the reset (``k = 0``) or after step ``k``, and the input applied over
+    step ``k + 1`` (:data:`INPUT_CONVENTION`); the last row's input repeats the one before
+    it (no step follows it; :func:`replay` and ``identify`` never use it).
+
+    Parameters
+    ----------
+    measurement : ndarray, shape (T+1, m)
+        What the sensors gave after the reset and after each step.
+    applied : ndarray, shape (T, nu)
+        The input applied over each step (after clipping).
+    dt_s : float
+        The control period, s.
+    action_names, channel_names : sequence of str
+        The rig's inputs and the sensors' channels (the columns).
+    meta : dict, optional
+        The recording's ``meta`` (``control_dt_s`` and ``input_convention`` are set).
+    source : str
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match (``T >= 1`` steps, ``T + 1`` measurements, the names'
+        lengths) or a period that is not positive (one line).
+    """
+    y = np.asarray(measurement, float)
+    u = np.asarray(applied, float)
+    if y.ndim != 2 or y.shape[1] != len(channel_names) or len(y) < 2:
+        raise ValueError(f"measurement must have shape (T+1, {len(channel_names)}) with T >= 1,"
+                         f" got {y.shape}")
+    if u.shape != (len(y) - 1, len(action_names)):
+        raise ValueError(f"applied must have shape ({len(y) - 1}, {len(action_names)}) (one "
+                         f"row per step), got {u.shape}")
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be a positive period in s, got {dt_s!r}")
+    held = np.concatenate([u, u[-1:]], axis=0)  # row k: over [t_k, t_k+1)
+    time_s = np.arange(len(y)) * float(dt_s)
     return Recording(time_s=time_s,
                      inputs={n: held[:, i].copy() for i, n in enumerate(action_names)},
                      channels={n: y[:, j].copy() for j, n in enumerate(channel_names)},
-                     source=source, sha256="", meta=dict(meta, control_dt_s=float(dt_s)))
+                     source=source, sha256="",
+                     meta=dict(meta or {}, control_dt_s=float(dt_s),
+                               input_convention=INPUT_CONVENTION))
 
 
 def _meta(run_meta: dict[str, Any], rig: Any, sensors: Sensor | None,
