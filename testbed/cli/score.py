@@ -20,6 +20,9 @@ def add_arguments(sc: argparse.ArgumentParser) -> None:
                     help="only this scenario of the suite; repeatable")
     sc.add_argument("--runs", type=values.positive_int, default=None,
                     help="override the runs of every entry")
+    sc.add_argument("--twin", metavar="FILE.toml", default=None,
+                    help="a twin of a real unit (testbed identify --twin): the suite's entries "
+                         "of its rig, with its identified parameters")
     sc.add_argument("--seed", type=values.seed, default=0)
     sc.add_argument("--reference", default="kalman", metavar="NAME_OR_MODULE:FACTORY",
                     help="estimator the others are compared with, paired (default kalman)")
@@ -62,6 +65,7 @@ def command(args: argparse.Namespace) -> int:
     run = harness.score(args.estimator, args.suite, seed=args.seed, runs=args.runs,
                         scenarios=args.scenario, backend=args.backend, workers=args.workers,
                         worst_case=not args.no_worst_case, reference=args.reference,
+                        twin=args.twin,
                         progress=None if args.no_progress else
                         lambda name: print(f"  scored {name}", file=sys.stderr))
     summary = report.results(run)
