@@ -388,8 +388,14 @@ class _Collect:
         self.nu: np.ndarray | None = None
         self.S: np.ndarray | None = None
         self.has_innovation = True
-        self.block = self._kalman if isinstance(inner, KalmanFilter) and has_P \
-            else self._generic
+        self._kalman_filter = isinstance(inner, KalmanFilter) and has_P
+
+    def block(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` (rows ``j0..j1-1`` of the record)."""
+        if self._kalman_filter and self.inner.shared_P is not None:  # a batch of one
+            self._kalman(j0, j1)
+        else:
+            self._generic(j0, j1)
 
     def restore_taps(self, j: int) -> None:
         """Set each tap's latest values to the recorded channels of row ``j``."""

@@ -742,8 +742,10 @@ class _UnbalancedInput:
         return torque[..., None] * self._volts_per_n_m
 
     def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-        """``u`` (N, 2) V minus the gravity voltage at ``x_hat[:, 0]`` (N,) rad."""
-        return u - self.voltage(x_hat[:, 0])
+        """``u`` (N, 2) V minus the gravity voltage at ``x_hat[:, 0]`` (N,) rad (the
+        operations of :meth:`voltage`, inline: this runs every step)."""
+        torque = self._torque_n_m * np.cos(np.asarray(x_hat[:, 0], float))
+        return u - torque[..., None] * self._volts_per_n_m
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):
