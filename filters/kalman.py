@@ -722,6 +722,8 @@ class KalmanFilter(_SampledFilter):
         table = self._memo_table
         done = (compute() if table is None
                 else self._covariance_memo.step(table, key, compute))  # type: ignore[union-attr]
+        for kept in done:  # never written: read-only, and so every view of it (shared_P)
+            kept.flags.writeable = False
         own = self._memo
         if len(own) >= _MEMO_STEPS + _AHEAD_STEPS:
             del own[next(iter(own))]  # the oldest

@@ -568,6 +568,7 @@ def test_kalman_batch_of_one_shares_its_covariance_bitwise_as_the_stack(
     shared = _kalman_run(f, ys, us)
     assert f.shared_innovation_cov is not None
     assert np.array_equal(f.shared_innovation_cov, f.innovation_cov[0])
+    assert not f.shared_P.flags.writeable and not f.P.flags.writeable  # the kept arrays
     monkeypatch.setattr(KalmanFilter, "_shared", lambda self, P: None)
     g = KalmanFilter(system, x0, P0)
     assert g.shared_P is None
