@@ -138,6 +138,10 @@ class _CallableModelFilter(_SampledFilter):
         """``u`` as an ``(num, k)`` array (zeros for ``None``)."""
         if u is None:
             return np.zeros((num, self._k))
+        if u.shape == (num, self._k):  # a read-only view, as broadcast_to's (cheaper)
+            view = u.view()
+            view.flags.writeable = False
+            return view
         return np.broadcast_to(u, (num, self._k))
 
     def _eval(self, label: str, fn: ModelFunction, x: FloatArray, u: FloatArray,

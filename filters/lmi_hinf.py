@@ -127,7 +127,7 @@ __all__ = [
     "minimal_gamma_sdp",
     "ms_spectral_radius",
     "output_error_moments",
-    "theorem4_matrix",
+    "design_lmi_matrix",
 ]
 
 #: Default relative strictness margin of (48) and of ``P1, P2 > 0`` (see :func:`balancing`).
@@ -349,9 +349,9 @@ def ms_spectral_radius(At: npt.ArrayLike, Ct: npt.ArrayLike) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(L))))
 
 
-def theorem4_matrix(system: StochasticLinearSystem, P1: npt.ArrayLike, P2: npt.ArrayLike,
-                    P_K: npt.ArrayLike, gamma: float) -> FloatArray:
-    """The left-hand side of LMI (48) evaluated with numpy (no solver).
+def design_lmi_matrix(system: StochasticLinearSystem, P1: npt.ArrayLike, P2: npt.ArrayLike,
+                      P_K: npt.ArrayLike, gamma: float) -> FloatArray:
+    """The left-hand side of Theorem 4's LMI (48) evaluated with numpy (no solver).
 
     Parameters
     ----------
@@ -404,7 +404,7 @@ def lmi_gamma_for_solution(system: StochasticLinearSystem, P1: npt.ArrayLike,
     """
     s = system
     n, nv = s.n, s.n_v
-    M = theorem4_matrix(s, P1, P2, P_K, 0.0)
+    M = design_lmi_matrix(s, P1, P2, P_K, 0.0)
     v = np.arange(2 * n, 2 * n + nv)
     r = np.setdiff1d(np.arange(M.shape[0]), v)
     R = M[np.ix_(r, r)]
@@ -434,7 +434,7 @@ class DesignCheck:
     spectral_radius : float
         :func:`ms_spectral_radius` of (46); must be ``< 1``.
     lmi_max_eig : float
-        Largest eigenvalue of (48) (:func:`theorem4_matrix`) at ``P_K = P2 Khat``.
+        Largest eigenvalue of (48) (:func:`design_lmi_matrix`) at ``P_K = P2 Khat``.
     lmi_balanced_max_eig : float
         Largest eigenvalue of ``S (48) S`` (:func:`balancing`): the relative margin achieved
         (``<= -margin`` for an exact solver).
@@ -524,7 +524,7 @@ def check_design(system: StochasticLinearSystem, gain: npt.ArrayLike,
     stable = bool(rho < 1.0)
     scale = float(np.abs(eig).max()) or 1.0
     cond = float(eP[-1] / eP[0]) if eP[0] > 0 else 1e300
-    lmi = theorem4_matrix(system, P1, P2, P[n:, n:] @ _gain(system, gain), gamma)
+    lmi = design_lmi_matrix(system, P1, P2, P[n:, n:] @ _gain(system, gain), gamma)
     (s1, s2), diag = balancing(system, gamma)
     balanced = lmi * np.outer(diag, diag)
     p_bal = min(float(np.linalg.eigvalsh(P[:n, :n])[0]) / s1,

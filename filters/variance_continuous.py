@@ -58,7 +58,7 @@ The paper gives no algorithm (Remark 1 cites local search). Here:
       F16'(Q1)[D] = Ac D + D Ac^T + b (A T) D (A T)^T,
       Ac = A + aI + eps2^-1 Q1 N^T N,   T = I + Q1 N^T (eps1 I - N Q1 N^T)^-1 N.
 
-  Newton's method from ``Q1 = 0`` (:func:`solve_equation16`) therefore increases
+  Newton's method from ``Q1 = 0`` (:func:`solve_state_bound`) therefore increases
   monotonically to the least solution whenever a solution exists (Damm & Hinrichsen 2001),
   and leaving ``{eps1 I > N Q1 N^T}`` proves that none exists. ``F16'(0)`` is stable iff the
   eigenvalues of ``A`` lie in the disk of (28); otherwise (16) has no ``Q1 > 0``.
@@ -76,18 +76,19 @@ The paper gives no algorithm (Remark 1 cites local search). Here:
   ``Q = (b dA Gamma dA^T + s M1 M1^T + D1 D1^T + H H^T + delta2 I) / c`` (``dA = A - A_hat``,
   ``dC = C - C_hat``) and ``theta = gamma^-2``: at ``theta = 0`` the stabilizing solution
   comes from :func:`scipy.linalg.solve_discrete_are`. The term ``theta Q2 L^T L Q2`` (a
-  continuous-time one) has no such mapping, so :func:`solve_equation17` follows the
+  continuous-time one) has no such mapping, so :func:`solve_error_bound` follows the
   stabilizing solution by continuation in ``theta`` from 0 to ``gamma^-2`` (tangent predictor,
   Newton corrector with the exact derivative ``D -> Ak D Ak^T - c D + theta (Q2 L^T L D +
   D L^T L Q2)``, ``Ak = Abar - Kbar Cbar``). Where the branch ends first (a fold: the
   derivative becomes singular) it reports the smallest ``gamma`` reached.
 
-Both solvers report residuals with :func:`equation16` and :func:`equation17`. The generic
+Both solvers report residuals with :func:`state_bound_residual` and
+:func:`error_bound_residual`. The generic
 multi-start Newton solver :func:`~filters.variance_constrained.solve_symmetric_equation`
 remains as a fallback (``method="auto"``) and finds other, non-least solutions of (16).
 :func:`search_parabolic_design` searches the free parameters with an optimizer and verifies
 the candidates; :func:`search_parabolic` is the older grid over ``(eps1, eps2)`` and the
-scale of ``H``; :func:`equation17_margin` tells whether *any* ``H`` could help for a given
+scale of ``H``; :func:`error_bound_margin` tells whether *any* ``H`` could help for a given
 ``Q1``.
 """
 
@@ -102,6 +103,7 @@ import numpy.typing as npt
 from scipy.linalg import solve_continuous_lyapunov
 from scipy.optimize import minimize
 
+from filters._deprecated import deprecated_alias
 from filters._linalg import FloatArray, matrix, real_array
 from filters.analysis import Parabola, UncertainPlant
 from filters.matrix_equations import (
@@ -132,17 +134,17 @@ __all__ = [
     "ParabolicDesignParameters",
     "ParabolicTerms",
     "design_parabolic",
-    "equation16",
-    "equation17",
-    "equation17_margin",
-    "equation17_terms",
-    "gains18",
+    "state_bound_residual",
+    "error_bound_residual",
+    "error_bound_margin",
+    "error_bound_terms",
+    "filter_gains",
     "gamma_threshold",
     "hat_terms",
     "search_parabolic",
     "search_parabolic_design",
-    "solve_equation16",
-    "solve_equation17",
+    "solve_state_bound",
+    "solve_error_bound",
 ]
 
 EQUATIONS = ("16", "17")
@@ -220,8 +222,8 @@ def _gamma(Q1: npt.NDArray[Any], N: FloatArray, eps1: float) -> npt.NDArray[Any]
     return Q1 + NQ.T @ np.linalg.solve(eps1 * np.eye(j) - NQ @ N.T, NQ)
 
 
-def equation16(Q1: npt.NDArray[Any], plant: UncertainPlant,
-               prm: ParabolicDesignParameters) -> npt.NDArray[Any]:
+def state_bound_residual(Q1: npt.NDArray[Any], plant: UncertainPlant,
+                         prm: ParabolicDesignParameters) -> npt.NDArray[Any]:
     """Left side of (16) at ``Q1`` (shape (n, n); zero at a solution)."""
     A, N, M1, D1 = plant.A, plant.N, plant.M1, plant.D1
     Aa = A + prm.a * np.eye(plant.n)
@@ -270,9 +272,9 @@ def hat_terms(Q1: FloatArray, plant: UncertainPlant,
     return ParabolicTerms(Q1=Q1, Gamma=Gm, Phi=Phi, A_hat=A + right[:n], C_hat=C + right[n:])
 
 
-def equation17_terms(Q2: npt.NDArray[Any], plant: UncertainPlant,
-                     prm: ParabolicDesignParameters, t: ParabolicTerms
-                     ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], npt.NDArray[Any]]:
+def error_bound_terms(Q2: npt.NDArray[Any], plant: UncertainPlant,
+                      prm: ParabolicDesignParameters, t: ParabolicTerms
+                      ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], npt.NDArray[Any]]:
     """``(R, Theta, Upsilon)`` of (12)-(14) (corrected (14)), shapes (p, p), (n, p), (n, n)."""
     A, C, M1, M2, D1, D2, L = (plant.A, plant.C, plant.M1, plant.M2, plant.D1, plant.D2,
                                plant.L)
@@ -286,16 +288,17 @@ def equation17_terms(Q2: npt.NDArray[Any], plant: UncertainPlant,
     return R, Theta, Ups
 
 
-def equation17(Q2: npt.NDArray[Any], plant: UncertainPlant, prm: ParabolicDesignParameters,
-               t: ParabolicTerms) -> npt.NDArray[Any]:
+def error_bound_residual(Q2: npt.NDArray[Any], plant: UncertainPlant,
+                         prm: ParabolicDesignParameters, t: ParabolicTerms) -> npt.NDArray[Any]:
     """Left side of (17) = ``Upsilon - Theta R^-1 Theta^T + H H^T + delta2 I``, shape (n, n)."""
-    R, Theta, Ups = equation17_terms(Q2, plant, prm, t)
+    R, Theta, Ups = error_bound_terms(Q2, plant, prm, t)
     return (Ups - Theta @ np.linalg.solve(R, Theta.T) + prm.H @ prm.H.T
             + prm.delta2 * np.eye(plant.n))
 
 
-def gains18(Q2: FloatArray, plant: UncertainPlant, prm: ParabolicDesignParameters,
-            t: ParabolicTerms, U: npt.ArrayLike | None = None) -> tuple[FloatArray, FloatArray]:
+def filter_gains(Q2: FloatArray, plant: UncertainPlant, prm: ParabolicDesignParameters,
+                 t: ParabolicTerms, U: npt.ArrayLike | None = None
+                 ) -> tuple[FloatArray, FloatArray]:
     """(18): ``K = Theta R^-1 + H U R^-1/2``, ``G = A_hat - K C_hat``.
 
     Returns
@@ -303,15 +306,15 @@ def gains18(Q2: FloatArray, plant: UncertainPlant, prm: ParabolicDesignParameter
     K : numpy.ndarray, shape (n, p)
     G : numpy.ndarray, shape (n, n)
     """
-    R, Theta, _ = equation17_terms(Q2, plant, prm, t)
+    R, Theta, _ = error_bound_terms(Q2, plant, prm, t)
     U_ = prm.U if U is None else real_array(U, "U", finite=False)
     K = np.linalg.solve(R, Theta.T).T + prm.H @ U_ @ inverse_sqrt(R)
     return K, t.A_hat - K @ t.C_hat
 
 
-def equation17_margin(plant: UncertainPlant, prm: ParabolicDesignParameters, Q1: FloatArray,
-                      *, seed: int = 0, starts: list[FloatArray] | None = None
-                      ) -> tuple[float, FloatArray]:
+def error_bound_margin(plant: UncertainPlant, prm: ParabolicDesignParameters, Q1: FloatArray,
+                       *, seed: int = 0, starts: list[FloatArray] | None = None
+                       ) -> tuple[float, FloatArray]:
     """Smallest ``lambda_max(Upsilon - Theta R^-1 Theta^T + delta2 I)`` found over ``Q2 > 0``.
 
     (17) requires this matrix to equal ``-H H^T <= 0``, so a positive value means that no
@@ -336,7 +339,7 @@ def equation17_margin(plant: UncertainPlant, prm: ParabolicDesignParameters, Q1:
         Lm[low] = theta
         Q2 = Lm @ Lm.T + 1e-12 * np.eye(n)
         try:
-            S = equation17(Q2, plant, prm0, t)
+            S = error_bound_residual(Q2, plant, prm0, t)
         except np.linalg.LinAlgError:
             return 1e6
         return float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
@@ -363,7 +366,7 @@ def gamma_threshold(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
                     gamma_max: float = 1e4, rtol: float = 1e-2, seed: int = 0,
                     n_random: int = 6, Q1_solutions: list[FloatArray] | None = None
                     ) -> float | None:
-    """Smallest ``gamma`` at which (17) is not ruled out by :func:`equation17_margin`.
+    """Smallest ``gamma`` at which (17) is not ruled out by :func:`error_bound_margin`.
 
     The margin decreases with ``gamma`` (the only ``gamma`` term of (17),
     ``gamma^-2 Q2 L^T L Q2``, does), so a geometric bisection finds where it reaches 0 for
@@ -382,7 +385,7 @@ def gamma_threshold(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
     """
     _check(plant, prm)
     if Q1_solutions is None:
-        eq1 = solve_symmetric_equation(lambda Q: equation16(Q, plant, prm), plant.n,
+        eq1 = solve_symmetric_equation(lambda Q: state_bound_residual(Q, plant, prm), plant.n,
                                        admissible=_admissible16(plant, prm),
                                        starts=_starts16(plant, prm), seed=seed,
                                        n_random=n_random)
@@ -397,7 +400,7 @@ def gamma_threshold(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
         p = replace(prm, gamma=g)
         values = []
         for i, Q1 in enumerate(Q1_solutions):
-            v, Q2 = equation17_margin(plant, p, Q1, seed=seed, starts=warm.get(i))
+            v, Q2 = error_bound_margin(plant, p, Q1, seed=seed, starts=warm.get(i))
             warm[i] = [Q2]
             values.append(v)
         return min(values) <= 0
@@ -447,8 +450,8 @@ def _residual16(plant: UncertainPlant, prm: ParabolicDesignParameters, scale: fl
     return fun
 
 
-def solve_equation16(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
-                     tol: float = 1e-10, max_iter: int = 300) -> MatrixEquationSolution:
+def solve_state_bound(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
+                      tol: float = 1e-10, max_iter: int = 300) -> MatrixEquationSolution:
     """Least solution of (16) by monotone Newton from ``Q1 = 0`` (no Riccati mapping exists).
 
     See the module docstring for the convexity argument: the iterates increase to the least
@@ -491,7 +494,7 @@ def solve_equation16(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
     out = newton_solve(fun, Z, admissible=domain, tol=tol * 1e-2, max_iter=max_iter,
                        monotone=True)
     X = out.X
-    res = float(np.linalg.norm(equation16(X, plant, prm))) if np.any(X) else math.inf
+    res = float(np.linalg.norm(state_bound_residual(X, plant, prm))) if np.any(X) else math.inf
     if adm(X) and res <= _tol(tol, X):
         return MatrixEquationSolution(True, X, res, out.iterations,
                                       f"least solution of (16) by monotone Newton after "
@@ -558,7 +561,7 @@ def _disk_form17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: Parab
 
 def _residual17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: ParabolicTerms):
     """``(Q2, theta) -> (F17, derivative terms, dF17/dtheta)`` in the disk form
-    (``theta = gamma^-2``; equal to :func:`equation17` at ``theta = prm.gamma^-2``)."""
+    (``theta = gamma^-2``; equal to :func:`error_bound_residual` at ``theta = prm.gamma^-2``)."""
     c, Abar, Cbar, S, R0, Q0 = _disk_form17(plant, prm, t)
     n = plant.n
     eye = np.eye(n)
@@ -577,8 +580,8 @@ def _residual17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: Parabo
     return fun
 
 
-def solve_equation17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: ParabolicTerms,
-                     *, tol: float = 1e-10) -> MatrixEquationSolution:
+def solve_error_bound(plant: UncertainPlant, prm: ParabolicDesignParameters, t: ParabolicTerms,
+                      *, tol: float = 1e-10) -> MatrixEquationSolution:
     """Stabilizing solution of (17): DARE at ``gamma = inf``, continuation to ``gamma``.
 
     See the module docstring for the mapping. Failure is a result: no stabilizing DARE
@@ -632,9 +635,9 @@ def solve_equation17(plant: UncertainPlant, prm: ParabolicDesignParameters, t: P
     cont = continuation(fun, X0, theta, admissible=is_positive_definite,
                         tol=max(_tol(tol, X0) * 1e-2, 100.0 * res0))
     X = cont.X
-    res = float(np.linalg.norm(equation17(X, plant, prm, t)))
+    res = float(np.linalg.norm(error_bound_residual(X, plant, prm, t)))
     # acceptance relative to the largest term of (17) (its rounding floor), at least ||Q2||
-    R_, Th_, _ = equation17_terms(X, plant, prm, t)
+    R_, Th_, _ = error_bound_terms(X, plant, prm, t)
     scale = max(float(np.linalg.norm(X)), float(np.linalg.norm(Th_ @ np.linalg.solve(R_, Th_.T))))
     g_reached = math.inf if cont.theta_reached <= 0 else cont.theta_reached ** -0.5
     details = {"gamma_reached": g_reached if math.isfinite(g_reached) else None,
@@ -682,7 +685,7 @@ def _met(Q2: FloatArray, sigma2: npt.ArrayLike | None) -> bool | None:
 def _design_structured(plant: UncertainPlant, prm: ParabolicDesignParameters,
                        sigma2: npt.ArrayLike | None, tol: float) -> VarianceDesign:
     params = prm.as_dict()
-    eq1 = solve_equation16(plant, prm, tol=tol)
+    eq1 = solve_state_bound(plant, prm, tol=tol)
     if not eq1.solved:
         return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
                               f"(16): {eq1.message}", params, eq1, None, attempts=(eq1,))
@@ -693,12 +696,12 @@ def _design_structured(plant: UncertainPlant, prm: ParabolicDesignParameters,
         return VarianceDesign(False, Q1, None, eq1.residual, None, None, None, EQUATIONS,
                               "(16) solved but Phi = b Gamma A^T + Q1 is singular", params,
                               eq1, None, attempts=(eq1,))
-    eq2 = solve_equation17(plant, prm, t, tol=tol)
+    eq2 = solve_error_bound(plant, prm, t, tol=tol)
     if not eq2.solved:
         return VarianceDesign(False, Q1, eq2.X, eq1.residual, eq2.residual, None, None,
                               EQUATIONS, f"(16) solved (least solution); {eq2.message}",
                               params, eq1, eq2, attempts=(eq1, eq2))
-    K, G = gains18(eq2.X, plant, prm, t)
+    K, G = filter_gains(eq2.X, plant, prm, t)
     msg = (f"(16) and (17) solved (residuals {eq1.residual:.1e}, {eq2.residual:.1e}; "
            f"least Q1 by monotone Newton, stabilizing Q2 by DARE + continuation)")
     return VarianceDesign(True, Q1, eq2.X, eq1.residual, eq2.residual, K, G, EQUATIONS, msg,
@@ -716,7 +719,7 @@ def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
     """
     n = plant.n
     params = prm.as_dict()
-    eq1 = solve_symmetric_equation(lambda Q: equation16(Q, plant, prm), n,
+    eq1 = solve_symmetric_equation(lambda Q: state_bound_residual(Q, plant, prm), n,
                                    admissible=_admissible16(plant, prm),
                                    starts=starts1 + _starts16(plant, prm), tol=tol,
                                    n_random=n_random, seed=seed, polish=polish)
@@ -732,7 +735,7 @@ def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
             t = hat_terms(Q1, plant, prm)
         except np.linalg.LinAlgError:
             continue
-        eq2 = solve_symmetric_equation(lambda Q, t=t: equation17(Q, plant, prm, t), n,
+        eq2 = solve_symmetric_equation(lambda Q, t=t: error_bound_residual(Q, plant, prm, t), n,
                                        starts=starts2, tol=tol, n_random=n_random, seed=seed,
                                        polish=polish)
         attempts.append(eq2)
@@ -741,12 +744,13 @@ def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
             best = (eq2.residual, Q1, eq2)
     if pairs:
         _, Q1, Q2, t, eq2 = min(pairs, key=lambda item: item[0])
-        K, G = gains18(Q2, plant, prm, t)
-        res2 = float(np.linalg.norm(equation17(Q2, plant, prm, t)))
+        K, G = filter_gains(Q2, plant, prm, t)
+        res2 = float(np.linalg.norm(error_bound_residual(Q2, plant, prm, t)))
         msg = (f"(16) and (17) solved (residuals {eq1.residual:.1e}, {res2:.1e}); "
                f"{len(eq1.solutions)} admissible Q1, {len(pairs)} solution pairs")
         eq2 = replace(eq2, X=Q2, residual=res2)
-        return VarianceDesign(True, Q1, Q2, float(np.linalg.norm(equation16(Q1, plant, prm))),
+        res1 = float(np.linalg.norm(state_bound_residual(Q1, plant, prm)))
+        return VarianceDesign(True, Q1, Q2, res1,
                               res2, K, G, EQUATIONS, msg, params, eq1, eq2, _met(Q2, sigma2),
                               attempts=tuple(attempts))
     if best is None:
@@ -756,7 +760,8 @@ def _design_multistart(plant: UncertainPlant, prm: ParabolicDesignParameters,
     res2, Q1, eq2 = best
     msg = (f"(16) solved ({len(eq1.solutions)} admissible Q1, residual "
            f"{eq1.residual:.1e}); (17): {eq2.message}")
-    return VarianceDesign(False, Q1, eq2.X, float(np.linalg.norm(equation16(Q1, plant, prm))),
+    res1 = float(np.linalg.norm(state_bound_residual(Q1, plant, prm)))
+    return VarianceDesign(False, Q1, eq2.X, res1,
                           res2, None, None, EQUATIONS, msg, params, eq1, eq2,
                           attempts=tuple(attempts))
 
@@ -783,8 +788,8 @@ def design_parabolic(plant: UncertainPlant, prm: ParabolicDesignParameters, *,
     n_random, seed, polish
         Passed to :func:`~filters.variance_constrained.solve_symmetric_equation` (fallback).
     method : {"auto", "riccati", "multistart"}
-        ``"riccati"``: the structured solvers only (:func:`solve_equation16`, least ``Q1``;
-        :func:`solve_equation17`, stabilizing ``Q2``). ``"multistart"``: the generic
+        ``"riccati"``: the structured solvers only (:func:`solve_state_bound`, least ``Q1``;
+        :func:`solve_error_bound`, stabilizing ``Q2``). ``"multistart"``: the generic
         multi-start Newton on (16), then on (17) for every admissible ``Q1`` found; of all
         solution pairs the one of smallest ``max(diag(Q2) / sigma2)`` (smallest
         ``trace(Q2)`` without ``sigma2``). ``"auto"`` (default): ``"riccati"``; if it fails,
@@ -992,3 +997,8 @@ def search_parabolic_design(plant: UncertainPlant, prm: ParabolicDesignParameter
                              sigma2=s2, describe=lambda x: params(x).as_dict(),
                              variables=variables, specification=spec,
                              simplex_step=[0.5] * 4 + [0.05 * h_bound] * (n * p))
+
+
+# the names docs/references.md printed before the rename, for one release
+solve_equation16 = deprecated_alias(solve_state_bound, "solve_equation16")
+solve_equation17 = deprecated_alias(solve_error_bound, "solve_equation17")

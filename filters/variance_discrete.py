@@ -55,11 +55,11 @@ Both map onto the filter-form discrete algebraic Riccati equation
 :func:`scipy.linalg.solve_discrete_are` (stabilizing solution; here ``R`` is indefinite):
 
 * (11): ``C = N``, ``R = -eps I``, ``Q = eps M1 M1^T + D1 D1^T + delta1 I``, ``S = 0``
-  (``Gamma = P1 - P1 N^T (N P1 N^T - eps I)^-1 N P1``); :func:`solve_equation11`.
+  (``Gamma = P1 - P1 N^T (N P1 N^T - eps I)^-1 N P1``); :func:`solve_state_bound_discrete`.
   Fallback, and proof of non-existence: monotone Newton from ``P1 = 0`` ((11) is convex).
 * (12r), for any ``gamma``: ``A = A_hat``, ``C = [L; C_hat]``, ``R = diag(-gamma^2 I, R0)``,
   ``S = [0, S0]``; eliminating the ``L`` block first produces ``P_gamma``
-  (:func:`solve_equation12r`).
+  (:func:`solve_error_bound_discrete`).
 
 The generic multi-start solver remains as a fallback (``method="auto"`` of
 :func:`design_discrete`); :func:`search_discrete_design` searches the free parameters with an
@@ -101,17 +101,17 @@ __all__ = [
     "DiscreteTerms",
     "delta1_threshold",
     "design_discrete",
-    "equation11",
-    "equation12r",
-    "equation12r_terms",
+    "state_bound_residual_discrete",
+    "error_bound_residual_discrete",
+    "error_bound_terms_discrete",
     "gains_discrete",
     "hat_terms_discrete",
-    "least_solution11",
+    "least_state_bound_discrete",
     "p_gamma",
     "search_discrete",
     "search_discrete_design",
-    "solve_equation11",
-    "solve_equation12r",
+    "solve_state_bound_discrete",
+    "solve_error_bound_discrete",
 ]
 
 EQUATIONS = ("11", "12r")
@@ -175,8 +175,8 @@ def _gamma(P1: npt.NDArray[Any], N: FloatArray, eps: float) -> npt.NDArray[Any]:
     return P1 + P1 @ N.T @ np.linalg.solve(eps * np.eye(j) - N @ P1 @ N.T, N @ P1)
 
 
-def equation11(P1: npt.NDArray[Any], plant: UncertainPlant,
-               prm: DiscreteDesignParameters) -> npt.NDArray[Any]:
+def state_bound_residual_discrete(P1: npt.NDArray[Any], plant: UncertainPlant,
+                                  prm: DiscreteDesignParameters) -> npt.NDArray[Any]:
     """Left side of (11) at ``P1``, shape (n, n)."""
     A = plant.A
     return (A @ _gamma(P1, plant.N, prm.eps) @ A.T - P1 + prm.eps * plant.M1 @ plant.M1.T
@@ -193,9 +193,9 @@ def _admissible11(plant: UncertainPlant, prm: DiscreteDesignParameters):
     return ok
 
 
-def least_solution11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
-                     max_iter: int = 100_000, tol: float = 1e-13
-                     ) -> tuple[FloatArray | None, int, str]:
+def least_state_bound_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
+                               max_iter: int = 100_000, tol: float = 1e-13
+                               ) -> tuple[FloatArray | None, int, str]:
     """Least solution of (11) by the monotone iteration ``P <- A Gamma(P) A^T + c``.
 
     From ``P = 0`` the iterates increase (``Gamma`` is monotone on ``eps I > N P N^T``); they
@@ -231,8 +231,8 @@ def delta1_threshold(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
                      rtol: float = 1e-4, max_iter: int = 20_000) -> float | None:
     """Supremum of the ``delta1`` for which (11) has an admissible solution at ``prm.eps``.
 
-    Existence is decided by the monotone Newton iteration of :func:`solve_equation11` (the
-    same decision as :func:`least_solution11`, quadratically convergent; ``max_iter`` is
+    Existence is decided by the monotone Newton iteration of :func:`solve_state_bound_discrete` (the
+    same decision as :func:`least_state_bound_discrete`, quadratically convergent; ``max_iter`` is
     kept for compatibility and caps its iterations at ``min(max_iter, 300)``); it is
     monotone in ``delta1`` (a larger constant term only raises the iterates). Geometric
     bisection to relative ``rtol``.
@@ -311,9 +311,9 @@ def p_gamma(P2: npt.NDArray[Any], L: FloatArray, gamma: float) -> npt.NDArray[An
     return P2 + P2 @ L.T @ np.linalg.solve(gamma**2 * np.eye(q) - L @ P2 @ L.T, L @ P2)
 
 
-def equation12r_terms(P2: npt.NDArray[Any], plant: UncertainPlant,
-                      prm: DiscreteDesignParameters, t: DiscreteTerms
-                      ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], npt.NDArray[Any]]:
+def error_bound_terms_discrete(P2: npt.NDArray[Any], plant: UncertainPlant,
+                               prm: DiscreteDesignParameters, t: DiscreteTerms
+                               ) -> tuple[npt.NDArray[Any], npt.NDArray[Any], npt.NDArray[Any]]:
     """``(R, Theta, Upsilon)`` of the reconstructed (12r), shapes (p, p), (n, p), (n, n)."""
     A, C, M1, M2, D1, D2 = plant.A, plant.C, plant.M1, plant.M2, plant.D1, plant.D2
     e = prm.eps
@@ -325,10 +325,11 @@ def equation12r_terms(P2: npt.NDArray[Any], plant: UncertainPlant,
     return R, Theta, Ups
 
 
-def equation12r(P2: npt.NDArray[Any], plant: UncertainPlant, prm: DiscreteDesignParameters,
-                t: DiscreteTerms) -> npt.NDArray[Any]:
+def error_bound_residual_discrete(P2: npt.NDArray[Any], plant: UncertainPlant,
+                                  prm: DiscreteDesignParameters, t: DiscreteTerms
+                                  ) -> npt.NDArray[Any]:
     """Left side of (12r): ``Upsilon - Theta R^-1 Theta^T + H H^T + delta2 I``."""
-    R, Theta, Ups = equation12r_terms(P2, plant, prm, t)
+    R, Theta, Ups = error_bound_terms_discrete(P2, plant, prm, t)
     return (Ups - Theta @ np.linalg.solve(R, Theta.T) + prm.H @ prm.H.T
             + prm.delta2 * np.eye(plant.n))
 
@@ -353,7 +354,7 @@ def gains_discrete(P2: FloatArray, plant: UncertainPlant, prm: DiscreteDesignPar
     K : numpy.ndarray, shape (n, p)
     G : numpy.ndarray, shape (n, n)
     """
-    R, Theta, _ = equation12r_terms(P2, plant, prm, t)
+    R, Theta, _ = error_bound_terms_discrete(P2, plant, prm, t)
     U_ = prm.U if U is None else real_array(U, "U", finite=False)
     K = np.linalg.solve(R, Theta.T).T + prm.H @ U_ @ inverse_sqrt(R)
     return K, t.A_hat - K @ t.C_hat
@@ -399,8 +400,8 @@ def _monotone11(plant: UncertainPlant, prm: DiscreteDesignParameters, tol: float
     return (out.X if out.converged else None), out.iterations, out.status
 
 
-def solve_equation11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
-                     tol: float = 1e-10) -> MatrixEquationSolution:
+def solve_state_bound_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
+                               tol: float = 1e-10) -> MatrixEquationSolution:
     """Least solution of (11): a DARE with indefinite weight, monotone Newton as fallback.
 
     Mapping: with ``Gamma = P1 - P1 N^T (N P1 N^T - eps I)^-1 N P1``, (11) is the filter-form
@@ -408,7 +409,7 @@ def solve_equation11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     ``R = -eps I`` (indefinite) and ``Q = eps M1 M1^T + D1 D1^T + delta1 I``
     (:func:`~filters.matrix_equations.solve_filter_dare`). Its stabilizing solution, when
     admissible (``P1 > 0``, ``eps I > N P1 N^T``), is the least solution. Otherwise monotone
-    Newton from ``P1 = 0`` decides (as :func:`least_solution11`, but quadratically
+    Newton from ``P1 = 0`` decides (as :func:`least_state_bound_discrete`, but quadratically
     convergent): (11) is convex with a resolvent-positive derivative, so its iterates increase
     to the least solution if there is one, and leaving ``eps I > N P1 N^T`` proves that there
     is none.
@@ -425,7 +426,7 @@ def solve_equation11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     why = ""
     try:
         P = solve_filter_dare(plant.A, plant.N, c, -prm.eps * np.eye(j))
-        res = float(np.linalg.norm(equation11(P, plant, prm)))
+        res = float(np.linalg.norm(state_bound_residual_discrete(P, plant, prm)))
         if adm(P) and res <= _tol(tol, P):
             return MatrixEquationSolution(True, P, res, 0, f"least solution of (11) by the DARE "
                                           f"mapping (residual {res:.1e})", (P,), method="dare",
@@ -436,7 +437,7 @@ def solve_equation11(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
         why = f"no stabilizing DARE solution ({exc})"
     P, it, status = _monotone11(plant, prm, tol * 1e-2)
     if P is not None and adm(P):
-        res = float(np.linalg.norm(equation11(P, plant, prm)))
+        res = float(np.linalg.norm(state_bound_residual_discrete(P, plant, prm)))
         if res <= _tol(tol, P):
             return MatrixEquationSolution(True, P, res, it, f"least solution of (11) by "
                                           f"monotone Newton ({why}; residual {res:.1e})", (P,),
@@ -471,9 +472,10 @@ def _dare12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: DiscreteTe
     return solve_filter_dare(t.A_hat, W, Q0, R, np.hstack([np.zeros((n, q)), S]))
 
 
-def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: DiscreteTerms,
-                      *, tol: float = 1e-10, find_gamma_reached: bool = False
-                      ) -> MatrixEquationSolution:
+def solve_error_bound_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters,
+                               t: DiscreteTerms, *, tol: float = 1e-10,
+                               find_gamma_reached: bool = False
+                               ) -> MatrixEquationSolution:
     """Stabilizing solution of (12r) by the augmented DARE, for any ``gamma``.
 
     Mapping: with ``W = [L; C_hat]``, ``R = diag(-gamma^2 I, R0)`` and ``S = [0, S0]``, the
@@ -484,7 +486,7 @@ def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: D
     M2^T + D2 D2^T``, ``S0 = dA Gamma dC^T + eps M1 M2^T + D1 D2^T``, ``Q0 = dA Gamma dA^T +
     eps M1 M1^T + D1 D1^T + H H^T + delta2 I`` (``dA = A - A_hat``, ``dC = C - C_hat``). The
     solution is accepted if ``P2 > 0``, ``gamma^2 I > L P2 L^T`` and the residual of
-    :func:`equation12r` is small.
+    :func:`error_bound_residual_discrete` is small.
 
     Parameters
     ----------
@@ -517,7 +519,7 @@ def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: D
 
     P, why = attempt(prm.gamma)
     if P is not None:
-        res = float(np.linalg.norm(equation12r(P, plant, prm, t)))
+        res = float(np.linalg.norm(error_bound_residual_discrete(P, plant, prm, t)))
         if res <= _tol(tol, P) and adm(P):
             return MatrixEquationSolution(True, P, res, 0, f"stabilizing solution of (12r) by "
                                           f"the augmented DARE (residual {res:.1e})", (P,),
@@ -546,7 +548,7 @@ def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: D
                 else:
                     hi, X = mid, Pm
             details["gamma_reached"] = hi if Phi_ is not None else None
-            res = float(np.linalg.norm(equation12r(X, plant, prm, t)))
+            res = float(np.linalg.norm(error_bound_residual_discrete(X, plant, prm, t)))
     return MatrixEquationSolution(False, X, res, 0, f"(12r) at gamma = {prm.gamma:g}: {why}",
                                   method="dare", status=status, details=details)
 
@@ -555,9 +557,9 @@ def solve_equation12r(plant: UncertainPlant, prm: DiscreteDesignParameters, t: D
 def _solve11(plant: UncertainPlant, prm: DiscreteDesignParameters, *, tol: float,
              n_random: int, seed: int, polish: bool, starts: list[FloatArray] | None = None
              ) -> tuple[MatrixEquationSolution, str]:
-    least, _, how = least_solution11(plant, prm)
+    least, _, how = least_state_bound_discrete(plant, prm)
     st = ([] if least is None else [least]) + (starts or [])
-    eq1 = solve_symmetric_equation(lambda P: equation11(P, plant, prm), plant.n,
+    eq1 = solve_symmetric_equation(lambda P: state_bound_residual_discrete(P, plant, prm), plant.n,
                                    admissible=_admissible11(plant, prm), starts=st,
                                    tol=tol, n_random=n_random, seed=seed, polish=polish)
     return eq1, how
@@ -573,7 +575,7 @@ def _design_structured(plant: UncertainPlant, prm: DiscreteDesignParameters,
                        sigma2: npt.ArrayLike | None, tol: float,
                        find_gamma_reached: bool = False) -> VarianceDesign:
     params = prm.as_dict()
-    eq1 = solve_equation11(plant, prm, tol=tol)
+    eq1 = solve_state_bound_discrete(plant, prm, tol=tol)
     if not eq1.solved:
         return VarianceDesign(False, eq1.X, None, eq1.residual, None, None, None, EQUATIONS,
                               f"(11): {eq1.message}", params, eq1, None, attempts=(eq1,))
@@ -584,7 +586,7 @@ def _design_structured(plant: UncertainPlant, prm: DiscreteDesignParameters,
         return VarianceDesign(False, P1, None, eq1.residual, None, None, None, EQUATIONS,
                               "(11) solved but (10) failed", params, eq1, None,
                               attempts=(eq1,))
-    eq2 = solve_equation12r(plant, prm, t, tol=tol, find_gamma_reached=find_gamma_reached)
+    eq2 = solve_error_bound_discrete(plant, prm, t, tol=tol, find_gamma_reached=find_gamma_reached)
     if not eq2.solved:
         return VarianceDesign(False, P1, eq2.X, eq1.residual, eq2.residual, None, None,
                               EQUATIONS, f"(11) solved (least solution); {eq2.message}",
@@ -620,7 +622,8 @@ def _design_multistart(plant: UncertainPlant, prm: DiscreteDesignParameters,
             t = hat_terms_discrete(P1, plant, prm)
         except np.linalg.LinAlgError:
             continue
-        eq2 = solve_symmetric_equation(lambda P, t=t: equation12r(P, plant, prm, t), n,
+        eq2 = solve_symmetric_equation(
+            lambda P, t=t: error_bound_residual_discrete(P, plant, prm, t), n,
                                        admissible=_admissible12r(plant, prm), starts=starts2,
                                        tol=tol, n_random=n_random, seed=seed, polish=polish)
         attempts.append(eq2)
@@ -630,11 +633,12 @@ def _design_multistart(plant: UncertainPlant, prm: DiscreteDesignParameters,
     if pairs:
         _, P1, P2, t, eq2 = min(pairs, key=lambda item: item[0])
         K, G = gains_discrete(P2, plant, prm, t)
-        res2 = float(np.linalg.norm(equation12r(P2, plant, prm, t)))
+        res2 = float(np.linalg.norm(error_bound_residual_discrete(P2, plant, prm, t)))
         gi = "; Phi singular: generalized inverse used" if t.generalized_inverse else ""
         msg = (f"(11) and (12r) solved (residuals {eq1.residual:.1e}, {res2:.1e}){gi}")
         eq2 = replace(eq2, X=P2, residual=res2)
-        return VarianceDesign(True, P1, P2, float(np.linalg.norm(equation11(P1, plant, prm))),
+        res1 = float(np.linalg.norm(state_bound_residual_discrete(P1, plant, prm)))
+        return VarianceDesign(True, P1, P2, res1,
                               res2, K, G, EQUATIONS, msg, params, eq1, eq2, _met(P2, sigma2),
                               attempts=tuple(attempts))
     if best is None:
@@ -642,7 +646,8 @@ def _design_multistart(plant: UncertainPlant, prm: DiscreteDesignParameters,
                               "(11) solved but (10) failed for every solution", params, eq1,
                               None, attempts=tuple(attempts))
     res2, P1, eq2 = best
-    return VarianceDesign(False, P1, eq2.X, float(np.linalg.norm(equation11(P1, plant, prm))),
+    res1 = float(np.linalg.norm(state_bound_residual_discrete(P1, plant, prm)))
+    return VarianceDesign(False, P1, eq2.X, res1,
                           res2, None, None, EQUATIONS,
                           f"(11) solved ({how}); (12r): {eq2.message}", params, eq1, eq2,
                           attempts=tuple(attempts))
@@ -666,9 +671,10 @@ def design_discrete(plant: UncertainPlant, prm: DiscreteDesignParameters, *,
     n_random, seed, polish
         Passed to :func:`~filters.variance_constrained.solve_symmetric_equation` (fallback).
     method : {"auto", "riccati", "multistart"}
-        ``"riccati"``: both equations by their DARE mappings (:func:`solve_equation11`, the
-        least ``P1``; :func:`solve_equation12r`, the stabilizing ``P2``). ``"multistart"``:
-        the monotone iteration :func:`least_solution11` (which decides whether (11) is
+        ``"riccati"``: both equations by their DARE mappings
+        (:func:`solve_state_bound_discrete`, the
+        least ``P1``; :func:`solve_error_bound_discrete`, the stabilizing ``P2``). ``"multistart"``:
+        the monotone iteration :func:`least_state_bound_discrete` (which decides whether (11) is
         solvable) seeds the generic multi-start Newton solver, then (12r) for every
         admissible ``P1``; of all pairs the one of smallest ``max(diag(P2) / sigma2)``.
         ``"auto"`` (default): ``"riccati"``; if it fails, or ``sigma2`` is given and not met,

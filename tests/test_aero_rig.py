@@ -157,10 +157,11 @@ def test_rig_option_yaw_locked_changes_the_instance_declarations():
     assert locked.tracked_states == ("pitch",) and locked.validate_setpoints(
         locked.default_setpoints).shape[1] == 2
     assert locked.sensors().names == ("pitch",)
+    motors = ("rotor_speed_pitch", "rotor_speed_yaw", "current_pitch", "current_yaw")
     assert AeroRig(profile="hardware", options=LOCKED).sensors().names == (
-        "pitch", "gyro_pitch", "accel_x")
+        "pitch", "gyro_pitch", "accel_x", *motors)
     assert AeroRig(profile="hardware").sensors().names == (
-        "pitch", "yaw", "gyro_pitch", "gyro_yaw", "accel_x")
+        "pitch", "yaw", "gyro_pitch", "gyro_yaw", "accel_x", *motors)
     assert locked.random_x0(np.ones((3, locked.x0_draws))).shape == (3, 2)
     assert locked.process_noise_matrix().shape == (2, 1)
     mismatch = locked.parameter_mismatch()
@@ -291,7 +292,8 @@ def test_registered_env_passes_check_env_and_a_locked_rig_env_too():
     locked = RigEnv(AeroRig(profile="hardware", options=LOCKED))
     check_env(locked, skip_render_check=True)
     obs, info = locked.reset(seed=3)
-    assert obs.shape == (3,) and info["state"].shape == (2,)
+    # pitch, gyro_pitch, accel_x and the four motor channels
+    assert obs.shape == (7,) and info["state"].shape == (2,)
 
 
 @pytest.mark.parametrize("profile", ["paper", "hardware"])
@@ -357,3 +359,145 @@ def test_vc_discrete_runs_free_and_locked_with_output_injection():
                                     estimator_options={"output_injection": True},
                                     duration_s=1.0), record=False)
     assert max(free["rmse"].values()) < 0.05 and max(locked["rmse"].values()) < 0.05
+
+
+# ---------------------------------------------------------------- rotor speeds, currents
+MOTORS = ("rotor_speed_pitch", "rotor_speed_yaw", "current_pitch", "current_yaw")
+#: The DC motor written here from its assumptions (independent of the rig's code): R, k and
+#: the load b giving a real unit's steady-to-peak current ratio 0.09 / 1.6.
+R_OHM, K_M = 8.4, 0.042
+B_LOAD = (0.09 / 1.6) * K_M**2 / (R_OHM * (1 - 0.09 / 1.6))
+G_RAD_S_V = K_M / (R_OHM * B_LOAD + K_M**2)
+
+
+def _motor_sim(n: int, locked: bool, sensors=None, tau_scale: float = 1.0):
+    from testbed.rigs.aero import AeroMotors
+    from testbed.sensors import Suite
+    from testbed.sim.simulator import Simulator
+
+    rig = AeroRig(profile="hardware", options={"yaw_locked": locked})
+    suite = Suite(AeroMotors(n_states=rig.n_states)) if sensors is None else sensors(rig)
+    sim = Simulator(rig, suite, n, frame_skip=1, num_threads=1, reset_noise_scale=0.0,
+                    params={"rotor_time_constant_pitch_s": tau_scale})
+    return rig, sim
+
+
+@pytest.mark.parametrize("locked", [False, True])
+def test_rotor_speed_and_current_are_the_dc_motor_closed_form(locked):
+    """A voltage step from rest: w = G V (1 - exp(-t / tau)) with G = k / (R b + k^2),
+    i = (V - k w) / R (peak V / R, steady V b / (R b + k^2)); the unit's own (hidden) time
+    constant, read from MuJoCo's actuator state; and the motor's ODE integrated here."""
+    rig, sim = _motor_sim(2, locked, tau_scale=1.5)
+    sim.reset(seeds=[0, 1])
+    V = np.array([[10.0, -6.0], [-3.0, 24.0]])
+    tau = np.array([0.06, 0.04])
+    dt = rig.model.opt.timestep
+    assert np.all(sim.obs == 0.0)  # at rest
+    for k in range(1, 1001):
+        sim.step(V)
+        y = np.array(sim.obs)
+        act = sim.physics.actuator_states()
+        np.testing.assert_array_equal(y[:, :2], G_RAD_S_V * act)  # MuJoCo's rotor state
+        w = G_RAD_S_V * V * (1 - np.exp(-k * dt / tau))
+        np.testing.assert_allclose(y[:, :2], w, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(y[:, 2:], (V - K_M * w) / R_OHM, rtol=1e-8, atol=1e-12)
+        if k == 1:
+            np.testing.assert_allclose(y[:, 2:], V / R_OHM, rtol=0.03)  # the peak
+    # steady after 1 s (at least 16 time constants: exp(-16) = 1e-7)
+    np.testing.assert_allclose(y[:, :2], K_M * V / (R_OHM * B_LOAD + K_M**2), rtol=1e-6)
+    np.testing.assert_allclose(y[:, 2:], V * B_LOAD / (R_OHM * B_LOAD + K_M**2), rtol=1e-5)
+    assert sim.sensors.units == ("rad/s", "rad/s", "A", "A")
+    # the motor ODE J_r w' = k (V - k w) / R - b w, J_r from tau (the lag is this motor)
+    J_r = 0.06 * (R_OHM * B_LOAD + K_M**2) / R_OHM
+    ode = solve_ivp(lambda t, w: [(K_M * (10.0 - K_M * w[0]) / R_OHM - B_LOAD * w[0]) / J_r],
+                    (0.0, 0.1), [0.0], t_eval=[0.1], rtol=1e-10, atol=1e-10)
+    sim.reset(seeds=[0, 1])
+    for _ in range(100):
+        sim.step(V)
+    assert sim.obs[0, 0] == pytest.approx(ode.y[0, -1], rel=1e-6)
+    sim.close()
+
+
+@pytest.mark.parametrize("locked", [False, True])
+@pytest.mark.parametrize("n", [1, 3])
+def test_motor_channels_leave_the_other_channels_bitwise(locked, n):
+    """The hardware preset with the motor channels gives every other channel's numbers of
+    the preset without them, bitwise (their noise comes from streams of their own)."""
+    from testbed.sensors import Suite
+
+    def without_motors(rig):
+        return Suite(*rig.sensors("hardware", dt_s=0.001).sensors[:-1])
+
+    _, new = _motor_sim(n, locked, sensors=lambda rig: rig.sensors("hardware", dt_s=0.001))
+    _, old = _motor_sim(n, locked, sensors=without_motors)
+    m = old.sensors.dim
+    assert new.sensors.names[m:] == MOTORS and new.sensors.names[:m] == old.sensors.names
+    rng = np.random.default_rng(3)
+    for sim in (new, old):
+        sim.reset(seeds=list(range(10, 10 + n)))
+    np.testing.assert_array_equal(new.obs[:, :m], old.obs)
+    for _ in range(60):
+        u = rng.uniform(-8, 8, (n, 2))
+        new.step(u)
+        old.step(u)
+        np.testing.assert_array_equal(new.obs[:, :m], old.obs)
+        np.testing.assert_array_equal(new.info["state"], old.info["state"])
+    new.close()
+    old.close()
+
+
+def test_hardware_motor_channels_noise_quantization_and_seeds():
+    """At rest: the readings are the declared white noise, quantized; same seed, same
+    numbers; another seed, others."""
+    hw = AeroHardware()
+    n = 300
+
+    def readings(seeds):
+        _, sim = _motor_sim(n, False, sensors=lambda rig: rig.sensors("hardware", dt_s=0.001))
+        sim.reset(seeds=seeds)
+        rows = []
+        for _ in range(10):
+            sim.step(np.zeros((n, 2)))
+            rows.append(np.array(sim.obs[:, -4:]))
+        sim.close()
+        return np.array(rows)  # (steps, members, 4)
+
+    y = readings(list(range(n)))
+    steps = np.array([hw.rotor_speed_step] * 2 + [hw.current_step] * 2)
+    np.testing.assert_allclose(y / steps, np.round(y / steps), atol=1e-9)
+    std = np.array([hw.rotor_speed_noise_std] * 2 + [hw.current_noise_std] * 2)
+    expected = np.sqrt(std**2 + steps**2 / 12)
+    np.testing.assert_allclose(y.reshape(-1, 4).std(axis=0), expected, rtol=0.05)
+    np.testing.assert_array_equal(readings(list(range(n))), y)
+    assert not np.any(np.all(readings(list(range(1, n + 1))) == y, axis=(0, 2)))
+
+
+def test_motor_channels_are_described_recorded_and_left_out_of_designs(tmp_path):
+    from testbed.io.formats import read_recording
+    from testbed.rigs.describe import describe_rig
+
+    channels = describe_rig("aero", profile="hardware")["profiles"]["hardware"]["sensors"]
+    listed = {c["name"]: c["unit"] for c in channels["hardware"]["channels"]}
+    assert {n: listed[n] for n in MOTORS} == dict(zip(MOTORS, ("rad/s", "rad/s", "A", "A"),
+                                                      strict=True))
+    rig = AeroRig(profile="hardware")
+    suite = rig.sensors()
+    design = rig.design_model(suite, 0.01)
+    assert not set(np.asarray(design.measurement_index).tolist()) & {
+        suite.names.index(n) for n in MOTORS}
+    log = tmp_path / "unit.csv"
+    assert _cli(["run", "aero", "--profile", "hardware", "--duration", "1", "--save-log",
+                 str(log), "--no-progress"]) == 0
+    rec = read_recording(log)
+    assert set(MOTORS) <= set(rec.channels)
+    # the rotor follows its recorded voltage through the lag (exact for a held input)
+    speed = np.asarray(rec.channels["rotor_speed_pitch"])
+    volts = np.asarray(rec.inputs["V_pitch"])
+    decay = np.exp(-rec.dt_s / 0.04)
+    act = np.zeros(len(volts))
+    for k in range(1, len(volts)):
+        act[k] = volts[k - 1] + (act[k - 1] - volts[k - 1]) * decay
+    hw = AeroHardware()
+    error = speed - G_RAD_S_V * act
+    assert np.std(speed) > 5 * hw.rotor_speed_noise_std
+    assert np.std(error) < 1.5 * hw.rotor_speed_noise_std

@@ -111,7 +111,7 @@ def test_a_directory_others_can_write_is_neither_read_nor_written(tmp_path):
 
 
 def test_lmi_design_is_searched_once_per_design_system(monkeypatch):
-    from testbed.estimators import lmi
+    from testbed.estimators import stochastic_system as lmi
     from testbed.rigs.linear_plant.rig import LinearPlantRig
 
     rig = LinearPlantRig()

@@ -331,8 +331,10 @@ PLUGIN_CASES = [  # (argv, exit code, text of the one line)
     ("run nosuchmod:Rig", 2, "rig: rig 'nosuchmod:Rig' failed while loading"),
     ("run ./plug.py:nosuch", 2, "module './plug.py' has no 'nosuch'"),
     ("mc helicopter --runs 2 --filter ./plug.py:make", 3, "LinAlgError"),
-    ("score --estimator broken_import:make", 2,
-     "--estimator: filter 'broken_import:make' failed while loading: RuntimeError"),
+    ("score --estimator broken_import:make", 2,  # --estimator: the alias of score's --filter
+     "--filter: filter 'broken_import:make' failed while loading: RuntimeError"),
+    ("score --filter broken_import:make", 2,
+     "--filter: filter 'broken_import:make' failed while loading: RuntimeError"),
 ]
 
 

@@ -16,6 +16,7 @@ import pytest
 from testbed.cli import main
 from testbed.experiment import runner
 from testbed.experiment.scenario import Scenario
+from testbed.outputs.view import rerun_binary
 
 RERUN = Path(sys.executable).with_name("rerun")
 ENV = {**os.environ, "RERUN_ANALYTICS": "off"}
@@ -137,7 +138,9 @@ def test_cli_run_connect(grpc_sink, capsys):
     assert "RMSE" in c.texts["about"]  # the description with the run's metrics
     # the final blueprint: error views fitted to the steady state, the description shown
     assert c.view("roll error [deg]").y_range is not None
-    assert c.view("roll [deg]").time_range_s == pytest.approx((0.0, 0.5))
+    from testbed.outputs.viz import time_axis_range
+
+    assert c.view("roll [deg]").time_range_s == pytest.approx(time_axis_range((0.0, 0.5)))
     assert c.view("about") and c.view("rig").eye_position is not None
 
 
@@ -222,7 +225,7 @@ def test_spawn_starts_this_environments_viewer(monkeypatch):
     try:
         assert url is None and calls == [["--bind", "127.0.0.1", "--port", str(port)]]
         assert connected == [f"rerun+http://127.0.0.1:{port}/proxy"]
-        assert Path(live.rerun_executable()).name == "rerun"
+        assert Path(rerun_binary()).name == "rerun"
     finally:
         stop(rec)
     with pytest.raises(ValueError, match="exactly one"):

@@ -1,5 +1,5 @@
-"""The generic lmi-hinf design (testbed.estimators.lmi): the error-block form's assumption,
-detectability, named when it fails."""
+"""The generic lmi-hinf design (testbed.estimators.stochastic_system): the error-block form's
+assumption, detectability, named when it fails."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from filters.lmi_hinf import StochasticLinearSystem
-from testbed.estimators.lmi import undetectable_modes, verified_estimator
+from testbed.estimators.stochastic_system import undetectable_modes, verified_estimator
 
 
 def test_an_undetectable_unstable_mode_is_named():

@@ -126,10 +126,10 @@ def test_common_time_profile_matches_per_member_times(name):
 
     sim = build_simulator("vehicle-roll", 3, num_threads=1, manoeuvre=name)
     sim.reset(None, [0, 1, 2])
-    fn = sim._schedules[0]
+    fn = sim.schedules.profiles[0]
     for t0 in (0.0, 0.37, 1.25, 2.5, 4.0, 9.9):
-        common = sim._manoeuvre(np.full(3, t0), sim._all, common=True)
-        mixed = sim._manoeuvre(np.array([t0, t0 + 0.5, t0]), sim._all)
+        common = sim._manoeuvre(np.full(3, t0), sim.rows.all, common=True)
+        mixed = sim._manoeuvre(np.array([t0, t0 + 0.5, t0]), sim.rows.all)
         assert common.shape == (3, 1) and common.dtype == np.float64
         assert common.tobytes() == np.repeat(mixed[:1], 3, axis=0).tobytes()
         assert mixed[0].tobytes() == mixed[2].tobytes() == np.float64(fn(t0)).tobytes()
@@ -142,7 +142,7 @@ def test_common_time_profile_rejects_a_non_finite_value():
     sim = build_simulator("vehicle-roll", 2, num_threads=1, manoeuvre=lambda t: math.nan)
     sim.reset(None, [0, 1])
     with pytest.raises(ValueError, match="non-finite input"):
-        sim._manoeuvre(np.full(2, 0.5), sim._all, common=True)
+        sim._manoeuvre(np.full(2, 0.5), sim.rows.all, common=True)
 
 
 @pytest.mark.parametrize("kind", ["numpy scalar", "array", "nan array"])
@@ -163,9 +163,9 @@ def test_common_time_profile_calls_a_non_float_manoeuvre_once(kind):
     calls.clear()
     if kind == "nan array":
         with pytest.raises(ValueError, match="non-finite input"):
-            sim._manoeuvre(np.full(3, 0.5), sim._all, common=True)
+            sim._manoeuvre(np.full(3, 0.5), sim.rows.all, common=True)
     else:
-        rows = sim._manoeuvre(np.full(3, 0.5), sim._all, common=True)
+        rows = sim._manoeuvre(np.full(3, 0.5), sim.rows.all, common=True)
         assert rows.shape == (3, 1) and np.all(rows == 0.125)
     assert calls == [0.5]
 

@@ -35,7 +35,7 @@ def simulate(x0, w):
     runs, n = w.shape
     out = rollout(plant.NonlinearDiscretePlant(), np.tile(x0, (runs, 1)), n,
                   noise=lambda k: w[:, k],
-                  estimators={"50": plant.filter50(np.zeros((runs, 2)))})
+                  estimators={"50": plant.printed_filter(np.zeros((runs, 2)))})
     return out.x, out.estimates["50"], out.escape
 
 
@@ -65,7 +65,7 @@ def test_escape_is_reported_with_its_step():
 # ------------------------------------------------------------------ Corollary 3 / HJI
 def test_corollary3_forms_and_values():
     x, xh = np.array([0.5, 1.0]), np.array([0.2, -0.3])
-    c35, c36 = plant.corollary3_values(x, xh, 2.0)
+    c35, c36 = plant.quadratic_conditions_values(x, xh, 2.0)
     h1 = np.array([0.05, 0.0])
     h2 = np.array([0.5, 0.5 * np.sin(1.0)])
     gg = 0.5 * np.sin(x)
@@ -75,18 +75,18 @@ def test_corollary3_forms_and_values():
     expected = (2 * (f1 @ f1 + filt @ filt) - x @ x - xh @ xh + 2 * plant.output(x) ** 2
                 + 2 * plant.output(xh) ** 2)
     assert c36 == pytest.approx(expected)
-    p35, p36 = plant.corollary3_values(x, xh, 2.0, printed=True)
+    p35, p36 = plant.quadratic_conditions_values(x, xh, 2.0, printed=True)
     assert p35 == pytest.approx(2 * (h1 @ h1 + gg @ gg) - 4.0)
     assert p36 == pytest.approx(expected + 2 * xh @ xh)
 
 
 def test_corollary3_fails_even_near_the_origin():
     """(36) is an indefinite quadratic form at 0: violated along (x2, xhat2) ~ (1, 0.53)."""
-    assert plant.corollary3_origin_curvature() > 0.1
+    assert plant.quadratic_conditions_origin_curvature() > 0.1
     s = 1e-3
-    _, c36 = plant.corollary3_values(np.array([0.0, s]), np.array([0.0, 0.53 * s]), 0.0)
+    _, c36 = plant.quadratic_conditions_values(np.array([0.0, s]), np.array([0.0, 0.53 * s]), 0.0)
     assert c36 > 0
-    chk = plant.corollary3_check(2.0, 2.0, 11)
+    chk = plant.quadratic_conditions_check(2.0, 2.0, 11)
     assert chk["max_36"] > 0.5 and chk["max_35"] < 0 and chk["gamma_needed_35"] < 2.0
 
 
@@ -172,7 +172,7 @@ def test_filter_50_in_the_loop_equals_the_recursion():
         assert np.allclose(run["xhat"][k], xh)
         xh = plant.filter_step(xh, run["y"][k])
     env = NonlinearDiscreteEnv()
-    loop = FilterInLoop(env, plant.filter50(), output_matrix=plant.C_Z)
+    loop = FilterInLoop(env, plant.printed_filter(), output_matrix=plant.C_Z)
     loop.reset(seed=2)
     _, _, _, _, info = loop.step(np.zeros(1))
     assert info["covariance"] is None
@@ -209,7 +209,7 @@ def test_reproduction_defaults_and_outputs(tmp_path):
 
 def test_condition26_cannot_hold():
     """|ztilde(eta, 0)|^2 vanishes on a 3-dimensional subspace of eta: no positive W fits."""
-    out = plant.condition26_check()
+    out = plant.output_lower_bound_check()
     assert out["possible"] is False and out["null_space_dim"] == 3
     assert out["min_on_unit_sphere"] == pytest.approx(0.0, abs=1e-15)
     eta = np.array(out["null_direction"])

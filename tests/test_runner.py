@@ -126,17 +126,17 @@ def test_a_run_reads_its_mjcf_at_most_twice(monkeypatch, profile, reads):
     one reading of the MJCF per profile (the file is parsed, each rig gets a copy)."""
     import mujoco
 
-    from testbed.rigs import base
+    from testbed.rigs import mjcf
 
     paths: list[str] = []
     for owner, name in ((mujoco.MjModel, "from_xml_path"), (mujoco.MjSpec, "from_file")):
         original = getattr(owner, name)
         monkeypatch.setattr(owner, name,
                             lambda path, *a, _f=original, **k: paths.append(path) or _f(path))
-    base._read_mjcf.cache_clear()
+    mjcf.read_mjcf.cache_clear()
     scenario = Scenario(rig="helicopter", duration_s=0.1, profile=profile)
     _, summary = runner.run(scenario, record=False, progress=False)
-    base._read_mjcf.cache_clear()
+    mjcf.read_mjcf.cache_clear()
     assert len(paths) == reads and all(p.endswith("helicopter_2dof.xml") for p in paths)
     assert np.isfinite(summary["rmse"]["pitch"])
 

@@ -9,7 +9,7 @@ import pytest
 from scipy.linalg import expm
 
 from testbed import estimators
-from testbed.estimators.lmi import sampled_two_channel_system
+from testbed.estimators.stochastic_system import sampled_two_channel_system
 from testbed.experiment import runner
 from testbed.score.harness import score_pair
 from testbed.score.suite import get_suite
@@ -64,6 +64,7 @@ def test_sampled_option_states_a_discrete_gamma_it_verifies(design):
 
 def test_the_harness_finds_the_sampled_certificate_holding():
     entry = _helicopter_entry()
-    pair = score_pair(entry.replace(runs=2), "testbed.estimators.lmi:ms_hinf_sampled", 0)
+    pair = score_pair(entry.replace(runs=2), "testbed.estimators.stochastic_system:ms_hinf_sampled",
+                      0)
     assert pair.skipped is None and pair.gamma_kind == "discrete"
     assert 0 < pair.worst.linear_gain <= pair.certified_gamma

@@ -20,7 +20,7 @@ from filters.variance_constrained import LinearFilter, passes, verify_design
 from testbed import estimators
 from testbed.cli import main
 from testbed.estimators import vc as estimators_vc
-from testbed.estimators.lmi import design_system
+from testbed.estimators.stochastic_system import design_system
 from testbed.estimators.vc import (
     VarianceConstrainedPredictor,
     design_vc_discrete,

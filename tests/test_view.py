@@ -142,3 +142,33 @@ def test_cli_web_view_serves_the_file_and_leaves_nothing_behind(rrd, tmp_path, s
                 os.killpg(client.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+@needs_rerun
+def test_web_view_says_it_is_loading_and_stops_without_claiming_outputs(rrd):
+    """After the URL, a line says the page loads (with the recording's size); SIGTERM ends
+    the viewer and says so, not 'partial outputs removed' (the command writes nothing)."""
+    grpc, web = _free_port(), _free_port()
+    cli = subprocess.Popen([sys.executable, "-m", "testbed.cli", "view", str(rrd), "--web",
+                            "--grpc-port", str(grpc), "--web-port", str(web)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
+                           start_new_session=True)
+    try:
+        first, second = cli.stdout.readline(), cli.stdout.readline()
+        assert first.startswith("open http://127.0.0.1:")
+        assert second.startswith("loading: ") and " MB)" in second
+        with socket.create_connection(("127.0.0.1", grpc), timeout=5):
+            # the file's server answers before the URL is printed; a client connected to it
+            # is reported (a browser's viewer would be)
+            if sys.platform.startswith("linux"):
+                third = cli.stdout.readline()
+                assert third.startswith("the web viewer has connected"), third
+        cli.send_signal(signal.SIGTERM)
+        _, err = cli.communicate(timeout=30)
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+            cli.wait()
+    assert cli.returncode == 143
+    assert err.strip() == "testbed: stopped (SIGTERM)"
+    assert _processes_showing(rrd) == []

@@ -349,10 +349,15 @@ def test_time_range_is_the_data_and_error_views_show_the_steady_state(contents):
     from testbed.outputs.axes import ERROR_AXIS_MARGIN, nice_limit, steady_state_limit
 
     c, traj = contents
+    from testbed.outputs.viz import TIME_AXIS_END_MARGIN, time_axis_range
+
     t0, t1 = float(traj.t_s[0]), float(traj.t_s[-1])
-    assert c.time_range_s == pytest.approx((t0, t1))
+    # the run's span, and a margin after its end for the axis' last label
+    shown = (t0, t1 + TIME_AXIS_END_MARGIN * (t1 - t0))
+    assert time_axis_range((t0, t1)) == pytest.approx(shown) and shown[1] > t1
+    assert c.time_range_s == pytest.approx((t0, t1))  # the data's
     series_views = [v for v in c.views if v.name not in ("rig", "about")]
-    assert series_views and all(v.time_range_s == pytest.approx((t0, t1)) for v in series_views)
+    assert series_views and all(v.time_range_s == pytest.approx(shown) for v in series_views)
     view = c.view("pitch error [deg]")
     lo, hi = view.y_range
     error = np.degrees(traj.estimate[:, 0] - traj.state[:, 0])
@@ -432,11 +437,14 @@ def test_no_setpoint_past_the_run_end(tmp_path):
     assert main(["run", "helicopter", "--duration", "5", "--no-progress", "--rrd",
                  str(path)]) == 0
     c = inspect_rrd(path)
+    from testbed.outputs.viz import time_axis_range
+
     assert c.time_range_s == pytest.approx((0.0, 5.0))
     t, sp = series(path, "setpoint/yaw")
     _, yaw = series(path, "state/yaw/actual")
     assert t[-1] == pytest.approx(5.0) and np.abs(sp).max() < 1.0 and np.abs(yaw).max() < 2.0
-    assert all(v.time_range_s[1] == pytest.approx(5.0) for v in c.views if v.time_range_s)
+    assert all(v.time_range_s[1] == pytest.approx(time_axis_range((0.0, 5.0))[1])
+               for v in c.views if v.time_range_s)
 
 
 def test_panels_have_units_and_legends_hide_no_data(tmp_path, model):

@@ -40,8 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_arguments(p)
     p.add_argument("--filter", default="kalman",
                    help="a built-in estimator or package.module:factory")
-    p.add_argument("--filter-option", type=values.name_value, action="append", default=[],
-                   metavar="NAME=VALUE", help="keyword option of the filter factory")
+    p.add_argument("--filter-option", type=values.name_setting, action="append", default=[],
+                   metavar="NAME=VALUE",
+                   help="keyword option of the filter factory (a number, true/false or a word)")
     p.add_argument("--sensors", default=None,
                    help="the sensor preset the recording's channels come from (default: the "
                    "recording's, else the profile's)")

@@ -51,8 +51,9 @@ def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
                    "(model-mismatch study)")
     p.add_argument("--filter", default="kalman",
                    help=f"{', '.join(ESTIMATORS)} or package.module:factory")
-    p.add_argument("--filter-option", type=values.name_value, action="append", default=[],
-                   metavar="NAME=VALUE", help="keyword option of the filter factory")
+    p.add_argument("--filter-option", type=values.name_setting, action="append", default=[],
+                   metavar="NAME=VALUE",
+                   help="keyword option of the filter factory (a number, true/false or a word)")
     p.add_argument("--controller", default=None, choices=CONTROLLERS,
                    help="default: the rig's (helicopter lqr, vehicle-roll open-loop)")
     p.add_argument("--duration", type=values.positive, default=duration_s,

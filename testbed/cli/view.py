@@ -17,5 +17,18 @@ def add_arguments(v: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    """``testbed view``: the viewer's exit code."""
-    return view(args.file, web=args.web, grpc_port=args.grpc_port, web_port=args.web_port)
+    """``testbed view``: the viewer's exit code.
+
+    On Ctrl-C or SIGTERM the viewer's processes are stopped (:func:`testbed.outputs.view.
+    view`) and the command returns: it wrote nothing, so the command line reports
+    ``testbed: stopped (SIGINT)`` (or ``SIGTERM``) with the signal's exit code, not that
+    partial outputs were removed.
+    """
+    from testbed.cli.entry import _SIGNALLED, _Terminated
+
+    try:
+        return view(args.file, web=args.web, grpc_port=args.grpc_port, web_port=args.web_port)
+    except (KeyboardInterrupt, _Terminated):
+        if not _SIGNALLED:  # not the command line's own signal handling: as it was
+            raise
+        return 0  # the entry sees the signal (_SIGNALLED) and exits with its code

@@ -148,7 +148,8 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
                  input_transform: Callable | None = None,
                  output_matrix: np.ndarray | None = None,
                  extras: dict[str, Any] | None = None,
-                 input_noise_cov: np.ndarray | None = None) -> DesignModel:
+                 input_noise_cov: np.ndarray | None = None,
+                 held_noise: bool = False) -> DesignModel:
     """A :class:`DesignModel` from continuous ``A, B, Q`` and the sensors' linear model.
 
     Parameters
@@ -176,8 +177,14 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
     plant = LinearSystem(A=A, B=B, C=C, Q=Q, R=R * dt_s, D=D if has_d else None)
     if output_matrix is None:
         output_matrix = np.eye(rig.n_states)[rig.tracked_index]
+    discrete = plant.discretize(dt_s)
+    held = _held_noise(rig, dt_s, np.asarray(A, float), np.asarray(Q, float)) if held_noise \
+        else None
+    if held is not None:
+        discrete = DiscreteLinearSystem(F=discrete.F, B=discrete.B, H=discrete.H, Q=held,
+                                        R=discrete.R, dt_s=dt_s, D=discrete.D)
     return DesignModel(
-        dt_s=float(dt_s), continuous=plant, discrete=plant.discretize(dt_s),
+        dt_s=float(dt_s), continuous=plant, discrete=discrete,
         x0=np.asarray(x0, float), P0=np.asarray(P0, float),
         state_names=tuple(rig.state_names), state_units=tuple(rig.state_units),
         input_names=tuple(rig.action_names), input_units=tuple(rig.action_units),
@@ -186,6 +193,30 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
         extras={"cubic_model": getattr(type(rig), "cubic_model", None),
                 "parameter_mismatch": _mismatch(rig), **_designer(rig), **(extras or {})})
+
+
+def _held_noise(rig, dt_s: float, A: np.ndarray, Q: np.ndarray) -> np.ndarray | None:
+    """The per-sample covariance of the rig's physical noise as the simulator applies it
+    (:mod:`testbed.design.held_noise`), shape (n_rig, n_rig), from the physical block of
+    ``A`` and ``Q``; None for a rig without MuJoCo physics, an integrator other than Euler
+    or the implicit ones, a period that is not a whole number of physics steps, or a ``Q``
+    with position rows (not a force's noise)."""
+    from testbed.design.held_noise import (
+        acts_on_velocities,
+        held_acceleration_map,
+        held_noise_covariance,
+        implicit_damping,
+    )
+
+    n, j = rig.n_states, len(getattr(rig, "joints", ()))
+    model = getattr(rig, "model", None)
+    if model is None or not j or not acts_on_velocities(Q[:n, :n], j):
+        return None
+    implicit = implicit_damping(model)
+    if implicit is None:
+        return None
+    E = held_acceleration_map(A[:n, :n], j, dt_s, float(model.opt.timestep), implicit)
+    return None if E is None else held_noise_covariance(E, Q[:n, :n], j, dt_s)
 
 
 def _designer(rig) -> dict[str, Any]:
@@ -325,6 +356,55 @@ def channel_effects(sensor: Sensor) -> list[ChannelEffects]:
     return [ChannelEffects(**e) for e in out]
 
 
+def consider_parameters(channels: list[tuple[int, str, float]], H: np.ndarray, D: np.ndarray,
+                        B: np.ndarray, bias_columns: dict[int, int],
+                        inputs: list[tuple[int, str, float]] = ()) -> list:
+    """The consider constants of a design's sensitivity and input-scale errors.
+
+    A channel ``y_i = (1 + s) signal_i + bias_i + noise`` has ``G = e_i H_i`` with the
+    channel's own bias column removed and ``J = e_i D_i``; a measured input ``u_j`` with a
+    scale error (``u_j = (1 + s) u_true``) has ``N = -B e_j e_j^T`` and ``J = -D e_j e_j^T``
+    (to first order in ``s``).
+
+    Parameters
+    ----------
+    channels : list of (row, name, std)
+        Rows of ``H`` with their sensitivity error's standard deviation (0: none).
+    H, D, B : ndarray, shapes (m, n), (m, k), (n, k)
+        The discrete model.
+    bias_columns : dict
+        ``{row: column}`` of each row's own bias state.
+    inputs : list of (input, name, std)
+
+    Returns
+    -------
+    list of filters.schmidt.ConsiderParameter
+    """
+    from filters.schmidt import ConsiderParameter
+
+    out = []
+    m, k = D.shape
+    for row, name, std in channels:
+        if not std:
+            continue
+        G, J = np.zeros_like(H), np.zeros_like(D)
+        G[row] = H[row]
+        if row in bias_columns:
+            G[row, bias_columns[row]] = 0.0
+        J[row] = D[row]
+        out.append(ConsiderParameter(float(std), f"scale_{name}", measurement_state=G,
+                                     measurement_input=J))
+    for j, name, std in inputs:
+        if not std:
+            continue
+        select = np.zeros((k, k))
+        select[j, j] = 1.0
+        out.append(ConsiderParameter(float(std), f"scale_{name}",
+                                     transition_input=-B @ select,
+                                     measurement_input=-D @ select))
+    return out
+
+
 def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray,
                          Q: np.ndarray, x0: np.ndarray, P0: np.ndarray, *,
                          extra_states: tuple[tuple[str, str], ...] = (),
@@ -339,7 +419,9 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
                          extras: dict[str, Any] | None = None,
                          input_noise_cov: np.ndarray | None = None,
                          extra_inputs: tuple[tuple[str, str], ...] = (),
-                         input_memory_std: np.ndarray | None = None) -> DesignModel:
+                         input_memory_std: np.ndarray | None = None,
+                         scale_R: dict[int, float] | None = None,
+                         input_scales: dict[int, float] | None = None) -> DesignModel:
     """A design model augmented with what the rig and its sensors declare.
 
     State ``[physical (rig.n_states), extra (actuators...), biases, delays]``:
@@ -382,6 +464,14 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         as the delayed channels, e.g. computed from channels of the same delay).
     input_transform, output_matrix, disturbance_matrix, extras, input_noise_cov
         As in :func:`build_design` (``output_matrix`` in the rig's states: padded here).
+    scale_R : dict, optional
+        ``{channel: variance}``: the white-noise stand-in of the channel's declared
+        sensitivity error (its variance at a design value of the signal), added to ``R`` for
+        the families that cannot carry constants. The error itself, a constant per run, is
+        a consider constant in ``extras["consider"]`` (:func:`consider_parameters`).
+    input_scales : dict, optional
+        ``{input: std}``: a measured input's scale error, a constant per run (the vehicle's
+        speed): a consider constant too.
     """
     from scipy.linalg import block_diag
 
@@ -406,6 +496,9 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         R = R + D0[:, :nu_rig] @ np.asarray(input_noise_cov, float) @ D0[:, :nu_rig].T
     for pos, ch in enumerate(index):
         R[pos, pos] += (extra_R or {}).get(int(ch), 0.0)
+    R_constants = R.copy()  # without the white-noise stand-ins of the constants
+    for pos, ch in enumerate(index):
+        R[pos, pos] += (scale_R or {}).get(int(ch), 0.0)
     names = list(rig.state_names) + [n for n, _ in extra_states]
     units = list(rig.state_units) + [u for _, u in extra_states]
     # bias states (random walks)
@@ -435,7 +528,12 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     Ac, Bc = np.zeros((n, n)), np.zeros((n, nu))
     Ac[:n1, :n1], Bc[:n1] = A1, B1
     F, Bd = np.zeros((n, n)), np.zeros((n, nu))
+    # the continuous noise covariance here: on the hardware profile the unmodelled
+    # accelerations (Coulomb friction, stops, deadband) are not white noise held over the
+    # period, and the held covariance's near-singular position-rate blocks would make the
+    # filter trust what they break (the helicopter's NEES 30 of 4 against 2.85)
     disc = LinearSystem(A=A1, B=B1, C=np.zeros((1, n1)), Q=Q1, R=np.eye(1)).discretize(dt_s)
+    Qd1 = np.array(disc.Q)
     F[:n1, :n1], Bd[:n1] = disc.F, disc.B
     H = np.hstack([H1, np.zeros((len(index), nd + nm))])
     D = D0.copy()
@@ -479,7 +577,7 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     Qc = block_diag(Q1, np.zeros((nd + nm, nd + nm)))
     has_d = bool(np.any(D))
     plant = LinearSystem(A=Ac, B=Bc, C=H, Q=Qc, R=R * dt_s, D=D if has_d else None)
-    discrete = DiscreteLinearSystem(F=F, B=Bd, H=H, Q=block_diag(disc.Q,
+    discrete = DiscreteLinearSystem(F=F, B=Bd, H=H, Q=block_diag(Qd1,
                                                                  np.zeros((nd + nm, nd + nm))),
                                     R=R, dt_s=dt_s, D=D if has_d else None)
     if output_matrix is None:
@@ -490,7 +588,14 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
     if disturbance_matrix is not None:
         G = np.zeros((n, np.shape(disturbance_matrix)[1]))
         G[:nr] = np.asarray(disturbance_matrix, float)[:nr]
+    bias_columns = {pos: n0 + j for j, (pos, _) in enumerate(biased)}
+    consider = consider_parameters(
+        [(pos, sensors.names[ch], effects[ch].scale_std) for pos, ch in enumerate(index)],
+        H, D, Bd, bias_columns, [(j, input_names[j], std)
+                                 for j, std in sorted((input_scales or {}).items())])
     all_extras = {"cubic_model": None, "parameter_mismatch": None, **_designer(rig),
+                  "consider": None if not consider else {"parameters": consider,
+                                                         "R": R_constants},
                   "paper_design": paper_design, "design_profile": "matched",
                   "augmentation": {"extra": [nm for nm, _ in extra_states],
                                    "biases": [sensors.names[ch] for _, ch in biased],

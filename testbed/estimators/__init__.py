@@ -1,65 +1,40 @@
 """Estimators by name or by import path: ``name -> factory(design, **options) -> Estimator``.
 
-The protocol an estimator follows (plain duck typing; :class:`filters.Estimator` is the
-typed form)::
+The protocol is :mod:`filters.base`: :class:`filters.base.Estimator` (``x``, ``P`` or None,
+``reset(x0, P0)``, ``step(y, u)``) and the optional protocols the testbed uses where an
+estimator has them: :class:`~filters.base.Innovations` (``testbed score``'s NIS, ANIS and
+whiteness), :class:`~filters.base.Batched`, :class:`~filters.base.Primed`,
+:class:`~filters.base.ChannelRequest`, :class:`~filters.base.DesignFacts` and
+:class:`~filters.base.Named` (the label in ``testbed score``). What the testbed adds:
 
-    x : ndarray (n,) or (N, n)        current estimate
-    P : ndarray (n, n) or (N, n, n)   its covariance, or None when the estimator has none
-    reset(x0, P0) -> None             restart from a prior (P0 may be None)
-    step(y, u) -> x                   y: the channels design.discrete's H (with D) describes
-                                      (design.measurement_index), measured at the end of the
-                                      step; u: the input applied over it, in the design
-                                      model's coordinates (the loop applies
-                                      design.input_transform)
-    channels                          optional: other channels of the sensor vector the
-                                      estimator wants (indices, or "all"; e.g. ms-hinf's
-                                      deterministic y2)
-    prime(y) -> None                  optional: use the first sample (at reset)
-    innovation, innovation_cov        optional: after a step, the innovation (m,) or (N, m)
-                                      and its covariance (m, m) or (N, m, m) (``testbed
-                                      score`` reports ANIS when both are there)
-    design_meta : dict                optional: design facts for outputs; ``gamma`` is the
-                                      attenuation level an H-infinity design claims, and
-                                      ``gamma_channel = "scenario"`` says that it bounds the
-                                      gain from the scenario's disturbance w (the design's
-                                      ``disturbance_matrix`` and the sensors' ``Hw``) to
-                                      ``z = output_matrix x``; ``gamma_kind`` is
-                                      ``"discrete"`` (a bound on the sampled loop) or
-                                      ``"continuous-observation"`` (a bound for continuous
-                                      observation, which does not certify the sampled
-                                      loop: ``testbed score`` prints the sampled loop's
-                                      linearized gain beside it)
-    batched : bool                    optional class attribute: True when x, y, u, P carry a
-                                      leading batch axis (N, ...) and one instance runs a
-                                      whole Monte-Carlo batch
+- ``y``: the channels ``design.discrete``'s ``H`` (with ``D``) describes
+  (``design.measurement_index``), measured at the end of the step (or the estimator's own
+  ``channels``); ``u``: the input applied over it, in the design model's coordinates (the
+  loop applies ``design.input_transform(u_applied, x_hat)`` with ``x_hat`` the estimator's
+  ``x`` before the step). Channels an input is computed from go to the input transform,
+  not to the estimator: a Kalman filter written from ``F, B, H, D, Q, R`` alone works on
+  every rig. The nonlinear model in the same input is :func:`nonlinear_model`.
+- An estimator without ``batched = True`` runs in ``mc`` and ``score`` as one instance per
+  run (:class:`PerMember`, each from its own factory call or a copy).
+- Physical states: a design may be augmented (the ``hardware`` profile's matched design:
+  actuator, sensor-bias and delay states after the rig's physical ones). The estimator
+  keeps its whole state; the loop reports ``x[..., physical_index]`` and the marginal block
+  ``P[..., physical_index, physical_index]`` (``design.physical_index``).
+- Checks: after the factory and after the first step the loop checks ``x`` ((n,) or
+  (N, n)) and ``P`` ((n, n) or (N, n, n)): finite, symmetric and positive semidefinite to a
+  relative tolerance (:func:`testbed.experiment.loop.check_estimate`); otherwise one line
+  names the estimator and the expected shape.
+- Design profiles: a factory whose theory needs the paper's model sets
+  ``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
+  instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
+  ``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``,
+  ``lmi-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design.
 
-An estimator without ``batched = True`` runs in ``mc`` as one instance per run (each from
-its own factory call). Channels an input is computed from (``SensorModel.inputs``) go to the
-loop's input transform, not to the estimator: a Kalman filter written from ``F, B, H, D, Q,
-R`` alone works on every rig.
-
-Physical states: a design may be augmented (the ``hardware`` profile's matched design:
-actuator, sensor-bias and delay states after the rig's physical ones). The estimator keeps
-its whole state ``x`` (n,) and ``P`` (n, n); the loop reports ``x[..., physical_index]`` and
-the marginal block ``P[..., physical_index, physical_index]``
-(``design.physical_index``): the metrics, recordings and the controller see the rig's
-states only.
-
-Checks: after the factory and after the first step the loop checks ``x`` ((n,) or (N, n))
-and ``P`` ((n, n) or (N, n, n)): finite, symmetric and positive semidefinite to a relative
-tolerance (:func:`testbed.experiment.loop.check_estimate`); otherwise one line names the
-estimator and the expected shape.
-
-Design profiles: a factory whose theory needs the paper's model sets
-``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
-instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
-``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``,
-``lmi-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design (the reasons
-are their attributes).
-
-A user's estimator is named ``package.module:factory`` anywhere a filter name is accepted
-(``testbed run RIG --filter mymodule:make``); the factory receives the
-:class:`~testbed.design.DesignModel` and keyword options.
+A user's estimator is named ``package.module:factory`` or ``path/to/file.py:factory``
+anywhere a filter name is accepted (``testbed run RIG --filter mymodule:make``); the factory
+receives the :class:`~testbed.design.DesignModel` and keyword options. Its label
+(:func:`label`): ``LABEL=spec`` when given, else the factory's ``name`` attribute (a class's
+:class:`~filters.base.Named` ``name``), else ``file:factory`` without the directories.
 """
 
 from __future__ import annotations
@@ -72,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from filters import KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
+from filters import DiscreteLinearSystem, KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
 from testbed import plugins
 from testbed.design import DesignModel
 
@@ -218,9 +193,26 @@ def design_for(name: str | Factory, design: DesignModel) -> tuple[DesignModel, s
     return paper, reason
 
 
-def kalman(design: DesignModel) -> Any:
-    """Discrete Kalman filter on ``design.discrete`` (exact ZOH at the control period)."""
-    est = KalmanFilter(design.discrete, design.x0, design.P0)
+def kalman(design: DesignModel, constants: str = "consider") -> Any:
+    """Discrete Kalman filter on ``design.discrete`` (exact ZOH at the control period).
+
+    A design that declares constant errors (``design.extras["consider"]``: the hardware
+    profiles' per-run sensitivity and speed-scale errors) gets a Schmidt-Kalman filter
+    (:class:`filters.schmidt.SchmidtKalmanFilter`) that considers them, with ``R`` without
+    their white-noise stand-in; ``constants="white"``: the Kalman filter with the stand-in.
+    """
+    if constants not in ("consider", "white"):
+        raise ValueError(f"constants must be 'consider' or 'white', got {constants!r}")
+    consider = design.extras.get("consider")
+    if consider and constants == "consider":
+        from filters.schmidt import SchmidtKalmanFilter
+
+        d = design.discrete
+        system = DiscreteLinearSystem(F=d.F, B=d.B, H=d.H, D=d.D, Q=d.Q, R=consider["R"],
+                                      dt_s=d.dt_s)
+        est = SchmidtKalmanFilter(system, design.x0, design.P0, consider["parameters"])
+    else:
+        est = KalmanFilter(design.discrete, design.x0, design.P0)
     est.batched = True
     return _select(est, design)
 
@@ -251,7 +243,10 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
     """
     det = design.deterministic_index
     if sampled:
-        from testbed.estimators.lmi import sampled_ms_hinf_estimator, sampled_two_channel_system
+        from testbed.estimators.stochastic_system import (
+            sampled_ms_hinf_estimator,
+            sampled_two_channel_system,
+        )
 
         est, meta = sampled_ms_hinf_estimator(design, gamma=gamma, gamma_factor=gamma_factor)
         est.design_meta = meta
@@ -292,7 +287,7 @@ def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: floa
     from the discrete design model (:mod:`testbed.estimators.lmi`: the full LMI (48) on a
     stable plant, its error block on a plant with free integrators; ``plant_block`` forces
     either)."""
-    from testbed.estimators.lmi import lmi_estimator, verified_estimator
+    from testbed.estimators.stochastic_system import lmi_estimator, verified_estimator
 
     rig_system = design.extras.get("lmi_system")
     if rig_system is None:
@@ -350,15 +345,17 @@ def vc_discrete(design: DesignModel, gamma: float | None = None, gamma_factor: f
 
 
 def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False,
-        nthread: int = 0) -> Any:
+        jacobian: str = "step", jacobian_points: int = 1, nthread: int = 0) -> Any:
     """Extended Kalman filter on the rig's nominal MuJoCo model, composed with a matched
-    design's actuator, bias and delay states (Jacobians by finite differences of the
-    control-period map over one batched rollout: step ``eps``, forward or ``centered``;
-    ``nthread`` rollout threads), ``Q``/``R`` of ``design.discrete``
+    design's actuator, bias and delay states (Jacobians from one-physics-step derivatives
+    at ``jacobian_points`` points per period, or ``jacobian="rollout"``: finite differences
+    of the control-period map over one batched rollout; step ``eps``, forward or
+    ``centered``; ``nthread`` rollout threads), ``Q``/``R`` of ``design.discrete``
     (:mod:`testbed.estimators.nonlinear`)."""
     from testbed.estimators.nonlinear import nonlinear_estimator
 
     return _select(nonlinear_estimator(design, "ekf", eps=eps, centered=centered,
+                                       jacobian=jacobian, jacobian_points=jacobian_points,
                                        nthread=nthread), design)
 
 
@@ -424,6 +421,35 @@ def resolve(name: str | Factory) -> Factory:
     return factory
 
 
+def labelled(spec: str | Factory) -> str | Factory:
+    """An estimator as ``testbed score`` takes it, with a short label.
+
+    A registered name stays a name; ``LABEL=spec`` and a plug-in spec become a
+    :class:`testbed.plugins.LabelledFactory` whose ``__name__`` is ``LABEL`` or
+    :func:`testbed.plugins.default_label` (the plug-in's ``name``, else ``file:factory``
+    without directories); a callable is returned as it is.
+
+    Raises
+    ------
+    ValueError
+        Unknown name, a plug-in that does not load, or a malformed ``LABEL=``.
+    """
+    if callable(spec):
+        return spec
+    label, rest = plugins.split_label(spec)
+    factory = resolve(rest)  # loads (and names the failure of) a plug-in here
+    if label is None and rest in ESTIMATORS:
+        return rest
+    return plugins.LabelledFactory(rest, label or plugins.default_label(rest, factory),
+                                   resolve)
+
+
+def label(spec: str | Factory) -> str:
+    """The label of an estimator (see :func:`labelled`)."""
+    out = labelled(spec)
+    return out if isinstance(out, str) else str(getattr(out, "__name__", repr(out)))
+
+
 def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
     """Refuse option names a factory does not accept (when its signature declares them).
 
@@ -467,6 +493,14 @@ def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
             raise ValueError(f"filter {name!r}: the factory returned {type(est).__name__}, "
                              f"which has no {attr!r} (see testbed.estimators)")
     return est
+
+
+def nonlinear_model(design: DesignModel, **options: Any) -> Any:
+    """The nonlinear model ``f, F, h, H`` of ``design`` in the loop's input, for plug-ins
+    (:class:`testbed.estimators.model.NonlinearModel`; ``docs/extending.md``)."""
+    from testbed.estimators.model import nonlinear_model as make
+
+    return make(design, **options)
 
 
 class PerMember:
@@ -518,6 +552,23 @@ class PerMember:
             prime = getattr(e, "prime", None)
             if prime is not None:
                 prime(yi)
+
+    @property
+    def innovation(self) -> np.ndarray | None:
+        """The instances' innovations (N, m), or None when one has none
+        (:class:`filters.base.Innovations`)."""
+        values = [getattr(e, "innovation", None) for e in self.instances]
+        if any(v is None for v in values):
+            return None
+        return np.stack([np.asarray(v, float).reshape(-1) for v in values])
+
+    @property
+    def innovation_cov(self) -> np.ndarray | None:
+        """The instances' innovation covariances (N, m, m), or None when one has none."""
+        values = [getattr(e, "innovation_cov", None) for e in self.instances]
+        if any(v is None for v in values):
+            return None
+        return np.stack([np.atleast_2d(np.asarray(v, float)) for v in values])
 
     def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
         """Step every instance on its row."""

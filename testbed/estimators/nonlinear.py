@@ -13,12 +13,18 @@ Process model :class:`MujocoProcessModel` (a design whose state is the rig's)
     ``f(x, u)``: the nominal model stepped over one control period (``frame_skip`` physics
     steps of the designer's copy, the input held: zero-order hold), all rows of ``x`` in one
     :func:`mujoco.rollout.rollout` call (the UKF's sigma points of every member at once).
-    ``F(x, u)``: the Jacobian ``df/dx`` by finite differences of the whole period, every
+    ``F(x, u)``: the Jacobian ``df/dx`` (default ``jacobian="step"``) from the derivatives
+    of ONE physics step at the period's midpoint of each row's own trajectory, held over the
+    period and composed with the inputs' dependence on the state
+    (:mod:`testbed.estimators.jacobians`; ``jacobian_points`` linearization points per
+    period, all ``frame_skip`` of them for the exact product): ``1 + n + k`` single physics
+    steps per row beside the period's own ``frame_skip``. ``jacobian="rollout"`` (the method
+    before, ``n`` extra periods per row) takes finite differences of the whole period, every
     perturbed initial state of every row in the same single rollout call (forward or central
-    differences); ``jacobian="transition"`` takes the product of MuJoCo's per-physics-step
+    differences); ``jacobian="transition"`` the product of MuJoCo's per-physics-step
     transition derivatives (:func:`mujoco.mjd_transitionFD`) along each row's trajectory
-    instead (the reference the tests compare with). Either also yields ``f(x, u)``, which
-    ``f`` then returns from a cache (the EKF evaluates ``F`` before ``f``).
+    (the reference the tests compare with, a Python loop). Each also yields ``f(x, u)``,
+    which ``f`` then returns from a cache (the EKF evaluates ``F`` before ``f``).
 Process model :class:`AugmentedProcessModel` (a matched, augmented design)
     The rig's states through the MuJoCo model, composed with the design's extra (actuator)
     states, which drive the MuJoCo input per physics step (:class:`PhysicalInput`,
@@ -49,389 +55,44 @@ actuator states (``na = 0``: a ``hardware`` profile's motor lag is the design's 
 not the nominal model's). The gravity and the joint limits of the MJCF are in ``f`` (the
 helicopter's pitch stop included).
 
-This module imports no rig module: the designer's rig class comes with the design
+Where: :mod:`testbed.estimators.mujoco_model` (:class:`MujocoProcessModel`,
+:class:`PhysicalInput`), :mod:`testbed.estimators.augmented`
+(:class:`AugmentedProcessModel`), :mod:`testbed.estimators.jacobians` (the Jacobian of the
+period from one-physics-step derivatives); this module has the measurement model, the input
+correction and the factories, and re-exports the rest.
+
+These modules import no rig module: the designer's rig class comes with the design
 (``design.extras["rig_type"]``).
 """
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-import mujoco
-import mujoco.rollout
 import numpy as np
-from scipy.linalg import expm
 
 from filters import ExtendedKalmanFilter, UnscentedKalmanFilter
-from testbed.design import DesignModel, InputStates
+from testbed.design import DesignModel
 from testbed.estimators import EstimatorWrapper
+from testbed.estimators.augmented import AugmentedProcessModel
+from testbed.estimators.jacobians import differences, perturbed
+from testbed.estimators.mujoco_model import (
+    FD_EPS,
+    JACOBIAN_METHODS,
+    MujocoProcessModel,
+    PhysicalInput,
+    can_touch,
+    gravity,
+)
 
 if TYPE_CHECKING:  # the designer's rig: its class comes with the design (extras["rig_type"])
     from testbed.rigs.base import Rig
 
-_FULL = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-_CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
-_XFRC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
-#: Default finite-difference step of the Jacobians (state units).
-FD_EPS = 1e-6
-#: Jacobian methods of :class:`MujocoProcessModel`.
-JACOBIAN_METHODS = ("rollout", "transition")
-
-
-def _offset(model: mujoco.MjModel, spec: int, component: int) -> int:
-    """Offset of one component in a ``spec`` state vector (components in bit order)."""
-    return sum(mujoco.mj_stateSize(model, 1 << k) for k in range(component.bit_length() - 1)
-               if spec & (1 << k))
-
-
-def perturbed(x: np.ndarray, eps: float, centered: bool) -> np.ndarray:
-    """Rows ``x`` followed by their coordinate perturbations, for finite differences.
-
-    Parameters
-    ----------
-    x : ndarray, shape (M, d)
-    eps : float
-    centered : bool
-
-    Returns
-    -------
-    ndarray, shape (M, 1 + d, d) or (M, 1 + 2 d, d)
-        Row ``i``: ``[x_i, x_i + eps e_1 ... x_i + eps e_d]`` (then ``x_i - eps e_j`` when
-        ``centered``).
-    """
-    M, d = x.shape
-    steps = eps * np.eye(d)
-    parts = [x[:, None, :], x[:, None, :] + steps]
-    if centered:
-        parts.append(x[:, None, :] - steps)
-    return np.concatenate(parts, axis=1)
-
-
-def differences(values: np.ndarray, eps: float, centered: bool) -> np.ndarray:
-    """Jacobians from the values at :func:`perturbed` points.
-
-    Parameters
-    ----------
-    values : ndarray, shape (M, 1 + d, r) or (M, 1 + 2 d, r)
-
-    Returns
-    -------
-    ndarray, shape (M, r, d)
-    """
-    d = (values.shape[1] - 1) // (2 if centered else 1)
-    if centered:
-        J = (values[:, 1:1 + d] - values[:, 1 + d:]) / (2.0 * eps)
-    else:
-        J = (values[:, 1:1 + d] - values[:, :1]) / eps
-    return np.swapaxes(J, 1, 2)
-
-
-def can_touch(model: mujoco.MjModel) -> bool:
-    """Whether any two geoms of ``model`` may collide: an explicit contact pair, or a geom
-    pair whose ``contype`` and ``conaffinity`` bits meet (MuJoCo's filter)."""
-    if model.npair:
-        return True
-    contype = np.asarray(model.geom_contype)
-    conaffinity = np.asarray(model.geom_conaffinity)
-    return bool(np.any((contype[:, None] & conaffinity[None, :]) != 0))
-
-
-class MujocoProcessModel:
-    """``x_{k+1} = f(x_k, u_k)``: a rig's MuJoCo model over one control period.
-
-    Parameters
-    ----------
-    rig : testbed.rigs.base.Rig
-        The designer's rig (nominal parameters); its ``model`` is stepped, not changed.
-    dt_s : float
-        Control period, a whole number of the model's physics steps.
-    eps : float
-        Finite-difference step of the Jacobian (state units).
-    centered : bool
-        Central differences (``2 n`` perturbed rollouts per row) or forward differences
-        (default: ``n``, half the cost; first-order accurate in ``eps``, an error of order
-        ``eps`` relative, far below what a filter notices).
-    jacobian : {"rollout", "transition"}
-        ``"rollout"`` (default): finite differences of the whole control-period map, all
-        perturbed initial states of all rows in one :func:`mujoco.rollout.rollout` call;
-        ``"transition"``: the product of MuJoCo's per-physics-step transition derivatives
-        (:func:`mujoco.mjd_transitionFD`) along each row's trajectory (the reference).
-    nthread : int
-        Threads of the rollout calls (0: the calling thread). The result does not depend on
-        it: each rollout is independent and deterministic.
-
-    Attributes
-    ----------
-    frame_skip : int
-        Physics steps per control period.
-    n, k : int
-        State and input dimensions.
-
-    Raises
-    ------
-    ValueError
-        ``dt_s`` is not a whole number of physics steps, the model has degrees of freedom or
-        actuator states outside the rig's state, or the rig sets its input per physics step
-        (:attr:`Rig.needs_substep`); a bad ``eps``, ``jacobian`` or ``nthread``.
-    """
-
-    def __init__(self, rig: Rig, dt_s: float, *, eps: float = FD_EPS,
-                 centered: bool = False, jacobian: str = "rollout", nthread: int = 0) -> None:
-        model = rig.model
-        step = float(model.opt.timestep)
-        frame_skip = int(round(float(dt_s) / step))
-        if frame_skip < 1 or not np.isclose(frame_skip * step, float(dt_s), rtol=1e-9, atol=0):
-            raise ValueError(f"dt_s must be a whole number of the model's physics steps "
-                             f"({step:g} s), got {dt_s!r}")
-        j = len(rig.joints)
-        if model.nq != j or model.nv != j or model.na != 0:
-            raise ValueError(f"rig {rig.name!r}: the nonlinear design model needs a MuJoCo model "
-                             f"whose state is the rig's (nq = nv = {j}, na = 0), got nq = "
-                             f"{model.nq}, nv = {model.nv}, na = {model.na}")
-        if rig.needs_substep:
-            raise ValueError(f"rig {rig.name!r}: a per-physics-step input (substep_ctrl) is not "
-                             "in the nonlinear design model; use the rig's first profile")
-        if not (np.isfinite(eps) and eps > 0):
-            raise ValueError(f"eps must be positive and finite, got {eps!r}")
-        if jacobian not in JACOBIAN_METHODS:
-            raise ValueError(f"jacobian must be one of {JACOBIAN_METHODS}, got {jacobian!r}")
-        if (isinstance(nthread, bool) or not isinstance(nthread, int | float | np.integer)
-                or not float(nthread).is_integer() or nthread < 0):
-            raise ValueError(f"nthread must be an integer >= 0, got {nthread!r}")
-        if not can_touch(model):
-            # no geom pair can collide: skip the collision phase of every rollout (the same
-            # states bitwise, about 19 % less physics time on the helicopter)
-            model = copy.deepcopy(model)
-            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        self.rig, self.model, self.frame_skip, self.eps = rig, model, frame_skip, float(eps)
-        self.centered, self.method, self.nthread = bool(centered), jacobian, int(nthread)
-        self.n, self.k = rig.n_states, rig.n_actions
-        self._j = j
-        self._data = mujoco.MjData(model)
-        self._datas = [mujoco.MjData(model) for _ in range(max(self.nthread, 1))]
-        self._constants = rig.member_constants(rig.params)
-        mujoco.mj_resetData(model, self._data)
-        self._template = np.zeros(mujoco.mj_stateSize(model, _FULL))
-        mujoco.mj_getState(model, self._data, self._template, _FULL)
-        qpos = _offset(model, _FULL, int(mujoco.mjtState.mjSTATE_QPOS))
-        qvel = _offset(model, _FULL, int(mujoco.mjtState.mjSTATE_QVEL))
-        #: Columns of the rig state in a FULLPHYSICS state vector.
-        self._gather = np.concatenate([qpos + rig.qpos_adr, qvel + rig.dof_adr])
-        #: Rows/columns of the rig state in mjd_transitionFD's tangent space.
-        self._tangent = np.concatenate([rig.dof_adr, model.nv + rig.dof_adr])
-        keys = rig.actuation(np.zeros((1, self.k)), self._constants[None]).keys()
-        unknown = set(keys) - {"ctrl", "xfrc"}
-        if unknown:
-            raise ValueError(f"rig {rig.name!r}: unsupported actuation outputs {sorted(unknown)}")
-        self._spec = (_CTRL if "ctrl" in keys else 0) | (_XFRC if "xfrc" in keys else 0)
-        self._ncontrol = mujoco.mj_stateSize(model, self._spec) if self._spec else 0
-        self._A = np.zeros((2 * model.nv + model.na, 2 * model.nv + model.na))
-        self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._pool: Any = None  # mujoco.rollout.Rollout with nthread threads, made on use
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state["_buffers"], state["_pool"] = {}, None  # scratch and threads: not copied
-        return state
-
-    # ------------------------------------------------------------------ inputs
-    def controls(self, u: np.ndarray) -> dict[str, np.ndarray]:
-        """MuJoCo inputs of absolute inputs ``u`` (M, k) (:meth:`Rig.actuation` at the
-        nominal member constants): ``"ctrl"`` (M, nu) and/or ``"xfrc"`` (M, nbody, 6)."""
-        constants = np.broadcast_to(self._constants, (len(u), len(self._constants)))
-        return self.rig.actuation(np.asarray(u, float), constants)
-
-    def _control_vectors(self, inputs: dict[str, np.ndarray], M: int) -> np.ndarray:
-        parts = []
-        if "ctrl" in inputs:
-            parts.append(np.asarray(inputs["ctrl"], float).reshape(M, -1))
-        if "xfrc" in inputs:
-            parts.append(np.asarray(inputs["xfrc"], float).reshape(M, -1))
-        return np.concatenate(parts, axis=1) if parts else np.zeros((M, 0))
-
-    # ------------------------------------------------------------------ model
-    def rollout(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """States after one control period from ``x`` (M, n) under inputs ``u``.
-
-        Parameters
-        ----------
-        x : ndarray, shape (M, n)
-        u : ndarray, shape (M, k) or (M, frame_skip, k)
-            Absolute inputs, held over the period or one per physics step.
-
-        Returns
-        -------
-        ndarray, shape (M, n)
-            All ``M`` rows from one :func:`mujoco.rollout.rollout` call.
-        """
-        M = len(x)
-        state0 = np.tile(self._template, (M, 1))
-        state0[:, self._gather] = x
-        nstep = self.frame_skip
-        control = None
-        if self._spec:
-            u = np.asarray(u, float)
-            if u.ndim == 2:
-                control = np.ascontiguousarray(np.broadcast_to(
-                    self._control_vectors(self.controls(u), M)[:, None, :],
-                    (M, nstep, self._ncontrol)))
-            else:
-                flat = u.reshape(M * nstep, self.k)
-                control = self._control_vectors(self.controls(flat), M * nstep).reshape(
-                    M, nstep, self._ncontrol)
-        if M not in self._buffers:
-            self._buffers[M] = (np.zeros((M, nstep, len(self._template))),
-                                np.zeros((M, nstep, self.model.nsensordata)))
-        state, sensordata = self._buffers[M]
-        if self.nthread > 1:  # this model's own pool (not the module-wide persistent one)
-            if self._pool is None:
-                self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
-            self._pool.rollout([self.model] * M, self._datas, state0, control,
-                               control_spec=self._spec, skip_checks=True, nstep=nstep,
-                               state=state, sensordata=sensordata)
-        else:
-            mujoco.rollout.rollout([self.model] * M, [self._data], state0, control,
-                                   control_spec=self._spec, skip_checks=True, nstep=nstep,
-                                   state=state, sensordata=sensordata)
-        return state[:, -1][:, self._gather]
-
-    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``f(x, u)``: states after one control period, shape (M, n).
-
-        Parameters
-        ----------
-        x : ndarray, shape (M, n)
-            States (design coordinates).
-        u : ndarray, shape (M, k)
-            Absolute inputs held over the period.
-
-        Notes
-        -----
-        All ``M`` rows in one :func:`mujoco.rollout.rollout` call, unless :meth:`jacobian`
-        has just been evaluated at the same ``(x, u)``.
-        """
-        cache = self._cache
-        if cache is not None and np.array_equal(cache[0], x) and np.array_equal(cache[1], u):
-            return cache[2].copy()
-        return self.rollout(x, u)
-
-    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``F(x, u) = df/dx``, shape (M, n, n), by finite differences (:attr:`method`).
-
-        ``"rollout"``: forward (or :attr:`centered`) differences of the control-period map,
-        step :attr:`eps`, every perturbed initial state of every row in one rollout call.
-        ``"transition"``: for each row the product ``A_s ... A_1`` of the transition
-        derivatives (:func:`mujoco.mjd_transitionFD`) of the ``frame_skip`` physics steps
-        along the row's own trajectory, in the rig's state order. Either way ``f(x, u)`` is
-        cached for the next :meth:`__call__` at the same arguments.
-        """
-        if self.method == "rollout":
-            M, n = x.shape
-            points = perturbed(np.asarray(x, float), self.eps, self.centered)
-            P = points.shape[1]
-            ub = np.repeat(np.asarray(u, float), P, axis=0)
-            values = self.rollout(points.reshape(M * P, n), ub).reshape(M, P, n)
-            self._cache = (np.array(x, copy=True), np.array(u, copy=True), values[:, 0].copy())
-            return differences(values, self.eps, self.centered)
-        return self._jacobian_transition(x, u)
-
-    def _jacobian_transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        model, data, A, gather = self.model, self._data, self._A, self._tangent
-        M, j = len(x), self._j
-        inputs = self.controls(u)
-        ctrl = inputs.get("ctrl")
-        xfrc = inputs.get("xfrc")
-        J = np.empty((M, self.n, self.n))
-        out = np.empty((M, self.n))
-        rig = self.rig
-        for i in range(M):
-            mujoco.mj_resetData(model, data)
-            data.qpos[rig.qpos_adr] = x[i, :j]
-            data.qvel[rig.dof_adr] = x[i, j:]
-            if ctrl is not None:
-                data.ctrl[:] = ctrl[i]
-            if xfrc is not None:
-                data.xfrc_applied[:] = xfrc[i]
-            Ji = None
-            for _ in range(self.frame_skip):
-                mujoco.mjd_transitionFD(model, data, self.eps, self.centered, A, None, None,
-                                        None)
-                Ji = A.copy() if Ji is None else A @ Ji
-                mujoco.mj_step(model, data)
-            J[i] = Ji[np.ix_(gather, gather)]
-            out[i, :j] = data.qpos[rig.qpos_adr]
-            out[i, j:] = data.qvel[rig.dof_adr]
-        self._cache = (np.array(x, copy=True), np.array(u, copy=True), out)
-        return J
-
-
-def gravity(model: mujoco.MjModel) -> float:
-    """The magnitude of the model's gravity (``opt.gravity``), m/s^2."""
-    return float(np.linalg.norm(model.opt.gravity))
-
-
-class PhysicalInput:
-    """The rig's physical input ``w`` of a design state and input (design coordinates).
-
-    ``w = o(x) + S_u (u - [o(x), 0]) + S_e e`` with ``o`` the rig's operating input at the
-    nominal parameters (zero without an input transform), ``e`` the design's extra
-    (actuator) states and ``S_u``, ``S_e`` the design's :class:`InputStates` (default
-    ``S_u = [I, 0]``: ``w`` is ``u``'s rig columns). ``u`` is absolute (the loop's input in
-    design coordinates plus ``[o(x_hat), 0]``: :class:`AbsoluteInput`).
-
-    Parameters
-    ----------
-    rig : Rig
-        The designer's rig.
-    design : DesignModel
-    """
-
-    def __init__(self, rig: Rig, design: DesignModel) -> None:
-        self.rig, self.params = rig, rig.params
-        self.nr, self.kr, self.k = rig.n_states, rig.n_actions, len(design.input_names)
-        extra = (design.extras.get("augmentation") or {}).get("extra", []) \
-            if design.augmented else []
-        self.ne = len(extra)
-        spec = design.extras.get("input_states")
-        if self.ne and not isinstance(spec, InputStates):
-            raise ValueError(f"the design's extra states {extra} need "
-                             "design.extras['input_states'] (how they reach the rig's input) "
-                             "for the nonlinear filters")
-        if spec is None:
-            spec = InputStates(from_input=np.eye(self.kr, self.k),
-                               from_states=np.zeros((self.kr, 0)),
-                               relative=np.zeros((0, self.kr)))
-        spec.check(self.kr, self.k, self.ne)
-        self.spec = spec
-        self.offsets = design.input_transform is not None
-
-    @property
-    def plain(self) -> bool:
-        """``w`` is ``u``'s rig columns (no extra states, ``S_u = [I, 0]``)."""
-        return self.ne == 0 and np.array_equal(self.spec.from_input, np.eye(self.kr, self.k))
-
-    def offset(self, p: np.ndarray) -> np.ndarray:
-        """``o(x)`` (M, k_rig) of the rig states ``p`` (M, n_rig)."""
-        if not self.offsets:
-            return np.zeros((len(p), self.kr))
-        return np.asarray(self.rig.operating_input(self.params, p), float)
-
-    def relative(self, p: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``u - [o(x), 0]``, shape (M, k)."""
-        rel = np.array(u, float, copy=True)
-        rel[:, :self.kr] -= self.offset(p)
-        return rel
-
-    def __call__(self, p: np.ndarray, e: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``w`` (M, k_rig) of rig states ``p`` (M, n_rig), extra states ``e`` (M, n_e)
-        and absolute inputs ``u`` (M, k)."""
-        if self.plain:
-            return u[:, :self.kr]
-        rel = self.relative(p, u)
-        return self.offset(p) + rel @ self.spec.from_input.T + e @ self.spec.from_states.T
+__all__ = ["FD_EPS", "JACOBIAN_METHODS", "AbsoluteInput", "AugmentedProcessModel",
+           "MeasurementModel", "MujocoProcessModel", "PhysicalInput", "can_touch",
+           "differences", "gravity", "nominal_rig", "nonlinear_estimator", "nonlinear_models",
+           "perturbed"]
 
 
 class MeasurementModel:
@@ -506,188 +167,13 @@ class MeasurementModel:
         p, e = self._split(x)
         w = self.input(p, e, u)
         nr = self.input.nr
-        dw = None
-        if not self.input.plain:  # dw / d[p, e] (M, k_rig, nr + ne)
-            pe = x[:, :self._d]
-            pts = perturbed(pe, FD_EPS, True)
-            M, P, d = pts.shape
-            flat = pts.reshape(M * P, d)
-            ws = self.input(flat[:, :nr], flat[:, nr:], np.repeat(u, P, axis=0))
-            dw = differences(ws.reshape(M, P, -1), FD_EPS, True)
+        dw = None if self.input.plain else self.input.jacobian(p)  # dw/d[p, e]
         for row, _, grad_x, grad_w in self._rows:
             H[:, row, :self._d] = 0.0
             H[:, row, :nr] = grad_x(p, w, self.g)
             if dw is not None:
                 H[:, row, :self._d] += np.einsum("mk,mkd->md", grad_w(p, w, self.g), dw)
         return H
-
-
-class AugmentedProcessModel:
-    """``f(x, u)`` of a matched (augmented) design: the rig's MuJoCo model composed with the
-    design's extra (actuator), bias and delay states.
-
-    State ``x = [p (rig states), e (extra states), rest (biases, delays, input memory)]``
-    (:func:`testbed.design.build_matched_design`'s order); ``u`` absolute
-    (:class:`AbsoluteInput`).
-
-    - ``e``: the design's continuous ``A_ee``, ``B_e`` (the matched linear design, one
-      source of truth), exactly discretized per physics step: ``e_{i+1} = Phi e_i + Gamma
-      (u - [o(x_k), 0])``; the physical input of physics step ``i`` is ``w_i = o(x_k) + S_u
-      (u - [o(x_k), 0]) + S_e e_i`` (:class:`PhysicalInput`, ``o`` the operating input at the
-      period's start). Extra states relative to the operating input (the helicopter's
-      ``dact = act - V_g(pitch)``, :attr:`InputStates.relative`) are re-referenced to the
-      period's end state: ``e_{k+1} = e_N + R (o(x_k) - o(x_{k+1}))``.
-    - ``p``: the nominal MuJoCo model stepped ``frame_skip`` physics steps with the inputs
-      ``w_i`` (:meth:`MujocoProcessModel.rollout`; gravity and joint limits in the MJCF, so a
-      design input that stands for a stop's reaction is not a MuJoCo input).
-    - ``rest``: the rows of ``design.discrete`` (``F``, ``B``), except the first delay state
-      of a channel the sensors declare nonlinear (``SensorModel.nonlinear``), which takes the
-      channel's nonlinear value
-      ``h(p_k, w_0)`` (``w`` of the input memory when the design keeps one).
-
-    Rows of ``x`` that share ``[p, e]`` and ``u`` bitwise are rolled out once.
-
-    Jacobian ``F(x, u)``: the ``[p, e]`` columns of the ``[p, e]`` rows and of the
-    nonlinear delay rows by finite differences (step ``eps``, forward or ``centered``) over
-    one rollout of every perturbed state of every row; the other entries exactly from
-    ``design.discrete.F``.
-
-    Parameters
-    ----------
-    design : DesignModel
-        Augmented (``design.physical_index`` set).
-    process : MujocoProcessModel
-        The nominal rig's model at ``design.dt_s``.
-    """
-
-    def __init__(self, design: DesignModel, process: MujocoProcessModel) -> None:
-        rig = process.rig
-        self.process, self.rig = process, rig
-        self.input = PhysicalInput(rig, design)
-        nr, ne = self.input.nr, self.input.ne
-        self.nr, self.ne, self.d, self.n = nr, ne, nr + ne, design.n
-        self.k = len(design.input_names)
-        self.eps, self.centered = process.eps, process.centered
-        Ac = np.asarray(design.continuous.A, float)
-        Bc = np.asarray(design.continuous.B, float)
-        e = slice(nr, nr + ne)
-        if np.any(Ac[e, :nr]) or np.any(Ac[e, nr + ne:]):
-            raise ValueError("the design's extra states must evolve on their own (A_ee, B_e): "
-                             "rows of A couple them to other states")
-        h = float(process.model.opt.timestep)
-        N = process.frame_skip
-        # [Phi Gamma; 0 I] per physics step (exact ZOH), and its powers 0..N
-        blk = np.zeros((ne + self.k, ne + self.k))
-        blk[:ne, :ne], blk[:ne, ne:] = Ac[e, e], Bc[e]
-        step = expm(blk * h)
-        powers = [np.eye(ne + self.k)]
-        for _ in range(N):
-            powers.append(step @ powers[-1])
-        stack = np.stack(powers)  # (N + 1, ne + k, ne + k)
-        self._Phi = np.ascontiguousarray(stack[:, :ne, :ne])  # (N + 1, ne, ne)
-        self._Gam = np.ascontiguousarray(stack[:, :ne, ne:])  # (N + 1, ne, k)
-        F = np.asarray(design.discrete.F, float)
-        self._F_rest = F[self.d:]
-        self._B_rest = np.asarray(design.discrete.B, float)[self.d:]
-        self.g = gravity(process.model)
-        names = list(design.state_names)
-        delays = (design.extras.get("augmentation") or {}).get("delays", {})
-        mem = [i for i, nm_ in enumerate(names) if i >= self.d and nm_.endswith("_prev")
-               and nm_[:-5] in design.input_names]
-        self._memory = np.array(mem, int) if len(mem) == self.k else None
-        self._rows = []
-        declared = design.sensors.nonlinear
-        for ch, d in delays.items():
-            if d and ch in declared:
-                self._rows.append((names.index(f"{ch}_delay1") - self.d, *declared[ch]))
-        self.nonlinear = tuple(ch for ch, d in delays.items() if d and ch in declared)
-        self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-
-    def _pe(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The ``[p, e]`` part of ``f`` (M, d) and the first physical input ``w_0``."""
-        nr, inp = self.nr, self.input
-        p, e = x[:, :nr], x[:, nr:self.d]
-        if inp.plain:
-            w0 = u[:, :inp.kr]
-            return self.process.rollout(p, w0), w0
-        off = inp.offset(p)
-        rel = inp.relative(p, u)
-        # e_i, i = 0..N: Phi^i e + Gamma_i rel
-        E = np.einsum("iab,mb->mia", self._Phi, e) + np.einsum("iak,mk->mia", self._Gam, rel)
-        base = off + rel @ inp.spec.from_input.T  # (M, k_rig)
-        W = base[:, None, :] + E[:, :-1] @ inp.spec.from_states.T  # (M, N, k_rig)
-        p_next = self.process.rollout(p, W)
-        e_next = E[:, -1]
-        if np.any(inp.spec.relative):
-            e_next = e_next + (off - inp.offset(p_next)) @ inp.spec.relative.T
-        return np.concatenate([p_next, e_next], axis=1), W[:, 0]
-
-    def _pe_unique(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_pe` with each bitwise-distinct ``([p, e], u)`` row rolled out once (the
-        UKF's sigma points along the bias and delay states share the mean's)."""
-        if len(x) < 2:
-            return self._pe(x, u)
-        key = np.ascontiguousarray(np.concatenate([x[:, :self.d], u], axis=1))
-        rows = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1])))[:, 0]
-        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-        if len(first) == len(x):
-            return self._pe(x, u)
-        pe, w0 = self._pe(x[first], u[first])
-        return pe[inverse], w0[inverse]
-
-    def _full(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        pe, w0 = self._pe_unique(x, u)
-        rest = x @ self._F_rest.T + u @ self._B_rest.T
-        if self._rows:
-            p = x[:, :self.nr]
-            w = w0
-            if self._memory is not None:  # the delayed channel sees the remembered input
-                mem = x[:, self._memory]
-                w = self.input(p, x[:, self.nr:self.d], mem)
-            for row, value, _, _ in self._rows:
-                rest[:, row] = value(p, w, self.g)
-        return np.concatenate([pe, rest], axis=1)
-
-    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``f(x, u)``, shape (M, n), for ``x`` (M, n) and absolute ``u`` (M, k)."""
-        cache = self._cache
-        if cache is not None and np.array_equal(cache[0], x) and np.array_equal(cache[1], u):
-            return cache[2].copy()
-        return self._full(np.asarray(x, float), np.asarray(u, float))
-
-    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``F(x, u) = df/dx``, shape (M, n, n); caches ``f(x, u)`` for :meth:`__call__`."""
-        x, u = np.asarray(x, float), np.asarray(u, float)
-        M, n, d = len(x), self.n, self.d
-        pts = perturbed(x[:, :d], self.eps, self.centered)
-        P = pts.shape[1]
-        X = np.repeat(x[:, None, :], P, axis=1)
-        X[:, :, :d] = pts
-        values = self._full(X.reshape(M * P, n), np.repeat(u, P, axis=0)).reshape(M, P, n)
-        self._cache = (x.copy(), u.copy(), values[:, 0].copy())
-        J = np.zeros((M, n, n))
-        J[:, d:] = self._F_rest
-        J[:, :d, :d] = differences(values[:, :, :d], self.eps, self.centered)
-        if self._rows:
-            rows = np.array([d + row for row, *_ in self._rows])
-            J[:, rows] = 0.0
-            J[:, rows, :d] = differences(values[:, :, rows], self.eps, self.centered)
-            if self._memory is not None:
-                for row in rows:
-                    J[:, row, self._memory] = self._memory_gradient(x, u, row - d)
-        return J
-
-    def _memory_gradient(self, x: np.ndarray, u: np.ndarray, row: int) -> np.ndarray:
-        """d(first delay state)/d(input memory) of a nonlinear delayed channel (M, k)."""
-        value = next(v for r, v, _, _ in self._rows if r == row)
-        mem = x[:, self._memory]
-        pts = perturbed(mem, FD_EPS, True)
-        M, P, k = pts.shape
-        p = np.repeat(x[:, :self.nr], P, axis=0)
-        e = np.repeat(x[:, self.nr:self.d], P, axis=0)
-        w = self.input(p, e, pts.reshape(M * P, k))
-        vals = value(p, w, self.g).reshape(M, P, 1)
-        return differences(vals, FD_EPS, True)[:, 0]
 
 
 class AbsoluteInput(EstimatorWrapper):
@@ -720,8 +206,10 @@ class AbsoluteInput(EstimatorWrapper):
         x = np.asarray(self.inner.x)
         xb = x if x.ndim == 2 else x[None]
         extra = np.asarray(self.offset(xb), float)
-        if extra.shape[1] < self.k:
-            extra = np.pad(extra, ((0, 0), (0, self.k - extra.shape[1])))
+        if extra.shape[1] < self.k:  # [o(x), 0] (np.pad's values, without its overhead)
+            padded = np.zeros((len(extra), self.k))
+            padded[:, :extra.shape[1]] = extra
+            extra = padded
         extra = extra if x.ndim == 2 else extra[0]
         u_abs = extra if u is None else np.asarray(u, float) + extra
         return self.inner.step(y, u_abs)
@@ -754,7 +242,7 @@ def nominal_rig(design: DesignModel) -> Rig:
 
 
 def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool = False,
-                     jacobian: str = "rollout", nthread: int = 0
+                     jacobian: str = "step", jacobian_points: int = 1, nthread: int = 0
                      ) -> tuple[Rig, MujocoProcessModel | AugmentedProcessModel,
                                 MeasurementModel]:
     """The nominal rig, the process model at ``design.dt_s`` and the measurement model.
@@ -774,7 +262,8 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
         raise ValueError(f"the nonlinear filters model the rig's state {list(rig.state_names)}; "
                          f"this design's state is {list(design.state_names)}")
     process = MujocoProcessModel(rig, design.dt_s, eps=eps, centered=centered,
-                                 jacobian=jacobian, nthread=nthread)
+                                 jacobian=jacobian, jacobian_points=jacobian_points,
+                                 nthread=nthread)
     measure = MeasurementModel(design, rig)
     if design.augmented:
         if not np.array_equal(design.physical, np.arange(rig.n_states)):
@@ -786,7 +275,8 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
 
 def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
                         centered: bool = False, alpha: float = 1e-3, beta: float = 2.0,
-                        kappa: float = 0.0, nthread: int = 0) -> AbsoluteInput:
+                        kappa: float = 0.0, jacobian: str = "step", jacobian_points: int = 1,
+                        nthread: int = 0) -> AbsoluteInput:
     """An EKF (``kind="ekf"``) or UKF (``"ukf"``) on the rig's nominal MuJoCo model.
 
     ``Q``, ``R`` and the prior are the design's (``design.discrete``, ``x0``, ``P0``); the
@@ -804,6 +294,9 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
         Central or forward (default) differences for the EKF's Jacobian.
     alpha, beta, kappa : float
         The UKF's sigma-point parameters (Wan & van der Merwe's defaults).
+    jacobian : {"step", "rollout", "transition"}
+        The EKF's Jacobian method (:class:`MujocoProcessModel`); ``jacobian_points`` its
+        linearization points per period (``"step"``).
     nthread : int
         Threads of the rollout calls (0: the calling thread; results do not depend on it).
 
@@ -813,7 +306,8 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
         The batched filter (``x`` (N, n) after a batched reset) with the input correction.
     """
     rig, process, measure = nonlinear_models(design, eps=eps, centered=centered,
-                                             nthread=nthread)
+                                             jacobian=jacobian,
+                                             jacobian_points=jacobian_points, nthread=nthread)
     plant = design.discrete
     k = len(design.input_names)
     if kind == "ekf":

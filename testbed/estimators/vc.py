@@ -11,7 +11,7 @@ for a plant with norm-bounded uncertainty. This module builds that plant
 
 ``F, H, Q, R`` are the discrete design model's (exact ZOH), ``G_d`` the held scenario
 disturbance matrix when the design has one (the noise part is
-:func:`testbed.estimators.lmi.design_system`'s, so ``gamma`` bounds the gain from the
+:func:`testbed.estimators.stochastic_system.design_system`'s, so ``gamma`` bounds the gain from the
 scenario's ``w`` to ``z`` as lmi-hinf's does), ``||Fu||_2 <= 1``.
 
 The uncertainty ``M Fu N`` (first order in the declared parameter mismatch)
@@ -141,11 +141,11 @@ from filters.variance_discrete import (
     design_discrete,
     hat_terms_discrete,
     search_discrete_design,
-    solve_equation11,
-    solve_equation12r,
+    solve_error_bound_discrete,
+    solve_state_bound_discrete,
 )
 from testbed.estimators import memo
-from testbed.estimators.lmi import design_system
+from testbed.estimators.stochastic_system import design_system
 
 #: Name of the family in the estimator registry (error messages).
 FAMILY = "vc-discrete"
@@ -361,7 +361,7 @@ def _central(plant: UncertainPlant, eps: float, gamma: float) -> tuple[float | N
     with the central gain."""
     prm = DiscreteDesignParameters(gamma=gamma, eps=eps, delta1=DELTA, delta2=DELTA,
                                    H=np.zeros((plant.n, plant.p)))
-    eq1 = solve_equation11(plant, prm)
+    eq1 = solve_state_bound_discrete(plant, prm)
     if not eq1.solved:
         return None, None
     try:
@@ -370,7 +370,8 @@ def _central(plant: UncertainPlant, eps: float, gamma: float) -> tuple[float | N
         return None, None
     g = gamma
     for _ in range(4):  # the bracket of find_gamma_reached starts at gamma: go below
-        eq2 = solve_equation12r(plant, replace(prm, gamma=g), terms, find_gamma_reached=True)
+        eq2 = solve_error_bound_discrete(plant, replace(prm, gamma=g), terms,
+                                         find_gamma_reached=True)
         if not eq2.solved:
             reached = eq2.details.get("gamma_reached")
             return (None if reached is None else float(reached)), terms

@@ -65,16 +65,17 @@ from testbed.experiment.trajectory import Trajectory
 from testbed.io.recording import Recording
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import build_rig
-from testbed.score.consistency import (
+from testbed.sensors import Sensor, SensorModel, Suite
+from testbed.stats import (
     CONSISTENT,
+    LEVEL,
     OVERCONFIDENT,
     UNDERCONFIDENT,
+    chi2_bounds,
     clopper_pearson,
     whiten,
     whiteness_test,
 )
-from testbed.score.stats import LEVEL, chi2_bounds
-from testbed.sensors import Sensor, SensorModel, Suite
 
 #: How the rows of a recording pair inputs and channels (in the recording's ``meta``).
 INPUT_CONVENTION = "inputs[k] held over [t_k, t_k+1); channels[k] sampled at t_k"

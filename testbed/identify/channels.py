@@ -29,6 +29,7 @@ from testbed.sensors import (
     StateChannel,
     Suite,
 )
+from testbed.sensors.streams import OwnStream
 
 
 class IdentificationError(ValueError):
@@ -74,6 +75,10 @@ class ChannelInfo:
         declared hold, 0 for a channel with neither.
     is_input : bool
         An input channel (e.g. the vehicle's speed): not predicted from the state.
+    reads_act : bool
+        It reads MuJoCo's actuator states (the Aero's rotor speeds and motor currents): an
+        input channel that can be predicted from a rollout's actuator states, fitted when
+        named (``channels``), never by default.
     """
 
     name: str
@@ -88,6 +93,7 @@ class ChannelInfo:
     delay: int
     max_delay: int
     is_input: bool
+    reads_act: bool = False
 
 
 def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, ChannelInfo],
@@ -97,6 +103,9 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
     if isinstance(sensor, Suite):
         for part in sensor.sensors:
             _walk(part, delay, hold, biased, out, scaled)
+        return
+    if isinstance(sensor, OwnStream):  # noise from its own streams: the decorators inside
+        _walk(sensor.inner, delay, hold, biased, out, scaled)
         return
     if isinstance(sensor, Decorator):
         if isinstance(sensor, Delay):
@@ -117,7 +126,8 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
             name=name, unit=sensor.units[j], core=sensor, column=j, C=model.C[j].copy(),
             D=model.D[j].copy(), direct_state=direct, bias=direct is None or biased,
             scale=scaled,
-            delay=delay + hold // 2, max_delay=2 * delay + hold, is_input=bool(inputs[j]))
+            delay=delay + hold // 2, max_delay=2 * delay + hold, is_input=bool(inputs[j]),
+            reads_act=bool(getattr(sensor, "reads_act", False)))
 
 
 def channel_plan(sensors: Sensor) -> dict[str, ChannelInfo]:
@@ -128,7 +138,7 @@ def channel_plan(sensors: Sensor) -> dict[str, ChannelInfo]:
 
 
 def measure_noise_free(infos: list[ChannelInfo], x: np.ndarray, u_prev: np.ndarray,
-                       t_s: np.ndarray) -> np.ndarray:
+                       t_s: np.ndarray, act: np.ndarray | None = None) -> np.ndarray:
     """The core channels' measurements of states ``x`` without any decorator.
 
     Parameters
@@ -140,12 +150,15 @@ def measure_noise_free(infos: list[ChannelInfo], x: np.ndarray, u_prev: np.ndarr
     u_prev : ndarray, shape (M, nu)
         The input applied over the step that ended at each sample (zero at a reset).
     t_s : ndarray, shape (M,)
+    act : ndarray, shape (M, na), optional
+        MuJoCo's actuator states (for channels reading them; without them such a channel
+        reads the steady state of ``u_prev``).
 
     Returns
     -------
     ndarray, shape (M, len(infos))
     """
-    sample = Sample(x, t_s, u_prev, np.zeros((len(x), 0)), slice(None))
+    sample = Sample(x, t_s, u_prev, np.zeros((len(x), 0)), slice(None), act)
     cache: dict[int, np.ndarray] = {}
     out = np.empty((len(x), len(infos)))
     for i, info in enumerate(infos):
@@ -310,7 +323,7 @@ def check_channels(recording: Any, plan: dict[str, ChannelInfo], channels: Any,
         if name not in plan:
             raise IdentificationError(f"channel {name!r} is not a channel of rig {rig_name!r}; "
                                       f"expected one of {list(plan)}")
-        if plan[name].is_input:
+        if plan[name].is_input and not plan[name].reads_act:
             raise IdentificationError(f"channel {name!r} of rig {rig_name!r} is an input "
                                       "channel, not a measurement of the state")
         if name not in recording.channels:

@@ -14,7 +14,9 @@ spreads far more than it jitters) plus one quantization step. Its first
   ``noise_density = noise_std sqrt(dt)``, units/sqrt(Hz);
 - the quantization step is read from the whole recording: the smallest difference between
   distinct recorded values, kept when every other difference is a whole multiple of it
-  (the greatest common step), else 0 (not quantized).
+  (the greatest common step) and the grid is coarse for the signal (values repeat, or the
+  median change per sample is a few steps: a fine encoder on a fast axis), else 0 (not
+  quantized).
 """
 
 from __future__ import annotations
@@ -25,6 +27,12 @@ import numpy as np
 MIN_STILL_S = 0.2
 #: Start of a still segment dropped as settling, s.
 SETTLE_S = 0.1
+#: Largest departure of a value difference from a whole number of steps (in steps) on a grid.
+MAX_GRID_TOLERANCE = 0.05
+#: A channel whose values are mostly distinct is still quantized when its median change
+#: per sample is at most this many steps (a fine encoder on a fast axis: the helicopter's
+#: 8192-count yaw encoder changes level at 70 % of its samples).
+MAX_STEPS_PER_SAMPLE = 8.0
 
 
 def quantization_step(y: np.ndarray, rel_tol: float = 1e-6) -> float:
@@ -49,8 +57,16 @@ def quantization_step(y: np.ndarray, rel_tol: float = 1e-6) -> float:
         return 0.0
     q = float(np.min(steps))
     ratio = steps / q
-    tol = max(1e-3, 1e3 * rel_tol * scale / q)
-    if np.all(np.abs(ratio - np.round(ratio)) < tol) and len(values) < 0.5 * len(y):
+    tol = min(max(1e-3, 1e3 * rel_tol * scale / q), MAX_GRID_TOLERANCE)
+    on_grid = bool(np.all(np.abs(ratio - np.round(ratio)) < tol))
+    moves = np.abs(np.diff(np.asarray(y, float)))
+    moves = moves[moves > rel_tol * scale]
+    # a grid read often (values repeat), or a fine encoder moving a few steps per sample
+    # (most values distinct, yet every sample-to-sample change a small multiple of the step)
+    coarse = len(values) < 0.5 * len(y) or (
+        len(values) < len(y) and len(moves) > 0
+        and float(np.median(moves)) <= MAX_STEPS_PER_SAMPLE * q)
+    if on_grid and coarse:
         # the grid's step: refine from the spread of all values (rounding in the file)
         span = values - values[0]
         counts = np.round(span / q)

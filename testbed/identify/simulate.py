@@ -167,6 +167,8 @@ class RecordingModel:
         self._qpos_cols = qpos + self.rig.qpos_adr
         self._qvel_cols = qvel + self.rig.dof_adr
         self._act_track: np.ndarray | None = None
+        #: Whether a fitted channel reads the actuator states (rollouts then keep them).
+        self.reads_act = any(i.reads_act for i in self.infos)
         self.rollouts = 0  # member-steps simulated (for timings)
         # joint ranges of limited joints (a measured position just past a stop is clipped)
         model = self.rig.model
@@ -303,7 +305,8 @@ class RecordingModel:
                 if not len(alive):
                     break
                 states[alive, step + 1] = sim.physics.states(alive)
-                applied[alive, step + 1] = np.clip(u_all[alive, step], sim._low, sim._high)
+                applied[alive, step + 1] = np.clip(u_all[alive, step], sim.limits.low,
+                                                   sim.limits.high)
                 continue
             states[alive, step + 1] = info_state[alive]
             applied[alive, step + 1] = info_applied[alive]
@@ -314,14 +317,18 @@ class RecordingModel:
         out = (states.reshape(*shape, self.n), applied.reshape(*shape, -1))
         return out + (acts.reshape(*shape, self.na),) if with_act else out
 
-    def measure(self, states: np.ndarray, u_prev: np.ndarray, delay: np.ndarray) -> np.ndarray:
+    def measure(self, states: np.ndarray, u_prev: np.ndarray, delay: np.ndarray,
+                act: np.ndarray | None = None) -> np.ndarray:
         """Noise-free measurement of rollouts, each channel ``delay`` samples late within its
         segment (its first value repeated, as :class:`~testbed.sensors.Delay`):
-        (..., L, m)."""
+        (..., L, m). ``act`` (..., L, na): the rollouts' actuator states, for channels
+        reading them."""
         lead = states.shape[:-1]
         h = measure_noise_free(self.infos, states.reshape(-1, self.n),
                                u_prev.reshape(-1, u_prev.shape[-1]),
-                               np.zeros(int(np.prod(lead)))).reshape(*lead, len(self.infos))
+                               np.zeros(int(np.prod(lead))),
+                               None if act is None else act.reshape(-1, act.shape[-1])
+                               ).reshape(*lead, len(self.infos))
         length = h.shape[-2]
         out = np.empty_like(h)
         for c, d in enumerate(np.asarray(delay, int)):
@@ -412,8 +419,13 @@ def simulate_recording(rig_cls: type[Rig], recording: Recording, *, profile: str
         start = model.initial_states(np.array([0]), b, d)
     else:
         start = np.asarray(model.rig.validate_x0(x0), float)[None]
-    states, u_prev = model.rollout(sets, start, np.array([0]), model.n_samples)
-    h = model.measure(states[:, 0], u_prev[:, 0], d)
+    if model.reads_act:
+        states, u_prev, act = model.rollout(sets, start, np.array([0]), model.n_samples,
+                                            with_act=True)
+        h = model.measure(states[:, 0], u_prev[:, 0], d, act[:, 0])
+    else:
+        states, u_prev = model.rollout(sets, start, np.array([0]), model.n_samples)
+        h = model.measure(states[:, 0], u_prev[:, 0], d)
     return b + (1.0 + s) * h
 
 

@@ -90,21 +90,15 @@ def _host(address: str) -> str:
     return str(ip) if ip.version == 4 else f"[{ip}]"
 
 
-def rerun_executable() -> str:
-    """The Rerun viewer binary of this Python environment (the binary itself, not the
-    ``rerun`` launcher script, so that stopping it stops the server):
-    :func:`testbed.outputs.view.rerun_binary`."""
-    from testbed.outputs.view import rerun_binary
-
-    return rerun_binary()
-
-
 def _launch(argv: list[str], *, outlive: bool = False) -> subprocess.Popen:
     """Start a Rerun process in its own process group (stopped as a whole by :func:`stop`;
     a Ctrl-C in the terminal reaches this process, which stops it). Unless ``outlive`` (a
     native viewer), it also ends when this process dies."""
+    from testbed.outputs.view import rerun_binary  # (the binary, not the launcher script:
+    # stopping it stops the server)
+
     env = {**os.environ, "RERUN_ANALYTICS": os.environ.get("RERUN_ANALYTICS", "off")}
-    return subprocess.Popen([rerun_executable(), *argv], stdin=subprocess.DEVNULL,
+    return subprocess.Popen([rerun_binary(), *argv], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
                             start_new_session=True,
                             preexec_fn=None if outlive else parent_death_preexec())

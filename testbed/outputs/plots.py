@@ -68,8 +68,41 @@ def figure_legend(fig: Figure, max_columns: int = 4) -> None:
         for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(text, handle)
     if handles:
-        fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
-                   ncols=min(len(handles), max_columns), fontsize=FONT_PT)
+        fitted_legend(fig, list(handles.values()), list(handles.keys()), max_columns,
+                      fontsize=FONT_PT)
+
+
+def shorten(text: str, width: int) -> str:
+    """``text`` of at most ``width`` characters: the middle replaced by an ellipsis."""
+    if len(text) <= width:
+        return text
+    keep = max(width - 1, 2)
+    head = (keep + 1) // 2
+    return f"{text[:head]}…{text[len(text) - (keep - head):]}"
+
+
+def fitted_legend(fig: Figure, handles: list, labels: list[str], ncols: int,
+                  margin_in: float = 0.1, **kwargs: Any) -> Any:
+    """``fig.legend`` below the axes (``loc="outside lower center"``), narrower than the
+    figure less ``margin_in`` each side: fewer columns, then, in one column, the longest
+    entries shortened in the middle (:func:`shorten`)."""
+    renderer = fig.canvas.get_renderer()
+    room_px = (fig.get_figwidth() - 2 * margin_in) * fig.dpi
+    labels = [str(text) for text in labels]
+    ncols = max(1, min(int(ncols), len(labels)))
+    while True:
+        legend = fig.legend(handles, labels, loc="outside lower center", ncols=ncols,
+                            **kwargs)
+        if legend.get_window_extent(renderer).width <= room_px:
+            return legend
+        longest = max(range(len(labels)), key=lambda i: len(labels[i]))
+        if ncols == 1 and len(labels[longest]) <= 8:
+            return legend
+        legend.remove()
+        if ncols > 1:
+            ncols -= 1
+        else:
+            labels[longest] = shorten(labels[longest], int(len(labels[longest]) * 0.85))
 
 
 def mark_clipped(ax: Any, t: np.ndarray, values: np.ndarray, lim: float) -> int:
@@ -184,8 +217,10 @@ def trajectory_figure(traj: Trajectory, *, title: str | None = None,
         ax.set_ylabel(label(name, unit))
         ax.grid(True, alpha=0.3)
         ax.set_xlabel("time [s]")
-        ax.xaxis.label.set_visible(False)  # one time label, on the action row
-        ax.tick_params(labelbottom=False)
+        # time ticks under the last state row (beside the error column's), and on the
+        # full-width action row below, whose time scale is wider
+        ax.xaxis.label.set_visible(i == n_states - 1)
+        ax.tick_params(labelbottom=i == n_states - 1)
 
         if estimate is None:
             continue

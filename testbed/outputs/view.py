@@ -69,11 +69,6 @@ def rerun_binary() -> str:
     return found
 
 
-def rerun_executable() -> str:
-    """What :func:`view` starts: :func:`rerun_binary`."""
-    return rerun_binary()
-
-
 def parent_death_preexec(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
     """On Linux, a ``preexec_fn`` for :class:`subprocess.Popen` giving the child ``sig`` when
     this process dies (even by SIGKILL; ``prctl(PR_SET_PDEATHSIG)``, kept across ``exec``);
@@ -109,7 +104,7 @@ def web_url(web_port: int = WEB_PORT, grpc_port: int = GRPC_PORT) -> str:
 def viewer_command(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PORT,
                    web_port: int = WEB_PORT) -> list[str]:
     """The command line that shows ``path`` (the native viewer, or the web viewer)."""
-    cmd = [rerun_executable()]
+    cmd = [rerun_binary()]
     if web:
         cmd += ["--web-viewer", "--bind", BIND, "--port", str(grpc_port),
                 "--web-viewer-port", str(web_port)]
@@ -129,6 +124,17 @@ def _check(path: str | os.PathLike, ports: tuple[int, ...]) -> Path:
         if not (isinstance(port, int) and 0 < port < 65536):
             raise ValueError(f"ports must be numbers 1-65535, got {port!r}")
     return p
+
+
+def loading_note(path: str | os.PathLike) -> str:
+    """What the page shows while it loads: the browser downloads and compiles Rerun's web
+    viewer, then streams the recording from the gRPC server; until then the page shows
+    Rerun's welcome screen (measured: 45 s, the recording after 90 s on a busy two-core
+    machine in headless Chromium)."""
+    size_mb = Path(path).stat().st_size / 1e6
+    return (f"loading: the page shows Rerun's welcome screen until the web viewer has "
+            f"started and received the recording ({size_mb:.1f} MB); this can take a minute "
+            "or two on a busy machine. Keep this command running while you look.")
 
 
 def _answers(port: int) -> bool:
@@ -219,10 +225,69 @@ def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PO
                     raise OSError(f"the Rerun web viewer did not answer on port {web_port} "
                                   f"within {START_TIMEOUT_S:g} s")
                 time.sleep(0.1)
+            while not _answers(grpc_port):  # the file's server: the recording is being read
+                if proc.poll() is not None:
+                    raise OSError(f"the Rerun viewer exited with code {proc.returncode} "
+                                  "before serving")
+                if time.monotonic() > deadline:
+                    raise OSError(f"the Rerun gRPC server did not answer on port {grpc_port} "
+                                  f"within {START_TIMEOUT_S:g} s")
+                time.sleep(0.1)
             echo(f"open {web_url(web_port, grpc_port)} in a browser (Ctrl-C stops the viewer)")
-        try:
-            return proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            return 0
+            echo(loading_note(p))
+        if not web:
+            try:
+                return proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                return 0
+        return _serve(proc, web_port, grpc_port, timeout_s, echo)
     finally:
         stop_group(proc)
+
+
+def _serve(proc: subprocess.Popen, web_port: int, grpc_port: int, timeout_s: float | None,
+           echo: Callable[[str], None]) -> int:
+    """Wait for the web viewer to end, saying when a browser opened the page and when its
+    viewer connected to the file's server (:func:`connections`, where it can be known)."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    said = set()
+    while True:
+        try:
+            return proc.wait(timeout=POLL_S)
+        except subprocess.TimeoutExpired:
+            pass
+        if deadline is not None and time.monotonic() > deadline:
+            return 0
+        if "viewer" in said:
+            continue
+        if "page" not in said and connections(web_port) > 0:
+            said.add("page")
+            echo("the page is open: the browser is loading Rerun's web viewer")
+        if connections(grpc_port) > 0:
+            said.add("viewer")
+            echo("the web viewer has connected: the recording streams in and shows when "
+                 "loaded")
+
+
+#: Seconds between the checks of :func:`_serve`.
+POLL_S = 0.5
+#: ``/proc/net`` state code of an established TCP connection.
+_ESTABLISHED = "01"
+
+
+def connections(port: int) -> int:
+    """Established TCP connections whose local port is ``port`` (Linux: ``/proc/net/tcp``
+    and ``tcp6``); 0 where it cannot be known."""
+    count = 0
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            with open(table) as f:
+                next(f, None)
+                for line in f:
+                    fields = line.split()
+                    if len(fields) > 3 and fields[3] == _ESTABLISHED \
+                            and int(fields[1].rsplit(":", 1)[1], 16) == port:
+                        count += 1
+        except (OSError, ValueError, IndexError):
+            continue
+    return count

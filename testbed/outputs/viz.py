@@ -151,6 +151,18 @@ class Legend:
     y_range: tuple[float, float] | None = None
 
 
+#: Share of the time span added after a run's end on the time axes of its Rerun views: the
+#: axis' label at the last instant is then drawn inside the view, not cut by its edge.
+TIME_AXIS_END_MARGIN = 0.03
+
+
+def time_axis_range(time_range_s: tuple[float, float]) -> tuple[float, float]:
+    """The time axis of a view showing ``time_range_s`` (s): its start, and its end plus
+    :data:`TIME_AXIS_END_MARGIN` of the span."""
+    start, end = float(time_range_s[0]), float(time_range_s[1])
+    return start, end + TIME_AXIS_END_MARGIN * max(end - start, 0.0)
+
+
 def place_legend(t_s: np.ndarray, values: Sequence[np.ndarray], entries: int,
                  y_range: tuple[float, float] | None = None, *, fixed: bool = False) -> Legend:
     """Where the legend of a view plotting ``values`` over ``t_s`` goes.
@@ -392,9 +404,10 @@ class Layout:
 
         axis_x = None
         if time_range_s is not None:
+            start, end = time_axis_range(time_range_s)
             axis_x = rrb.TimeAxis(link="Independent", zoom_lock=False, view_range=rr.TimeRange(
-                start=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[0])),
-                end=rrb.TimeRangeBoundary.absolute(seconds=float(time_range_s[1]))))
+                start=rrb.TimeRangeBoundary.absolute(seconds=start),
+                end=rrb.TimeRangeBoundary.absolute(seconds=end)))
         legends = legends or {}
         views = []
         for name, contents, _, state in self.panels():

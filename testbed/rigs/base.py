@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
@@ -23,179 +22,17 @@ import mujoco
 import numpy as np
 
 from filters import real_array
-from testbed.rigs.disturbances import Disturbance
-from testbed.rigs.params import scaled_copy
+from testbed.rigs.disturbances import Disturbance, scenario_disturbance
+from testbed.rigs.linearize import linearize, steady_act
+from testbed.rigs.mjcf import models_dir, read_mjcf
+from testbed.rigs.options import RigOption, build_rig
+from testbed.rigs.params import ParameterMismatch, Params
+
+__all__ = ["GRAVITY_M_S2", "ParameterMismatch", "Params", "Rig", "RigOption", "build_rig",
+           "models_dir"]
 
 #: Standard gravity used by every rig, m/s^2.
 GRAVITY_M_S2 = 9.81
-
-
-@functools.lru_cache(maxsize=16)
-def _read_mjcf(path: str, modified_ns: int, first_profile: bool) -> Any:
-    """The MJCF file read once per process (and again when it changes on disk).
-
-    A run builds several rigs of one class (the simulated rig, the designer's, the
-    controller's); each gets a copy: ``first_profile`` the compiled model (deep-copied: the
-    same bits as :meth:`mujoco.MjModel.from_xml_path`), otherwise the parsed spec, which the
-    profile edits (:meth:`Rig.edit_spec`) before compiling.
-    """
-    del modified_ns  # part of the cache key only
-    if first_profile:
-        return mujoco.MjModel.from_xml_path(path)
-    return mujoco.MjSpec.from_file(path)
-
-
-@dataclasses.dataclass(frozen=True)
-class Params:
-    """Base of a rig's physical parameters: a frozen dataclass with scaling and validation."""
-
-    def scaled(self, scales: dict[str, float] | None):
-        """Copy with fields multiplied by factors (model-mismatch studies), validated.
-
-        Raises
-        ------
-        ValueError
-            Unknown field (the valid ones listed), a bad factor, or an unphysical result.
-        """
-        return scaled_copy(self, scales or {})
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first unphysical parameter (all must be finite)."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if not np.isfinite(value):
-                raise ValueError(f"{type(self).__name__}.{f.name} must be finite, got {value}")
-
-
-@dataclasses.dataclass(frozen=True)
-class ParameterMismatch:
-    """A rig's declared parameter-mismatch range and the derivative of its linearization.
-
-    Kept in ``DesignModel.extras["parameter_mismatch"]`` (picklable: the rig class and its
-    nominal parameters, not a MuJoCo model); robust designs (``vc-discrete``,
-    :mod:`testbed.estimators.vc`) turn it into a norm-bounded uncertainty.
-
-    Attributes
-    ----------
-    rig_type : type
-        The :class:`Rig` subclass.
-    params : Params
-        The nominal parameters the designer knows.
-    ranges : dict
-        ``{Params field: relative half-range r}``: the truth may have the field scaled by
-        any factor in ``[1 - r, 1 + r]`` (:attr:`Rig.mismatch_range`).
-    physics_dt_s : float
-    profile : str
-    """
-
-    rig_type: type
-    params: Params
-    ranges: dict[str, float]
-    physics_dt_s: float = 0.001
-    profile: str = "paper"
-    options: dict[str, Any] = dataclasses.field(default_factory=dict)
-
-    def derivatives(self, step: float = 1e-3) -> dict[str, np.ndarray]:
-        """``dA/ds_i`` of :meth:`Rig.linearize` with respect to the scale factor ``s_i`` of
-        each field in :attr:`ranges`, at ``s = 1``.
-
-        Central differences: rigs built at ``params.scaled({field: 1 +- step})``, each
-        linearized at its own operating point and input (the scaled truth's equilibrium).
-
-        Returns
-        -------
-        dict
-            ``{field: ndarray (n, n)}`` in the order of :attr:`ranges`.
-        """
-        if not (np.isfinite(step) and 0 < step < 0.5):
-            raise ValueError(f"step must be in (0, 0.5), got {step}")
-        out = {}
-        for name in self.ranges:
-            A = [build_rig(self.rig_type, self.params.scaled({name: 1.0 + sign * step}),
-                           physics_dt_s=self.physics_dt_s, profile=self.profile,
-                           options=self.options).linearize()[0] for sign in (1.0, -1.0)]
-            out[name] = (A[0] - A[1]) / (2.0 * step)
-        return out
-
-
-@dataclasses.dataclass(frozen=True)
-class RigOption:
-    """A rig's construction option (``--rig-option NAME=VALUE``, the scenario's
-    ``rig_options``), e.g. the Aero's ``yaw_locked``.
-
-    Attributes
-    ----------
-    default : bool, int, float or str
-        The value when not given; its type is the option's type.
-    help : str
-        One line for ``testbed describe`` and ``--help``.
-    choices : tuple, optional
-        The allowed values (empty: any of the type).
-    """
-
-    default: bool | int | float | str
-    help: str
-    choices: tuple[Any, ...] = ()
-
-    def parse(self, name: str, value: Any) -> Any:
-        """``value`` (a Python value, or the text of ``NAME=VALUE``) as this option's type.
-
-        Raises
-        ------
-        ValueError
-            One line naming the option and what was expected.
-        """
-        kind = type(self.default)
-        if isinstance(value, str) and kind is not str:
-            text = value.strip().lower()
-            try:
-                if kind is bool:
-                    if text not in ("true", "false", "1", "0", "yes", "no"):
-                        raise ValueError
-                    value = text in ("true", "1", "yes")
-                else:
-                    value = kind(text)
-            except ValueError:
-                raise ValueError(f"rig option {name!r} must be a {kind.__name__}, got "
-                                 f"{value!r}") from None
-        ok = isinstance(value, kind) and not (kind is not bool and isinstance(value, bool))
-        if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value, ok = float(value), True
-        if not ok or (kind is float and not np.isfinite(value)):
-            raise ValueError(f"rig option {name!r} must be a {'finite ' if kind is float else ''}"
-                             f"{kind.__name__}, got {value!r}")
-        if self.choices and value not in self.choices:
-            raise ValueError(f"rig option {name!r} must be one of {list(self.choices)}, got "
-                             f"{value!r}")
-        return value
-
-
-def build_rig(rig_cls: type, params: Params | None = None, *, physics_dt_s: float = 0.001,
-               profile: str = "paper", options: dict[str, Any] | None = None) -> Rig:
-    """``rig_cls(params, physics_dt_s=..., profile=...)``, with ``options=`` only when there are
-    options (a rig class of a user's that predates rig options keeps working).
-
-    Parameters
-    ----------
-    rig_cls : type
-        A :class:`Rig` subclass.
-    params : Params, optional
-        Its nominal parameters (default the class's).
-    physics_dt_s : float
-    profile : str
-    options : dict, optional
-        :attr:`Rig.rig_options` values.
-    """
-    kwargs = {"options": dict(options)} if options else {}
-    return rig_cls(params, physics_dt_s=physics_dt_s, profile=profile, **kwargs)
-
-
-def models_dir() -> Path:
-    """The folder of the built-in rigs' MJCF models: the checkout's top-level ``models/``, or
-    ``testbed/models`` inside an installed wheel (``pyproject.toml`` maps one to the other)."""
-    package = Path(__file__).resolve().parents[1]
-    installed = package / "models"
-    return installed if installed.is_dir() else package.parent / "models"
 
 
 class Rig:
@@ -310,7 +147,7 @@ class Rig:
         self.options = self.resolve_options(options)
         path = self.resolved_xml_path()
         plain = profile == self.profiles[0] and self.options == self.resolve_options(None)
-        read = _read_mjcf(str(path), path.stat().st_mtime_ns, plain)
+        read = read_mjcf(str(path), path.stat().st_mtime_ns, plain)
         if plain:
             self.model = copy.deepcopy(read)
         else:
@@ -638,150 +475,25 @@ class Rig:
         return None
 
     def disturbance(self, name: Any = None, process_noise: float = 0.0,
-                    ambient_noise: float = 0.0):
+                    ambient_noise: float = 0.0) -> Disturbance | None:
         """The scenario's disturbance: a named signal ``G w(t)``, ``process_noise b dW`` and
-        ``ambient_noise b_a dW_a``.
-
-        Parameters
-        ----------
-        name : str, Disturbance or None
-            A key of :attr:`disturbance_signals` (``None``/``"none"``: no signal).
-        process_noise : float
-            Scale of :meth:`process_noise_matrix` (0: none).
-        ambient_noise : float
-            Scale of :meth:`ambient_noise_matrix` (0: none; ignored by rigs without one).
-
-        Returns
-        -------
-        testbed.rigs.disturbances.Disturbance or None
-        """
-        try:
-            ambient = float(ambient_noise)
-        except (TypeError, ValueError):
-            raise ValueError(f"ambient_noise must be a number, got {ambient_noise!r}") from None
-        if not (np.isfinite(ambient) and ambient >= 0):
-            raise ValueError(f"ambient_noise must be finite and >= 0, got {ambient_noise}")
-        b_ambient = self.ambient_noise_matrix() if ambient > 0 else None
-        if isinstance(name, Disturbance):
-            if process_noise:
-                raise ValueError("process_noise applies to a named disturbance, not to a "
-                                 "Disturbance object")
-            if b_ambient is None:
-                return name
-            b = b_ambient * ambient if name.b is None else np.hstack([name.b, b_ambient * ambient])
-            with_ambient = copy.copy(name)  # keeps subclasses (e.g. SampledDisturbance)
-            with_ambient.b = b
-            return with_ambient
-        try:
-            scale = float(process_noise)
-        except (TypeError, ValueError):
-            raise ValueError(f"process_noise must be a number, got {process_noise!r}") from None
-        if not (np.isfinite(scale) and scale >= 0):
-            raise ValueError(f"process_noise must be finite and >= 0, got {process_noise}")
-        G = w = b = None
-        if name not in (None, "none"):
-            if name not in self.disturbance_signals:
-                raise ValueError(f"unknown disturbance {name!r} for rig {self.name!r}; expected "
-                                 f"one of {sorted(self.disturbance_signals) or ['none']}")
-            G, w = self.disturbance_signals[name]()
-        if scale > 0:
-            b0 = self.process_noise_matrix()
-            if b0 is None:
-                raise ValueError(f"rig {self.name!r} has no process-noise model; "
-                                 "process_noise must be 0")
-            b = b0 * scale
-        if b_ambient is not None:
-            b = b_ambient * ambient if b is None else np.hstack([b, b_ambient * ambient])
-        if w is None and b is None:
-            return None
-        return Disturbance(G=G, w=w, b=b, n_positions=len(self.joints))
+        ``ambient_noise b_a dW_a`` (:func:`testbed.rigs.disturbances.scenario_disturbance`)."""
+        return scenario_disturbance(self, name, process_noise, ambient_noise)
 
     # ------------------------------------------------------------------ linearization
     def linearize(self, x_op: np.ndarray | None = None, u_op: np.ndarray | None = None,
                   eps: float = 1e-6, motor_states: bool = False
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time ``(A, B)`` of ``x' = f(x, u)`` by central differences of MuJoCo.
-
-        Accelerations come from ``mj_forward`` (no integrator involved) at the current
-        parameters, without step noise. Actuators with dynamics (the ``hardware`` profile's
-        motor lag: MuJoCo ``act`` states of ``filter``/``filterexact`` actuators) are at their
-        steady state ``act = ctrl`` unless ``motor_states``.
-
-        Parameters
-        ----------
-        x_op : ndarray, shape (n,), optional
-            Operating state; default :meth:`linearization_point`'s.
-        u_op : ndarray, shape (nu,), optional
-            Operating input; default :meth:`operating_input` at ``x_op``.
-        eps : float
-            Finite-difference step (state and input units).
-        motor_states : bool
-            Append MuJoCo's actuator states (``na`` of them, at their steady state) to the
-            state: ``x = [positions, velocities, act]``.
-
-        Returns
-        -------
-        A : ndarray, shape (n, n) or (n + na, n + na) with ``motor_states``
-        B : ndarray, shape (n, nu) or (n + na, nu)
-        """
-        n, k, j = self.n_states, self.n_actions, len(self.joints)
-        x_op = self.linearization_point() if x_op is None else np.asarray(x_op, float)
-        if x_op.shape != (n,) or not np.all(np.isfinite(x_op)):
-            raise ValueError(f"x_op must be a finite array of shape ({n},), got {x_op!r}")
-        u_op = (self.operating_input(self.params, x_op[None])[0] if u_op is None
-                else np.asarray(u_op, float))
-        if u_op.shape != (k,) or not np.all(np.isfinite(u_op)):
-            raise ValueError(f"u_op must be a finite array of shape ({k},), got {u_op!r}")
-        scratch = mujoco.MjData(self.model)
-        constants = self.member_constants(self.params)[None]
-        na = self.model.na if motor_states else 0
-
-        def f(x: np.ndarray, u: np.ndarray) -> np.ndarray:
-            scratch.qpos[self.qpos_adr] = x[:j]
-            scratch.qvel[self.dof_adr] = x[j:n]
-            inputs = self.actuation(u[None], constants)
-            if "ctrl" in inputs:
-                scratch.ctrl[:] = inputs["ctrl"][0]
-            if "xfrc" in inputs:
-                scratch.xfrc_applied[:] = inputs["xfrc"][0]
-            if self.model.na:
-                scratch.act[:] = x[n:] if na else self.steady_act(scratch.ctrl)
-            mujoco.mj_forward(self.model, scratch)
-            out = [x[j:n], scratch.qacc[self.dof_adr]]
-            return np.concatenate(out + [scratch.act_dot.copy()] if na else out)
-
-        x_full = x_op
-        if na:
-            ctrl = self.actuation(u_op[None], constants).get("ctrl", np.zeros((1, 0)))[0]
-            x_full = np.concatenate([x_op, self.steady_act(ctrl)])
-        A, B = np.zeros((n + na, n + na)), np.zeros((n + na, k))
-        for i in range(n + na):
-            dx = np.zeros(n + na)
-            dx[i] = eps
-            A[:, i] = (f(x_full + dx, u_op) - f(x_full - dx, u_op)) / (2 * eps)
-        for i in range(k):
-            du = np.zeros(k)
-            du[i] = eps
-            B[:, i] = (f(x_full, u_op + du) - f(x_full, u_op - du)) / (2 * eps)
-        return A, B
+        """Continuous-time ``(A, B)`` of ``x' = f(x, u)`` by central differences of MuJoCo at
+        ``x_op`` (default :meth:`linearization_point`) and ``u_op`` (default
+        :meth:`operating_input`), optionally with the actuator states:
+        :func:`testbed.rigs.linearize.linearize`."""
+        return linearize(self, x_op, u_op, eps, motor_states)
 
     def steady_act(self, ctrl: np.ndarray) -> np.ndarray:
-        """MuJoCo actuator states at rest under a constant ``ctrl`` (nu,): shape (na,).
-
-        ``act = ctrl`` for first-order ``filter``/``filterexact`` actuators (the motor lag of
-        the ``hardware`` profile); other actuator dynamics raise ``NotImplementedError``.
-        """
-        act = np.zeros(self.model.na)
-        lag = (int(mujoco.mjtDyn.mjDYN_FILTER), int(mujoco.mjtDyn.mjDYN_FILTEREXACT))
-        for i in range(self.model.nu):
-            adr, num = self.model.actuator_actadr[i], self.model.actuator_actnum[i]
-            if num == 0:
-                continue
-            if self.model.actuator_dyntype[i] not in lag or num != 1:
-                raise NotImplementedError(f"rig {self.name!r}: no steady state for actuator "
-                                          f"{i} (dyntype {self.model.actuator_dyntype[i]})")
-            act[adr] = ctrl[i]
-        return act
+        """MuJoCo actuator states at rest under a constant ``ctrl`` (nu,), shape (na,)
+        (:func:`testbed.rigs.linearize.steady_act`)."""
+        return steady_act(self, ctrl)
 
     def parameter_mismatch(self) -> ParameterMismatch | None:
         """:attr:`mismatch_range` about this rig's parameters (None: the rig declares none)."""

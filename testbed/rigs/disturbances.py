@@ -15,8 +15,10 @@ at the start of each control period and held (zero-order hold).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -41,6 +43,9 @@ class Disturbance:
     w: Callable[[float], np.ndarray] | None = None
     b: np.ndarray | None = None
     n_positions: int = 2
+    #: The signal differs between members: the simulator asks ``member_signal(t_s, members)``
+    #: (:class:`SampledDisturbance`) instead of ``w(t_s)``.
+    per_member: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         if self.G is not None and self.w is None:
@@ -143,6 +148,8 @@ class SampledDisturbance(Disturbance):
     n_positions : int
     """
 
+    per_member: ClassVar[bool] = True
+
     def __init__(self, G: np.ndarray | None, values: np.ndarray, dt_s: float,
                  b: np.ndarray | None = None, n_positions: int = 2):
         values = np.asarray(values, dtype=float)
@@ -174,3 +181,66 @@ class SampledDisturbance(Disturbance):
         inside = steps < K
         out[inside] = self.values[members[inside], steps[inside]]
         return out
+
+
+def scenario_disturbance(rig: Any, name: Any = None, process_noise: float = 0.0,
+                         ambient_noise: float = 0.0) -> Disturbance | None:
+    """The scenario's disturbance: a named signal ``G w(t)``, ``process_noise b dW`` and
+    ``ambient_noise b_a dW_a``.
+
+    Parameters
+    ----------
+    rig : testbed.rigs.base.Rig
+    name : str, Disturbance or None
+        A key of :attr:`~testbed.rigs.base.Rig.disturbance_signals` (``None``/``"none"``: no
+        signal).
+    process_noise : float
+        Scale of :meth:`~testbed.rigs.base.Rig.process_noise_matrix` (0: none).
+    ambient_noise : float
+        Scale of :meth:`~testbed.rigs.base.Rig.ambient_noise_matrix` (0: none; ignored by rigs
+        without one).
+
+    Returns
+    -------
+    testbed.rigs.disturbances.Disturbance or None
+    """
+    try:
+        ambient = float(ambient_noise)
+    except (TypeError, ValueError):
+        raise ValueError(f"ambient_noise must be a number, got {ambient_noise!r}") from None
+    if not (np.isfinite(ambient) and ambient >= 0):
+        raise ValueError(f"ambient_noise must be finite and >= 0, got {ambient_noise}")
+    b_ambient = rig.ambient_noise_matrix() if ambient > 0 else None
+    if isinstance(name, Disturbance):
+        if process_noise:
+            raise ValueError("process_noise applies to a named disturbance, not to a "
+                             "Disturbance object")
+        if b_ambient is None:
+            return name
+        b = b_ambient * ambient if name.b is None else np.hstack([name.b, b_ambient * ambient])
+        with_ambient = copy.copy(name)  # keeps subclasses (e.g. SampledDisturbance)
+        with_ambient.b = b
+        return with_ambient
+    try:
+        scale = float(process_noise)
+    except (TypeError, ValueError):
+        raise ValueError(f"process_noise must be a number, got {process_noise!r}") from None
+    if not (np.isfinite(scale) and scale >= 0):
+        raise ValueError(f"process_noise must be finite and >= 0, got {process_noise}")
+    G = w = b = None
+    if name not in (None, "none"):
+        if name not in rig.disturbance_signals:
+            raise ValueError(f"unknown disturbance {name!r} for rig {rig.name!r}; expected "
+                             f"one of {sorted(rig.disturbance_signals) or ['none']}")
+        G, w = rig.disturbance_signals[name]()
+    if scale > 0:
+        b0 = rig.process_noise_matrix()
+        if b0 is None:
+            raise ValueError(f"rig {rig.name!r} has no process-noise model; "
+                             "process_noise must be 0")
+        b = b0 * scale
+    if b_ambient is not None:
+        b = b_ambient * ambient if b is None else np.hstack([b, b_ambient * ambient])
+    if w is None and b is None:
+        return None
+    return Disturbance(G=G, w=w, b=b, n_positions=len(rig.joints))

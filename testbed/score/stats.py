@@ -1,6 +1,7 @@
 """Statistics of a scored Monte-Carlo study: RMSE with confidence intervals, NEES and the
-per-step chi-square band (the consistency tests and their verdicts are in
-:mod:`testbed.score.consistency`, the paired comparisons in :mod:`testbed.score.paired`).
+per-step chi-square band (:func:`testbed.stats.chi2_bounds`, re-exported here; the
+consistency tests and their verdicts are in :mod:`testbed.stats`, re-exported by
+:mod:`testbed.score.consistency`; the paired comparisons in :mod:`testbed.score.paired`).
 
 Definitions (``N`` runs, ``K`` steps, state dimension ``n``; see docs/scoring.md):
 
@@ -16,12 +17,12 @@ Definitions (``N`` runs, ``K`` steps, state dimension ``n``; see docs/scoring.md
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2, t
+from scipy.stats import t
 
 from testbed.experiment.metrics import nees as nees_of
+from testbed.stats import LEVEL, chi2_bounds
 
-#: Two-sided confidence level of every interval and bound.
-LEVEL = 0.95
+__all__ = ["LEVEL", "chi2_bounds", "nees", "rmse_ci"]
 
 
 def rmse_ci(per_run_rmse: np.ndarray, level: float = LEVEL) -> tuple[float, tuple[float, float]]:
@@ -48,18 +49,6 @@ def rmse_ci(per_run_rmse: np.ndarray, level: float = LEVEL) -> tuple[float, tupl
     half = float(t.ppf(0.5 + level / 2, len(r) - 1) * np.std(mse, ddof=1) / np.sqrt(len(r)))
     return float(np.sqrt(mean)), (float(np.sqrt(max(mean - half, 0.0))),
                                   float(np.sqrt(mean + half)))
-
-
-def chi2_bounds(runs: int, dim: int, level: float = LEVEL) -> tuple[float, float]:
-    """Two-sided bounds of an ``runs``-run average of chi-square(``dim``) variables.
-
-    ``N * average ~ chi2(N dim)`` for a consistent estimator, so the bounds are
-    ``chi2.ppf([(1 - level)/2, (1 + level)/2], N dim) / N``.
-    """
-    if runs < 1 or dim < 1:
-        raise ValueError(f"runs and dim must be positive, got {runs}, {dim}")
-    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], runs * dim) / runs
-    return float(lo), float(hi)
 
 
 def nees(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:

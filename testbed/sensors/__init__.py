@@ -5,6 +5,7 @@ generic channels and :mod:`testbed.sensors.decorators` for quantization, noise, 
 delay and sample-and-hold.
 """
 
+from testbed.sensors import fused as _fused  # noqa: F401  (sets Suite.fuse: the fused plans)
 from testbed.sensors.base import (
     ChannelFunctions,
     Drawn,
@@ -15,6 +16,7 @@ from testbed.sensors.base import (
     SensorModel,
     Suite,
     no_input_gradient,
+    reads_actuators,
 )
 from testbed.sensors.channels import LinearChannel, StateChannel
 from testbed.sensors.decorators import (
@@ -32,4 +34,4 @@ from testbed.sensors.decorators import (
 __all__ = ["Bias", "BiasRandomWalk", "ChannelFunctions", "Decorator", "Delay", "Drawn",
            "LinearChannel", "Noise", "NoiseStreams", "Quantize", "Sample", "SampleAndHold",
            "ScaleFactor", "Sensor", "SensorModel", "StateChannel", "Suite", "Tap", "WhiteNoise",
-           "no_input_gradient"]
+           "no_input_gradient", "reads_actuators"]

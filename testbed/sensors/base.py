@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -49,6 +49,9 @@ class Sample:
         Deterministic disturbance at the sample time (``s = 0`` without one).
     members : ndarray of int (k,) or slice
         Which of the ``num`` allocated members these rows are.
+    act : ndarray, shape (k, na), or None
+        MuJoCo's actuator states (``act``: a rotor lag's state) at the sample time, given
+        only to a suite with a sensor that reads them (:func:`reads_actuators`); else None.
     """
 
     x: np.ndarray
@@ -56,6 +59,7 @@ class Sample:
     u: np.ndarray
     w: np.ndarray
     members: Members = field(default_factory=lambda: slice(None))
+    act: np.ndarray | None = None
 
     @property
     def k(self) -> int:
@@ -385,14 +389,19 @@ class Suite(Sensor):
         #: :meth:`allocate`; None: measured sensor by sensor.
         self._plan: Any = None
 
+    #: What fuses an allocated suite's decorators across its channels: ``suite -> plan or
+    #: None``. :mod:`testbed.sensors.fused` sets it to its ``build_plan`` where it defines it
+    #: (imported with :mod:`testbed.sensors`), so that this contract imports nothing above
+    #: it; None: every suite is measured sensor by sensor (the same values).
+    fuse: ClassVar[Callable[[Suite], Any] | None] = None
+
     def allocate(self, num: int) -> None:
         """Allocate every member sensor; then fuse their decorators across channels where
-        they allow it (:func:`testbed.sensors.fused.build_plan`)."""
-        from testbed.sensors.fused import build_plan
-
+        they allow it (:attr:`fuse`: :func:`testbed.sensors.fused.build_plan`)."""
         for s in self.sensors:
             s.allocate(num)
-        self._plan = None if self._state_index is not None else build_plan(self)
+        fuse = self.fuse
+        self._plan = None if self._state_index is not None or fuse is None else fuse(self)
 
     def reset(self, sample: Sample, noise: Noise) -> None:
         """Reset every member sensor, in order."""
@@ -408,9 +417,7 @@ class Suite(Sensor):
         plan = self._plan
         if plan is not None:  # the decorators across channels, bitwise the same values
             if not plan.current():  # a decorator's state was replaced: fuse it again
-                from testbed.sensors.fused import build_plan
-
-                plan = self._plan = build_plan(self)
+                plan = self._plan = self.fuse(self)
             if plan is not None:
                 return plan.measure(sample, noise)
         if len(self.sensors) == 1:
@@ -434,6 +441,19 @@ class Suite(Sensor):
     def describe(self) -> str:
         """The members' descriptions joined by ``+``."""
         return " + ".join(s.describe() for s in self.sensors)
+
+
+def reads_actuators(sensor: Sensor) -> bool:
+    """Whether ``sensor`` (a suite, a decorator or a channel) has a channel reading MuJoCo's
+    actuator states (``Sample.act``): a channel declaring ``reads_act = True``, found
+    through suites (``sensors``) and wrappers (``inner``)."""
+    if getattr(sensor, "reads_act", False):
+        return True
+    parts = getattr(sensor, "sensors", None)
+    if isinstance(parts, tuple):
+        return any(reads_actuators(s) for s in parts)
+    inner = getattr(sensor, "inner", None)
+    return isinstance(inner, Sensor) and reads_actuators(inner)
 
 
 def as_array(value: Any, size: int, name: str, *, non_negative: bool = True) -> np.ndarray:

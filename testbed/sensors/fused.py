@@ -557,3 +557,8 @@ def build_plan(suite: Suite) -> FusedPlan | None:
     if not decorators:
         return None
     return FusedPlan(suite, leaves, decorators)
+
+
+#: Suites fuse their decorators through this module (the contract declares the hook,
+#: :attr:`testbed.sensors.base.Suite.fuse`, and imports nothing above it).
+Suite.fuse = staticmethod(build_plan)

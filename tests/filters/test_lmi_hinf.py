@@ -14,6 +14,7 @@ from filters.lmi_hinf import (
     certify_gain,
     check_design,
     design_lmi_hinf,
+    design_lmi_matrix,
     error_system,
     gari_matrix,
     lmi_gamma_for_solution,
@@ -21,7 +22,6 @@ from filters.lmi_hinf import (
     minimal_gamma_sdp,
     ms_spectral_radius,
     output_error_moments,
-    theorem4_matrix,
 )
 
 
@@ -97,7 +97,7 @@ def test_feasible_design_passes_independent_checks(system, search, objective):
     assert np.linalg.eigvalsh(gari_matrix(system, d.gain, P, gamma))[-1] < 0
     At, _, Ct, *_ = error_system(system, d.gain)
     assert ms_spectral_radius(At, Ct) < 1
-    assert np.linalg.eigvalsh(theorem4_matrix(system, d.P1, d.P2, d.P_K, gamma))[-1] < 0
+    assert np.linalg.eigvalsh(design_lmi_matrix(system, d.P1, d.P2, d.P_K, gamma))[-1] < 0
     assert lmi_gamma_for_solution(system, d.P1, d.P2, d.P_K) < gamma
     c = d.check
     assert c.ok and c.lmi_balanced_max_eig <= -0.5 * d.margin
@@ -117,7 +117,7 @@ def test_schur_equivalence_of_48_and_the_gari(system, rng, search):
     n = system.n
     P = np.block([[d.P1, np.zeros((n, n))], [np.zeros((n, n)), d.P2]])
     for gamma in (0.5 * search.gamma_min, 1.5 * search.gamma_min, 10 * search.gamma_min):
-        a = np.linalg.eigvalsh(theorem4_matrix(system, d.P1, d.P2, d.P2 @ d.gain, gamma))[-1]
+        a = np.linalg.eigvalsh(design_lmi_matrix(system, d.P1, d.P2, d.P2 @ d.gain, gamma))[-1]
         b = np.linalg.eigvalsh(gari_matrix(system, d.gain, P, gamma))[-1]
         assert (a < 0) == (b < 0)
 

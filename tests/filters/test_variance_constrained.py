@@ -27,19 +27,19 @@ from filters.variance_constrained import (
 from filters.variance_continuous import (
     ParabolicDesignParameters,
     design_parabolic,
-    equation16,
-    equation17,
-    equation17_margin,
+    error_bound_margin,
+    error_bound_residual,
     hat_terms,
     search_parabolic,
+    state_bound_residual,
 )
 from filters.variance_discrete import (
     DiscreteDesignParameters,
     delta1_threshold,
     design_discrete,
-    equation11,
-    least_solution11,
+    least_state_bound_discrete,
     p_gamma,
+    state_bound_residual_discrete,
 )
 
 
@@ -114,16 +114,16 @@ def test_parabolic_equations_with_a_known_solution():
     base = _p2_plant()
     prm = ParabolicDesignParameters(0.5, 0.1, 2.0, 1.0, 1.0, 0.01, 0.01, np.zeros((2, 2)))
     Q1 = np.array([[0.2, 0.02], [0.02, 0.3]])
-    rest = equation16(Q1, replace_D1(base, np.zeros((2, 2))), prm)
+    rest = state_bound_residual(Q1, replace_D1(base, np.zeros((2, 2))), prm)
     D1 = np.linalg.cholesky(-rest)  # -(rest) must be PD for this construction
     plant = replace_D1(base, D1)
-    np.testing.assert_allclose(equation16(Q1, plant, prm), 0, atol=1e-13)
+    np.testing.assert_allclose(state_bound_residual(Q1, plant, prm), 0, atol=1e-13)
     Q2 = np.diag([0.05, 0.08])
     t = hat_terms(Q1, plant, prm)
-    S = equation17(Q2, plant, prm, t)  # H = 0
+    S = error_bound_residual(Q2, plant, prm, t)  # H = 0
     H = np.linalg.cholesky(-S)
     prm_h = replace(prm, H=H)
-    np.testing.assert_allclose(equation17(Q2, plant, prm_h, t), 0, atol=1e-13)
+    np.testing.assert_allclose(error_bound_residual(Q2, plant, prm_h, t), 0, atol=1e-13)
 
     d = design_parabolic(plant, prm_h, n_random=10)
     assert any(np.allclose(S1, Q1, atol=1e-9) for S1 in d.equation_1.solutions)
@@ -195,7 +195,7 @@ def test_parabolic_printed_example_is_a_result_not_a_crash():
                                atol=1e-7)
     assert not d.solved and d.K is None and d.G is None
     assert 0.4 < d.residual_2 < 0.5  # smallest residual reached, finite
-    margin, _ = equation17_margin(plant, prm, d.Q1)
+    margin, _ = error_bound_margin(plant, prm, d.Q1)
     assert margin > 0.4  # no H can make (17) solvable for this Q1
     js = d.to_dict()
     assert js["K"] is None and np.isfinite(js["residual_17"])
@@ -230,14 +230,14 @@ def _discrete_plant() -> UncertainPlant:
 def test_discrete_least_solution_and_threshold():
     plant = _discrete_plant()
     ok = DiscreteDesignParameters(0.012, 1.89, 0.01, 0.01, np.zeros((2, 1)))
-    P1, _, msg = least_solution11(plant, ok)
+    P1, _, msg = least_state_bound_discrete(plant, ok)
     assert P1 is not None and "least solution" in msg
-    np.testing.assert_allclose(equation11(P1, plant, ok), 0, atol=1e-11)
+    np.testing.assert_allclose(state_bound_residual_discrete(P1, plant, ok), 0, atol=1e-11)
     bad = replace(ok, delta1=0.31)  # the printed value
-    assert least_solution11(plant, bad)[0] is None
+    assert least_state_bound_discrete(plant, bad)[0] is None
     thr = delta1_threshold(plant, bad)
     assert 0.29 < thr < 0.31
-    assert least_solution11(plant, replace(ok, delta1=0.99 * thr))[0] is not None
+    assert least_state_bound_discrete(plant, replace(ok, delta1=0.99 * thr))[0] is not None
 
 
 def test_discrete_reconstructed_theorem_guarantees_hold():

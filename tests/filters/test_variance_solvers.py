@@ -22,22 +22,22 @@ from filters.variance_constrained import is_positive_definite, passes, verify_de
 from filters.variance_continuous import (
     ParabolicDesignParameters,
     design_parabolic,
-    equation16,
-    equation17,
+    error_bound_residual,
     hat_terms,
     search_parabolic_design,
-    solve_equation16,
-    solve_equation17,
+    solve_error_bound,
+    solve_state_bound,
+    state_bound_residual,
 )
 from filters.variance_discrete import (
     DiscreteDesignParameters,
     design_discrete,
-    equation11,
-    equation12r,
+    error_bound_residual_discrete,
     hat_terms_discrete,
-    least_solution11,
-    solve_equation11,
-    solve_equation12r,
+    least_state_bound_discrete,
+    solve_error_bound_discrete,
+    solve_state_bound_discrete,
+    state_bound_residual_discrete,
 )
 
 DIMS = (2, 4, 6, 8)
@@ -136,9 +136,9 @@ def test_parabolic_design_on_random_systems(n, k, plant):
     d = design_parabolic(plant, prm, method="riccati")
     assert d.solved, d.message
     scale1, scale2 = max(1.0, np.linalg.norm(d.Q1)), max(1.0, np.linalg.norm(d.Q2))
-    assert np.linalg.norm(equation16(d.Q1, plant, prm)) <= 1e-9 * scale1
+    assert np.linalg.norm(state_bound_residual(d.Q1, plant, prm)) <= 1e-9 * scale1
     t = hat_terms(d.Q1, plant, prm)
-    assert np.linalg.norm(equation17(d.Q2, plant, prm, t)) <= 1e-9 * scale2
+    assert np.linalg.norm(error_bound_residual(d.Q2, plant, prm, t)) <= 1e-9 * scale2
     assert is_positive_definite(d.Q1) and is_positive_definite(d.Q2)
     # the mapping of (17) at gamma = inf onto scipy's DARE, written out here independently
     b, a, s = prm.b, prm.a, prm.s
@@ -152,7 +152,7 @@ def test_parabolic_design_on_random_systems(n, k, plant):
          + prm.delta2 * np.eye(n))
     X = solve_discrete_are(Ab.T / math.sqrt(c), Cb.T / math.sqrt(c), Q / c, R / c, s=S / c)
     prm_inf = replace(prm, gamma=1e150)
-    assert np.linalg.norm(equation17(X, plant, prm_inf, t)) <= 1e-8 * scale2
+    assert np.linalg.norm(error_bound_residual(X, plant, prm_inf, t)) <= 1e-8 * scale2
     # gamma = 1e3 only perturbs it by O(gamma^-2 ||Q2||^2 ||L||^2)
     np.testing.assert_allclose(d.Q2, X, atol=1e-4 * scale2 * (1 + np.linalg.norm(X)))
     ra = verify_design(plant, d.G, d.K, region=Parabola(prm.a, prm.b), gamma=gamma,
@@ -175,7 +175,8 @@ def test_discrete_design_on_random_systems(n, k, plant):
     c11 = (prm.eps * plant.M1 @ plant.M1.T + plant.D1 @ plant.D1.T + prm.delta1 * np.eye(n))
     P1 = solve_discrete_are(plant.A.T, plant.N.T, c11, -prm.eps * np.eye(1))
     np.testing.assert_allclose(d.Q1, P1, rtol=1e-8, atol=1e-10)
-    assert np.linalg.norm(equation11(d.Q1, plant, prm)) <= 1e-9 * max(1.0, np.linalg.norm(P1))
+    residual = np.linalg.norm(state_bound_residual_discrete(d.Q1, plant, prm))
+    assert residual <= 1e-9 * max(1.0, np.linalg.norm(P1))
     # (12r): DARE with C = [L; C_hat], R = diag(-gamma^2 I, R0), S = [0, S0]
     t = hat_terms_discrete(d.Q1, plant, prm)
     dA, dC, e = plant.A - t.A_hat, plant.C - t.C_hat, prm.eps
@@ -187,7 +188,7 @@ def test_discrete_design_on_random_systems(n, k, plant):
     Rw = np.block([[-prm.gamma**2 * np.eye(q), np.zeros((q, p))], [np.zeros((p, q)), R0]])
     P2 = solve_discrete_are(t.A_hat.T, W.T, Q0, Rw, s=np.hstack([np.zeros((n, q)), S0]))
     np.testing.assert_allclose(d.Q2, P2, rtol=1e-7, atol=1e-9 * scale)
-    assert np.linalg.norm(equation12r(d.Q2, plant, prm, t)) <= 1e-9 * scale
+    assert np.linalg.norm(error_bound_residual_discrete(d.Q2, plant, prm, t)) <= 1e-9 * scale
     ra = verify_design(plant, d.G, d.K, region=unit_disk(), gamma=prm.gamma,
                        sigma2=np.diag(d.Q2), n_grid=5)
     assert passes(ra)
@@ -246,27 +247,27 @@ def test_solver_failures_are_results_with_reasons():
     rng = np.random.default_rng(7)
     plant = random_plant(3, rng, discrete=False)
     prm = ParabolicDesignParameters(0.5, 0.2, 1e-4, 0.5, 0.5, 1e-3, 1e-3, np.zeros((3, 1)))
-    eq1 = solve_equation16(plant, prm)
+    eq1 = solve_state_bound(plant, prm)
     assert eq1.solved and eq1.method == "monotone-newton"
-    eq2 = solve_equation17(plant, prm, hat_terms(eq1.X, plant, prm))
+    eq2 = solve_error_bound(plant, prm, hat_terms(eq1.X, plant, prm))
     assert not eq2.solved and eq2.status == "branch_ended" and "ends" in eq2.message
     # A outside the disk of (28): no Q1 > 0, said so
     fast = replace(plant, A=plant.A - 20 * np.eye(3))
-    bad = solve_equation16(fast, prm)
+    bad = solve_state_bound(fast, prm)
     assert not bad.solved and bad.status == "unstable_derivative"
     # (11) without solution (eps too small for N): the monotone iteration decides
     dplant = random_plant(3, rng, discrete=True)
     dprm = DiscreteDesignParameters(1.0, 1e-6, 1e-3, 1e-3, np.zeros((3, 1)))
-    out = solve_equation11(dplant, dprm)
+    out = solve_state_bound_discrete(dplant, dprm)
     assert not out.solved and out.status in ("left_admissible_set", "unstable_derivative")
-    assert least_solution11(dplant, dprm)[0] is None
-    ok = solve_equation11(dplant, replace(dprm, eps=1.0))
+    assert least_state_bound_discrete(dplant, dprm)[0] is None
+    ok = solve_state_bound_discrete(dplant, replace(dprm, eps=1.0))
     assert ok.solved and ok.method == "dare"
     t = hat_terms_discrete(ok.X, dplant, replace(dprm, eps=1.0))
-    tight = solve_equation12r(dplant, replace(dprm, eps=1.0, gamma=1e-4), t,
+    tight = solve_error_bound_discrete(dplant, replace(dprm, eps=1.0, gamma=1e-4), t,
                               find_gamma_reached=True)
     assert not tight.solved and tight.details["gamma_reached"] > 1e-4
-    at = solve_equation12r(dplant, replace(dprm, eps=1.0,
+    at = solve_error_bound_discrete(dplant, replace(dprm, eps=1.0,
                                            gamma=1.01 * tight.details["gamma_reached"]), t)
     assert at.solved
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from testbed.identify.synthetic import random_steps, simulated_recording
+from testbed.rigs.aero import AeroRig
 from testbed.rigs.helicopter.rig import HelicopterParams, HelicopterRig, gravity_voltage
 from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.rigs.vehicle_roll.rig import VehicleRollRig
@@ -14,6 +15,11 @@ from testbed.rigs.vehicle_roll.rig import VehicleRollRig
 HELI_FREE = ("pitch_damping", "yaw_damping", "pitch_inertia", "yaw_inertia", "K_pp", "K_yy")
 VEHICLE_FREE = ("roll_stiffness", "roll_damping", "com_height_m")
 TINY_FREE = ("mass_kg", "stiffness_n_m", "damping_n_s_m")
+#: The Aero's (yaw locked: the pitch row only, whose inertia is seen only in ratios and is not
+#: free; free: the yaw row too, at its nominal inertia).
+AERO_LOCKED_FREE = ("pitch_stiffness", "pitch_damping", "K_pp", "K_py",
+                    "rotor_time_constant_pitch_s")
+AERO_FREE = AERO_LOCKED_FREE + ("yaw_damping", "K_yp", "K_yy")
 
 
 class TinyRig(LinearPlantRig):
@@ -106,4 +112,18 @@ def tiny_unit(seed: int, duration_s: float = 6.0, dt_s: float = 0.01, sensors=No
     n = int(round(duration_s / dt_s))
     u = random_steps(rng, n, dt_s, [-5.0], [5.0], hold_s=(0.3, 1.2), still_s=still_s)
     rec = simulated_recording(TinyRig, u, dt_s=dt_s, scales=scales, seed=seed, sensors=sensors)
+    return rec, scales
+
+
+def aero_unit(seed: int, locked: bool, duration_s: float = 4.0, dt_s: float = 0.002,
+              scales: dict | None = None):
+    """Random voltage steps on an Aero (hardware profile, its default sensors: encoders,
+    IMU, rotor speeds and currents), yaw locked or free: ``(recording, scales)``."""
+    rng = np.random.default_rng(4000 + seed + (100 if locked else 0))
+    free = AERO_LOCKED_FREE if locked else AERO_FREE
+    scales = draw_scales(rng, AeroRig, free) if scales is None else scales
+    n = int(round(duration_s / dt_s))
+    u = random_steps(rng, n, dt_s, [-8.0, -8.0], [12.0, 8.0], hold_s=(0.1, 0.6), still_s=0.5)
+    rec = simulated_recording(AeroRig, u, dt_s=dt_s, profile="hardware",
+                              options={"yaw_locked": locked}, scales=scales, seed=seed)
     return rec, scales

@@ -8,10 +8,13 @@ import json
 import numpy as np
 import pytest
 from identify_units import (
+    AERO_FREE,
+    AERO_LOCKED_FREE,
     HELI_FREE,
     TINY_FREE,
     VEHICLE_FREE,
     TinyRig,
+    aero_unit,
     helicopter_unit,
     tiny_unit,
     vehicle_unit,
@@ -20,6 +23,7 @@ from identify_units import (
 from testbed.identify import IdentificationError, fit_percent, identify
 from testbed.identify.fit import _hac_inflation
 from testbed.identify.sensor_model import quantization_step
+from testbed.rigs.aero import AeroRig
 from testbed.rigs.helicopter.rig import HelicopterRig
 from testbed.rigs.vehicle_roll.rig import VehicleRollRig
 from testbed.sensors import Bias, Quantize, StateChannel, Suite, WhiteNoise
@@ -33,7 +37,7 @@ def _inside(result, scales):
         if not p.identifiable:
             out.append(False)
             continue
-        lo, hi = np.asarray(p.ci95) / p.nominal
+        lo, hi = sorted(np.asarray(p.ci95) / p.nominal)  # (a negative nominal flips them)
         out.append(bool(lo <= truth <= hi))
     return out
 
@@ -71,6 +75,43 @@ def test_newey_west_inflation_of_an_ar1_mean():
     assert ratio[0] == pytest.approx((1 + rho) / (1 - rho), rel=0.15)
     white, _, _ = _hac_inflation(np.ones((T, 1)), e - e.mean(), T, 1)
     assert white[0] == pytest.approx(1.0, abs=0.1)
+
+
+def test_newey_west_interval_of_a_regression_with_ar1_noise_has_its_closed_form():
+    """``y = X beta + e``, ``e`` AR(1) (``rho``, innovations ``s``): least squares has the
+    covariance ``(X'X)^-1 X' Sigma X (X'X)^-1`` with ``Sigma_ij = s^2 rho^|i-j| / (1 - rho^2)``.
+    The prewhitened sandwich's variances are within 10 % of it (a Bartlett window alone
+    falls 20 % short), the white ones far below (rho = 0.8: 9 times); intervals
+    from the inflated white variances cover beta in about 95 % of 200 draws (the white ones
+    in far fewer)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(5)
+    T, rho, s = 2000, 0.8, 0.3
+    t = np.arange(T) / T
+    X = np.column_stack([np.ones(T), np.sin(2 * np.pi * 3 * t), t])
+    beta = np.array([0.5, -1.0, 2.0])
+    lag = np.abs(np.subtract.outer(np.arange(T), np.arange(T)))
+    Sigma = s**2 * rho**lag / (1 - rho**2)
+    XtX_inv = np.linalg.inv(X.T @ X)
+    exact = XtX_inv @ X.T @ Sigma @ X @ XtX_inv
+    hits_hac, hits_white, ratios = [], [], []
+    for _ in range(200):
+        v = rng.normal(0.0, s, T)
+        v[0] /= np.sqrt(1 - rho**2)  # stationary from the start
+        e = lfilter([1.0], [1.0, -rho], v)  # e_k = rho e_(k-1) + v_k
+        y = X @ beta + e
+        b = XtX_inv @ X.T @ y
+        r = y - X @ b
+        J = -X  # the Jacobian of the residual r = y - X b
+        inflation, _, hac = _hac_inflation(J, r, T, 1)
+        white = r @ r / (T - 3) * np.diag(XtX_inv)
+        ratios.append(np.diag(hac) / np.diag(exact))
+        hits_white.append(np.abs(b - beta) <= 1.96 * np.sqrt(white))
+        hits_hac.append(np.abs(b - beta) <= 1.96 * np.sqrt(white * inflation))
+    np.testing.assert_allclose(np.median(ratios, axis=0), 1.0, atol=0.1)  # 0.93-0.98
+    assert 0.92 <= np.mean(hits_hac) <= 0.98, np.mean(hits_hac, axis=0)  # 0.94-0.965
+    assert np.mean(hits_white) < 0.6, np.mean(hits_white)
 
 
 def test_quantization_step_is_the_greatest_common_step():
@@ -122,16 +163,20 @@ def test_tiny_rig_coverage_short():
     assert np.mean(inside) >= 0.9, inside
 
 
-#: Coverage the slow test holds each rig to. The target is 0.9; measured on these 12 units:
-#: tiny 1.0, vehicle 0.83, helicopter 0.875 (misses: estimates within 0.1-2 % of the truth
-#: but outside intervals of +-0.01-0.5 %: biases the intervals do not carry, the initial
-#: states' errors where multiple shooting is kept, the vehicle's held speed and delayed
-#: channels). Raising these to 0.9 is open work.
-COVERAGE_FLOOR = {"tiny": 0.9, "vehicle": 0.8, "helicopter": 0.85}
+#: Coverage the slow test holds each rig to: the target, 0.9. Measured on these 12 units per
+#: rig (12 per Aero configuration): tiny 1.0, vehicle 0.917, helicopter 0.972, aero yaw
+#: locked 0.967, aero free 0.906 (rms z 1.12). The misses: a helicopter unit whose pitch
+#: leans on its stop, kept by multiple shooting (its output-error refit 1.6 times the
+#: segments' residual): the measured initial states' errors are not in its intervals; a
+#: vehicle unit 3-4 % off in the common scale of its stiffness, damping and height, at 2.0-2.4
+#: of its (correlated) standard deviations; the free Aero's misses at 2.0-2.4 standard
+#: deviations but one (3.4), with white gyro residuals (docs/twin.md, "Coverage, measured").
+COVERAGE_FLOOR = {"tiny": 0.9, "vehicle": 0.9, "helicopter": 0.9, "aero-locked": 0.9,
+                  "aero": 0.9}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rig", ["tiny", "vehicle", "helicopter"])
+@pytest.mark.parametrize("rig", ["tiny", "vehicle", "helicopter", "aero-locked", "aero"])
 def test_coverage_across_units(rig):
     """Every free parameter inside its 95 % interval in >= 90 % of (unit, parameter) pairs;
     >= 90 % of them within 5 % and of the units' fits above their noise floor. The vehicle's
@@ -146,9 +191,14 @@ def test_coverage_across_units(rig):
         elif rig == "vehicle":
             rec, scales = vehicle_unit(seed, duration_s=10.0, scale_errors=False)
             res = identify(VehicleRollRig, rec, free=list(VEHICLE_FREE))
-        else:
+        elif rig == "helicopter":
             rec, scales = helicopter_unit(seed, duration_s=4.0)
             res = identify(HelicopterRig, rec, free=list(HELI_FREE), sensors="encoders+gyros")
+        else:  # the Aero, hardware profile, yaw locked or free
+            locked = rig == "aero-locked"
+            rec, scales = aero_unit(seed, locked)
+            res = identify(AeroRig, rec, options={"yaw_locked": locked},
+                           free=list(AERO_LOCKED_FREE if locked else AERO_FREE))
         floor = _fit_floor(res)
         fits.append(all(res.fit_percent[c] >= floor[c] for c in floor))
         inside += _inside(res, scales)

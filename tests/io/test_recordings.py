@@ -15,7 +15,7 @@ import pytest
 import scipy.io
 
 from testbed.envs import RigEnv
-from testbed.io import formats
+from testbed.io import formats, readers
 from testbed.io.formats import read_recording, write_recording
 from testbed.io.mapping import Mapping, load_mapping
 from testbed.io.recording import Recording, RecordingError
@@ -444,7 +444,7 @@ def test_size_limit_checked_before_reading(tmp_path, monkeypatch):
     assert time.perf_counter() - start < 1.0
     one_line(exc, str(big), f"{3 << 30} bytes", "larger than 2,147,483,648 bytes")
     small = _bad_csv(tmp_path, None, None)
-    monkeypatch.setattr(formats, "MAX_RECORDING_BYTES", 64)
+    monkeypatch.setattr(readers, "MAX_RECORDING_BYTES", 64)  # (where it is read)
     with pytest.raises(RecordingError) as exc:
         read_recording(small)
     one_line(exc, str(small), "larger than 64 bytes")

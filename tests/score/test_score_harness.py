@@ -14,7 +14,7 @@ from testbed.experiment.scenario import Scenario
 from testbed.rigs.linear_plant.rig import LinearPlantRig
 from testbed.score import report
 from testbed.score.harness import score, score_pair
-from testbed.score.suite import WorstCaseSpec, calibration_entry, get_suite
+from testbed.score.suite import WorstCaseSpec, basin_ms_hinf_entry, calibration_entry, get_suite
 from testbed.score.worst_case import RESTARTS
 
 HERE = Path(__file__).resolve().parent
@@ -82,7 +82,7 @@ def test_worst_case_search_reaches_the_hinf_norm_of_an_lti_error_system(user_mod
 def test_ms_hinf_found_gain_against_its_gamma_is_reported():
     """Basin et al.'s filter on its scenario: the found gain and gamma = 1.1 are reported
     (whether the bound holds is the result, not an assertion)."""
-    entry = next(e for e in get_suite("standard") if e.name == "basin-ms-hinf")
+    entry = basin_ms_hinf_entry()
     entry = entry.replace(runs=2, scenario=entry.scenario.replace(duration_s=2.0),
                           worst_case=WorstCaseSpec(energy=1.0, horizon_s=2.0, random_draws=2,
                                                    generations=0))
@@ -155,10 +155,10 @@ def test_score_rejects_bad_arguments_before_running():
 
 
 def test_lmi_filter_designed_from_the_calibration_model_keeps_its_gamma():
-    """The generic LMI design (testbed.estimators.lmi) on the stable calibration plant: its gamma
-    covers the scenario's channel, and the measured worst case must stay below it; on the
-    helicopter (free integrators) the error block of LMI (48) is designed (the plant block
-    only certifies the plant's stability) and its gamma holds on the sampled loop too."""
+    """The generic LMI design (testbed.estimators.stochastic_system) on the stable calibration
+    plant: its gamma covers the scenario's channel, and the measured worst case must stay below
+    it; on the helicopter (free integrators) the error block of LMI (48) is designed (the plant
+    block only certifies the plant's stability) and its gamma holds on the sampled loop too."""
     spec = WorstCaseSpec(energy=1.0, horizon_s=3.0, channel=((0.0,), (1.0,)), random_draws=2,
                          generations=0)
     pair = score_pair(calibration_entry(2, 0.5, spec), "lmi-hinf", 0)

@@ -24,7 +24,7 @@ from filters.variance_constrained import VarianceDesign
 from filters.variance_discrete import (
     delta1_threshold,
     design_discrete,
-    least_solution11,
+    least_state_bound_discrete,
     search_discrete_design,
 )
 from testbed.reproductions.outputs import Claim, Paper, claims_json, write_outputs
@@ -81,7 +81,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0,
         raise ValueError(f"horizon_s must be >= 1 sample, got {horizon_s}")
 
     def design() -> tuple[dict[str, VarianceDesign], dict[str, Any]]:
-        _, iters, how = least_solution11(plant, s.parameters())
+        _, iters, how = least_state_bound_discrete(plant, s.parameters())
         return ({f"U={U:g}": design_discrete(plant, s.parameters(U), sigma2=s.sigma2)
                  for U in (1.0, -1.0)},
                 {"equation11_existence": how, "equation11_iterations": iters,

@@ -24,11 +24,11 @@ from filters.analysis import UncertainPlant, error_system
 from filters.variance_constrained import VarianceDesign
 from filters.variance_continuous import (
     design_parabolic,
-    equation16,
-    equation17,
-    gains18,
+    error_bound_residual,
+    filter_gains,
     hat_terms,
     search_parabolic_design,
+    state_bound_residual,
 )
 from testbed.reproductions.outputs import Claim, Paper, claims_json, write_outputs
 from testbed.reproductions.variance_constrained.family import (
@@ -153,15 +153,15 @@ def _paper_checks(s: VarianceConstrainedContinuousScenario,
     """
     prm = s.parameters(1.0)
     out: dict[str, Any] = {}
-    r16 = equation16(s.paper_Q1, plant, prm)
+    r16 = state_bound_residual(s.paper_Q1, plant, prm)
     out["residual_16_at_printed_Q1"] = float(np.linalg.norm(r16))
     try:
         t = hat_terms(s.paper_Q1, plant, prm)
-        r17 = equation17(s.paper_Q2, plant, prm, t)
+        r17 = error_bound_residual(s.paper_Q2, plant, prm, t)
         out["residual_17_at_printed_Q1_Q2"] = float(np.linalg.norm(r17))
         g = {}
         for U in (1.0, -1.0):
-            K, G = gains18(s.paper_Q2, plant, prm, t, [[U]])
+            K, G = filter_gains(s.paper_Q2, plant, prm, t, [[U]])
             g[f"U={U:g}"] = {"K": K.tolist(), "G": G.tolist()}
         out["gains18_from_printed_Q1_Q2"] = g
     except np.linalg.LinAlgError as exc:

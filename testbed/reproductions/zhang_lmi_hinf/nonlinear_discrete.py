@@ -14,7 +14,7 @@ filter (50) (see docs/references.md).
   ``(x, xhat)``, corrected and as printed, and the curvature of (36) at the origin.
 - **Corollary 2**: the HJI (27) itself on the grid times ``v in [-10, 10]`` and on a wider
   state box (a grid samples (27) and certifies nothing outside it), and whether (26) can
-  hold (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.condition26_check`).
+  hold (:func:`~testbed.reproductions.zhang_lmi_hinf.plant.output_lower_bound_check`).
 - One run with the filter (50) in the loop (:func:`run_in_loop`) for the ``.rrd`` and
   Figures 1-2.
 """
@@ -65,7 +65,7 @@ def run_in_loop(x0: np.ndarray, steps: int, seed: int) -> dict[str, np.ndarray]:
     """
     system = plant.NonlinearDiscretePlant()
     run = rollout(system, np.asarray(x0, dtype=float), steps,
-                  noise=np.random.default_rng(seed), estimators={"(50)": plant.filter50()})
+                  noise=np.random.default_rng(seed), estimators={"(50)": plant.printed_filter()})
     x, n = run.x, len(run.t_s)
     y = np.concatenate([system.observe(x[0], 0)[None], run.y])
     return {"t": run.t_s, "x": x, "xhat": run.estimates["(50)"], "y": y,
@@ -117,7 +117,8 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     v = np.asarray(plant.paper_disturbance(np.arange(steps)), dtype=float)
     w = np.random.default_rng(seed).standard_normal((runs, steps))
     mc = rollout(plant.NonlinearDiscretePlant(v=v), np.tile(x0, (runs, 1)), steps,
-                 noise=lambda k: w[:, k], estimators={"(50)": plant.filter50(np.zeros((runs, 2)))})
+                 noise=lambda k: w[:, k],
+                 estimators={"(50)": plant.printed_filter(np.zeros((runs, 2)))})
     if mc.escape is not None:
         raise mc.escape
     x, xh = mc.x, mc.estimates["(50)"]
@@ -125,8 +126,9 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
     sums = plant.cumulative_sums(z_err, v, gamma)
     sum_z, sum_v = sums["curve_z"], np.cumsum(v**2)
     bound = sums["gamma2_sum_v2"] + float(x0 @ x0)  # V(eta_0) = |x0|^2 + |xhat0|^2, xhat0 = 0
-    cor = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points)
-    cor_printed = plant.corollary3_check(gamma, s.grid_halfwidth, s.grid_points, printed=True)
+    cor = plant.quadratic_conditions_check(gamma, s.grid_halfwidth, s.grid_points)
+    cor_printed = plant.quadratic_conditions_check(gamma, s.grid_halfwidth, s.grid_points,
+                                                   printed=True)
     v_test = np.linspace(-HJI_V_MAX, HJI_V_MAX, HJI_V_POINTS)
     hji = plant.hji_check(gamma, s.grid_halfwidth, v_values=v_test)
     hji_wide = plant.hji_check(gamma, HJI_WIDE_HALFWIDTH, v_values=v_test)
@@ -153,7 +155,7 @@ def reproduce(horizon_s: float | None = None, seed: int = 0, json_path: str | Pa
         "corollary3_printed": cor_printed,
         "hji_27": hji,
         "hji_27_wide": hji_wide,
-        "condition_26": plant.condition26_check(),
+        "condition_26": plant.output_lower_bound_check(),
         "max_abs_state": float(np.abs(x).max()),
     }
     result["claims"] = claims_json(claims(result))
@@ -212,7 +214,7 @@ def _plot(result: dict, sum_z: np.ndarray, gv: np.ndarray, loop: dict, x: np.nda
     axis = np.linspace(-s.grid_halfwidth, s.grid_halfwidth, 161)
     X2, XH2 = np.meshgrid(axis, axis, indexing="xy")
     zero = np.zeros_like(X2)
-    _, c36 = plant.corollary3_values(np.stack([zero, X2], axis=-1),
+    _, c36 = plant.quadratic_conditions_values(np.stack([zero, X2], axis=-1),
                                      np.stack([zero, XH2], axis=-1), gamma)
     top = float(np.abs(c36).max())
     mesh = ax.pcolormesh(X2, XH2, c36, cmap="RdBu_r", vmin=-top, vmax=top, shading="auto")

@@ -35,7 +35,7 @@ condition. For Example 5.1: ``f1 = [0.6 x1^3 / (1 + |x|^2); 0.65 x2 + 0.1 x1 x2]
 ``fhat = 0.5 xhat``, ``ghat = 0.5 I``, ``m = 0.1 (x1 + x2)``, ``mhat = 0.1 (xhat1 + xhat2)``.
 
 Corollary 2 itself: the HJI (27) (:func:`hji_values`, :func:`hji_check`) and its condition
-(26) (:func:`condition26_check`), which (27) does not imply. All functions take a leading
+(26) (:func:`output_lower_bound_check`), which (27) does not imply. All functions take a leading
 batch axis: states of shape ``(..., 2)``.
 """
 
@@ -47,6 +47,7 @@ import numpy as np
 import numpy.typing as npt
 
 from filters import FiniteEscapeError, LMIHInfFilter
+from filters._deprecated import deprecated_alias
 from filters.lmi_hinf import StochasticLinearSystem
 
 #: Filter (50): ``xhat+ = F xhat + G y``, ``zhat = C_Z xhat``.
@@ -113,7 +114,7 @@ def output(x: npt.ArrayLike) -> np.ndarray:
     return 0.1 * x1 + 0.1 * x2
 
 
-def filter50(x0: npt.ArrayLike | None = None) -> LMIHInfFilter:
+def printed_filter(x0: npt.ArrayLike | None = None) -> LMIHInfFilter:
     """The filter (50) as the library's :class:`filters.LMIHInfFilter`: ``xhat+ = 0.5 xhat +
     0.5 y``, ``zhat = 0.1 (xhat1 + xhat2)``, ``xhat_0 = 0``; ``t_s`` counts steps."""
     return LMIHInfFilter.from_state_space(FILTER_F, FILTER_G,
@@ -123,7 +124,7 @@ def filter50(x0: npt.ArrayLike | None = None) -> LMIHInfFilter:
 
 def filter_step(xhat: npt.ArrayLike, y: npt.ArrayLike) -> np.ndarray:
     """The map of filter (50), ``xhat_{k+1} = F xhat_k + G y_k`` with the matrices of
-    :func:`filter50`, shape ``(..., 2)`` (for the pointwise HJI check on a grid)."""
+    :func:`printed_filter`, shape ``(..., 2)`` (for the pointwise HJI check on a grid)."""
     return np.asarray(xhat, dtype=float) @ FILTER_F.T + np.asarray(y, dtype=float) @ FILTER_G.T
 
 
@@ -252,9 +253,9 @@ def cumulative_sums(z_err: np.ndarray, v: np.ndarray, gamma: float) -> dict[str,
 
 
 # ----------------------------------------------------------------- Corollary 3
-def corollary3_values(x: npt.ArrayLike, xhat: npt.ArrayLike, gamma: float, *,
-                      printed: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Left-hand sides of (35) and (36) for Example 5.1 with ``Q1 = Q2 = I``.
+def quadratic_conditions_values(x: npt.ArrayLike, xhat: npt.ArrayLike, gamma: float, *,
+                                printed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Left-hand sides of Corollary 3's (35) and (36) for Example 5.1 with ``Q1 = Q2 = I``.
 
     Parameters
     ----------
@@ -306,9 +307,9 @@ def state_grid(halfwidth: float, points: int) -> tuple[np.ndarray, np.ndarray]:
     return mesh[:, :2], mesh[:, 2:]
 
 
-def corollary3_check(gamma: float, halfwidth: float = 2.0, points: int = 21, *,
-                     printed: bool = False) -> dict[str, float | list[float] | None]:
-    """Largest violation of (35)-(36) on the grid :func:`state_grid`.
+def quadratic_conditions_check(gamma: float, halfwidth: float = 2.0, points: int = 21, *,
+                               printed: bool = False) -> dict[str, float | list[float] | None]:
+    """Largest violation of Corollary 3's (35)-(36) on the grid :func:`state_grid`.
 
     Returns
     -------
@@ -319,8 +320,8 @@ def corollary3_check(gamma: float, halfwidth: float = 2.0, points: int = 21, *,
         ``halfwidth``, ``points``, ``printed``.
     """
     x, xhat = state_grid(halfwidth, points)
-    c35, c36 = corollary3_values(x, xhat, gamma, printed=printed)
-    c35_0, _ = corollary3_values(x, xhat, 0.0, printed=printed)
+    c35, c36 = quadratic_conditions_values(x, xhat, gamma, printed=printed)
+    c35_0, _ = quadratic_conditions_values(x, xhat, 0.0, printed=printed)
     i36 = int(np.argmax(c36))
     return {
         "max_violation": float(max(c35.max(), c36.max())),
@@ -328,7 +329,7 @@ def corollary3_check(gamma: float, halfwidth: float = 2.0, points: int = 21, *,
         "max_36": float(c36.max()),
         "argmax_36": [*map(float, x[i36]), *map(float, xhat[i36])],
         "fraction_violated_36": float(np.mean(c36 > 0)),
-        "hessian_36_max_eig_at_0": corollary3_origin_curvature(printed=printed),
+        "hessian_36_max_eig_at_0": quadratic_conditions_origin_curvature(printed=printed),
         "gamma_needed_35": float(np.sqrt(max(c35_0.max(), 0.0))),
         "halfwidth": float(halfwidth),
         "points": int(points),
@@ -336,7 +337,7 @@ def corollary3_check(gamma: float, halfwidth: float = 2.0, points: int = 21, *,
     }
 
 
-def corollary3_origin_curvature(*, printed: bool = False, eps: float = 1e-4) -> float:
+def quadratic_conditions_origin_curvature(*, printed: bool = False, eps: float = 1e-4) -> float:
     """Largest eigenvalue of the Hessian of (36)'s left-hand side at ``eta = 0``.
 
     (36) vanishes at 0; a positive eigenvalue means it is violated along that direction
@@ -346,7 +347,7 @@ def corollary3_origin_curvature(*, printed: bool = False, eps: float = 1e-4) -> 
     zero = np.zeros(4)
 
     def c36(p: np.ndarray) -> float:
-        return float(corollary3_values(p[:2], p[2:], 0.0, printed=printed)[1])
+        return float(quadratic_conditions_values(p[:2], p[2:], 0.0, printed=printed)[1])
 
     H = np.empty((4, 4))
     for i in range(4):
@@ -417,7 +418,7 @@ def hji_check(gamma: float, halfwidth: float = 2.0, points: int = 13,
     }
 
 
-def condition26_check() -> dict[str, object]:
+def output_lower_bound_check() -> dict[str, object]:
     """Whether (26), ``|ztilde(eta, 0)|^2 >= W(eta)`` with ``W`` positive and radially
     unbounded, can hold for (49)-(50).
 
@@ -441,3 +442,8 @@ def condition26_check() -> dict[str, object]:
     null = int(np.sum(eig <= tol))
     return {"c": c.tolist(), "min_on_unit_sphere": float(eig[0]), "null_space_dim": null,
             "null_direction": vec[:, 0].tolist(), "possible": bool(eig[0] > tol)}
+
+
+# the names docs/references.md printed before the rename, for one release
+corollary3_values = deprecated_alias(quadratic_conditions_values, "corollary3_values")
+condition26_check = deprecated_alias(output_lower_bound_check, "condition26_check")

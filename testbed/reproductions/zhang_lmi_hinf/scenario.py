@@ -11,7 +11,7 @@ StochasticLinearSystem` (paper (44) letters in brackets)::
 in two versions: (52) verbatim (:func:`paper_system`: the forward-Euler model without ``g``
 in ``A[1, 0]``) and the physically consistent model of the MuJoCo rig (:func:`rig_system`:
 exact zero-order hold of the physical linearization, with ``g``). For the rig in the loop with
-any vehicle sensor suite: :func:`testbed.rigs.vehicle_roll.lmi.vehicle_lmi_system`.
+any vehicle sensor suite: :func:`testbed.rigs.vehicle_roll.stochastic_system.vehicle_lmi_system`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from testbed.rigs.vehicle_roll import (
     paper_disturbance,
     paper_model,
 )
-from testbed.rigs.vehicle_roll.lmi import zoh_with_damping_derivative
+from testbed.rigs.vehicle_roll.stochastic_system import zoh_with_damping_derivative
 
 #: Printed solution of (48) and the printed gain (Example 5.2).
 PAPER_P1 = np.array([[0.0114, 0.0002], [0.0002, 0.0002]])

@@ -9,7 +9,9 @@ and assumptions: docs/aero.md, "Hardware profile"):
 - **amplifier voltage limits** (+-24 V);
 - **IMU** errors: a standing gyro bias drawn per episode (then a slow random walk), white
   noise per sample and the gyro's quantization, as a real unit's recording shows; the
-  accelerometer's are assumptions (MEMS class).
+  accelerometer's are assumptions (MEMS class);
+- **rotor speeds and motor currents** (:mod:`testbed.rigs.aero.motors`): the DC motor's
+  constants, white noise and quantization (assumptions).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+
+from testbed.rigs.aero.motors import AeroMotor
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,16 @@ class AeroHardware:
         Accelerometer white noise per sample, m/s^2.
     accel_step : float
         Accelerometer quantization step, m/s^2.
+    motor : AeroMotor
+        The rotors' DC motor (resistance, motor constant, load).
+    rotor_speed_noise_std : float
+        Rotor speed (tachometer) white noise per sample, rad/s.
+    rotor_speed_step : float
+        Rotor speed quantization step, rad/s.
+    current_noise_std : float
+        Motor current white noise per sample, A.
+    current_step : float
+        Motor current quantization step, A.
     """
 
     voltage_limit_v: tuple[float, float] = (24.0, 24.0)
@@ -53,9 +67,18 @@ class AeroHardware:
     accel_bias0_std: float = 0.05
     accel_noise_std: float = 0.05
     accel_step: float = 4.0 * 9.81 / 65536.0
+    motor: AeroMotor = AeroMotor()
+    rotor_speed_noise_std: float = 0.5
+    rotor_speed_step: float = 0.1
+    current_noise_std: float = 0.005
+    current_step: float = 0.001
 
     def __post_init__(self) -> None:
+        if not isinstance(self.motor, AeroMotor):
+            raise ValueError(f"AeroHardware.motor must be an AeroMotor, got {self.motor!r}")
         for f in dataclasses.fields(self):
+            if f.name == "motor":
+                continue
             value = np.asarray(getattr(self, f.name), dtype=float)
             if f.name == "voltage_limit_v" and value.shape != (2,):
                 raise ValueError(f"AeroHardware.{f.name} must be two numbers (pitch, yaw), "
@@ -63,7 +86,8 @@ class AeroHardware:
             if not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise ValueError(f"AeroHardware.{f.name} must be finite and >= 0, got "
                                  f"{getattr(self, f.name)!r}")
-        for name in ("voltage_limit_v", "gyro_step", "accel_step"):
+        for name in ("voltage_limit_v", "gyro_step", "accel_step", "rotor_speed_step",
+                     "current_step"):
             if np.any(np.asarray(getattr(self, name)) <= 0):
                 raise ValueError(f"AeroHardware.{name} must be positive, got "
                                  f"{getattr(self, name)!r}")

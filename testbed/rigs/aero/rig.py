@@ -393,9 +393,10 @@ class AeroRig(Rig):
             ``encoders``: the pitch and yaw encoders (pitch only with the yaw axis locked),
             quantized at ``2 pi / counts_per_rev``, with optional white noise
             ``noise_std_rad``; ``encoders+gyros`` adds the rates (white noise
-            ``gyro_noise_std_rad_s``); ``hardware``: the encoders plus the IMU with a real
-            unit's errors (:func:`hardware_imu`). Default: ``encoders`` in the ``paper``
-            profile, ``hardware`` in the ``hardware`` profile.
+            ``gyro_noise_std_rad_s``); ``hardware``: the encoders, the IMU with a real
+            unit's errors (:func:`hardware_imu`), the rotor speeds and the motor currents
+            (:func:`~testbed.rigs.aero.motors.hardware_motors`). Default: ``encoders`` in
+            the ``paper`` profile, ``hardware`` in the ``hardware`` profile.
         dt_s : float
             Sampling period, s.
         """
@@ -421,7 +422,11 @@ class AeroRig(Rig):
             parts.append(WhiteNoise(Suite(*(state(i) for i in range(j, n))),
                                     std=gyro_noise_std_rad_s))
         elif preset == "hardware":
-            parts.append(hardware_imu(self.hardware or AeroHardware(), dt_s, self.yaw_locked))
+            from testbed.rigs.aero.motors import hardware_motors
+
+            hw = self.hardware or AeroHardware()
+            parts.append(hardware_imu(hw, dt_s, self.yaw_locked))
+            parts.append(hardware_motors(hw, n))
         return Suite(*parts)
 
     @classmethod
@@ -490,7 +495,8 @@ class AeroRig(Rig):
         Q, G = rate_noise(n, len(self.joints), process_noise_floor, disturbance)
         P0 = X0_STD**2 * np.eye(n)
         paper = build_design(self, sensors, dt_s, A, B, Q, self.default_x0(), P0,
-                             disturbance_matrix=G, extras={"quanser_model": (A, B)})
+                             disturbance_matrix=G, extras={"quanser_model": (A, B)},
+                             held_noise=self.hardware is None)
         if self.hardware is None:
             return paper
         return self._matched_design(paper, sensors, dt_s, Q, G)

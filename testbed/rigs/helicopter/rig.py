@@ -637,6 +637,7 @@ class HelicopterRig(Rig):
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                              np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                              input_transform=unbalanced_input,
+                             held_noise=self.hardware is None,
                              extras={"paper_model": model, "gamma": PAPER_GAMMA,
                                      "initial_weight": PAPER_INITIAL_WEIGHT})
         if self.hardware is None:
@@ -709,7 +710,7 @@ class HelicopterRig(Rig):
         return build_matched_design(
             self, sensors, dt_s, A, B, Qm, x0, P0,
             extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
-            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
             input_transform=matched_input, disturbance_matrix=G,
             extra_inputs=(("stop_reaction", "rad/s^2"),),
             extras={"paper_model": paper.extras["paper_model"],

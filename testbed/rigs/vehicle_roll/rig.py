@@ -2,7 +2,7 @@
 
 Parameters, Zhang et al.'s model and the physical one are in
 :mod:`testbed.rigs.vehicle_roll.model`, the channels in :mod:`testbed.rigs.vehicle_roll.sensors`,
-the LMI design system in :mod:`testbed.rigs.vehicle_roll.lmi`.
+the LMI design system in :mod:`testbed.rigs.vehicle_roll.stochastic_system`.
 """
 
 from __future__ import annotations
@@ -289,9 +289,10 @@ class VehicleRollRig(Rig):
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
                               output_matrix=paper_model().M, input_transform=transform,
-                              input_noise_cov=input_noise_cov)
+                              input_noise_cov=input_noise_cov,
+                              held_noise=self.profile == "paper")
         design.extras["input_noise_cov"] = input_noise_cov
-        from testbed.rigs.vehicle_roll.lmi import vehicle_lmi_system
+        from testbed.rigs.vehicle_roll.stochastic_system import vehicle_lmi_system
 
         design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_system,
@@ -356,7 +357,8 @@ class VehicleRollRig(Rig):
                 extra_R[int(ch)] = (e.scale_std**2 + speed_scale**2) * DESIGN_A_Y_M_S2**2
         return build_matched_design(
             self, sensors, dt_s, A0, B0, Q0, x0, P0, extra_states=extra, channels=index,
-            rows=rows, extra_R=extra_R, effects=effects, paper_design=paper,
+            rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
+            input_scales={0: speed_scale} if tap is not None else None,
             input_memory_std=None if tap is not None else np.array([a_y_std]),
             input_transform=paper.input_transform, output_matrix=paper.output_matrix,
             input_noise_cov=(paper.extras.get("input_noise_cov")),

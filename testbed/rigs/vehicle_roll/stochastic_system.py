@@ -4,7 +4,7 @@ The design system adds to the physical model what the rig has and the paper's mo
 not: the known lateral acceleration as an input and the multiplicative damping noise
 ``C_R + D_n w_k`` through the derivative of the exact ZOH discretization. The rig's design
 model exposes :func:`vehicle_lmi_system` as ``extras["lmi_system"]``; ``--filter lmi-hinf``
-designs on it (:mod:`testbed.estimators.lmi`).
+designs on it (:mod:`testbed.estimators.stochastic_system`).
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def vehicle_design_system(design: Any, params: VehicleRollParams | None = None,
 def vehicle_lmi_system(design: Any) -> tuple[StochasticLinearSystem, np.ndarray, np.ndarray]:
     """The rig's LMI design system for ``--filter lmi-hinf`` (``design.extras["lmi_system"]``):
     :func:`vehicle_design_system` with the design's ``a_y_std``; the family designs on it
-    (Theorem 4, :func:`testbed.estimators.lmi.verified_estimator`).
+    (Theorem 4, :func:`testbed.estimators.stochastic_system.verified_estimator`).
 
     Returns
     -------

@@ -168,6 +168,33 @@ def test_plain_step_with_and_without_the_batch_private_c_call():
     assert states[0].tobytes() == states[1].tobytes()
 
 
+def test_general_step_with_and_without_the_batch_private_c_call():
+    """The general step of the whole batch (the vehicle's step noise takes it) calls the same
+    C step as :meth:`Physics.step_plain`: the same states bitwise as the public
+    ``Batch.step``, one member and several."""
+    for num in (1, 3):
+        sims = [build_simulator("vehicle-roll", num, num_threads=1) for _ in range(2)]
+        sims[1].physics._c_step = None
+        rng = np.random.default_rng(4)
+        us = rng.uniform(-4.0, 4.0, (25, num, 1))
+        states = []
+        for sim in sims:
+            sim.reset(None, list(range(5, 5 + num)))
+            general, calls = sim.physics.step, []
+
+            def counted(*args, general=general, calls=calls, **kwargs):
+                calls.append(1)
+                return general(*args, **kwargs)
+
+            sim.physics.step = counted
+            for u in us:
+                sim.step(u)
+            assert len(calls) == len(us)  # the general path (the rig's step noise)
+            states.append(sim.info["state"].copy())
+            sim.close()
+        assert states[0].tobytes() == states[1].tobytes()
+
+
 def test_whole_batch_step_equals_the_members_step_bitwise():
     """The whole batch's step (its slice, the reused force rows, the one-time profile and
     reference) gives, bitwise, what stepping every member by index gives (the general path)."""
@@ -176,7 +203,7 @@ def test_whole_batch_step_equals_the_members_step_bitwise():
     runs = []
     for members in (None, np.arange(4)):
         sim = build_simulator("vehicle-roll", 4, num_threads=1, manoeuvre="double-lane-change")
-        assert sim._dist_active and not sim._no_manoeuvre  # the paths under test
+        assert sim.inputs.active and not sim.schedules.none  # the paths under test
         sim.reset(None, [3, 1, 4, 1])
         rng = np.random.default_rng(5)
         high = np.asarray(sim.rig.action_high) * 1.2

@@ -1,0 +1,71 @@
+"""The discrete noise of held accelerations: the map against MuJoCo's own period, the
+covariance against the simulator's one-step residuals, and the helicopter's reference
+Kalman filter consistent with it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from testbed.design.held_noise import (
+    held_acceleration_map,
+    held_noise_covariance,
+    implicit_damping,
+)
+from testbed.experiment import runner
+from testbed.experiment.scenario import Scenario
+from testbed.rigs.linear_plant.rig import LinearPlantRig
+
+
+def test_the_map_is_mujocos_period_on_a_linear_plant() -> None:
+    # the linear plant's discrete_map differences mj_step itself (exact for a linear plant)
+    rig = LinearPlantRig()
+    dt_s = 0.01
+    A, _ = rig.linearize()
+    _, _, E_mujoco = rig.discrete_map(dt_s)
+    implicit = implicit_damping(rig.model)
+    assert implicit  # MuJoCo's Euler: damping implicit
+    E = held_acceleration_map(A, 1, dt_s, rig.model.opt.timestep, implicit=implicit)
+    np.testing.assert_allclose(E, E_mujoco, rtol=1e-6, atol=1e-12)
+
+
+def test_limit_of_one_step_and_bad_periods() -> None:
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    # one explicit physics step: v += h a, p += h v+ = h^2 a
+    np.testing.assert_allclose(held_acceleration_map(A, 1, 0.1, 0.1, implicit=False),
+                               [[0.01], [0.1]])
+    # many steps: p -> dt^2 / 2 (1 + 1/N), v = dt
+    E = held_acceleration_map(A, 1, 0.01, 0.001, implicit=False)
+    np.testing.assert_allclose(E[:, 0], [0.5 * 0.01**2 * 1.1, 0.01], rtol=1e-12)
+    assert held_acceleration_map(A, 1, 0.0105, 0.001) is None
+    Q = held_noise_covariance(E, np.diag([0.0, 2.0]), 1, 0.01)
+    np.testing.assert_allclose(Q, E @ E.T * 200.0)
+    assert np.linalg.matrix_rank(Q) == 1  # positions and velocities move together
+
+
+def test_helicopter_reference_kalman_is_consistent_and_its_noise_is_the_simulators() -> None:
+    scenario = Scenario(rig="helicopter", disturbance="basin-helicopter",
+                        sensor_options={"disturbance_channel": True}, process_noise=1.0,
+                        duration_s=6.0)
+    experiment = runner.build(scenario, 16)
+    result = experiment.loop.run(runner.run_seeds(3, 16), scenario.duration_s, {},
+                                 record=True)
+    rec = result.trajectory
+    design = experiment.design
+    X, U = rec["state"], rec["action"]
+    W = np.stack([X[:, k + 1] - X[:, k] @ design.discrete.F.T
+                  - design.input_transform(U[:, k + 1], X[:, k]) @ design.discrete.B.T
+                  for k in range(10, X.shape[1] - 1)], axis=1).reshape(-1, 4)
+    measured = np.cov(W.T)
+    Q = np.asarray(design.discrete.Q)
+    # the simulated one-step residual: rates within 10 % of the design's noise, and the
+    # position-rate correlation of held noise (near one; 0.87 for continuous white noise)
+    np.testing.assert_allclose(np.diag(measured)[2:], np.diag(Q)[2:], rtol=0.1)
+    for i in (0, 1):
+        corr = measured[i, i + 2] / np.sqrt(measured[i, i] * measured[i + 2, i + 2])
+        design_corr = Q[i, i + 2] / np.sqrt(Q[i, i] * Q[i + 2, i + 2])
+        assert corr > 0.98 and design_corr > 0.98
+    error = rec["estimate"][:, 1:] - rec["state"][:, 1:]
+    P = rec["covariance"][:, 1:]
+    nees = np.einsum("rti,rtij,rtj->rt", error, np.linalg.inv(P), error).mean()
+    assert nees == pytest.approx(4.0, rel=0.1)  # 3.30 with the continuous noise's Q
