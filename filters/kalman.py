@@ -67,6 +67,17 @@ _MEMO_STEPS = 16
 _AHEAD_STEPS = 32
 
 _Step = tuple[FloatArray, FloatArray, FloatArray]  # (S, K, P) of a shared covariance step
+#: Entries up to which :func:`_finite` sums Python floats instead of a BLAS dot.
+_SMALL = 32
+
+
+def _finite(a: FloatArray) -> bool:
+    """:func:`~filters._linalg.all_finite` of a float64 array, for a small one (a batch of
+    one's state, measurement or input) as a sum of Python floats (finite only if every entry
+    is; a sum that overflows falls through to the exact test): half the time of a dot."""
+    if a.size <= _SMALL:
+        return math.isfinite(sum(a.ravel().tolist())) or bool(np.isfinite(a).all())
+    return all_finite(a)
 
 
 class CovarianceMemo:
@@ -204,7 +215,7 @@ class _SampledFilter:
         if x.ndim == 1:  # fast: Python float sum (overflow of finite entries falls through)
             if math.isfinite(sum(x.tolist())) or np.isfinite(x).all():
                 return
-        elif all_finite(x):
+        elif _finite(x):
             return
         raise FiniteEscapeError("state estimate became non-finite", time=self._time(steps),
                                 quantity="x", value=np.array(x))
@@ -405,6 +416,19 @@ class KalmanFilter(_SampledFilter):
         return None if shared is None else shared.reshape(shared.shape[-2:])
 
     @property
+    def shared_innovation_cov(self) -> FloatArray | None:
+        """The innovation covariance of the last update that every member of a batch
+        shares, shape ``(m, m)`` (do not write it: copy it), or None (no update yet, a single
+        filter, or a batch of several members whose stack :attr:`innovation_cov` holds):
+        what :attr:`innovation_cov` repeats, without making the stack."""
+        S = self._innovation_cov
+        if S is None or not self._batch:
+            return None
+        if S.shape[:-2] != self._batch or math.prod(self._batch) == 1:
+            return S.reshape(S.shape[-2:])
+        return None
+
+    @property
     def gain(self) -> FloatArray | None:
         """Kalman gain of the last update, shape ``(..., n, m)``, or None."""
         return self._stacked("_gain")
@@ -439,6 +463,7 @@ class KalmanFilter(_SampledFilter):
         self._y_shape = (*batch, self._m)
         self._u_shape = (*batch, self._k)
         self._P_shape = self._P.shape
+        self._one = bool(batch) and math.prod(batch) == 1  # a batch of one
         # shared posterior covariance (bytes) -> the next step's S, K and posterior covariance
         self._memo: dict[bytes, _Step] = {}
         # the shared memo's table for this model and batch rank (reset may change the rank)
@@ -595,8 +620,10 @@ class KalmanFilter(_SampledFilter):
         """
         if not self._batch:
             return None
+        if math.prod(self._batch) == 1:  # a batch of one: its member (the same operations)
+            return P.reshape(P.shape[-2:])
         first = shared_member(P)
-        if first.shape == P.shape:  # a batch of one: the stack
+        if first.shape == P.shape:  # members that differ
             return None
         return first.reshape(P.shape[-2:])
 
@@ -610,7 +637,7 @@ class KalmanFilter(_SampledFilter):
         if (type(y) is np.ndarray and y.dtype == np.float64 and y.shape == self._y_shape
                 and (u is None or (type(u) is np.ndarray and u.dtype == np.float64
                                    and u.shape == self._u_shape and self._k > 0))):
-            if not (all_finite(y) and (u is None or all_finite(u))):
+            if not (_finite(y) and (u is None or _finite(u))):
                 self._vector("y", y, self._m)  # raises for y, else:
                 self._input(u)  # raises for u
         else:
@@ -620,9 +647,13 @@ class KalmanFilter(_SampledFilter):
         S, K, P = self._shared_covariance_step(P, steps)
         x = self._correct(self._predict_state(u), y,  # type: ignore[arg-type]
                           u if self._DT is not None else None, S, K, steps)
-        # commit: the stack of the shared member (a new array; the kept P is never written)
-        stack = np.empty(self._P_shape)
-        stack[...] = P
+        # commit: the stack of the shared member (the kept P is never written): a batch of
+        # one's is a view of it, a larger batch's a new array
+        if self._one:
+            stack = P.reshape(self._P_shape)
+        else:
+            stack = np.empty(self._P_shape)
+            stack[...] = P
         self._commit(x, stack, steps)
         self._P_shared = P
         return x
@@ -693,6 +724,8 @@ class KalmanFilter(_SampledFilter):
         table = self._memo_table
         done = (compute() if table is None
                 else self._covariance_memo.step(table, key, compute))  # type: ignore[union-attr]
+        for kept in done:  # never written: read-only, and so every view of it (shared_P)
+            kept.flags.writeable = False
         own = self._memo
         if len(own) >= _MEMO_STEPS + _AHEAD_STEPS:
             del own[next(iter(own))]  # the oldest

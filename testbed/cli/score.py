@@ -25,6 +25,9 @@ def add_arguments(sc: argparse.ArgumentParser) -> None:
                     help="only this scenario of the suite; repeatable")
     sc.add_argument("--runs", type=values.positive_int, default=None,
                     help="override the runs of every entry")
+    sc.add_argument("--twin", metavar="FILE.toml", default=None,
+                    help="a twin of a real unit (testbed identify --twin): the suite's entries "
+                         "of its rig, with its identified parameters")
     sc.add_argument("--seed", type=values.seed, default=0)
     sc.add_argument("--reference", default="kalman", metavar="[LABEL=]NAME_OR_MODULE:FACTORY",
                     help="estimator the others are compared with, paired (default kalman)")
@@ -58,6 +61,12 @@ class Progress:
             entries = []
         if args.scenario is not None:
             entries = [e for e in entries if e.name in args.scenario]
+        if getattr(args, "twin", None) is not None:  # the twin's entries (errors: later)
+            try:
+                entries = harness.twin_entries(entries, args.twin, args.suite,
+                                               selected=args.scenario is not None)
+            except ValueError:
+                entries = []
         if args.runs is not None:
             entries = [e.replace(runs=args.runs) for e in entries]
         self.cost = {e.name: max(harness.entry_cost(e), 1.0) for e in entries}
@@ -128,7 +137,7 @@ def command(args: argparse.Namespace) -> int:
         run = harness.score(chosen, args.suite, seed=args.seed, runs=args.runs,
                             scenarios=args.scenario, backend=args.backend,
                             workers=args.workers, worst_case=not args.no_worst_case,
-                            reference=reference, progress=bar)
+                            reference=reference, progress=bar, twin=args.twin)
     finally:
         if bar is not None:
             bar.close()

@@ -5,11 +5,12 @@ it on :meth:`RecordLog.close` (or on demand: :meth:`RecordLog.recording`,
 :meth:`RecordLog.save`), in the layout :func:`testbed.io.formats.read_recording` reads: what a
 real unit's log would hold. The true state, the disturbance and the estimate are never kept.
 
-Rows follow a real rig's log (:mod:`testbed.io.formats`): row ``k`` holds ``info["t"]`` after
-the reset or step ``k``, the measurement then, and the input applied over the next step
-(``info["action_applied"]`` of step ``k + 1``: after clipping, the manoeuvre's part
-included). The last measurement has no input after it and is left out: an episode of ``T``
-steps gives ``T`` samples.
+Rows follow a real rig's log (:mod:`testbed.io.formats`) and are those of ``testbed run
+--save-log`` (one definition: :func:`testbed.experiment.replay.episode_recording`): row ``k``
+holds the time ``k dt_s`` after the reset or step ``k`` (``info["t"]``), the measurement then,
+and the input applied over the next step (``info["action_applied"]`` of step ``k + 1``: after
+clipping, the manoeuvre's part included); an episode of ``T`` steps gives ``T + 1`` samples,
+the last row's input repeating the one before it (no step follows it).
 
 Multi-rate sensors: a sensor slower than the loop (:class:`~testbed.sensors.SampleAndHold`,
 the helicopter's IMU) gives its last sample again until it takes a new one, so every step
@@ -50,8 +51,8 @@ class RecordLog(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Notes
     -----
     Each ``reset`` starts a new recording (the previous episode is dropped: wrap one
-    episode, or call :meth:`save` before resetting). ``close`` writes nothing when the
-    episode has fewer than 2 steps.
+    episode, or call :meth:`save` before resetting). ``close`` writes nothing when no step
+    was taken.
     """
 
     def __init__(self, env: gym.Env, path: str | os.PathLike | None = None, *,
@@ -119,26 +120,25 @@ class RecordLog(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Returns
         -------
         Recording
-            ``steps`` samples (see the module docstring for the rows).
+            ``steps + 1`` samples (see the module docstring for the rows).
 
         Raises
         ------
         RecordingError
-            Fewer than 2 steps recorded.
+            No step recorded.
         """
+        from testbed.experiment.replay import episode_recording
+
         n = len(self._u)
-        if n < 2:
-            raise RecordingError(f"{source}: {n} step{'' if n == 1 else 's'} recorded; a "
-                                 "recording needs at least 2")
-        y, u = np.array(self._y[:n]), np.array(self._u)
+        if n < 1:
+            raise RecordingError(f"{source}: no step recorded; a recording needs at least 1 "
+                                 "step (2 samples)")
         meta = dict(self._meta)
         if self._seed is not None:
             meta["seed"] = int(self._seed)
-        rec = Recording(time_s=np.array(self._t[:n]),
-                        inputs={name: u[:, j].copy() for j, name in enumerate(self.action_names)},
-                        channels={name: y[:, j].copy()
-                                  for j, name in enumerate(self.channel_names)},
-                        source=source, meta=meta)
+        rec = episode_recording(np.array(self._y), np.array(self._u), self._meta["control_dt_s"],
+                                action_names=self.action_names,
+                                channel_names=self.channel_names, meta=meta, source=source)
         return check_recording(rec)
 
     def save(self, path: str | os.PathLike | None = None) -> Path:
@@ -149,10 +149,10 @@ class RecordLog(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return write_recording(target, self.recording(source=os.fspath(target)))
 
     def close(self) -> None:
-        """Write the episode to ``path`` (when given and at least 2 steps were recorded),
+        """Write the episode to ``path`` (when given and at least 1 step was recorded),
         then close the environment (also when writing fails)."""
         try:
-            if self.path is not None and len(self._u) >= 2:
+            if self.path is not None and len(self._u) >= 1:
                 self.save()
         finally:
             self._t, self._y, self._u = [], [], []

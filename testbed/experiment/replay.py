@@ -57,6 +57,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from filters import KalmanFilter
 from testbed import estimators
 from testbed.design import DesignModel, channel_effects
 from testbed.experiment.loop import EstimatorStage, LoopResult, Tape, check_estimate, sensor_taps
@@ -86,8 +87,6 @@ _SCENARIO_META = ("rig", "profile", "sensors", "sensor_options", "physics_dt_s",
                   "ambient_noise", "manoeuvre")
 #: Relative tolerance of a uniform sample period and of ``period_s`` as a whole multiple.
 _PERIOD_TOLERANCE = 1e-6
-#: Step a batched estimator as a batch of two copies (see :func:`replay`).
-_PAD_BATCH = True
 
 
 # ---------------------------------------------------------------------- from a simulation
@@ -211,17 +210,69 @@ def _from_trajectory(traj: Trajectory, source: str) -> Recording:
 
 def _recording(y: np.ndarray, applied: np.ndarray, dt_s: float, action_names: tuple[str, ...],
                channel_names: tuple[str, ...], meta: dict[str, Any], source: str) -> Recording:
-    """The arrays in the loop's convention (``applied[k + 1]`` over step ``k``) as rows in
-    the recording's (:data:`INPUT_CONVENTION`)."""
-    T1 = len(y)
-    if T1 < 2:
-        raise ValueError(f"a recording needs at least 2 samples, the run has {T1}")
-    held = np.concatenate([applied[1:], applied[-1:]], axis=0)  # row k: over [t_k, t_k+1)
-    time_s = np.arange(T1) * dt_s
+    """The arrays in the loop's convention (``applied[k + 1]`` over step ``k``) as a
+    recording (:func:`episode_recording`)."""
+    if len(y) < 2:
+        raise ValueError(f"a recording needs at least 2 samples, the run has {len(y)}")
+    return episode_recording(y, applied[1:], dt_s, action_names=action_names,
+                             channel_names=channel_names, meta=meta, source=source)
+
+
+def episode_recording(measurement: np.ndarray, applied: np.ndarray, dt_s: float, *,
+                      action_names: Sequence[str], channel_names: Sequence[str],
+                      meta: dict[str, Any] | None = None,
+                      source: str = "<simulation>") -> Recording:
+    """What a recording of a simulated episode holds: the one definition, used by
+    :func:`recording_from_result` (``testbed run --save-log``) and by the Gymnasium wrapper
+    :class:`~testbed.envs.recording.RecordLog`.
+
+    An episode of ``T`` steps gives ``T + 1`` samples: row ``k`` has the time ``k dt_s``, the
+    measurement after the reset (``k = 0``) or after step ``k``, and the input applied over
+    step ``k + 1`` (:data:`INPUT_CONVENTION`); the last row's input repeats the one before
+    it (no step follows it; :func:`replay` and ``identify`` never use it).
+
+    Parameters
+    ----------
+    measurement : ndarray, shape (T+1, m)
+        What the sensors gave after the reset and after each step.
+    applied : ndarray, shape (T, nu)
+        The input applied over each step (after clipping).
+    dt_s : float
+        The control period, s.
+    action_names, channel_names : sequence of str
+        The rig's inputs and the sensors' channels (the columns).
+    meta : dict, optional
+        The recording's ``meta`` (``control_dt_s`` and ``input_convention`` are set).
+    source : str
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match (``T >= 1`` steps, ``T + 1`` measurements, the names'
+        lengths) or a period that is not positive (one line).
+    """
+    y = np.asarray(measurement, float)
+    u = np.asarray(applied, float)
+    if y.ndim != 2 or y.shape[1] != len(channel_names) or len(y) < 2:
+        raise ValueError(f"measurement must have shape (T+1, {len(channel_names)}) with T >= 1,"
+                         f" got {y.shape}")
+    if u.shape != (len(y) - 1, len(action_names)):
+        raise ValueError(f"applied must have shape ({len(y) - 1}, {len(action_names)}) (one "
+                         f"row per step), got {u.shape}")
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be a positive period in s, got {dt_s!r}")
+    held = np.concatenate([u, u[-1:]], axis=0)  # row k: over [t_k, t_k+1)
+    time_s = np.arange(len(y)) * float(dt_s)
     return Recording(time_s=time_s,
                      inputs={n: held[:, i].copy() for i, n in enumerate(action_names)},
                      channels={n: y[:, j].copy() for j, n in enumerate(channel_names)},
-                     source=source, sha256="", meta=dict(meta, control_dt_s=float(dt_s)))
+                     source=source, sha256="",
+                     meta=dict(meta or {}, control_dt_s=float(dt_s),
+                               input_convention=INPUT_CONVENTION))
 
 
 def _meta(run_meta: dict[str, Any], rig: Any, sensors: Sensor | None,
@@ -291,30 +342,124 @@ class _NoTruth:
         self.count += 1
 
 
-class _FirstRow:
-    """An input transform of a padded batch (:func:`replay`): member 0's row computed as
-    a batch of one (a rig's transform may use BLAS products whose rounding depends on the
-    number of rows, and member 0 must get the bits it gets alone), repeated for the copy."""
-
-    def __init__(self, transform: Any):
-        self.transform = transform
-
-    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-        return np.repeat(self.transform(u[:1], x_hat[:1]), len(u), axis=0)
+def _innermost(est: Any) -> Any:
+    """The :class:`filters.KalmanFilter` inside wrappers that change none of ``x``, ``P`` and
+    the innovations (:class:`~testbed.estimators.ChannelSelect` and the plain
+    :class:`~testbed.estimators.EstimatorWrapper`), else ``est`` itself."""
+    inner = est
+    while type(inner) in (estimators.EstimatorWrapper, estimators.ChannelSelect):
+        inner = inner.inner
+    return inner if isinstance(inner, KalmanFilter) else est
 
 
-def _shares_covariance(est: Any) -> bool:
-    """Whether the estimator is (a wrapper of) a :class:`filters.KalmanFilter`, whose
-    members share one covariance recursion in a batch of two or more."""
-    from filters import KalmanFilter
+class _Collect:
+    """The replay's steps and their record: the physical estimate, its variances and the
+    innovations, into arrays allocated once, a block of steps at a time.
 
-    for _ in range(8):
-        if isinstance(est, KalmanFilter):
-            return True
-        est = est.__dict__.get("inner") if hasattr(est, "__dict__") else None
-        if est is None:
-            return False
-    return False
+    A :class:`filters.KalmanFilter` (possibly behind a channel selection) is read through
+    its batch of one's shared members (``shared_P``, ``shared_innovation_cov``): each step's
+    arrays are kept by reference (the filter replaces them, never writes them) and copied
+    into the record once per block; any other estimator is read after each step through
+    ``P``, ``innovation`` and ``innovation_cov``.
+
+    Parameters
+    ----------
+    stage : EstimatorStage
+    inner : estimator
+        What the innovations are read from (:func:`_innermost`, or a per-member
+        estimator's one instance).
+    has_P : bool
+        Whether the estimator reports a covariance.
+    Y, U : ndarray, shape (K+1, 1, m) and (K+1, 1, nu)
+        The channels and inputs of the samples used, as the stage takes them.
+    taps : list of (Tap, list of int)
+        The sensors' taps and the channels they hold.
+    """
+
+    #: Steps per block.
+    BLOCK = 1024
+
+    def __init__(self, stage: EstimatorStage, inner: Any, has_P: bool, Y: np.ndarray,
+                 U: np.ndarray, taps: Sequence[tuple[Any, Sequence[int]]]):
+        self.stage, self.inner, self.Y, self.U, self.taps = stage, inner, Y, U, taps
+        self.K = K = len(Y) - 1
+        n = len(stage.prior[0]) if stage.physical_index is None else len(stage.physical_index)
+        self.x_hat = np.empty((K + 1, n))
+        self.P_diag = np.empty((K + 1, n)) if has_P else None
+        self.nu: np.ndarray | None = None
+        self.S: np.ndarray | None = None
+        self.has_innovation = True
+        self._kalman_filter = isinstance(inner, KalmanFilter) and has_P
+
+    def block(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` (rows ``j0..j1-1`` of the record)."""
+        if self._kalman_filter and self.inner.shared_P is not None:  # a batch of one
+            self._kalman(j0, j1)
+        else:
+            self._generic(j0, j1)
+
+    def restore_taps(self, j: int) -> None:
+        """Set each tap's latest values to the recorded channels of row ``j``."""
+        for tap, cols in self.taps:
+            tap.last[:] = self.Y[j][:, cols]
+
+    def first(self) -> None:
+        """Row 0: the estimate after the stage's reset."""
+        self.x_hat[0] = self.stage.x[0]
+        if self.P_diag is not None:
+            self.P_diag[0] = self.stage.P[0].diagonal()
+
+    def _allocate(self, nu: Any) -> None:
+        p = np.shape(nu)[-1]
+        self.nu, self.S = np.empty((self.K, p)), np.empty((self.K, p, p))
+
+    def _kalman(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` of a Kalman filter's batch of one."""
+        step, inner, Y, U, taps = self.stage.step, self.inner, self.Y, self.U, self.taps
+        xs, nus, Ss, Ps = [], [], [], []
+        for j in range(j0, j1):
+            if taps:
+                self.restore_taps(j)
+            xs.append(step(Y[j], U[j - 1], None, None))
+            nus.append(inner.innovation)
+            Ss.append(inner.shared_innovation_cov)
+            Ps.append(inner.shared_P)
+        self.x_hat[j0:j1] = np.concatenate(xs)
+        if self.nu is None:
+            self._allocate(nus[0])
+        self.nu[j0 - 1:j1 - 1] = np.concatenate(nus)  # type: ignore[index]
+        self.S[j0 - 1:j1 - 1] = Ss  # type: ignore[index]
+        self.P_diag[j0:j1] = np.diagonal(  # type: ignore[index]
+            self.stage._physical_block(np.stack(Ps)), axis1=-2, axis2=-1)
+
+    def _generic(self, j0: int, j1: int) -> None:
+        """Steps ``j0..j1-1`` of any estimator."""
+        step, stage, inner, Y, U = self.stage.step, self.stage, self.inner, self.Y, self.U
+        for j in range(j0, j1):
+            if self.taps:
+                self.restore_taps(j)
+            self.x_hat[j] = step(Y[j], U[j - 1], None, None)[0]
+            if self.P_diag is not None:
+                self.P_diag[j] = stage.P[0].diagonal()
+            if not self.has_innovation:
+                continue
+            nu = getattr(inner, "innovation", None)
+            S = getattr(inner, "innovation_cov", None)
+            if self.nu is None and nu is not None and S is not None:
+                self._allocate(nu)
+            try:
+                # (N, p) and (N, p, p), or one member's (p,) and (p, p)
+                self.nu[j - 1] = nu[0 if np.ndim(nu) == 2 else ()]  # type: ignore[index]
+                self.S[j - 1] = S[0 if np.ndim(S) == 3 else ()]  # type: ignore[index]
+            except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
+                self.has_innovation = False
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
+                              np.ndarray | None, bool]:
+        """``x_hat`` (K+1, n), ``P_diag`` (K+1, n) or None, the innovations (K, p) and
+        their covariances (K, p, p) (None: none exposed), and whether there were any."""
+        return (self.x_hat, self.P_diag, self.nu, self.S,
+                self.has_innovation and self.nu is not None)
 
 
 @dataclass
@@ -620,17 +765,11 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     batched = bool(getattr(est, "batched", False))
     if not batched:
         est = estimators.PerMember([est])
-    # a Kalman filter steps two copies of the recording: the members share one covariance,
-    # whose recursion it then computes once and reuses where it has settled
-    # (filters.KalmanFilter), which a batch of one does not do (6 times faster here); member
-    # 0 is the result, the same bits as alone (the input transform sees it alone: _FirstRow)
-    num = 2 if _PAD_BATCH and batched and _shares_covariance(est) else 1
+    # one member (a Kalman filter's batch of one shares its covariance with itself: its
+    # recursion is computed once, ahead, and reused where it has settled; filters.KalmanFilter)
     P = getattr(est, "P", None)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
-    transform = design.input_transform
-    if transform is not None and num > 1:
-        transform = _FirstRow(transform)
-    stage = EstimatorStage(est, transform, _NoTruth(period), prior,
+    stage = EstimatorStage(est, design.input_transform, _NoTruth(period), prior,
                            channels=estimators.channels_for(est, design),
                            physical_index=design.physical, name=name)
     used = np.arange(len(names)) if stage.channels is None else stage.channels
@@ -651,60 +790,26 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
                          for n in names])
     U = np.column_stack([np.asarray(recording.inputs[n], float)[rows]
                          for n in cls.action_names])
-    Yb = np.ascontiguousarray(np.repeat(np.nan_to_num(Y)[:, None, :], num, axis=1))
-    Ub = np.ascontiguousarray(np.repeat(U[:, None, :], num, axis=1))
-    tap_columns = [[names.index(n) for n in tap.names] for tap in taps]
-    suite.allocate(1)  # one unit: the taps hold member 0's channels (the copy gets its inputs)
-    x0_hat, P0 = stage.priors(num, [None] * num)
-
-    n_phys = len(design.physical)
-    x_hat = np.empty((K + 1, n_phys))
-    P_diag = None if P is None else np.empty((K + 1, n_phys))
-    nu_arr: np.ndarray | None = None
-    S_arr: np.ndarray | None = None
-    nu_pick: Any = ()
-    S_pick: Any = ()
-    has_innovation = True
-
-    def restore_taps(j: int) -> None:
-        for tap, cols in zip(taps, tap_columns, strict=True):
-            tap.last[:] = Yb[j, :1][:, cols]
-
-    inner = est.instances[0] if isinstance(est, estimators.PerMember) else est
-    step = stage.step
+    # row j as the (1, m) and (1, nu) the stage takes: views of contiguous rows
+    Yb = np.ascontiguousarray(np.nan_to_num(Y)[:, None, :])
+    Ub = np.ascontiguousarray(U[:, None, :])
+    tap_columns = [(tap, [names.index(n) for n in tap.names]) for tap in taps]
+    suite.allocate(1)
+    x0_hat, P0 = stage.priors(1, [None])
+    inner = est.instances[0] if isinstance(est, estimators.PerMember) else _innermost(est)
+    loop = _Collect(stage, inner, P is not None, Yb, Ub, tap_columns)
     bar = tqdm(total=K, desc=f"replay {cls.name}", unit="step", disable=not progress,
                leave=False)
     start = time.perf_counter()
     with bar, threadpool_limits(1):
-        restore_taps(0)
+        loop.restore_taps(0)
         stage.reset(Yb[0].copy(), None, x0_hat, P0)
-        x_hat[0] = stage.x[0]
-        if P_diag is not None:
-            P_diag[0] = stage.P[0].diagonal()
-        for j in range(1, K + 1):
-            if taps:
-                restore_taps(j)
-            step(Yb[j], Ub[j - 1], None, None)
-            x_hat[j] = stage.x[0]
-            if P_diag is not None:
-                P_diag[j] = stage.P[0].diagonal()
-            if has_innovation:
-                nu = getattr(inner, "innovation", None)
-                S = getattr(inner, "innovation_cov", None)
-                if nu_arr is None and nu is not None and S is not None:
-                    # (N, p) and (N, p, p), or one member's (p,) and (p, p)
-                    nu_pick = 0 if np.ndim(nu) == 2 else ()
-                    S_pick = 0 if np.ndim(S) == 3 else ()
-                    p = np.shape(nu)[-1]
-                    nu_arr, S_arr = np.empty((K, p)), np.empty((K, p, p))
-                try:
-                    nu_arr[j - 1] = nu[nu_pick]
-                    S_arr[j - 1] = S[S_pick]
-                except (TypeError, ValueError, IndexError):  # none, or not (N, p) and (N, p, p)
-                    has_innovation = False
-            if progress and j % 1000 == 0:
-                bar.update(1000)
-        bar.update(K - bar.n)
+        loop.first()
+        for j0 in range(1, K + 1, loop.BLOCK):
+            j1 = min(K + 1, j0 + loop.BLOCK)
+            loop.block(j0, j1)
+            bar.update(j1 - j0)
+    x_hat, P_diag, nu_arr, S_arr, has_innovation = loop.arrays()
     wall = time.perf_counter() - start
 
     notes: list[str] = []

@@ -584,10 +584,57 @@ def _check_memory(entries: list[SuiteEntry]) -> None:
                 f"{size_text(available)} available; use fewer runs", needed, available)
 
 
+def twin_entries(entries: list[Any], twin: Any, suite: str, *,
+                 selected: bool = False) -> list[Any]:
+    """A suite's entries for a twin: those of its rig, with its identified parameters.
+
+    Parameters
+    ----------
+    entries : list of SuiteEntry
+    twin : str, PathLike or testbed.identify.twin.Twin
+        A twin file or one read (:func:`testbed.identify.twin.read_twin`).
+    suite : str
+        The suite's name (for the errors).
+    selected : bool
+        The entries were chosen by name: every one must be of the twin's rig.
+
+    Returns
+    -------
+    list of SuiteEntry
+        Each with ``nominal_params`` = the twin's identified values (those not identifiable
+        stay nominal) and the twin named in its description; the entry's own configuration
+        (profile, rig options such as the Aero's ``yaw_locked``, sensors, disturbance and its
+        worst-case channel) is kept: the same unit in the entry's setting.
+
+    Raises
+    ------
+    ValueError
+        Chosen entries of another rig (named), or no entry of the twin's rig (one line).
+    """
+    from testbed.identify.twin import Twin, read_twin
+    from testbed.rigs import resolve_rig
+
+    if not isinstance(twin, Twin):
+        twin = read_twin(twin)
+    other = [e.name for e in entries if resolve_rig(e.scenario.rig).name != twin.rig]
+    if selected and other:
+        raise ValueError(f"--twin {twin.path}: a twin of rig {twin.rig!r}; the entries "
+                         f"{other} are of another rig")
+    chosen = [e for e in entries if e.name not in other]
+    if not chosen:
+        raise ValueError(f"--twin {twin.path}: suite {suite!r} has no entry of rig "
+                         f"{twin.rig!r} (its entries {other} are of other rigs)")
+    params = {name: p.value for name, p in twin.parameters.items() if p.identifiable}
+    return [e.replace(scenario=e.scenario.replace(
+                          nominal_params={**e.scenario.nominal_params, **params}),
+                      description=f"{e.description}; twin {twin.path}")
+            for e in chosen]
+
+
 def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
           runs: int | None = None, scenarios: list[str] | None = None,
           backend: str = "local", workers: int | None = None, worst_case: bool = True,
-          progress: Any = None, reference: Any = REFERENCE) -> ScoreRun:
+          progress: Any = None, reference: Any = REFERENCE, twin: Any = None) -> ScoreRun:
     """Score estimators on a suite (see the module docstring).
 
     Parameters
@@ -610,6 +657,11 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
     reference : str or callable
         The estimator every other one is compared with (default ``"kalman"``); run on every
         entry, reported only when it is among ``estimators``.
+    twin : str, PathLike or testbed.identify.twin.Twin, optional
+        A twin of a unit (``testbed identify --twin``): only the entries of its rig (those
+        of ``scenarios`` must all be), each with the twin's identified parameters as the
+        nominal ones (the simulated unit and the designer's model; an entry's parameter
+        scales apply on top); each entry keeps its own configuration (:func:`twin_entries`).
 
     Raises
     ------
@@ -636,6 +688,8 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
             raise ValueError(f"unknown scenario(s) {unknown} in suite {suite!r}; expected "
                              f"among {sorted(known)}")
         entries = [e for e in entries if e.name in scenarios]
+    if twin is not None:
+        entries = twin_entries(entries, twin, suite, selected=scenarios is not None)
     if runs is not None:
         if isinstance(runs, bool) or int(runs) != runs or runs < 2:
             raise ValueError(f"runs must be an integer >= 2, got {runs!r}")

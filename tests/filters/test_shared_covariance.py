@@ -324,7 +324,7 @@ def test_kalman_covariance_memo_shared_between_threads_is_bitwise_unshared(
     system = _discrete(rng, 4)
     other = _discrete(rng, 4)
     T = 150
-    sizes = (5, 3, 5, 1)  # a batch of one has no shared member: it never uses the memo
+    sizes = (5, 3, 5, 1)  # a batch of one is its own shared member: it uses the memo too
     x0s = [rng.standard_normal((N, 4)) for N in sizes]
     P0 = _spd(rng, 4)
     data = [(rng.standard_normal((T, N, 2)), rng.standard_normal((T, N, 1))) for N in sizes]
@@ -351,9 +351,9 @@ def test_kalman_covariance_memo_shared_between_threads_is_bitwise_unshared(
         before = len(calls)
         run(j, None, alone[j])
         per_batch.append(len(calls) - before)
-    # one sequence per batch with a shared member (until it settles into a cycle); the batch
-    # of one computes its stack every step
-    assert per_batch[0] == per_batch[1] > 0 and per_batch[2] > 0 and per_batch[3] == T
+    # one sequence per batch (until it settles into a cycle), the batch of one's too
+    assert per_batch[0] == per_batch[1] == per_batch[3] > 0 and per_batch[2] > 0
+    assert per_batch[0] < T
     calls.clear()
     memo = kalman.CovarianceMemo()
     together: list[list] = [[] for _ in sizes]
@@ -366,8 +366,8 @@ def test_kalman_covariance_memo_shared_between_threads_is_bitwise_unshared(
     for a, b in zip(alone, together, strict=True):
         assert len(a) == len(b)
         assert all(np.array_equal(u, v) and u.shape == v.shape for u, v in zip(a, b, strict=True))
-    # the two batches of `system` computed its sequence once, `other` its own
-    assert len(calls) == per_batch[0] + per_batch[2] + T
+    # the three batches of `system` computed its sequence once, `other` its own
+    assert len(calls) == per_batch[0] + per_batch[2]
     assert len(memo._tables) == 2 and len(memo) == per_batch[0] + per_batch[2]
     with pytest.raises(TypeError, match="CovarianceMemo"):
         KalmanFilter(system, x0s[0], P0).share_covariance_memo({})  # type: ignore[arg-type]
@@ -552,3 +552,26 @@ def test_kalman_shared_p_step_ahead_that_would_warn_warns_at_its_time(
     _without_sharing(monkeypatch)
     assert got == _underflow_warnings(False)
     assert got[0] == 0 and sum(got) > 1
+
+
+@pytest.mark.parametrize("n", [1, 4, 7])
+def test_kalman_batch_of_one_shares_its_covariance_bitwise_as_the_stack(
+        n: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch of one takes the shared-covariance path (its memo, its steps ahead): every
+    public value bitwise the stack path's (a batch of one without sharing)."""
+    rng = np.random.default_rng(60 + n)
+    system = _discrete(rng, n)
+    x0, P0 = rng.standard_normal((1, n)), _spd(rng, n)
+    ys, us = rng.standard_normal((40, 1, 2)), rng.standard_normal((40, 1, 1))
+    f = KalmanFilter(system, x0, P0)
+    assert f.shared_P is not None and f.shared_P.shape == (n, n)
+    shared = _kalman_run(f, ys, us)
+    assert f.shared_innovation_cov is not None
+    assert np.array_equal(f.shared_innovation_cov, f.innovation_cov[0])
+    assert not f.shared_P.flags.writeable and not f.P.flags.writeable  # the kept arrays
+    monkeypatch.setattr(KalmanFilter, "_shared", lambda self, P: None)
+    g = KalmanFilter(system, x0, P0)
+    assert g.shared_P is None
+    stack = _kalman_run(g, ys, us)
+    assert all(np.array_equal(a, b) and a.shape == b.shape
+               for a, b in zip(shared, stack, strict=True))

@@ -633,7 +633,7 @@ class HelicopterRig(Rig):
         Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
         nominal = self.params  # what the designer knows (nominal or a twin's): never the truth
 
-        unbalanced_input = functools.partial(_unbalanced_input, nominal)  # pickles
+        unbalanced_input = _UnbalancedInput(nominal)
         paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
                              np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                              input_transform=unbalanced_input,
@@ -696,9 +696,11 @@ class HelicopterRig(Rig):
         accel_row = A[2].copy()
         resting = PITCH_LIMIT_RAD - STOP_TOLERANCE_RAD
 
+        gravity = _UnbalancedInput(nominal).voltage
+
         def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
             pitch = x_hat[:, 0]
-            v_g = gravity_voltage(nominal, pitch)
+            v_g = gravity(pitch)
             volts = current_limited(deadband(u, consts[:2]), x_hat[:, 4:6] + v_g,
                                     consts[2:4], consts[4:6])
             accel = x_hat[:, :6] @ accel_row  # the model's pitch acceleration now
@@ -718,10 +720,33 @@ class HelicopterRig(Rig):
                                                 from_states=np.eye(2), relative=np.eye(2))})
 
 
-def _unbalanced_input(nominal: HelicopterParams, u: np.ndarray,
-                      x_hat: np.ndarray) -> np.ndarray:
-    """The design's input transform: the applied voltages minus the gravity voltage."""
-    return u - gravity_voltage(nominal, x_hat[:, 0])
+class _UnbalancedInput:
+    """The design's input transform: the applied voltages minus :func:`gravity_voltage` at
+    the estimated pitch, with the parameters' constants (``m g l`` and the volts per N m)
+    computed once instead of on every step (the same operations on the same numbers: the
+    same values bitwise); picklable.
+
+    Parameters
+    ----------
+    nominal : HelicopterParams
+        The designer's parameters.
+    """
+
+    def __init__(self, nominal: HelicopterParams):
+        self.nominal = nominal
+        self._torque_n_m = nominal.mass_kg * GRAVITY_M_S2 * nominal.com_m  # times cos(pitch)
+        self._volts_per_n_m = _volts_per_pitch_newton_metre(nominal)
+
+    def voltage(self, pitch_rad: np.ndarray) -> np.ndarray:
+        """:func:`gravity_voltage` ``(nominal, pitch_rad)``, shape (..., 2), V."""
+        torque = self._torque_n_m * np.cos(np.asarray(pitch_rad, float))
+        return torque[..., None] * self._volts_per_n_m
+
+    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
+        """``u`` (N, 2) V minus the gravity voltage at ``x_hat[:, 0]`` (N,) rad (the
+        operations of :meth:`voltage`, inline: this runs every step)."""
+        torque = self._torque_n_m * np.cos(np.asarray(x_hat[:, 0], float))
+        return u - torque[..., None] * self._volts_per_n_m
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):
@@ -738,12 +763,16 @@ def hardware_imu(hardware: HelicopterHardware, dt_s: float):
     if not (np.isfinite(dt_s) and dt_s > 0):
         raise ValueError(f"dt_s must be a positive sampling period in s, got {dt_s}")
     hw = hardware
+    # control periods per IMU sample (a loop faster than the IMU holds its sample; one
+    # slower reads its latest sample every period); the IMU's own period, rounded to whole
+    # control periods, is what its noise and bias walk are per sample
+    hold = max(1, int(round(1.0 / (hw.imu_rate_hz * dt_s))))
+    imu_dt_s = hold * dt_s if hold > 1 else dt_s
     imu = ScaleFactor(HelicopterIMU(), initial_std=hw.scale_factor_std)
-    imu = BiasRandomWalk(imu, walk=[hw.gyro_bias_walk, hw.gyro_bias_walk, 0.0], dt_s=dt_s,
+    imu = BiasRandomWalk(imu, walk=[hw.gyro_bias_walk, hw.gyro_bias_walk, 0.0], dt_s=imu_dt_s,
                          initial_std=[hw.gyro_bias0_std, hw.gyro_bias0_std, hw.accel_bias0_std])
     imu = WhiteNoise(imu, density=[hw.gyro_noise_density, hw.gyro_noise_density,
-                                   hw.accel_noise_density], dt_s=dt_s)
-    hold = int(round(1.0 / (hw.imu_rate_hz * dt_s)))
+                                   hw.accel_noise_density], dt_s=imu_dt_s)
     if hold > 1:
         imu = SampleAndHold(imu, hold)
     return Delay(imu, max(1, int(round(hw.imu_delay_s / dt_s))))
