@@ -4,19 +4,19 @@ One contract for the filters of this library and for any user's estimator (the t
 plug-ins, ``--filter module:factory``). :class:`Estimator` is what every estimator has; the
 optional protocols name what some have, and the testbed uses it where it is there:
 
-=====================  =====================================================================
-:class:`Estimator`     ``x``, ``P`` (or None), ``reset(x0, P0)``, ``step(y, u)``
-:class:`Innovations`   ``innovation``, ``innovation_cov`` after a step (``testbed score``:
-                       NIS, ANIS, whiteness)
-:class:`Batched`       ``batched = True``: ``x``, ``y``, ``u``, ``P`` carry a leading batch
-                       axis and one instance runs a whole Monte-Carlo batch
-:class:`Primed`        ``prime(y)``: use the first sample (at reset)
-:class:`ChannelRequest` ``channels``: other channels of the sensor vector (indices, or
-                       ``"all"``)
-:class:`DesignFacts`   ``design_meta``: design facts for outputs (``gamma``, ...)
-:class:`Named`         ``name``: a short label (the command line, ``testbed score``'s tables)
-:class:`Timed`         ``t_s``: time of the last processed measurement (every filter here)
-=====================  =====================================================================
+========================  ==================================================================
+:class:`Estimator`        ``x``, ``P`` (or None), ``reset(x0, P0)``, ``step(y, u)``
+:class:`Innovations`      ``innovation``, ``innovation_cov`` after a step (``testbed score``:
+                          NIS, ANIS, whiteness)
+:class:`Batched`          ``batched = True``: ``x``, ``y``, ``u``, ``P`` carry a leading batch
+                          axis and one instance runs a whole Monte-Carlo batch
+:class:`Primed`           ``prime(y)``: use the first sample (at reset)
+:class:`ChannelRequest`   ``channels``: other channels of the sensor vector (indices, or
+                          ``"all"``)
+:class:`DesignFacts`      ``design_meta``: design facts for outputs (``gamma``, ...)
+:class:`Named`            ``name``: a short label (the command line, ``testbed score``'s tables)
+:class:`Timed`            ``t_s``: time of the last processed measurement (every filter here)
+========================  ==================================================================
 
 All are :func:`typing.runtime_checkable` (``isinstance`` checks that the members exist, not
 their types or shapes). Every filter of :mod:`filters` is an :class:`Estimator`,

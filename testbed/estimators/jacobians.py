@@ -83,7 +83,7 @@ def differences(values: np.ndarray, eps: float, centered: bool) -> np.ndarray:
 
 
 def linearization_steps(frame_skip: int, points: int) -> np.ndarray:
-    """The physics steps at which the period is linearized: ``points`` of ``0 .. N - 1``,
+    """The physics steps at which the period is linearized: ``points`` of ``0``, ..., ``N - 1``,
     evenly spread from 0 (``floor(j N / points)``).
 
     Parameters
@@ -216,7 +216,7 @@ def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
 
 
 def _powers(A: np.ndarray, count: int) -> np.ndarray:
-    """``A^0 .. A^(count - 1)`` of a stack ``A`` (M, r, r): shape (M, count, r, r), by
+    """``A^0``, ..., ``A^(count - 1)`` of a stack ``A`` (M, r, r): shape (M, count, r, r), by
     doubling (``log2(count)`` stacked products)."""
     M, r, _ = A.shape
     out = np.empty((M, count, r, r))
