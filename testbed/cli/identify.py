@@ -12,6 +12,10 @@ from testbed.cli import values
 from testbed.cli.outputs import wrote
 from testbed.cli.replay import add_recording_arguments
 
+#: A held-out channel whose spread is below this many times its noise level is reported as not
+#: excited (a fit near 0 % there is the noise, not the model).
+UNEXCITED_SIGNAL_TO_NOISE = 3.0
+
 
 def _names(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
@@ -88,4 +92,10 @@ def format_identification(result: Any) -> str:
     if result.holdout_fit_percent:
         lines.append("held-out fit: " + ", ".join(
             f"{ch} {v:.1f} %" for ch, v in result.holdout_fit_percent.items()))
+        quiet = {ch: r for ch, r in result.holdout_signal_to_noise().items()
+                 if r < UNEXCITED_SIGNAL_TO_NOISE}
+        if quiet:
+            lines.append("  not excited in the held-out part (its spread over the noise: "
+                         + ", ".join(f"{ch} {r:.2g}" for ch, r in quiet.items())
+                         + "): its fit compares the prediction with the noise")
     return "\n".join(lines)

@@ -228,6 +228,23 @@ class Identification:
     holdout: float = 0.0
     sensor_preset: str = ""
 
+    def holdout_signal_to_noise(self) -> dict[str, float]:
+        """Per channel, the held-out part's spread over the channel's noise level
+        (``std(y_holdout) / sqrt(noise_std^2 + q^2 / 12)`` with ``q`` the quantization step;
+        empty without a held-out part). Near 1 the held-out part has no excitation: its NRMSE
+        fit compares the prediction with the noise and says nothing of the model (a still
+        end of the recording fits near 0 %)."""
+        if self.n_fit >= len(self.time_s):
+            return {}
+        out = {}
+        for c, name in enumerate(self.channels):
+            sensor = self.sensors.get(name, {})
+            noise = math.hypot(float(sensor.get("noise_std") or 0.0),
+                               float(sensor.get("quantization_step") or 0.0) / math.sqrt(12))
+            spread = float(np.std(self.measured[self.n_fit:, c]))
+            out[name] = spread / noise if noise > 0 else float("inf")
+        return out
+
     def params_scales(self) -> dict[str, float]:
         """Scale factors of the fitted parameters relative to nominal (held ones omitted)."""
         return {n: p.scale for n, p in self.parameters.items() if p.identifiable}
@@ -243,6 +260,7 @@ class Identification:
                             "matrix": np.round(self.correlation, 6).tolist()},
             "sensors": self.sensors, "fit_percent": self.fit_percent,
             "holdout_fit_percent": self.holdout_fit_percent,
+            "holdout_signal_to_noise": self.holdout_signal_to_noise(),
             "free_run_fit_percent": self.free_run_fit_percent,
             "method": self.method, "method_reason": self.method_reason,
             "segment_s": self.segment_s,

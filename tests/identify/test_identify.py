@@ -3,6 +3,7 @@ the sensor model from a still segment, the method choice and bad input."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -144,7 +145,15 @@ def test_helicopter_hardware_noisy_short(tmp_path):
         assert res.parameters[name].scale == pytest.approx(truth, rel=0.05), name
     assert min(res.fit_percent.values()) >= 95.0
     assert set(res.holdout_fit_percent) == {"pitch", "yaw", "pitch_rate", "yaw_rate"}
+    # the held-out part's excitation: its spread over the noise level, near 0 for a still end
+    snr = res.holdout_signal_to_noise()
+    assert set(snr) == set(res.holdout_fit_percent)
+    still = res.measured.copy()
+    still[res.n_fit:] = still[res.n_fit]
+    quiet = dataclasses.replace(res, measured=still).holdout_signal_to_noise()
+    assert max(quiet.values()) < 1e-9 and max(snr.values()) > 3.0
     doc = json.loads(json.dumps(res.to_json()))
+    assert doc["holdout_signal_to_noise"] == pytest.approx(snr)
     p = doc["parameters"]["K_pp"]
     assert set(p) >= {"value", "ci95", "nominal", "identifiable", "scale"}
     assert p["value"] == pytest.approx(p["scale"] * p["nominal"])
