@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from filters import DiscreteLinearSystem, LinearSystem
+from testbed.design.held_noise import rig_held_noise
 from testbed.sensors import Sensor, SensorModel
 
 
@@ -178,8 +179,8 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
     if output_matrix is None:
         output_matrix = np.eye(rig.n_states)[rig.tracked_index]
     discrete = plant.discretize(dt_s)
-    held = _held_noise(rig, dt_s, np.asarray(A, float), np.asarray(Q, float)) if held_noise \
-        else None
+    held = rig_held_noise(rig, dt_s, np.asarray(A, float), np.asarray(Q, float)) \
+        if held_noise else None
     if held is not None:
         discrete = DiscreteLinearSystem(F=discrete.F, B=discrete.B, H=discrete.H, Q=held,
                                         R=discrete.R, dt_s=dt_s, D=discrete.D)
@@ -193,30 +194,6 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
         extras={"cubic_model": getattr(type(rig), "cubic_model", None),
                 "parameter_mismatch": _mismatch(rig), **_designer(rig), **(extras or {})})
-
-
-def _held_noise(rig, dt_s: float, A: np.ndarray, Q: np.ndarray) -> np.ndarray | None:
-    """The per-sample covariance of the rig's physical noise as the simulator applies it
-    (:mod:`testbed.design.held_noise`), shape (n_rig, n_rig), from the physical block of
-    ``A`` and ``Q``; None for a rig without MuJoCo physics, an integrator other than Euler
-    or the implicit ones, a period that is not a whole number of physics steps, or a ``Q``
-    with position rows (not a force's noise)."""
-    from testbed.design.held_noise import (
-        acts_on_velocities,
-        held_acceleration_map,
-        held_noise_covariance,
-        implicit_damping,
-    )
-
-    n, j = rig.n_states, len(getattr(rig, "joints", ()))
-    model = getattr(rig, "model", None)
-    if model is None or not j or not acts_on_velocities(Q[:n, :n], j):
-        return None
-    implicit = implicit_damping(model)
-    if implicit is None:
-        return None
-    E = held_acceleration_map(A[:n, :n], j, dt_s, float(model.opt.timestep), implicit)
-    return None if E is None else held_noise_covariance(E, Q[:n, :n], j, dt_s)
 
 
 def _designer(rig) -> dict[str, Any]:
@@ -383,7 +360,7 @@ def consider_parameters(channels: list[tuple[int, str, float]], H: np.ndarray, D
     from filters.schmidt import ConsiderParameter
 
     out = []
-    m, k = D.shape
+    k = D.shape[1]
     for row, name, std in channels:
         if not std:
             continue

@@ -105,3 +105,33 @@ def acts_on_velocities(intensity: np.ndarray, n_joints: int) -> bool:
     """Whether a noise intensity has zero position rows and columns (a force's noise)."""
     Q = np.asarray(intensity, float)
     return not (np.any(Q[:n_joints]) or np.any(Q[:, :n_joints]))
+
+
+def rig_held_noise(rig, dt_s: float, A: np.ndarray, Q: np.ndarray) -> np.ndarray | None:
+    """The per-sample covariance of a rig's physical noise as the simulator applies it.
+
+    Parameters
+    ----------
+    rig : testbed.rigs.base.Rig
+    dt_s : float
+        Control period, s.
+    A, Q : ndarray, shapes (n0, n0)
+        A design's continuous model and intensity; their first ``rig.n_states`` rows and
+        columns (the physical states) are used.
+
+    Returns
+    -------
+    ndarray, shape (n_rig, n_rig), or None
+        None for a rig without MuJoCo physics, an integrator other than Euler or the
+        implicit ones, a period that is not a whole number of physics steps, or a ``Q``
+        with position rows (not a force's noise).
+    """
+    n, j = rig.n_states, len(getattr(rig, "joints", ()))
+    model = getattr(rig, "model", None)
+    if model is None or not j or not acts_on_velocities(Q[:n, :n], j):
+        return None
+    implicit = implicit_damping(model)
+    if implicit is None:
+        return None
+    E = held_acceleration_map(A[:n, :n], j, dt_s, float(model.opt.timestep), implicit)
+    return None if E is None else held_noise_covariance(E, Q[:n, :n], j, dt_s)

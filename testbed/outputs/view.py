@@ -173,6 +173,20 @@ def stop_group(proc: subprocess.Popen, grace_s: float = GRACE_S) -> None:
         pass
 
 
+def _wait_until_served(proc: subprocess.Popen, port: int, what: str,
+                       deadline: float) -> None:
+    """Wait until the viewer ``proc`` answers on ``port``; ``OSError`` if it exits first or
+    the monotonic ``deadline`` passes."""
+    while not _answers(port):
+        if proc.poll() is not None:
+            raise OSError(f"the Rerun viewer exited with code {proc.returncode} before "
+                          "serving")
+        if time.monotonic() > deadline:
+            raise OSError(f"the Rerun {what} did not answer on port {port} within "
+                          f"{START_TIMEOUT_S:g} s")
+        time.sleep(0.1)
+
+
 def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PORT,
          web_port: int = WEB_PORT, timeout_s: float | None = None,
          echo: Callable[[str], None] = print) -> int:
@@ -217,22 +231,9 @@ def view(path: str | os.PathLike, *, web: bool = False, grpc_port: int = GRPC_PO
     try:
         if web:
             deadline = time.monotonic() + START_TIMEOUT_S
-            while not _answers(web_port):
-                if proc.poll() is not None:
-                    raise OSError(f"the Rerun viewer exited with code {proc.returncode} "
-                                  "before serving")
-                if time.monotonic() > deadline:
-                    raise OSError(f"the Rerun web viewer did not answer on port {web_port} "
-                                  f"within {START_TIMEOUT_S:g} s")
-                time.sleep(0.1)
-            while not _answers(grpc_port):  # the file's server: the recording is being read
-                if proc.poll() is not None:
-                    raise OSError(f"the Rerun viewer exited with code {proc.returncode} "
-                                  "before serving")
-                if time.monotonic() > deadline:
-                    raise OSError(f"the Rerun gRPC server did not answer on port {grpc_port} "
-                                  f"within {START_TIMEOUT_S:g} s")
-                time.sleep(0.1)
+            _wait_until_served(proc, web_port, "web viewer", deadline)
+            # the file's server: the recording is being read
+            _wait_until_served(proc, grpc_port, "gRPC server", deadline)
             echo(f"open {web_url(web_port, grpc_port)} in a browser (Ctrl-C stops the viewer)")
             echo(loading_note(p))
         if not web:

@@ -184,6 +184,7 @@ class LinearPlantRig(Rig):
         (``x0_from_prior``).
         """
         from testbed.design import build_design
+        from testbed.design.held_noise import held_noise_covariance
 
         A, B = self.linearize()
         b = None if disturbance is None else disturbance.b
@@ -192,9 +193,9 @@ class LinearPlantRig(Rig):
         design = build_design(self, sensors, dt_s, A, B, Q, np.zeros(2),
                               np.diag(np.square(PRIOR_STD)), disturbance_matrix=G)
         F, Bd, E = self.discrete_map(dt_s)
-        Qd = np.zeros((2, 2)) if b is None else E @ (b[1:] @ b[1:].T / dt_s) @ E.T
+        Qd = np.zeros((2, 2)) if b is None else held_noise_covariance(E, Q, 1, dt_s)
         plant = design.discrete
-        design.discrete = DiscreteLinearSystem(F=F, B=Bd, H=plant.H, Q=0.5 * (Qd + Qd.T),
+        design.discrete = DiscreteLinearSystem(F=F, B=Bd, H=plant.H, Q=Qd,
                                                R=plant.R, dt_s=dt_s, D=plant.D)
         design.extras["exact_discrete"] = True
         return design
