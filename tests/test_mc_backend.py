@@ -31,7 +31,18 @@ def test_sharded_study_writes_no_npz_or_envelope(tmp_path):
     scenario = Scenario(rig="helicopter", estimator="kalman", duration_s=0.1)
     with pytest.raises(ValueError, match="npz"):
         monte_carlo(scenario, 2, progress=False, backend="local", save_npz=tmp_path / "a.npz")
-    assert main(["mc", "helicopter", "--runs", "2", "--workers", "2"]) != 0
+    assert main(["mc", "helicopter", "--runs", "2", "--workers", "2",
+                 "--plot", str(tmp_path / "a.png")]) == 2  # --workers alone means local
+
+
+def test_workers_alone_shard_locally(tmp_path, capsys):
+    """``mc --workers N`` without ``--backend`` is the local backend (the same results)."""
+    args = ["mc", "helicopter", "--runs", "3", "--duration", "0.2", "--no-progress", "--json"]
+    assert main([*args, str(tmp_path / "one.json")]) == 0
+    assert main([*args, str(tmp_path / "two.json"), "--workers", "2"]) == 0
+    one, two = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("one", "two"))
+    assert two["backend"] == "local" and two["workers"] == 2
+    assert two["rmse"] == one["rmse"]
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="needs Ray")

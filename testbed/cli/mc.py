@@ -29,9 +29,10 @@ def add_arguments(mc: argparse.ArgumentParser) -> None:
                     help="shard the runs over local processes or Ray tasks (each run keeps "
                     "its seed: the same results as in one process); default: one process")
     mc.add_argument("--workers", type=values.positive_int, default=None,
-                    help="shards / worker processes with --backend (default: the CPUs)")
+                    help="shards / worker processes (alone: --backend local; default with a "
+                         "backend: the CPUs)")
     mc.add_argument("--address", default=None,
-                    help="Ray cluster address host:port (with --backend ray; default: a local "
+                    help="Ray cluster address host:port (alone: --backend ray; default: a local "
                     "Ray instance)")
     deferred.defer_defaults(mc)
 
@@ -62,10 +63,12 @@ def command(args: argparse.Namespace) -> int:
     runs = study_value(args, source, "runs")
     if args.save_scenario:
         return save_scenario(args, scenario, runs=runs)
-    if args.backend is None and (args.workers is not None or args.address is not None):
-        raise ValueError("--workers and --address need --backend")
+    if args.backend is None and args.address is not None:
+        args.backend = "ray"  # a cluster address means Ray
+    elif args.backend is None and args.workers is not None:
+        args.backend = "local"  # worker processes mean the local backend
     if args.backend is not None and (args.save_npz or args.plot):
-        raise ValueError("--backend shards the runs: without --save-npz and --plot")
+        raise ValueError("--backend/--workers shard the runs: without --save-npz and --plot")
     if args.address is not None:
         from testbed.experiment.backend import check_ray_address
 
