@@ -13,8 +13,7 @@ from testbed.design import DesignModel
 from testbed.experiment.control import make_controller
 from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
-from testbed.experiment.scenario import Scenario, blame
-from testbed.rigs import resolve_rig
+from testbed.experiment.scenario import Scenario, blame, resolve
 from testbed.rigs.base import build_rig
 from testbed.sim import build_simulator
 
@@ -38,26 +37,6 @@ class Experiment:
         self.loop.close()
 
 
-def with_defaults(scenario: Scenario) -> Scenario:
-    """Fill the fields the user left unset from the rig's and the estimator's defaults."""
-    rig = resolve_rig(scenario.rig)
-    changes: dict[str, Any] = {}
-    for key, value in rig.scenario_defaults.items():
-        if getattr(scenario, key) is None:
-            changes[key] = value
-    name = scenario.estimator if isinstance(scenario.estimator, str) else None
-    needs = estimators.SCENARIO_DEFAULTS.get(name, {})
-    if needs.get("disturbance") not in rig.disturbance_signals:
-        needs = {}  # the rig lacks what the estimator needs: its factory says so
-    for key, value in needs.items():
-        if key == "disturbance_channel":
-            if scenario.sensors is None or isinstance(scenario.sensors, str):
-                changes["sensor_options"] = {**scenario.sensor_options, key: value}
-        elif getattr(scenario, key) is None:
-            changes[key] = value
-    return scenario.replace(**changes) if changes else scenario
-
-
 def described(scenario: Scenario) -> dict[str, Any]:
     """The ``scenario`` block of the outputs: :meth:`Scenario.describe` without the fields
     left at None (TOML has no null; a missing key is the default), so that the block saved
@@ -74,17 +53,10 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
         A bad or inapplicable option (a ``ValueError`` naming the field), before any
         simulation runs.
     """
-    resolved = scenario.take_resolved()
-    defaulted = with_defaults(scenario)
-    sensors, sensor_kwargs = resolved.sensors, None
-    if (defaulted.sensors, defaulted.sensor_options) != (scenario.sensors,
-                                                         scenario.sensor_options):
-        # a default of the rig or the estimator changed the preset: build that one
-        sensors, sensor_kwargs = defaulted.sensors, defaulted.sensor_options or None
-    scenario = defaulted
+    resolved = resolve(scenario)
+    scenario = resolved.scenario  # the rig's and the estimator's defaults filled
     sim = build_simulator(resolved.rig, num, physics_dt_s=scenario.physics_dt_s,
-                          frame_skip=scenario.frame_skip, sensors=sensors,
-                          sensor_kwargs=sensor_kwargs,
+                          frame_skip=scenario.frame_skip, sensors=resolved.sensors,
                           disturbance=scenario.disturbance,
                           process_noise=scenario.process_noise, setpoints=scenario.setpoints,
                           manoeuvre=scenario.manoeuvre,

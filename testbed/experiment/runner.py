@@ -13,8 +13,9 @@ the memory estimate) and :mod:`~testbed.experiment.sweep` (grids); the ``.npz`` 
 study is :mod:`testbed.io.trajectory_stream`.
 """
 
-from testbed.experiment.build import Experiment, build, described, run_seeds, with_defaults
+from testbed.experiment.build import Experiment, build, described, run_seeds
 from testbed.experiment.episode import RECORD_MAX_ROWS, run
+from testbed.experiment.scenario import with_defaults
 from testbed.experiment.study import (
     DEFAULT_BATCH_SIZE,
     TIMING_KEYS,

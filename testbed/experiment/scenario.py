@@ -140,38 +140,31 @@ def _number(field: str, value: Any, *, positive: bool = False) -> float:
     return value
 
 
-def _frozen(value: Any) -> Any:
-    """A comparable snapshot of a field value (objects by identity)."""
-    if isinstance(value, dict):
-        return ("dict", tuple(sorted((str(k), _frozen(v)) for k, v in value.items())))
-    if isinstance(value, list | tuple):
-        return ("seq", tuple(_frozen(v) for v in value))
-    if isinstance(value, np.ndarray):
-        return ("array", value.dtype.str, value.shape, value.tobytes())
-    if value is None or isinstance(value, str | int | float | bool | np.generic):
-        return value
-    return ("id", id(value))
-
-
 @dataclass(frozen=True)
 class Resolved:
-    """What :meth:`Scenario.check` resolved, taken by the build (check once, build once).
+    """A scenario resolved by :func:`resolve`: its defaults filled, every field checked, the
+    rig and sensors built (the build takes them: resolve once, build once).
 
     Attributes
     ----------
+    scenario : Scenario
+        The scenario with the rig's and the estimator's defaults filled
+        (:func:`with_defaults`): the one that was checked and that the build runs.
     rig_cls : type
         The rig class.
     rig : Rig
         The rig built for the scenario's ``profile`` and ``physics_dt_s`` at nominal
         parameters: it becomes the simulated rig (its MJCF is read once for it).
     sensors : Sensor
-        The sensor suite built from the preset and its options (or the scenario's object).
+        The sensor suite built from the (defaulted) preset and its options, or the
+        scenario's object.
     factory : callable
         The estimator factory.
     """
 
+    scenario: Scenario
     rig_cls: type
-    rig: Any
+    rig: Rig
     sensors: Any
     factory: Any
 
@@ -278,57 +271,35 @@ class Scenario:
                              f"{sorted(names)}")
         return dataclasses.replace(self, **changes)
 
-    def __getstate__(self) -> dict[str, Any]:
-        """Pickle and copy the fields only (not the built rig of :meth:`check`)."""
-        return {k: v for k, v in self.__dict__.items() if k != "_resolved"}
-
-    def _snapshot(self) -> tuple:
-        return tuple(_frozen(getattr(self, f.name)) for f in dataclasses.fields(self))
-
-    def take_resolved(self) -> Resolved:
-        """:meth:`check`'s result for one build: the built rig and sensors belong to the
-        caller afterwards, so the next call checks and builds anew."""
-        resolved = self.check()
-        self.__dict__.pop("_resolved", None)
-        return resolved
-
     def check(self) -> Resolved:
-        """Validate every field before anything is built or simulated.
+        """Validate every field before anything is built or simulated: :func:`resolve`.
 
         Checks types and ranges, the options against the rig (parameters, sensor presets,
         disturbances, manoeuvres, design options, setpoints) and the estimator (its name
-        and, when its factory declares them, its option names). The values of estimator and
-        design options are checked when :func:`testbed.experiment.runner.build` builds them.
+        and, when its factory declares them, its option names), after the rig's and the
+        estimator's defaults are filled. The values of estimator and design options are
+        checked when :func:`testbed.experiment.runner.build` builds them.
 
         Returns
         -------
         Resolved
-            The rig class, the rig and the sensor suite built for the check, and the
-            estimator factory: :func:`testbed.experiment.runner.build` takes them
-            (:meth:`take_resolved`) instead of building them again. A second ``check`` of an
-            unchanged scenario returns the same object without work.
+            The defaulted scenario, the rig class, the rig and the sensor suite built for the
+            check, and the estimator factory. Each call resolves anew (the scenario is not
+            changed and keeps nothing).
 
         Raises
         ------
         ScenarioError
             A bad value or an option the rig does not have; ``field`` names the field.
         """
-        snapshot = self._snapshot()
-        cached = self.__dict__.get("_resolved")
-        if cached is not None and cached[0] == snapshot:
-            return cached[1]
-        resolved = self._check()
-        self.__dict__["_resolved"] = (snapshot, resolved)
-        return resolved
+        return resolve(self)
 
-    def _check(self) -> Resolved:
-        """The work of :meth:`check`."""
+    def _check_fields(self, rig_cls: type) -> Resolved:
+        """:func:`resolve`'s checks of a scenario whose defaults are filled."""
         from testbed import estimators
         from testbed.experiment.control import CONTROLLERS
         from testbed.rigs.disturbances import Disturbance
 
-        with blame("rig"):
-            rig_cls = resolve_rig(self.rig)
         if self.profile not in rig_cls.profiles:
             raise ScenarioError("profile", f"profile must be one of {rig_cls.profiles} for rig "
                                 f"{rig_cls.name!r}, got {self.profile!r}")
@@ -354,11 +325,6 @@ class Scenario:
         if not _is_int(self.seed) or not 0 <= self.seed <= MAX_SEED:
             raise ScenarioError("seed", f"seed must be an integer in [0, 2**63), got "
                                 f"{self.seed!r}")
-        for name in ("estimator_options", "sensor_options", "manoeuvre_params", "params",
-                     "design_options", "rig_options", "nominal_params"):
-            if not isinstance(getattr(self, name), dict):
-                raise ScenarioError(name, f"{name} must be a dict, got "
-                                    f"{type(getattr(self, name)).__name__}")
         if self.controller is not None and self.controller not in CONTROLLERS:
             raise ScenarioError("controller", f"unknown controller {self.controller!r}; "
                                 f"expected one of {CONTROLLERS}")
@@ -421,7 +387,8 @@ class Scenario:
                                     "(no tracked states)")
             with blame("setpoints"):
                 rig.validate_setpoints(self.setpoints)
-        return Resolved(rig_cls=rig_cls, rig=rig, sensors=sensors, factory=factory)
+        return Resolved(scenario=self, rig_cls=rig_cls, rig=rig, sensors=sensors,
+                        factory=factory)
 
     def _check_manoeuvre(self, rig: Rig) -> None:
         """The manoeuvre (or the rig's default) and its parameters."""
@@ -463,3 +430,72 @@ class Scenario:
                 value = value.describe()
             out[f.name] = value
         return out
+
+
+#: The scenario fields that hold option tables (checked to be dicts before defaults fill them).
+OPTION_FIELDS = ("estimator_options", "sensor_options", "manoeuvre_params", "params",
+                 "design_options", "rig_options", "nominal_params")
+
+
+def resolve(scenario: Scenario) -> Resolved:
+    """The scenario's defaults filled, then every field checked, the rig and sensors built.
+
+    A pure function of ``scenario`` (which it does not change): the rig class is resolved and
+    the option fields checked to be tables first (filling the defaults needs both), then
+    :func:`with_defaults` fills what the user left unset and the result is checked as a whole
+    (:meth:`Scenario.check` documents the checks).
+
+    Parameters
+    ----------
+    scenario : Scenario
+
+    Returns
+    -------
+    Resolved
+
+    Raises
+    ------
+    ScenarioError
+        A bad value or an option the rig does not have; ``field`` names the field.
+    """
+    with blame("rig"):
+        rig_cls = resolve_rig(scenario.rig)
+    for name in OPTION_FIELDS:
+        value = getattr(scenario, name)
+        if not isinstance(value, dict):
+            raise ScenarioError(name, f"{name} must be a dict, got {type(value).__name__}")
+    return with_defaults(scenario, rig_cls)._check_fields(rig_cls)
+
+
+def with_defaults(scenario: Scenario, rig_cls: type | None = None) -> Scenario:
+    """Fill the fields the user left unset from the rig's and the estimator's defaults.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    rig_cls : type, optional
+        The scenario's rig class (resolved from ``scenario.rig`` when not given).
+
+    Returns
+    -------
+    Scenario
+        A copy with the defaults filled (``scenario`` itself when there is nothing to fill).
+    """
+    from testbed import estimators
+
+    rig = rig_cls if rig_cls is not None else resolve_rig(scenario.rig)
+    changes: dict[str, Any] = {}
+    for key, value in rig.scenario_defaults.items():
+        if getattr(scenario, key) is None:
+            changes[key] = value
+    name = scenario.estimator if isinstance(scenario.estimator, str) else None
+    needs = estimators.SCENARIO_DEFAULTS.get(name, {})
+    if needs.get("disturbance") not in rig.disturbance_signals:
+        needs = {}  # the rig lacks what the estimator needs: its factory says so
+    for key, value in needs.items():
+        if key == "disturbance_channel":
+            if scenario.sensors is None or isinstance(scenario.sensors, str):
+                changes["sensor_options"] = {**scenario.sensor_options, key: value}
+        elif getattr(scenario, key) is None:
+            changes[key] = value
+    return scenario.replace(**changes) if changes else scenario

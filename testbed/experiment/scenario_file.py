@@ -269,7 +269,8 @@ def _plain(value: Any) -> Any:
 def block(scenario: Scenario) -> dict[str, Any]:
     """The scenario block of the JSON outputs: every field, the rig's and the estimator's
     defaults filled in (what ran), JSON-ready; :func:`read` accepts it unchanged."""
-    from testbed.experiment.build import described, with_defaults
+    from testbed.experiment.build import described
+    from testbed.experiment.scenario import with_defaults
 
     return {k: (_plain(v) if isinstance(v, dict | list | tuple | np.ndarray | np.generic) else v)
             for k, v in described(with_defaults(scenario)).items()}

@@ -312,8 +312,8 @@ def _run_lanes(scenario: Scenario, parts: list[np.ndarray], batch_size: int,
         return gathered
 
     try:
-        # every lane's experiments built here, one after the other: a build takes the
-        # scenario's checked rig and sensors (Scenario.take_resolved), not thread-safe
+        # every lane's experiments built here, one after the other (the builds' MJCF
+        # compilations would only compete for the threads the lanes run on)
         for j, part in enumerate(parts):
             for size in {min(batch_size, len(part) - start)
                          for start in range(0, len(part), batch_size)}:

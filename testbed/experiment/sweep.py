@@ -11,8 +11,8 @@ from typing import Any
 from tqdm import tqdm
 
 from testbed.experiment.backend import check_backend, map_jobs
-from testbed.experiment.build import build, described, with_defaults
-from testbed.experiment.scenario import Scenario
+from testbed.experiment.build import build, described
+from testbed.experiment.scenario import Scenario, with_defaults
 from testbed.experiment.study import TIMING_KEYS, monte_carlo
 from testbed.rigs import resolve_rig
 
