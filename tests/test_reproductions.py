@@ -244,3 +244,19 @@ def test_reproduce_all_writes_outputs_figures_and_the_doc(tmp_path, monkeypatch)
                                                              ("json", "png", "rrd")}
     assert (doc.parent / "figures" / f"{name}.png").stat().st_size > 10_000
     assert f"(figures/{name}.png)" in doc.read_text()
+
+
+def test_every_reproduction_is_a_reproduction_and_a_module_without_why_is_refused(monkeypatch):
+    import sys
+    import types
+
+    from testbed import reproductions
+
+    for name in REPRODUCTIONS:
+        assert isinstance(load(name), reproductions.Reproduction)
+    fake = types.ModuleType("fake_reproduction")
+    fake.PAPER, fake.reproduce, fake.claims = object(), lambda **_: {}, lambda r: []
+    monkeypatch.setitem(sys.modules, "fake_reproduction", fake)
+    monkeypatch.setitem(REPRODUCTIONS, "fake", "fake_reproduction")
+    with pytest.raises(TypeError, match=r"lacks \['why'\]"):
+        load("fake")
