@@ -372,13 +372,7 @@ def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
                              "whole-sample IMU delays have no continuous-time form")
-lmi_hinf.paper_design_only = ("the vehicle's own LMI system is written in the paper's states; "
-                              "the matched design's bias random walks are not validated with "
-                              "the error-block design")
 poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
-vc_discrete.paper_design_only = ("the parameter-mismatch derivatives are of the paper "
-                                 "model's A; the matched design's bias random walks are not "
-                                 "validated with the output-injection design")
 
 #: Built-in estimators: name -> ``factory(design, **options)``.
 ESTIMATORS: dict[str, Factory] = {
