@@ -372,7 +372,15 @@ def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "
                              "whole-sample IMU delays have no continuous-time form")
-poly_hinf.paper_design_only = "the rig's cubic expansion is written in the paper's states"
+poly_hinf.paper_design_only = ("a continuous-time filter on the rig's cubic expansion, written "
+                               "in the paper's states; the whole-sample IMU delays have no "
+                               "continuous-time form")
+vc_discrete.paper_design_only = ("its variance bounds are stationary covariances of a plant "
+                                 "with a known exogenous input: the matched designs' constant "
+                                 "offsets have none (vehicle: undetectable, Aero: no "
+                                 "stabilizing Riccati solution) and the helicopter's input is "
+                                 "computed from the estimated rotor speed; designed there by "
+                                 "testbed.estimators.vc:vc_discrete_matched")
 
 #: Built-in estimators: name -> ``factory(design, **options)``.
 ESTIMATORS: dict[str, Factory] = {

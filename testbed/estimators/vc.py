@@ -71,7 +71,7 @@ from testbed.estimators.vc_mismatch import (
 __all__ = ["DELTA", "FAMILY", "INJECTION_SCALES", "RANK_TOL", "MismatchUncertainty",
            "VCDesign", "VarianceConstrainedPredictor", "design_vc_discrete",
            "mismatch_uncertainty", "output_injection", "reference_covariance",
-           "uncertain_plant", "vc_discrete_estimator"]
+           "uncertain_plant", "vc_discrete_estimator", "vc_discrete_matched"]
 
 
 class VarianceConstrainedPredictor:
@@ -188,3 +188,20 @@ def vc_discrete_estimator(design: Any, **options: Any
     meta = vc.meta()
     est.design_meta = meta
     return est, meta
+
+
+def vc_discrete_matched(design: Any, **options: Any) -> Any:
+    """``vc-discrete`` designed from the entry's matched (augmented) model, for ``testbed score
+    --estimator testbed.estimators.vc:vc_discrete_matched`` (``vc-discrete`` itself designs
+    from the paper model on a hardware entry: its ``paper_design_only`` says why).
+
+    The uncertainty ``M Fu N`` of a matched design comes from the derivatives of its own
+    discrete model (:mod:`testbed.estimators.vc_mismatch`). A design the theory cannot make
+    is refused with its reason (``ValueError``), never replaced by the paper design.
+    """
+    from testbed.estimators import vc_discrete
+
+    return vc_discrete(design, **options)
+
+
+vc_discrete_matched.name = "vc-discrete-matched"

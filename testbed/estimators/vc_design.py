@@ -79,7 +79,7 @@ from filters.variance_discrete import (
     solve_state_bound_discrete,
 )
 from testbed.estimators import memo
-from testbed.estimators.stochastic_system import design_system
+from testbed.estimators.stochastic_system import design_system, undetectable_states
 from testbed.estimators.vc_mismatch import FAMILY, MismatchUncertainty, mismatch_uncertainty
 
 #: ``delta1 = delta2`` of the gamma grid (normalized coordinates).
@@ -354,6 +354,11 @@ def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor:
     options = (gamma, gamma_factor, sigma_factor, max_evaluations, n_grid)
     if not output_injection:
         return _design(design, None, None, rho, start, *options)
+    unseen = undetectable_states(design)
+    if unseen:
+        raise ValueError(f"filter {FAMILY!r}: the output-injection loop needs (F, H) "
+                         f"detectable, but a mode of F on or outside the unit circle moves "
+                         f"{unseen} unseen by the measurements")
     best: VCDesign | None = None
     failures = []
     for scale in INJECTION_SCALES:
