@@ -27,8 +27,9 @@ whiteness), :class:`~filters.base.Batched`, :class:`~filters.base.Primed`,
 - Design profiles: a factory whose theory needs the paper's model sets
   ``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
   instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
-  ``kalman-bucy``, ``ekf`` and ``ukf`` design from the matched model; ``ms-hinf``,
-  ``lmi-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design.
+  ``kalman-bucy``, ``lmi-hinf``, ``ekf`` and ``ukf`` design from the matched model;
+  ``ms-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design (their
+  reasons at the bottom of this module; ``testbed score`` notes the pair "paper design").
 
 A user's estimator is named ``package.module:factory`` or ``path/to/file.py:factory``
 anywhere a filter name is accepted (``testbed run RIG --filter mymodule:make``); the factory
