@@ -1,4 +1,5 @@
-"""
+"""The discrete variance-constrained H2/H-infinity filter designed from any rig's design model.
+
 :mod:`filters.variance_discrete` (Liu, Deng & Wang; the second equation and the gains
 reconstructed) designs the constant-gain one-step predictor ``xhat(k+1) = G xhat(k) + K y(k)``
 for a plant with norm-bounded uncertainty. The design builds that plant
@@ -12,7 +13,6 @@ for a plant with norm-bounded uncertainty. The design builds that plant
 disturbance matrix when the design has one (the noise part is
 :func:`testbed.estimators.stochastic_system.design_system`'s, so ``gamma`` bounds the gain from the
 scenario's ``w`` to ``z`` as lmi-hinf's does), ``||Fu||_2 <= 1``.
-
 
 The uncertainty ``M Fu N`` (the rig's declared parameter mismatch, first order) is built by
 :mod:`testbed.estimators.vc_mismatch`, the design (its rules, the output-injection loop of a
@@ -31,7 +31,12 @@ prior mean (``F0 = F``, ``L0 = 0`` on a stable design model), and the designed p
 estimates ``x_tilde`` from ``y - D u - H x_bar``. On the nominal linear
 plant ``x_tilde`` is exactly the design's stationary plant (whatever the input, also in
 closed loop: ``u`` is known), so the design's bounds hold; with a mismatch, ``(Delta F)
-x_bar`` drives ``x_tilde`` and is outside them (see above).
+x_bar`` drives ``x_tilde`` and is outside them (:mod:`testbed.estimators.vc_mismatch`).
+Known means exogenous: an input the design model computes from the estimate (the matched
+helicopter design's command past the current limit at the *estimated* rotor speed) closes a
+loop through the predictor that no bound covers; measured there, a certified design
+diverges (docs/scoring.md), which is why ``vc-discrete`` designs from the paper model on the
+hardware entries (:func:`vc_discrete_matched` designs from the matched one).
 
 Timing: ``xhat(k+1)`` uses ``y`` up to ``k``. The loop gives ``step(y_(k+1), u_k)`` with
 ``y`` measured at the end of the step; the estimator keeps the previous measurement, uses
@@ -98,7 +103,7 @@ class VarianceConstrainedPredictor:
     x0 : ndarray, shape (n,) or (N, n)
     dt_s : float
     injection : ndarray, shape (n, p), optional
-        ``L0`` of the output-injection loop (module docstring).
+        ``L0`` of the output-injection loop (:mod:`testbed.estimators.vc_design`).
     """
 
     batched = True

@@ -8,7 +8,8 @@ Solved in coordinates normalized by the reference standard deviations ``T = diag
 errors' own size; the uncertainty set is the same, ``M' = T^-1 M``, ``N' = N T``):
 
 * reference variances ``sigma_K^2``: the diagonal of the steady-state a-priori covariance of
-  the nominal Kalman predictor of the plant above (the same one-step error);
+  the nominal Kalman predictor of the plant (:mod:`testbed.estimators.vc`; the same one-step
+  error);
 * ``gamma_min``: the smallest ``gamma`` at which (11) and (12r) are solvable with the
   central gain (``H = 0``, ``delta1 = delta2 = 1e-6``), over a log grid of ``eps`` (1
   decade, ``1e-6 .. 1e6`` about ``||N'|| / ||M'||``); ``gamma = gamma_factor gamma_min``
@@ -36,7 +37,7 @@ holds exactly for any ``L0`` (add and subtract ``L0 y``). With ``F0 = F - L0 H``
 stable, this is the theorem's plant with state matrix ``F0``, disturbance matrix
 ``D1 - L0 D2`` (correlated with ``D2 w``, which (12r) allows), the same ``H``, ``D2``, ``L``
 and the same uncertainty ``M Fu N`` (``(F + M Fu N) - L0 H = F0 + M Fu N``), and with ``L0 y``
-a known input. ``L0`` is a steady-state Kalman predictor gain of the plant above (it exists
+a known input. ``L0`` is a steady-state Kalman predictor gain of the nominal plant (it exists
 when ``(F, H)`` is detectable) computed with the measurement noise covariance scaled by
 ``s`` in :data:`INJECTION_SCALES`; the design is made for each and the one with the
 smallest certified bound ratio ``max_i [P2]_ii / sigma_K,i^2`` is kept (the design's own
@@ -91,7 +92,8 @@ INJECTION_SCALES = (1.0, 1e2, 1e4, 1e6, 1e8)
 
 def uncertain_plant(design: Any, uncertainty: MismatchUncertainty,
                     injection: np.ndarray | None = None) -> tuple[UncertainPlant, bool]:
-    """The plant of the module docstring.
+    """The plant of :mod:`testbed.estimators.vc`'s docstring (with ``L0``: this module's
+    output-injection loop).
 
     Parameters
     ----------
