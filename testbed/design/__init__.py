@@ -15,6 +15,7 @@ import numpy as np
 
 from filters import DiscreteLinearSystem, LinearSystem
 from testbed.design.held_noise import rig_held_noise
+from testbed.design.mismatch import MatchedMismatch
 from testbed.sensors import Sensor, SensorModel
 
 
@@ -56,7 +57,10 @@ class DesignModel:
         Rig-specific design data (paper models, LMI design systems); ``cubic_model`` is the
         rig's :meth:`~testbed.rigs.base.Rig.cubic_model` and ``parameter_mismatch`` its
         :meth:`~testbed.rigs.base.Rig.parameter_mismatch` (both set by :func:`build_design`).
-        A matched design (:func:`build_matched_design`) keeps the rig's paper design in
+        A matched design (:func:`build_matched_design`) has no ``parameter_mismatch`` (its
+        states are not the linearization's) but ``matched_mismatch``
+        (:class:`~testbed.design.mismatch.MatchedMismatch`: derivatives of its own discrete
+        model, the design rebuilt at scaled parameters). It keeps the rig's paper design in
         ``extras["paper_design"]`` (the fallback of estimator families that cannot use an
         augmented model, and the controller's model).
     physical_index : ndarray of int, shape (n_rig,), or None
@@ -570,7 +574,11 @@ def build_matched_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np
         [(pos, sensors.names[ch], effects[ch].scale_std) for pos, ch in enumerate(index)],
         H, D, Bd, bias_columns, [(j, input_names[j], std)
                                  for j, std in sorted((input_scales or {}).items())])
+    declared = _mismatch(rig)
     all_extras = {"cubic_model": None, "parameter_mismatch": None, **_designer(rig),
+                  # the mismatch of this model: derivatives of the rebuilt designs' F
+                  "matched_mismatch": None if declared is None
+                  else MatchedMismatch(declared, sensors, float(dt_s)),
                   "consider": None if not consider else {"parameters": consider,
                                                          "R": R_constants},
                   "paper_design": paper_design, "design_profile": "matched",

@@ -139,6 +139,15 @@ def lmi_estimator(design: Any, *, gamma: float | None = None, gamma_factor: floa
         plant_block = rho < 1.0 - 1e-9
     system, scenario_channel = design_system(design, stable=bool(plant_block))
     plant = design.discrete
+    if not plant_block:
+        states = undetectable_states(design)
+        if states:
+            raise ValueError(
+                "filter 'lmi-hinf': the error-block design of LMI (48) needs (F, H) "
+                f"detectable, but a mode of F on or outside the unit circle moves {states} "
+                "unseen by the measurements: no gain makes the error system stable"
+                + (" (on the matched design; --design-profile paper designs from the "
+                   "paper's model)" if design.augmented else ""))
     estimator, meta = verified_estimator(system, design, gamma=gamma, gamma_factor=gamma_factor,
                                          objective=objective, input_matrix=plant.B,
                                          feedthrough=plant.D, max_steps=max_steps,
@@ -182,6 +191,39 @@ def undetectable_modes(A: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> list[
         if sv[-1] <= tol * max(float(sv[0]), 1.0):
             out.append(complex(lam))
     return out
+
+
+def undetectable_states(design: Any, tol: float = 1e-9, share: float = 0.05) -> list[str]:
+    """Names of the states an undetectable mode of a design model moves.
+
+    The directions ``v`` with ``(lambda I - F) v = 0``, ``H v = 0`` for the eigenvalues
+    ``|lambda| >= 1`` of :func:`undetectable_modes`; a state is named when its share of
+    ``|v|^2`` in some direction is at least ``share``.
+
+    Parameters
+    ----------
+    design : testbed.design.DesignModel
+    tol : float
+        Relative singular-value tolerance.
+    share : float
+        Smallest share of a direction's squared norm that names a state.
+
+    Returns
+    -------
+    list of str
+        Empty iff ``(F, H)`` is detectable.
+    """
+    F, H = np.asarray(design.discrete.F, float), np.asarray(design.discrete.H, float)
+    n = F.shape[0]
+    names: list[str] = []
+    for lam in sorted(set(np.round(undetectable_modes(F, H, tol), 9)), key=abs):
+        M = np.vstack([lam * np.eye(n) - F, H.astype(complex)])
+        _, sv, Vh = np.linalg.svd(M)
+        for v in Vh[np.flatnonzero(sv <= tol * max(float(sv[0]), 1.0))]:
+            w = np.abs(v) ** 2 / np.sum(np.abs(v) ** 2)
+            names += [design.state_names[i] for i in np.flatnonzero(w >= share)
+                      if design.state_names[i] not in names]
+    return names
 
 
 def _mode(m: complex) -> str:

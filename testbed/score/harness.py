@@ -273,6 +273,11 @@ def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool
         lap("build")
     seeds = runner.run_seeds(seed, entry.runs)
     experiment.loop.truth_feedback = entry.feedback == "truth"
+    profile = str(experiment.meta.get("design_profile", ""))
+    if profile.startswith("paper (fallback: "):  # a family that cannot take the matched model
+        out.notes.append(f"paper design: designed from the rig's paper model, not the entry's "
+                         f"matched one ({profile[len('paper (fallback: '):-1]}); compare it "
+                         "with kalman on the same model (design_profile 'paper')")
     try:
         inner = experiment.loop.stage.estimator
         probe = Probe(inner)
