@@ -21,16 +21,20 @@ __version__ = "0.1.0"
 #: vectorization_mode="vector_entry_point")``.
 _RIG = "testbed.envs.rig_env:RigEnv"
 _RIG_VECTOR = "testbed.envs.rig_env:RigVectorEnv"
+_PLANT_VECTOR = "testbed.envs.plant_vector:"  # SyncVectorEnv: nothing to batch in numpy
 _ENVS = {
     "testbed/Helicopter2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "helicopter"}),
     "testbed/VehicleRoll-v0": (_RIG, 1000, _RIG_VECTOR, {"rig": "vehicle-roll"}),
     "testbed/Aero2DOF-v0": (_RIG, 2000, _RIG_VECTOR, {"rig": "aero"}),
     "testbed/PolynomialCubic-v0": (
-        "testbed.reproductions.basin_polynomial.env:PolynomialCubicEnv", 1400),
+        "testbed.reproductions.basin_polynomial.env:PolynomialCubicEnv", 1400,
+        _PLANT_VECTOR + "polynomial_cubic"),
     "testbed/NonlinearDiscrete-v0": (
-        "testbed.reproductions.zhang_lmi_hinf.env:NonlinearDiscreteEnv", 200),
+        "testbed.reproductions.zhang_lmi_hinf.env:NonlinearDiscreteEnv", 200,
+        _PLANT_VECTOR + "nonlinear_discrete"),
     "testbed/UncertainLinear-v0": (
-        "testbed.reproductions.variance_constrained.env:UncertainLinearEnv", 1000),
+        "testbed.reproductions.variance_constrained.env:UncertainLinearEnv", 1000,
+        _PLANT_VECTOR + "uncertain_linear"),
 }
 ENV_IDS = tuple(_ENVS)
 

@@ -96,3 +96,31 @@ def test_vector_env_equals_single_envs_bitwise(env_id):
     for i in range(3):
         single = _rollout(gym.make(env_id, **kwargs), 10 + i, steps=15)
         assert np.array_equal(single, batched[:, i])
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_every_env_has_a_vector_entry_point(env_id):
+    assert gym.spec(env_id).vector_entry_point is not None
+
+
+@pytest.mark.parametrize("env_id", [i for i in IDS if i not in RIG_IDS])
+def test_plant_vector_entry_point_equals_sync_bitwise(env_id):
+    """A plain plant's vector entry point is the sync vector env of its copies: the same
+    observations, rewards and ends step for step, truncation at the registration's length
+    included (a short one here)."""
+    def roll(mode):
+        venv = gym.make_vec(env_id, num_envs=2, vectorization_mode=mode, max_episode_steps=7)
+        out = [venv.reset(seed=3)[0]]
+        for _ in range(9):  # past the truncation: NEXT_STEP autoreset in both
+            obs, reward, terminated, truncated, _ = venv.step(np.zeros(venv.action_space.shape))
+            out += [obs, reward, terminated, truncated]
+        venv.close()
+        return out
+
+    ours, sync = roll("vector_entry_point"), roll("sync")
+    assert any(np.any(row) for row in ours[4::4])  # truncated within the rollout
+    assert len(ours) == len(sync)
+    for a, b in zip(ours, sync, strict=True):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="num_envs"):
+        gym.make_vec(env_id, num_envs=0, vectorization_mode="vector_entry_point")

@@ -26,8 +26,9 @@ def read_mjcf(path: str, modified_ns: int, first_profile: bool) -> Any:
 
 
 def models_dir() -> Path:
-    """The folder of the built-in rigs' MJCF models: the checkout's top-level ``models/``, or
-    ``testbed/models`` inside an installed wheel (``pyproject.toml`` maps one to the other)."""
+    """The folder of the built-in rigs' MJCF models: the checkout's top-level ``models/``
+    (``testbed/models`` links to it: the wheel ships it as ``testbed/models``), or
+    ``testbed/models`` inside an installed wheel."""
     package = Path(__file__).resolve().parents[1]
     installed = package / "models"
-    return installed if installed.is_dir() else package.parent / "models"
+    return installed.resolve() if installed.is_dir() else package.parent / "models"
