@@ -35,8 +35,8 @@ FLAGS = {"rig": "rig", "estimator": "--filter", "estimator_options": "--filter-o
 
 def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     p.add_argument("rig", nargs="?", default=None,
-                   help=f"one of {', '.join(RIGS)} or package.module:RigClass (default: the "
-                   "--scenario file's)")
+                   help=f"one of {', '.join(RIGS)}, an installed package's (entry points "
+                   "testbed.rigs) or package.module:RigClass (default: the --scenario file's)")
     p.add_argument("--scenario", metavar="FILE", default=None,
                    help="read the scenario from a TOML or JSON file; the options given beside "
                    "it override its fields (docs/examples/*.toml)")
@@ -50,7 +50,8 @@ def add_scenario_options(p: argparse.ArgumentParser, duration_s: float) -> None:
                    "(hardware: motor, bias and delay states); paper: from the papers' model "
                    "(model-mismatch study)")
     p.add_argument("--filter", default="kalman",
-                   help=f"{', '.join(ESTIMATORS)} or package.module:factory")
+                   help=f"{', '.join(ESTIMATORS)}, an installed package's (entry points "
+                   "testbed.estimators) or package.module:factory")
     p.add_argument("--filter-option", type=values.name_setting, action="append", default=[],
                    metavar="NAME=VALUE",
                    help="keyword option of the filter factory (a number, true/false or a word)")

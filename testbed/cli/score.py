@@ -15,11 +15,14 @@ def add_arguments(sc: argparse.ArgumentParser) -> None:
     """The command's arguments on its subparser ``sc``."""
     sc.add_argument("--filter", "--estimator", dest="estimator", action="append", default=[],
                     metavar="[LABEL=]NAME_OR_MODULE:FACTORY",
-                    help=f"{', '.join(ESTIMATORS)}, package.module:factory or "
+                    help=f"{', '.join(ESTIMATORS)}, an installed package's (entry points "
+                         "testbed.estimators), package.module:factory or "
                          "path/to/file.py:factory, optionally LABEL= (default label: the "
                          "plug-in's name attribute, else file:factory); repeatable "
                          "(--estimator: the same)")
-    sc.add_argument("--suite", default="quick", help="quick or standard")
+    sc.add_argument("--suite", default="quick",
+                    help="quick (default), standard or an installed package's (entry points "
+                         "testbed.suites)")
     sc.add_argument("--list", action="store_true", help="list the suite's scenarios and exit")
     sc.add_argument("--scenario", action="append", default=None, metavar="NAME",
                     help="only this scenario of the suite; repeatable")

@@ -32,8 +32,10 @@ whiteness), :class:`~filters.base.Batched`, :class:`~filters.base.Primed`,
   reasons at the bottom of this module; ``testbed score`` notes the pair "paper design").
 
 A user's estimator is named ``package.module:factory`` or ``path/to/file.py:factory``
-anywhere a filter name is accepted (``testbed run RIG --filter mymodule:make``); the factory
-receives the :class:`~testbed.design.DesignModel` and keyword options. Its label
+anywhere a filter name is accepted (``testbed run RIG --filter mymodule:make``), or by the
+name of an installed package's ``testbed.estimators`` entry point (:mod:`testbed.discovery`;
+:func:`names` lists them with the built-ins); the factory receives the
+:class:`~testbed.design.DesignModel` and keyword options. Its label
 (:func:`label`): ``LABEL=spec`` when given, else the factory's ``name`` attribute (a class's
 :class:`~filters.base.Named` ``name``), else ``file:factory`` without the directories.
 """
@@ -415,12 +417,36 @@ def resolve(name: str | Factory) -> Factory:
     if name in ESTIMATORS:
         return ESTIMATORS[name]
     module, sep, attr = name.rpartition(":")
+    if not sep:  # an installed package's entry point (testbed.discovery)
+        installed = _installed(name)
+        if installed is not None:
+            return installed
     if not sep or not module or not attr:
-        raise ValueError(f"unknown filter {name!r}; expected one of {sorted(ESTIMATORS)}, "
+        raise ValueError(f"unknown filter {name!r}; expected one of {sorted(names())}, "
                          "'package.module:factory' or 'path/to/file.py:factory'")
     factory = plugins.load(name, f"filter {name!r}")
     if not callable(factory):
         raise ValueError(f"filter {name!r}: {attr!r} is not callable")
+    return factory
+
+
+def names() -> list[str]:
+    """The estimator names :func:`resolve` accepts: the built-in ones (:data:`ESTIMATORS`),
+    then those of installed packages' ``testbed.estimators`` entry points (nothing is
+    imported; a built-in name wins)."""
+    from testbed import discovery
+
+    return [*ESTIMATORS, *(n for n in discovery.names("estimator") if n not in ESTIMATORS)]
+
+
+def _installed(name: str) -> Factory | None:
+    """The factory of an installed package's entry point ``name`` (None: there is none)."""
+    from testbed import discovery
+
+    factory = discovery.load("estimator", name)
+    if factory is not None and not callable(factory):
+        raise ValueError(f"{discovery.describe(discovery.find('estimator', name))}: "
+                         f"{factory!r} is not callable")
     return factory
 
 

@@ -2,6 +2,8 @@
 
 Register a rig with one line, ``register_rig(MyRig)`` (``MyRig.name`` becomes usable in
 ``testbed run NAME``, scenarios and :func:`testbed.envs.RigEnv`), or pass the class itself.
+An installed package adds rigs through the entry-point group ``testbed.rigs``
+(:mod:`testbed.discovery`); :func:`rig_names` lists both.
 """
 
 from __future__ import annotations
@@ -24,6 +26,31 @@ def register_rig(cls: type) -> type:
     return cls
 
 
+def rig_names() -> list[str]:
+    """The rig names :func:`resolve_rig` accepts: the registered ones (:data:`RIGS`), then
+    those of installed packages' ``testbed.rigs`` entry points (nothing is imported)."""
+    from testbed import discovery
+
+    return [*RIGS, *(name for name in discovery.names("rig") if name not in RIGS)]
+
+
+def _installed_rig(name: str) -> type | None:
+    """The rig of an installed package's entry point ``name`` (None: there is none)."""
+    from testbed import discovery
+    from testbed.rigs.base import Rig
+
+    target = discovery.load("rig", name)
+    if target is None:
+        return None
+    what = discovery.describe(discovery.find("rig", name))
+    if not (isinstance(target, type) and issubclass(target, Rig)):
+        raise ValueError(f"{what}: {target!r} is not a testbed.rigs.base.Rig subclass")
+    if target.name != name:
+        raise ValueError(f"{what}: the class's name is {target.name!r}; the entry point must "
+                         "carry the rig's name")
+    return target
+
+
 def resolve_rig(rig: Any) -> type:
     """A rig class from a registered name, a ``module:Class`` path or the class itself."""
     from testbed.rigs.base import Rig
@@ -33,11 +60,13 @@ def resolve_rig(rig: Any) -> type:
     if not isinstance(rig, str):
         raise ValueError(f"rig must be a name, 'module:Class' or a Rig subclass, got {rig!r}")
     target = RIGS.get(rig, rig)
+    if isinstance(target, str) and ":" not in target:
+        target = _installed_rig(rig) or target
     if isinstance(target, str):
         from testbed import plugins
 
         if ":" not in target:
-            raise ValueError(f"unknown rig {rig!r}; expected one of {sorted(RIGS)}, "
+            raise ValueError(f"unknown rig {rig!r}; expected one of {sorted(rig_names())}, "
                              "'package.module:RigClass' or 'path/to/file.py:RigClass'")
         target = plugins.load(target, f"rig {rig!r}")
         if rig in RIGS:

@@ -322,17 +322,64 @@ SUITES = {"quick": quick, "standard": standard}
 SUITE_VERSIONS = {"quick": 2, "standard": 4}
 
 
+def suite_names() -> list[str]:
+    """The suites :func:`get_suite` knows: the built-in ones (:data:`SUITES`), then those of
+    installed packages' ``testbed.suites`` entry points (nothing is imported)."""
+    from testbed import discovery
+
+    return [*SUITES, *(n for n in discovery.names("suite") if n not in SUITES)]
+
+
+def _suite_function(name: str) -> Any:
+    """The function that makes suite ``name``'s entries: a built-in one, or an installed
+    package's ``testbed.suites`` entry point (a callable with an optional ``version``, an
+    int >= 1, default 1)."""
+    if name in SUITES:
+        return SUITES[name]
+    from testbed import discovery
+
+    function = None if not isinstance(name, str) else discovery.load("suite", name)
+    if function is None:
+        raise ValueError(f"unknown suite {name!r}; expected one of {sorted(suite_names())}")
+    version = getattr(function, "version", 1)
+    if not callable(function) or isinstance(version, bool) or not isinstance(version, int) \
+            or version < 1:
+        raise ValueError(f"{discovery.describe(discovery.find('suite', name))}: expected a "
+                         "callable () -> list of SuiteEntry with an optional int version >= 1")
+    return function
+
+
+def suite_version(name: str) -> int:
+    """The version of suite ``name``: :data:`SUITE_VERSIONS`, or an installed suite's
+    ``version`` attribute (default 1)."""
+    return SUITE_VERSIONS[name] if name in SUITES else getattr(_suite_function(name),
+                                                               "version", 1)
+
+
 def get_suite(name: str) -> list[SuiteEntry]:
-    """The entries of a suite by name.
+    """The entries of a suite by name (a built-in one or an installed package's).
 
     Raises
     ------
     ValueError
-        Unknown suite (the known ones listed).
+        Unknown suite (the known ones listed), or an installed suite that does not load or
+        does not give a list of :class:`SuiteEntry` (its entry point named).
     """
-    if name not in SUITES:
-        raise ValueError(f"unknown suite {name!r}; expected one of {sorted(SUITES)}")
-    entries = SUITES[name]()
+    function = _suite_function(name)
+    if function is SUITES.get(name):
+        entries = function()
+    else:
+        from testbed import discovery, plugins
+
+        what = discovery.describe(discovery.find("suite", name))
+        try:
+            entries = function()
+        except plugins.PLUGIN_FAILURES as exc:
+            raise plugins.PluginError(what, "build", exc) from None
+        if not isinstance(entries, list) or not entries or not all(
+                isinstance(e, SuiteEntry) for e in entries):
+            raise ValueError(f"{what}: expected a non-empty list of SuiteEntry, got "
+                             f"{type(entries).__name__}")
     names = [e.name for e in entries]
     if len(set(names)) != len(names):
         raise ValueError(f"suite {name!r} has duplicate entry names")
@@ -354,7 +401,7 @@ def suite_hash(name: str) -> str:
 def suite_identity(name: str) -> dict[str, Any]:
     """``{"suite", "version", "hash"}`` of a suite (written in every score output)."""
     get_suite(name)  # unknown names fail here
-    return {"suite": name, "version": SUITE_VERSIONS[name], "hash": suite_hash(name)}
+    return {"suite": name, "version": suite_version(name), "hash": suite_hash(name)}
 
 
 def describe_suite(name: str) -> list[dict[str, Any]]:
@@ -365,4 +412,5 @@ def describe_suite(name: str) -> list[dict[str, Any]]:
 __all__ = ["AERO_CHANNEL", "AERO_REAL_STIFFNESS", "HELICOPTER_MISMATCH_KEYS", "QUICK",
            "SUITES", "SUITE_VERSIONS", "SuiteEntry", "WorstCaseSpec", "basin_ms_hinf_entry",
            "calibration_entry",
-           "describe_suite", "get_suite", "quick", "standard", "suite_hash", "suite_identity"]
+           "describe_suite", "get_suite", "quick", "standard", "suite_hash", "suite_identity",
+           "suite_names", "suite_version"]
