@@ -53,6 +53,7 @@ from testbed.rigs.base import build_rig
 from testbed.rigs.disturbances import SampledDisturbance
 from testbed.score import stats
 from testbed.score.consistency import whiten
+from testbed.score.progress import pair_channel, pair_reporter
 from testbed.score.suite import SuiteEntry
 from testbed.score.worst_case import (
     RESTARTS,
@@ -401,18 +402,22 @@ def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, expe
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
                 worst_case: bool = True, num_threads: int | None = None,
-                reference: Any = REFERENCE) -> dict[str, PairResult]:
+                reference: Any = REFERENCE, on_pair: Any = None) -> dict[str, PairResult]:
     """Every estimator, the Kalman timing reference and the comparison ``reference`` on one
-    entry; keys: estimator names."""
+    entry; keys: estimator names. ``on_pair(entry name, estimator name)`` after each pair."""
     names = [_name(e) for e in estimators]
     todo = list(zip(names, estimators, strict=True))
     for extra in (REFERENCE, reference):
         if _name(extra) not in [name for name, _ in todo]:
             todo.append((_name(extra), extra))
     tapes: dict[str, Any] = {}  # the entry's simulated episodes, shared (see score_pair)
-    return {name: score_pair(entry, est, seed, worst_case=worst_case and name in names,
-                             num_threads=num_threads, tapes=tapes)
-            for name, est in todo}
+    out = {}
+    for name, est in todo:
+        out[name] = score_pair(entry, est, seed, worst_case=worst_case and name in names,
+                               num_threads=num_threads, tapes=tapes)
+        if on_pair is not None:
+            on_pair(entry.name, name)
+    return out
 
 
 #: Fixed cost of one step of a batched closed loop, in member-steps (measured on the
@@ -455,10 +460,11 @@ def entry_cost(entry: SuiteEntry) -> float:
 
 
 def _job(args: tuple) -> dict[str, PairResult]:
-    entry, estimators, seed, worst_case, num_threads, reference, designs = args
+    entry, estimators, seed, worst_case, num_threads, reference, designs, pairs = args
     with memo.shared_directory(designs):
         return score_entry(entry, estimators, seed, worst_case=worst_case,
-                           num_threads=num_threads, reference=reference)
+                           num_threads=num_threads, reference=reference,
+                           on_pair=pair_reporter(pairs))
 
 
 def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
@@ -472,13 +478,17 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
     together. The jobs share their estimators' designs through a temporary directory
     (:func:`testbed.estimators.memo.shared_directory`; a worker that cannot reach it designs
     on its own). Results do not depend on the backend or the number of workers (apart from
-    timings).
+    timings). ``progress(entry name)`` as each entry's job ends; a ``progress.pair(entry name,
+    estimator name)`` method too, as each pair ends (locally; on Ray: not called, the entry's
+    call stands for its pairs; :func:`testbed.score.progress.pair_channel`).
     """
     workers = check_backend(backend, 1 if workers is None else workers, None)
     # one physics thread per job: batches of tens of members gain nothing from the thread
     # pool on two cores (measured: 16 helicopter runs 2.6 s with one thread, 3.9 s with two)
-    with designs_directory() as designs:
-        jobs = [(e, estimators, seed, worst_case, 1, reference, designs) for e in entries]
+    with designs_directory() as designs, pair_channel(progress, backend,
+                                                         min(workers, len(entries))) as pairs:
+        jobs = [(e, estimators, seed, worst_case, 1, reference, designs, pairs)
+                for e in entries]
         return map_jobs(_job, [(job,) for job in jobs], backend=backend, workers=workers,
                         on_done=None if progress is None else lambda i: progress(
                             jobs[i][0].name),
