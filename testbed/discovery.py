@@ -30,7 +30,7 @@ from testbed.plugins import PLUGIN_FAILURES, PluginError
 #: The entry-point groups, by the kind of thing they add.
 GROUPS = {"rig": "testbed.rigs", "estimator": "testbed.estimators", "suite": "testbed.suites"}
 
-_loaded: dict[tuple[str, str, str], Any] = {}
+_loaded: dict[tuple[str, str], Any] = {}
 
 
 def _group(kind: str) -> str:
@@ -76,15 +76,16 @@ def load(kind: str, name: str) -> Any | None:
         The entry point's module or attribute fails to load (a ``ValueError``): one line
         naming the entry point and the exception.
     """
+    key = (_group(kind), name)
+    if key in _loaded:  # loaded once per process: no second scan of the distributions
+        return _loaded[key]
     ep = find(kind, name)
     if ep is None:
         return None
-    key = (ep.group, ep.name, ep.value)
-    if key not in _loaded:
-        try:
-            _loaded[key] = ep.load()
-        except PLUGIN_FAILURES as exc:
-            raise PluginError(describe(ep), "load", exc) from None
+    try:
+        _loaded[key] = ep.load()
+    except PLUGIN_FAILURES as exc:
+        raise PluginError(describe(ep), "load", exc) from None
     return _loaded[key]
 
 

@@ -42,13 +42,14 @@ def _installed_rig(name: str) -> type | None:
     target = discovery.load("rig", name)
     if target is None:
         return None
-    what = discovery.describe(discovery.find("rig", name))
     if not (isinstance(target, type) and issubclass(target, Rig)):
-        raise ValueError(f"{what}: {target!r} is not a testbed.rigs.base.Rig subclass")
-    if target.name != name:
-        raise ValueError(f"{what}: the class's name is {target.name!r}; the entry point must "
-                         "carry the rig's name")
-    return target
+        problem = f"{target!r} is not a testbed.rigs.base.Rig subclass"
+    elif target.name != name:
+        problem = (f"the class's name is {target.name!r}; the entry point must carry the "
+                   "rig's name")
+    else:
+        return target
+    raise ValueError(f"{discovery.describe(discovery.find('rig', name))}: {problem}")
 
 
 def resolve_rig(rig: Any) -> type:
