@@ -88,6 +88,8 @@ def is_batched(factory: Any) -> bool | None:
         return True if factory in ESTIMATORS else None
     target = getattr(factory, "_target", None)
     obj = target() if callable(target) else factory
+    if any(obj is builtin for builtin in ESTIMATORS.values()):  # a built-in under a label
+        return True
     if isinstance(obj, type):
         return bool(getattr(obj, "batched", False))
     return None

@@ -145,6 +145,7 @@ def test_notes_name_unbatched_plugins_with_their_expected_cost():
     fp = estimators.labelled(f"{EXAMPLES / 'fp_ekf.py'}:make")
     user = estimators.labelled(f"{EXAMPLES / 'userkf.py'}:make")
     assert progress.is_batched("kalman") is True
+    assert progress.is_batched(estimators.labelled("mine=ekf")) is True
     assert progress.is_batched(fp) is False and progress.is_batched(user) is None
     args = build_parser().parse_args(["score", "--scenario", "calibration"])
     pairs, unbatched = cli_score.planned_pairs(args, ["kalman", fp, user], "kalman")
