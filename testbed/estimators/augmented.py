@@ -120,7 +120,8 @@ class AugmentedProcessModel:
             return u[:, None, :inp.kr], None, None
         p, e = x[:, :nr], x[:, nr:self.d]
         off = inp.offset(p)
-        rel = inp.relative(p, u)
+        rel = np.array(u, float, copy=True)  # inp.relative(p, u), its offset computed once
+        rel[:, :inp.kr] -= off
         # e_i, i = 0..N: Phi^i e + Gamma_i rel
         E = np.einsum("iab,mb->mia", self._Phi, e) + np.einsum("iak,mk->mia", self._Gam, rel)
         base = off + rel @ inp.spec.from_input.T  # (M, k_rig)
