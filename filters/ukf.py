@@ -16,8 +16,21 @@ with weights ``Wm_0 = lambda / (n + lambda)``, ``Wc_0 = Wm_0 + 1 - alpha^2 + bet
 ``Wm_i = Wc_i = 1 / (2 (n + lambda))``. (The points and weights are those of filterpy's
 ``MerweScaledSigmaPoints``.)
 
-Predict: the points of the estimate go through ``f`` in one call (all ``N (2n + 1)`` points
-of a batch stacked as an ``(N (2n + 1), n)`` array, so a batched process model, e.g. many
+Or (``sigma_points="simplex"``) the spherical simplex set of Julier (2003): ``n + 2`` points
+``X_0 = x``, ``X_i = x + alpha L z_i`` (``i = 1 .. n + 1``, ``L L^T = P`` the lower Cholesky
+factor, ``z_i`` the unit-covariance simplex points of :func:`simplex_points` for the weights
+``W_0 = w0``, ``W_i = (1 - w0) / (n + 1)``), scaled as Julier's (2002) scaled unscented
+transformation: ``Wm_0 = w0 / alpha^2 + 1 - 1 / alpha^2``, ``Wm_i = W_i / alpha^2``,
+``Wc_0 = Wm_0 + 1 - alpha^2 + beta``, ``Wc_i = Wm_i``. Both sets give the exact mean and
+covariance of a linear map and the mean of a quadratic one; the simplex set is not symmetric
+(its third moments are not zero). Point ``i`` of the simplex set is zero in the coordinates
+before ``i - 1``, so with the lower factor its first ``i - 2`` states are the mean's: a
+process model that rolls out each distinct leading block once (the matched designs' MuJoCo
+states before their bias and delay states) needs ``d + 2`` rollouts for ``d`` leading states
+instead of the standard set's ``2 d + 1``.
+
+Predict: the points of the estimate go through ``f`` in one call (all ``N p`` points of a
+batch, ``p`` per member, stacked as an ``(N p, n)`` array, so a batched process model, e.g. many
 MuJoCo simulations, does the work at once); their weighted mean and covariance plus ``Q``
 are the prior. Update: new points are drawn from the prior (Wan & van der Merwe's additive
 noise form: the points carry ``Q``, so on a linear model the filter equals the Kalman filter)
@@ -39,7 +52,11 @@ from filters._linalg import FloatArray
 from filters.ekf import ModelFunction, _CallableModelFilter, _swap
 from filters.errors import check_covariance
 
-__all__ = ["UnscentedKalmanFilter", "merwe_weights"]
+__all__ = ["SIGMA_POINT_SETS", "UnscentedKalmanFilter", "merwe_weights", "simplex_points"]
+
+#: The sigma-point sets of :class:`UnscentedKalmanFilter`: ``"scaled"`` (``2n + 1`` points,
+#: Wan & van der Merwe) and ``"simplex"`` (``n + 2`` points, Julier 2003).
+SIGMA_POINT_SETS = ("scaled", "simplex")
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float
@@ -70,6 +87,51 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float
     return Wm, Wc, scale
 
 
+def simplex_points(n: int, w0: float = 0.0) -> tuple[FloatArray, FloatArray]:
+    """Julier's (2003) spherical simplex sigma points of unit covariance.
+
+    For ``W_1 = (1 - w0) / (n + 1)`` and ``c_j = 1 / sqrt(j (j + 1) W_1)`` the points are
+    ``z_0 = 0`` and, for ``i = 1 .. n + 1``, ``z_i[j] = -c_j`` for ``j >= i``, ``z_i[i - 1] =
+    (i - 1) c_{i - 1}`` (``i >= 2``), zero before (coordinates ``j = 1 .. n``): the closed form
+    of the paper's recursion over the dimension. ``sum_i W_i z_i = 0`` and ``sum_i W_i z_i
+    z_i^T = I``; every ``z_i`` (``i >= 1``) has the same length ``sqrt(n / (n + 1) / W_1)``.
+
+    Parameters
+    ----------
+    n : int
+        Dimension, ``>= 1``.
+    w0 : float
+        Weight of the centre point, ``0 <= w0 < 1``.
+
+    Returns
+    -------
+    Z : numpy.ndarray, shape (n + 2, n)
+        The points ``z_0 .. z_{n+1}`` as rows.
+    W : numpy.ndarray, shape (n + 2,)
+        Their weights ``[w0, W_1, ..., W_1]`` (sum 1).
+
+    Raises
+    ------
+    ValueError
+        ``n`` or ``w0`` out of range.
+    """
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ValueError(f"n must be an integer >= 1, got {n!r}")
+    if not (np.isfinite(w0) and 0.0 <= w0 < 1.0):
+        raise ValueError(f"w0 must lie in [0, 1), got {w0!r}")
+    W1 = (1.0 - w0) / (n + 1)
+    j = np.arange(1, n + 1)
+    c = 1.0 / np.sqrt(j * (j + 1) * W1)  # c_j, j = 1 .. n
+    i = np.arange(1, n + 2)[:, None]  # point index of the rows of Z[1:]
+    jj = j[None, :]
+    Z = np.zeros((n + 2, n))
+    Z[1:] = np.where(jj >= i, -c[None, :], 0.0)
+    Z[1:] = np.where(jj == i - 1, (i - 1) * c[None, :], Z[1:])
+    W = np.full(n + 2, W1)
+    W[0] = w0
+    return Z, W
+
+
 class UnscentedKalmanFilter(_CallableModelFilter):
     """Discrete-time unscented Kalman filter (scaled sigma points, additive noise).
 
@@ -77,8 +139,9 @@ class UnscentedKalmanFilter(_CallableModelFilter):
     ----------
     f : callable ``(x (M, n), u (M, k)) -> (M, n)``
         Transition over one sample interval (``u`` held); called once per prediction with
-        all sigma points stacked (``M = N (2n + 1)``, member ``j``'s points in rows
-        ``j (2n + 1) ... (j + 1)(2n + 1) - 1``, its mean first).
+        all sigma points stacked (``M = N p``, ``p`` points per member: ``2n + 1`` or, for
+        the simplex set, ``n + 2``; member ``j``'s points in rows ``j p ... (j + 1) p - 1``,
+        its mean first).
     h : callable ``(x (M, n), u (M, k)) -> (M, m)``
         Measurement function, called once per update on the stacked points.
     Q : array_like, shape (n, n)
@@ -94,7 +157,12 @@ class UnscentedKalmanFilter(_CallableModelFilter):
     beta : float
         ``>= 0``; 2 is optimal for a Gaussian prior (default).
     kappa : float
-        Secondary scaling, ``n + kappa > 0`` (default 0).
+        Secondary scaling, ``n + kappa > 0`` (default 0; the scaled set only).
+    sigma_points : {"scaled", "simplex"}
+        The ``2n + 1`` scaled points (default) or Julier's (2003) ``n + 2`` spherical simplex
+        points (scaled by ``alpha``, ``beta`` as the scaled unscented transformation).
+    w0 : float
+        The simplex set's centre weight before scaling, ``0 <= w0 < 1`` (default 0).
     k : int
         Input dimension (0: no input; ``u`` must be ``None``).
     dt_s : float, optional
@@ -106,8 +174,10 @@ class UnscentedKalmanFilter(_CallableModelFilter):
         ``"ukf"``.
     x, P : numpy.ndarray
         Estimate and covariance.
-    Wm, Wc : numpy.ndarray, shape (2n + 1,)
-        Sigma-point weights.
+    Wm, Wc : numpy.ndarray, shape (p,)
+        Sigma-point weights (``p = 2n + 1``, or ``n + 2`` for the simplex set).
+    sigma_point_set : str
+        ``"scaled"`` or ``"simplex"``.
     innovation : numpy.ndarray, shape (m,) or (N, m), or None
         ``y - sum_i Wm_i h(X_i, u)`` of the last update.
     innovation_cov : numpy.ndarray, shape (m, m) or (N, m, m), or None
@@ -119,24 +189,29 @@ class UnscentedKalmanFilter(_CallableModelFilter):
     TypeError
         ``f`` or ``h`` is not callable.
     ValueError
-        ``Q``, ``R``, ``x0``, ``P0``, ``alpha``, ``beta``, ``kappa``, ``k`` or ``dt_s`` is
-        malformed (named in the message).
+        ``Q``, ``R``, ``x0``, ``P0``, ``alpha``, ``beta``, ``kappa``, ``sigma_points``,
+        ``w0``, ``k`` or ``dt_s`` is malformed (named in the message).
 
     References
     ----------
-    Julier & Uhlmann (1997, 2004); Wan & van der Merwe (2000) (docs/references.md).
+    Julier & Uhlmann (1997, 2004); Wan & van der Merwe (2000); Julier (2002, 2003)
+    (docs/references.md).
     """
 
     name: ClassVar[str] = "ukf"
 
     def __init__(self, f: ModelFunction, h: ModelFunction, Q: npt.ArrayLike,
                  R: npt.ArrayLike, x0: npt.ArrayLike, P0: npt.ArrayLike, *,
-                 alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0, k: int = 0,
+                 alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0,
+                 sigma_points: str = "scaled", w0: float = 0.0, k: int = 0,
                  dt_s: float | None = None) -> None:
+        if sigma_points not in SIGMA_POINT_SETS:
+            raise ValueError(f"sigma_points must be one of {SIGMA_POINT_SETS}, "
+                             f"got {sigma_points!r}")
         self._setup(f, h, Q, R, k, dt_s)
         n = self._n
         params = {}
-        for label, value in (("alpha", alpha), ("beta", beta), ("kappa", kappa)):
+        for label, value in (("alpha", alpha), ("beta", beta), ("kappa", kappa), ("w0", w0)):
             try:
                 params[label] = float(value)
             except (TypeError, ValueError):
@@ -149,8 +224,23 @@ class UnscentedKalmanFilter(_CallableModelFilter):
             raise ValueError(f"beta must be >= 0, got {beta!r}")
         if n + params["kappa"] <= 0.0:
             raise ValueError(f"kappa must exceed -n = {-n}, got {kappa!r}")
+        if not 0.0 <= params["w0"] < 1.0:
+            raise ValueError(f"w0 must lie in [0, 1), got {w0!r}")
         self.alpha, self.beta, self.kappa = params["alpha"], params["beta"], params["kappa"]
-        Wm, Wc, self._scale = merwe_weights(n, self.alpha, self.beta, self.kappa)
+        self.w0, self.sigma_point_set = params["w0"], sigma_points
+        self._unit: FloatArray | None = None  # the simplex set's scaled points (n, n + 1)
+        if sigma_points == "scaled":
+            Wm, Wc, self._scale = merwe_weights(n, self.alpha, self.beta, self.kappa)
+        else:
+            Z, W = simplex_points(n, self.w0)
+            a2 = self.alpha * self.alpha
+            Wm = W / a2
+            Wm[0] = W[0] / a2 + 1.0 - 1.0 / a2
+            Wc = Wm.copy()
+            Wc[0] += 1.0 - a2 + self.beta
+            self._unit = np.ascontiguousarray((self.alpha * Z[1:]).T)  # column i: alpha z_i
+            self._scale = 1.0
+        self._npoints = len(Wm)
         Wm.flags.writeable = False
         Wc.flags.writeable = False
         self.Wm, self.Wc = Wm, Wc
@@ -169,8 +259,9 @@ class UnscentedKalmanFilter(_CallableModelFilter):
 
         Returns
         -------
-        numpy.ndarray, shape (N, 2n + 1, n)
-            Member ``j``'s points ``[x, x + c_1 ... x + c_n, x - c_1 ... x - c_n]``.
+        numpy.ndarray, shape (N, p, n)
+            Member ``j``'s points ``[x, x + c_1 ... x + c_n, x - c_1 ... x - c_n]`` (the
+            simplex set: ``[x, x + alpha L z_1 ... x + alpha L z_{n+1}]``).
         """
         if x is None or P is None:
             x, P = self._stack()
@@ -206,8 +297,8 @@ class UnscentedKalmanFilter(_CallableModelFilter):
 
     # -------------------------------------------------------------- internals
     def _points(self, x: FloatArray, P: FloatArray, steps: int) -> FloatArray:
-        """Sigma points ``(N, 2n + 1, n)`` of ``(x (N, n), P (N, n, n))``."""
-        scaled = self._scale * P
+        """Sigma points ``(N, p, n)`` of ``(x (N, n), P (N, n, n))``."""
+        scaled = self._scale * P if self._unit is None else P
         try:
             L = np.linalg.cholesky(scaled)  # lower: column i of L is row i of U = L^T
         except np.linalg.LinAlgError:
@@ -215,12 +306,14 @@ class UnscentedKalmanFilter(_CallableModelFilter):
             sym = check_covariance(scaled, time=self._time(steps), quantity="P")
             w, V = np.linalg.eigh(sym)
             L = V * np.sqrt(np.maximum(w, 0.0))[..., None, :]
-        C = _swap(L)  # (N, n, n): row i = c_i
         xc = x[:, None, :]
+        if self._unit is not None:  # simplex: x + alpha L z_i, i = 1 .. n + 1
+            return np.concatenate([xc, xc + _swap(L @ self._unit)], axis=1)
+        C = _swap(L)  # (N, n, n): row i = c_i
         return np.concatenate([xc, xc + C, xc - C], axis=1)
 
     def _moments(self, X: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Weighted mean ``(N, d)`` and deviations ``(N, 2n + 1, d)`` of points."""
+        """Weighted mean ``(N, d)`` and deviations ``(N, p, d)`` of points."""
         mean = self.Wm @ X
         return mean, X - mean[:, None, :]
 
@@ -228,9 +321,10 @@ class UnscentedKalmanFilter(_CallableModelFilter):
         x, P = self._stack()
         N, n = x.shape
         X = self._points(x, P, steps)
-        M = N * (2 * n + 1)
-        ub = np.repeat(self._inputs(u, N), 2 * n + 1, axis=0)
-        Xf = self._eval("f", self._f, X.reshape(M, n), ub, (M, n)).reshape(N, 2 * n + 1, n)
+        p = self._npoints
+        M = N * p
+        ub = np.repeat(self._inputs(u, N), p, axis=0)
+        Xf = self._eval("f", self._f, X.reshape(M, n), ub, (M, n)).reshape(N, p, n)
         self._finite("x", Xf, steps, "f(x, u) at a sigma point")
         xp, dX = self._moments(Xf)
         Pp = _swap(dX) @ (self._Wc_col * dX)
@@ -243,9 +337,10 @@ class UnscentedKalmanFilter(_CallableModelFilter):
         N, n = x.shape
         m = self._m
         X = self._points(x, P, steps)
-        M = N * (2 * n + 1)
-        ub = np.repeat(self._inputs(u, N), 2 * n + 1, axis=0)
-        Y = self._eval("h", self._h, X.reshape(M, n), ub, (M, m)).reshape(N, 2 * n + 1, m)
+        p = self._npoints
+        M = N * p
+        ub = np.repeat(self._inputs(u, N), p, axis=0)
+        Y = self._eval("h", self._h, X.reshape(M, n), ub, (M, m)).reshape(N, p, m)
         self._finite("y", Y, steps, "h(x, u) at a sigma point")
         yp, dY = self._moments(Y)
         WdY = self._Wc_col * dY

@@ -41,7 +41,9 @@ shared):
   rollouts of the nonlinear filters grow with the batch, the Kalman filter's matrix products
   hardly); ``ekf_physics_fraction`` (target >= 0.8) and ``ukf_physics_fraction``: the share
   of those batched steps spent inside ``mujoco.rollout.rollout`` (the distance to the
-  physics limit);
+  physics limit); ``ukf_simplex_*`` the same for the ukf with Julier's ``n + 2`` spherical
+  simplex sigma points (``sigma_points="simplex"``, diagnostic); ``--only-nonlinear`` runs
+  these alone;
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
 - Monte Carlo (``scripts/bench_mc.py``, both rigs): ``raw_rollout_traj_steps_per_s``,
   ``mc_traj_steps_per_s``, ``mc_vs_raw`` (target >= 0.9), their ``vehicle`` counterparts
@@ -122,6 +124,10 @@ METRICS: dict[str, tuple[str, str]] = {
     "ukf_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters"),
     "ekf_physics_fraction": ("", "share of the batch-32 ekf step spent in mujoco.rollout"),
     "ukf_physics_fraction": ("", "share of the batch-32 ukf step spent in mujoco.rollout"),
+    "ukf_simplex_vs_kalman": ("", "ukf with the n + 2 simplex sigma points / kalman step"),
+    "ukf_simplex_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters"),
+    "ukf_simplex_physics_fraction": ("", "share of the batch-32 simplex ukf step in "
+                                         "mujoco.rollout"),
     "inverted_pendulum_v5_steps_per_s": ("1/s", "Gymnasium InvertedPendulum-v5 (reference)"),
     "raw_rollout_traj_steps_per_s": ("1/s", "bare mujoco.rollout, helicopter (N x steps)"),
     "mc_traj_steps_per_s": ("1/s", "monte_carlo helicopter, Kalman + LQR, same size"),
@@ -356,8 +362,9 @@ def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
     for batch in (1, 32):
         ys = (design.discrete.H @ x_hover + 1e-3 * rng.standard_normal((1024, batch, m)))
         filters = {}
-        for name in ("kalman", "ekf", "ukf"):
-            est = estimators.build(name, design)
+        for name, options in (("kalman", {}), ("ekf", {}), ("ukf", {}),
+                              ("ukf_simplex", {"sigma_points": "simplex"})):
+            est = estimators.build(name.partition("_")[0], design, **options)
             est.reset(np.tile(x_hover, (batch, 1)), design.P0)
             filters[name] = est
         counter = {"i": 0}
@@ -385,22 +392,25 @@ def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
                         "kalman_hw_step_us": t["kalman"] * 1e6,
                         "ekf_hw_step_us": t["ekf"] * 1e6, "ukf_hw_step_us": t["ukf"] * 1e6,
                         "ekf_vs_kalman": t["ekf"] / t["kalman"],
-                        "ukf_vs_kalman": t["ukf"] / t["kalman"]})
+                        "ukf_vs_kalman": t["ukf"] / t["kalman"],
+                        "ukf_simplex_vs_kalman": t["ukf_simplex"] / t["kalman"]})
         else:
             out.update({"ekf_batch32_vs_kalman": t["ekf"] / t["kalman"],
-                        "ukf_batch32_vs_kalman": t["ukf"] / t["kalman"]})
-            for name in ("ekf", "ukf"):
+                        "ukf_batch32_vs_kalman": t["ukf"] / t["kalman"],
+                        "ukf_simplex_batch32_vs_kalman": t["ukf_simplex"] / t["kalman"]})
+            for name in ("ekf", "ukf", "ukf_simplex"):
                 out[f"{name}_physics_fraction"] = physics_fraction(steppers[name], n_calls,
                                                                    repeats)
     return out
 
 
 def physics_fraction(step: Callable[[], None], calls: int, repeats: int) -> float:
-    """The median share of ``step``'s time spent inside :func:`mujoco.rollout.rollout`
-    (timed around each call; the distance of a nonlinear filter to its physics)."""
+    """The median share of ``step``'s time spent inside MuJoCo's rollouts
+    (:meth:`mujoco.rollout.Rollout.rollout`, which :func:`mujoco.rollout.rollout` calls too,
+    timed around each call; the distance of a nonlinear filter to its physics)."""
     import mujoco.rollout
 
-    inner = mujoco.rollout.rollout
+    inner = mujoco.rollout.Rollout.rollout
     spent = [0.0]
 
     def timed(*args: Any, **kwargs: Any) -> Any:
@@ -411,7 +421,7 @@ def physics_fraction(step: Callable[[], None], calls: int, repeats: int) -> floa
             spent[0] += time.perf_counter() - start
 
     shares = []
-    mujoco.rollout.rollout = timed
+    mujoco.rollout.Rollout.rollout = timed  # type: ignore[method-assign]
     try:
         for _ in range(max(repeats, 1)):
             spent[0] = 0.0
@@ -420,7 +430,7 @@ def physics_fraction(step: Callable[[], None], calls: int, repeats: int) -> floa
                 step()
             shares.append(spent[0] / (time.perf_counter() - start))
     finally:
-        mujoco.rollout.rollout = inner
+        mujoco.rollout.Rollout.rollout = inner  # type: ignore[method-assign]
     return statistics.median(shares)
 
 
@@ -762,6 +772,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-mc", action="store_true", help="skip the Monte-Carlo section")
     parser.add_argument("--only-replay", action="store_true",
                         help="only the replay metrics (30 s recordings; --smoke: 2 s)")
+    parser.add_argument("--only-nonlinear", action="store_true",
+                        help="only the kalman/ekf/ukf step metrics of the hardware helicopter")
     parser.add_argument("--markdown", nargs="+", metavar="JSON",
                         help="print the Markdown table of these results and exit")
     parser.add_argument("--doc", "--readme", dest="doc", metavar="PATH",
@@ -783,12 +795,14 @@ def main(argv: list[str] | None = None) -> int:
         calls, repeats, mode = args.calls, args.repeats, "quick" if args.quick else "full"
     if calls < 1 or repeats < 1:
         parser.error(f"--calls and --repeats must be >= 1, got {calls} and {repeats}")
-    if args.only_replay:
-        values = bench_twin(2.0 if mode == "smoke" else 30.0, identify=False)
+    if args.only_replay or args.only_nonlinear:
+        only = "replay" if args.only_replay else "nonlinear"
+        values = bench_twin(2.0 if mode == "smoke" else 30.0, identify=False) \
+            if args.only_replay else bench_nonlinear(calls, repeats)
         results = {"machine": {"python": platform.python_version(),
                                "processor": platform.machine(), "mujoco": mujoco.__version__,
                                "numpy": np.__version__},
-                   "settings": {"mode": mode, "only": "replay"}, "metrics": assess(values)}
+                   "settings": {"mode": mode, "only": only}, "metrics": assess(values)}
         results["targets_missed"] = [k for k, m in results["metrics"].items()
                                      if m["met"] is False]
     else:

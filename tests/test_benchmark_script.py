@@ -89,6 +89,20 @@ def test_markdown_table_and_doc_update(smoke, tmp_path):
     assert bare.read_text() == "no markers\n"
 
 
+def test_only_nonlinear_reports_the_filter_step_metrics(tmp_path):
+    path = tmp_path / "nonlinear.json"
+    assert benchmark.main(["--smoke", "--only-nonlinear", "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    metrics = result["metrics"]
+    assert result["settings"]["only"] == "nonlinear"
+    assert {"ukf_batch32_vs_kalman", "ukf_physics_fraction", "ukf_simplex_batch32_vs_kalman",
+            "ukf_simplex_physics_fraction", "ekf_physics_fraction"} <= set(metrics)
+    assert set(metrics) <= set(benchmark.METRICS)
+    for key in ("ukf_physics_fraction", "ukf_simplex_physics_fraction"):
+        assert 0 < metrics[key]["value"] < 1  # the rollouts are timed (a share, not zero)
+    assert metrics["ukf_simplex_batch32_vs_kalman"]["value"] > 0
+
+
 def test_performance_doc_has_the_table_markers():
     assert benchmark.PERFORMANCE_DOC == SCRIPTS.parent / "docs" / "performance.md"
     text = benchmark.PERFORMANCE_DOC.read_text()

@@ -420,7 +420,7 @@ def test_the_nonlinear_models_import_no_rig_module():
 
 
 @pytest.mark.parametrize(("kind", "jacobian"), [("ekf", "rollout"), ("ekf", "step"),
-                                               ("ukf", "step")])
+                                               ("ukf", "step"), ("ukf-simplex", "step")])
 def test_on_an_augmented_linear_plant_the_nonlinear_filters_equal_kalman(kind, jacobian):
     """Independent reference for the composition: the calibration plant (its MuJoCo map is
     linear) with an actuator lag state, a drifting sensor bias and a one-sample delay. The
@@ -474,7 +474,8 @@ def test_on_an_augmented_linear_plant_the_nonlinear_filters_equal_kalman(kind, j
     plant = DiscreteLinearSystem(F=F, B=Bd, H=design.discrete.H, Q=design.discrete.Q,
                                  R=design.discrete.R, dt_s=dt)
     kf = KalmanFilter(plant, design.x0, design.P0)
-    est = nonlinear_estimator(design, kind, jacobian=jacobian)
+    options = {"sigma_points": "simplex"} if kind == "ukf-simplex" else {}
+    est = nonlinear_estimator(design, kind[:3], jacobian=jacobian, **options)
     rng = np.random.default_rng(11)
     for _ in range(60):
         y, u = rng.normal(0, 0.05, 1), rng.normal(0, 2.0, 1)

@@ -363,14 +363,17 @@ def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False,
 
 
 def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
-        kappa: float = 0.0, nthread: int = 0) -> Any:
-    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``) on the rig's
-    nominal MuJoCo model (with a matched design's extra states, as :func:`ekf`), ``Q``/``R``
-    of ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
+        kappa: float = 0.0, sigma_points: str = "scaled", w0: float = 0.0,
+        nthread: int = 0) -> Any:
+    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``, or
+    ``sigma_points="simplex"``: Julier's ``n + 2`` spherical simplex points, centre weight
+    ``w0``) on the rig's nominal MuJoCo model (with a matched design's extra states, as
+    :func:`ekf`), ``Q``/``R`` of ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
     from testbed.estimators.nonlinear import nonlinear_estimator
 
     return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa,
-                                       nthread=nthread), design)
+                                       sigma_points=sigma_points, w0=w0, nthread=nthread),
+                   design)
 
 ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
                              "continuous model with the deterministic channel y2; the "

@@ -43,7 +43,9 @@ class AugmentedProcessModel:
       channel's nonlinear value
       ``h(p_k, w_0)`` (``w`` of the input memory when the design keeps one).
 
-    Rows of ``x`` that share ``[p, e]`` and ``u`` bitwise are rolled out once.
+    Rows of ``x`` that share ``[p, e]`` and ``u`` bitwise are rolled out once (the UKF's
+    standard points along the bias and delay states, and its simplex points after the first
+    ``d + 1``, keep the mean's ``[p, e]``: ``2 d + 1`` and ``d + 2`` rollouts per member).
 
     Jacobian ``F(x, u)``: the ``[p, e]`` columns of the ``[p, e]`` rows and of the
     nonlinear delay rows by finite differences (step ``eps``, forward or ``centered``): with
@@ -120,7 +122,8 @@ class AugmentedProcessModel:
             return u[:, None, :inp.kr], None, None
         p, e = x[:, :nr], x[:, nr:self.d]
         off = inp.offset(p)
-        rel = inp.relative(p, u)
+        rel = np.array(u, float, copy=True)  # inp.relative(p, u), its offset computed once
+        rel[:, :inp.kr] -= off
         # e_i, i = 0..N: Phi^i e + Gamma_i rel
         E = np.einsum("iab,mb->mia", self._Phi, e) + np.einsum("iak,mk->mia", self._Gam, rel)
         base = off + rel @ inp.spec.from_input.T  # (M, k_rig)

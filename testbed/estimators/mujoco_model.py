@@ -135,6 +135,7 @@ class MujocoProcessModel:
         self._j = j
         self._data = mujoco.MjData(model)
         self._datas = [mujoco.MjData(model) for _ in range(max(self.nthread, 1))]
+        self._data1 = [self._data]  # the calling thread's (nthread 0 or 1)
         self._constants = rig.member_constants(rig.params)
         mujoco.mj_resetData(model, self._data)
         self._template = np.zeros(mujoco.mj_stateSize(model, _FULL))
@@ -157,6 +158,7 @@ class MujocoProcessModel:
         self.points = int(self.linearization.size)
         self._broadcast: dict[int, np.ndarray] = {}
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._initial: dict[int, np.ndarray] = {}  # FULLPHYSICS initial states per row count
         self._models: dict[int, list[mujoco.MjModel]] = {}
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._pool: Any = None  # mujoco.rollout.Rollout with nthread threads, made on use
@@ -164,6 +166,7 @@ class MujocoProcessModel:
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_buffers"], state["_pool"] = {}, None  # scratch and threads: not copied
+        state["_initial"] = {}
         state["_models"], state["_broadcast"] = {}, {}
         return state
 
@@ -201,7 +204,9 @@ class MujocoProcessModel:
             All ``M`` rows from one :func:`mujoco.rollout.rollout` call.
         """
         M = len(x)
-        state0 = np.tile(self._template, (M, 1))
+        state0 = self._initial.get(M)
+        if state0 is None:  # one per row count: the template's other entries never change
+            state0 = self._initial[M] = np.tile(self._template, (M, 1))
         state0[:, self._gather] = x
         u = np.asarray(u, float)
         w = u[:, None, :] if u.ndim == 2 else u
@@ -242,16 +247,11 @@ class MujocoProcessModel:
         models = self._models.get(M)
         if models is None:
             models = self._models[M] = [self.model] * M
-        if self.nthread > 1:  # this model's own pool (not the module-wide persistent one)
-            if self._pool is None:
-                self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
-            self._pool.rollout(models, self._datas, state0, control,
-                               control_spec=self._spec, skip_checks=True, nstep=nstep,
-                               state=state, sensordata=sensordata)
-        else:
-            mujoco.rollout.rollout(models, [self._data], state0, control,
-                                   control_spec=self._spec, skip_checks=True, nstep=nstep,
-                                   state=state, sensordata=sensordata)
+        if self._pool is None:  # this model's own, kept (nthread 0: the calling thread)
+            self._pool = mujoco.rollout.Rollout(nthread=self.nthread if self.nthread > 1 else 0)
+        self._pool.rollout(models, self._datas if self.nthread > 1 else self._data1, state0,
+                           control, control_spec=self._spec, skip_checks=True, nstep=nstep,
+                           state=state, sensordata=sensordata)
         return state
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
