@@ -178,3 +178,17 @@ def test_vc_discrete_on_the_augmented_helicopter_is_certified_with_the_matched_m
     assert vc.injection is not None and vc.G.shape == (helicopter.n, helicopter.n)
     assert vc.verification.hinf_worst <= vc.gamma
     assert np.all(vc.verification.variance_worst <= vc.sigma2)
+
+
+def test_the_registry_declares_each_family_and_a_label_keeps_it():
+    """FamilySpec in the registry, not attributes on functions; a labelled built-in is the
+    same family; a plug-in's own attribute still declares it."""
+    for name, spec in estimators.FAMILIES.items():
+        assert estimators.ESTIMATORS[name] is spec.factory
+        assert estimators.family(spec.factory) is spec
+        assert not hasattr(spec.factory, "paper_design_only")
+    assert estimators.family(estimators.labelled("mine=ms-hinf")) is \
+        estimators.FAMILIES["ms-hinf"]
+    assert estimators.family(_paper_kalman) is None
+    assert estimators.paper_design_only(_paper_kalman) == "a test family on the paper model"
+    assert estimators.FAMILIES["ms-hinf"].scenario_defaults["disturbance"] == "basin-helicopter"

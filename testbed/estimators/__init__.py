@@ -24,8 +24,9 @@ whiteness), :class:`~filters.base.Batched`, :class:`~filters.base.Primed`,
   (N, n)) and ``P`` ((n, n) or (N, n, n)): finite, symmetric and positive semidefinite to a
   relative tolerance (:func:`testbed.experiment.loop.check_estimate`); otherwise one line
   names the estimator and the expected shape.
-- Design profiles: a factory whose theory needs the paper's model sets
-  ``factory.paper_design_only = "why"``; it then receives ``design.extras["paper_design"]``
+- Design profiles: a family whose theory needs the paper's model declares why
+  (:attr:`FamilySpec.paper_design_only` in :data:`FAMILIES`; a plug-in factory sets
+  ``factory.paper_design_only = "why"``); it then receives ``design.extras["paper_design"]``
   instead of an augmented design (:func:`design_for`). Built in: ``kalman``,
   ``kalman-bucy``, ``lmi-hinf``, ``ekf`` and ``ukf`` design from the matched model;
   ``ms-hinf``, ``poly-hinf`` and ``vc-discrete`` fall back to the paper design (their
@@ -45,7 +46,8 @@ from __future__ import annotations
 import copy
 import inspect
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -166,7 +168,12 @@ def channels_for(estimator: Any, design: DesignModel) -> np.ndarray | None:
 
 def paper_design_only(name: str | Factory) -> str | None:
     """Why an estimator family designs from the paper model only (None: it takes the
-    matched, possibly augmented design): the factory's ``paper_design_only`` attribute."""
+    matched, possibly augmented design): a built-in family's
+    :attr:`FamilySpec.paper_design_only`, else the plug-in factory's ``paper_design_only``
+    attribute (its own declaration)."""
+    spec = family(name)
+    if spec is not None:
+        return spec.paper_design_only
     try:
         factory = resolve(name)
     except ValueError:
@@ -375,34 +382,67 @@ def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
                                        sigma_points=sigma_points, w0=w0, nthread=nthread),
                    design)
 
-ms_hinf.paper_design_only = ("Basin et al.'s Theorem 1 is stated for the paper's "
-                             "continuous model with the deterministic channel y2; the "
-                             "whole-sample IMU delays have no continuous-time form")
-poly_hinf.paper_design_only = ("a continuous-time filter on the rig's cubic expansion, written "
-                               "in the paper's states; the whole-sample IMU delays have no "
-                               "continuous-time form")
-vc_discrete.paper_design_only = ("its variance bounds are stationary covariances of a plant "
-                                 "with a known exogenous input: the matched designs' constant "
-                                 "offsets have none (vehicle: undetectable, Aero: no "
-                                 "stabilizing Riccati solution) and the helicopter's input is "
-                                 "computed from the estimated rotor speed; designed there by "
-                                 "testbed.estimators.vc:vc_discrete_matched")
+@dataclass(frozen=True)
+class FamilySpec:
+    """A built-in estimator family as the registry holds it (:data:`FAMILIES`).
 
-#: Built-in estimators: name -> ``factory(design, **options)``.
-ESTIMATORS: dict[str, Factory] = {
-    "kalman": kalman,
-    "kalman-bucy": kalman_bucy,
-    "ms-hinf": ms_hinf,
-    "lmi-hinf": lmi_hinf,
-    "poly-hinf": poly_hinf,
-    "vc-discrete": vc_discrete,
-    "ekf": ekf,
-    "ukf": ukf,
+    Attributes
+    ----------
+    factory : callable
+        ``factory(design, **options) -> Estimator``.
+    paper_design_only : str, optional
+        Why the family designs from the paper model only (None: it takes the matched,
+        possibly augmented design); :func:`design_for` then gives it
+        ``design.extras["paper_design"]``.
+    scenario_defaults : dict
+        Scenario fields the family needs, applied where the user set nothing
+        (:func:`testbed.experiment.scenario.with_defaults`).
+    """
+
+    factory: Factory
+    paper_design_only: str | None = None
+    scenario_defaults: Mapping[str, Any] = field(default_factory=dict)
+
+
+_CONTINUOUS_DELAYS = "the whole-sample IMU delays have no continuous-time form"
+
+#: Built-in estimator families: name -> :class:`FamilySpec`.
+FAMILIES: dict[str, FamilySpec] = {
+    "kalman": FamilySpec(kalman),
+    "kalman-bucy": FamilySpec(kalman_bucy),
+    "ms-hinf": FamilySpec(
+        ms_hinf,
+        paper_design_only=("Basin et al.'s Theorem 1 is stated for the paper's continuous "
+                           f"model with the deterministic channel y2; {_CONTINUOUS_DELAYS}"),
+        scenario_defaults={"disturbance": "basin-helicopter", "disturbance_channel": True}),
+    "lmi-hinf": FamilySpec(lmi_hinf),
+    "poly-hinf": FamilySpec(
+        poly_hinf,
+        paper_design_only=("a continuous-time filter on the rig's cubic expansion, written in "
+                           f"the paper's states; {_CONTINUOUS_DELAYS}")),
+    "vc-discrete": FamilySpec(
+        vc_discrete,
+        paper_design_only=("its variance bounds are stationary covariances of a plant with a "
+                           "known exogenous input: the matched designs' constant offsets have "
+                           "none (vehicle: undetectable, Aero: no stabilizing Riccati "
+                           "solution) and the helicopter's input is computed from the "
+                           "estimated rotor speed; designed there by "
+                           "testbed.estimators.vc:vc_discrete_matched")),
+    "ekf": FamilySpec(ekf),
+    "ukf": FamilySpec(ukf),
 }
-#: Scenario defaults a built-in estimator needs (applied where the user set nothing).
-SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
-    "ms-hinf": {"disturbance": "basin-helicopter", "disturbance_channel": True},
-}
+#: Built-in estimators: name -> ``factory(design, **options)`` (the families' factories).
+ESTIMATORS: dict[str, Factory] = {name: spec.factory for name, spec in FAMILIES.items()}
+
+
+def family(name: str | Factory) -> FamilySpec | None:
+    """The :class:`FamilySpec` of a built-in name or factory, also under a label
+    (:func:`labelled`); None: not a built-in."""
+    if isinstance(name, plugins.LabelledFactory):
+        name = name.spec
+    if isinstance(name, str):
+        return FAMILIES.get(name)
+    return next((spec for spec in FAMILIES.values() if spec.factory is name), None)
 
 
 def resolve(name: str | Factory) -> Factory:

@@ -488,8 +488,8 @@ def with_defaults(scenario: Scenario, rig_cls: type | None = None) -> Scenario:
     for key, value in rig.scenario_defaults.items():
         if getattr(scenario, key) is None:
             changes[key] = value
-    name = scenario.estimator if isinstance(scenario.estimator, str) else None
-    needs = estimators.SCENARIO_DEFAULTS.get(name, {})
+    spec = estimators.family(scenario.estimator)
+    needs = dict(spec.scenario_defaults) if spec is not None else {}
     if needs.get("disturbance") not in rig.disturbance_signals:
         needs = {}  # the rig lacks what the estimator needs: its factory says so
     for key, value in needs.items():
