@@ -145,6 +145,8 @@ class _SampledFilter:
     """State, time keeping and input validation shared by the Kalman filters."""
 
     name: ClassVar[str] = ""
+    #: Every filter of this library takes a leading batch axis (:class:`filters.base.Batched`).
+    batched: ClassVar[bool] = True
 
     _n: int
     _m: int

@@ -223,7 +223,6 @@ def kalman(design: DesignModel, constants: str = "consider") -> Any:
         est = SchmidtKalmanFilter(system, design.x0, design.P0, consider["parameters"])
     else:
         est = KalmanFilter(design.discrete, design.x0, design.P0)
-    est.batched = True
     return _select(est, design)
 
 
@@ -231,7 +230,6 @@ def kalman_bucy(design: DesignModel, substeps: int | str = "auto") -> Any:
     """Continuous Kalman-Bucy filter on ``design.continuous`` (RK4, ``substeps`` per sample)."""
     est = KalmanBucyFilter(design.continuous, design.x0, design.P0, dt_s=design.dt_s,
                            substeps=substeps)
-    est.batched = True
     return _select(est, design)
 
 
@@ -260,7 +258,6 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
 
         est, meta = sampled_ms_hinf_estimator(design, gamma=gamma, gamma_factor=gamma_factor)
         est.design_meta = meta
-        est.batched = True
         index = sampled_two_channel_system(design)[2]
         if np.array_equal(index, np.arange(len(design.measurement_names))):
             est.channels = "all"
@@ -278,7 +275,6 @@ def ms_hinf(design: DesignModel, gamma: float | None = None,
                                design.output_matrix, gamma, R0, design.x0, design.P0,
                                design.dt_s, substeps="auto", noise_intensities=True,
                                method="auto")
-    est.batched = True
     # gamma bounds the gain from the scenario's w (G in the state, Hw in y2) to z = L x
     est.design_meta = {"gamma": gamma, "gamma_channel": "scenario",
                        "gamma_kind": "continuous-observation",
@@ -314,7 +310,6 @@ def lmi_hinf(design: DesignModel, gamma: float | None = None, gamma_factor: floa
                                        objective=objective, input_matrix=B_u, feedthrough=D_u)
         meta["a_y_std"] = design.extras.get("a_y_std", 0.1)
     est.design_meta = meta
-    est.batched = True
     return _select(est, design)
 
 

@@ -326,7 +326,6 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
                                     sigma_points=sigma_points, w0=w0, k=k, dt_s=design.dt_s)
     else:
         raise ValueError(f"kind must be 'ekf' or 'ukf', got {kind!r}")
-    est.batched = True
     if design.input_transform is None:  # the loop passes the applied input unchanged
         return AbsoluteInput(est, None, k)
     params, nr = rig.params, rig.n_states

@@ -156,12 +156,17 @@ def test_the_kalman_record_by_blocks_equals_the_per_step_record(rig, profile, mo
 
 
 def test_an_unbatched_kalman_plugin_replays_member_by_member(paper_run):
-    """A factory returning a plain (unbatched) KalmanFilter: stepped as one member
-    (estimators.PerMember), its innovations read after each step."""
+    """A factory returning an unbatched Kalman filter (a wrapper declaring batched = False):
+    stepped as one member (estimators.PerMember), its innovations read after each step."""
+    from testbed.estimators import EstimatorWrapper
+
     rec = recording_from_result(paper_run)
 
+    class Unbatched(EstimatorWrapper):
+        batched = False
+
     def plain(design):
-        return KalmanFilter(design.discrete, design.x0, design.P0)
+        return Unbatched(KalmanFilter(design.discrete, design.x0, design.P0))
 
     alone = replay(rec, rig="helicopter", estimator=plain)
     batched = replay(rec, rig="helicopter", estimator="kalman")

@@ -102,7 +102,6 @@ def _simulate_rig(design_gain: np.ndarray, system: StochasticLinearSystem, x0: n
 
     def factory(design: Any) -> LMIHInfFilter:
         est = LMIHInfFilter.from_design(system, design_gain, x0=xhat0, dt_s=design.dt_s)
-        est.batched = True
         return est
 
     scenario = Scenario(rig="vehicle-roll", estimator=factory, sensors="paper",
