@@ -10,22 +10,11 @@ from typing import Any
 import numpy as np
 
 from testbed.io import atomic_path
-from testbed.outputs.units import display
 from testbed.score.consistency import verdict_text
 from testbed.score.paired import comparison_text
-
+from testbed.score.report.metrics import METRICS
 
 # ---------------------------------------------------------------------------- tables
-def _fmt(value: Any, spec: str = ".3g") -> str:
-    return "-" if value is None else format(value, spec)
-
-
-def _rmse_text(res: dict[str, Any], units: dict[str, str], states: list[str]) -> str:
-    parts = []
-    for s in states:
-        factor, unit = display(units.get(s, ""))
-        parts.append(f"{s} {res['rmse'][s] * factor:.3g}{(' ' + unit) if unit else ''}")
-    return ", ".join(parts)
 
 
 def _rows(summary: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
@@ -33,19 +22,6 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
     for res in summary["results"]:
         groups.setdefault(res["scenario"], []).append(res)
     return list(groups.items())
-
-
-def _consistency_text(res: dict[str, Any]) -> str:
-    """``ANEES [t interval of the per-run time averages] p <mean test's p> verdict``: ``ok``
-    only for ``consistent`` (the mean test and the band diagnostic both accept),
-    ``no verdict`` below the minimum number of runs, else the verdict in capitals."""
-    test = res["nees_test"]
-    if test is None:
-        return "-"
-    lo, hi = test["mean_ci"]
-    verdict = {"consistent": "ok", "no verdict": "no verdict"}.get(test["verdict"],
-                                                                   test["verdict"].upper())
-    return f"{test['mean']:.3g} [{lo:.3g}, {hi:.3g}] p {test['mean_p']:.2g} {verdict}"
 
 
 def _squared(unit: str) -> str:
@@ -89,27 +65,6 @@ def _details(group: list[dict[str, Any]], units: dict[str, str]) -> list[str]:
     return lines
 
 
-def _gain_text(res: dict[str, Any]) -> str:
-    if res["worst_case_gain"] is None:
-        return "-"
-    text = f"{res['worst_case_gain']:.2g} / {res['random_gain']:.2g}"
-    if res["certified_gamma"] is not None:
-        sampled = res["sampled_loop_gain"]
-        text += f" (gamma {res['certified_gamma']:.3g}"
-        if sampled is not None:
-            text += f", sampled loop {sampled:.3g}"
-        text += ")"
-    return text
-
-
-def _mismatch_text(res: dict[str, Any]) -> str:
-    ratio = res["mismatch_rmse_ratio"]
-    if not ratio:
-        return "-"
-    state = max(ratio, key=ratio.get)
-    return f"{ratio[state]:.3g} ({state})"
-
-
 def _sorted(group: list[dict[str, Any]], order: list[str] | None = None
             ) -> list[dict[str, Any]]:
     """The rows of one scenario in the order the estimators were given (the same order in
@@ -137,11 +92,6 @@ def _ranks(group: list[dict[str, Any]]) -> dict[str, int]:
     return ranks
 
 
-#: Columns of :func:`leaderboard`.
-_COLUMNS = ("estimator", "rank", "RMSE", "ANEES [95 % CI] p verdict", "ANIS",
-            "worst / random gain (gamma, sampled loop)", "us/step (x KF)", "mismatch")
-
-
 def leaderboard(summary: dict[str, Any]) -> str:
     """A plain-text leaderboard: per scenario, the estimators in the order given (the same
     in every scenario) with their rank by the RMSE of the first state; columns as wide as
@@ -157,23 +107,20 @@ def leaderboard(summary: dict[str, Any]) -> str:
             if res["skipped"]:
                 rows.append((res["estimator"], f"skipped: {res['skipped']}"))
                 continue
-            states = list(res["rmse"])[:2]
-            cost = (f"{res['step_us']:.3g}" + (f" (x{res['step_vs_kalman']:.2g})"
-                                                if res["step_vs_kalman"] else ""))
             rows.append((res["estimator"], str(ranks[res["estimator"]]),
-                         _rmse_text(res, units, states), _consistency_text(res),
-                         _fmt(res["anis"]), _gain_text(res), cost, _mismatch_text(res)))
+                         *(metric.cell(res, units) for metric in METRICS)))
         blocks.append((scenario, group, rows))
+    columns = ("estimator", "rank", *(metric.header for metric in METRICS))
     every = [row for _, _, rows in blocks for row in rows]
-    full = [_COLUMNS] + [row for row in every if len(row) == len(_COLUMNS)]
-    widths = [max(len(row[i]) for row in full) for i in range(len(_COLUMNS))]
+    full = [columns] + [row for row in every if len(row) == len(columns)]
+    widths = [max(len(row[i]) for row in full) for i in range(len(columns))]
     widths[0] = max([widths[0], *(len(row[0]) for row in every)])
 
     def line(row: tuple[str, ...]) -> str:
         return "  " + "  ".join(f"{c:<{w}}" for c, w in zip(row, widths, strict=False)).rstrip()
 
     for scenario, group, rows in blocks:
-        lines += ["", f"{scenario} ({group[0]['runs']} runs)", line(_COLUMNS)]
+        lines += ["", f"{scenario} ({group[0]['runs']} runs)", line(columns)]
         lines += [line(row) for row in rows]
         lines += [f"  {text}" for text in _details(group, units)]
     return "\n".join(lines)
@@ -249,28 +196,16 @@ def markdown(summary: dict[str, Any], remarks: list[str] | None = None) -> str:
     descriptions = {s["name"]: s for s in summary["scenarios"]}
     for scenario, group in _rows(summary):
         desc = descriptions.get(scenario, {})
+        headers = ["estimator", *(metric.markdown_header for metric in METRICS), "skipped"]
         out += [f"## {scenario}", "", desc.get("description", ""), "",
-                "| estimator | RMSE (95 % CI) | ANEES [95 % CI] p verdict | ANIS [band] | worst / "
-                "random gain (gamma) | us/step (x KF) | mismatch | skipped |",
-                "|---|---|---|---|---|---|---|---|"]
+                "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
         for res in _sorted(group, summary.get("estimators")):
             if res["skipped"]:
-                out.append(f"| {res['estimator']} | | | | | | | {res['skipped']} |")
+                out.append(f"| {res['estimator']} |" + " |" * len(METRICS)
+                           + f" {res['skipped']} |")
                 continue
-            cells = []
-            for s, value in res["rmse"].items():
-                factor, unit = display(units.get(s, ""))
-                lo, hi = res["rmse_ci95"][s]
-                cells.append(f"{s} {value * factor:.3g} [{lo * factor:.3g}, {hi * factor:.3g}]"
-                             f"{(' ' + unit) if unit else ''}")
-            anis = "-" if res["anis"] is None else (
-                f"{res['anis']:.3g} [{res['anis_bounds'][0]:.3g}, "
-                f"{res['anis_bounds'][1]:.3g}]")
-            cost = (f"{res['step_us']:.3g}" + (f" (x{res['step_vs_kalman']:.2g})"
-                                                if res["step_vs_kalman"] else ""))
-            out.append(f"| {res['estimator']} | {'<br>'.join(cells)} | "
-                       f"{_consistency_text(res)} | {anis} | {_gain_text(res)} | {cost} | "
-                       f"{_mismatch_text(res)} | |")
+            cells = [metric.markdown_cell(res, units) for metric in METRICS]
+            out.append(f"| {res['estimator']} | " + " | ".join(cells) + " | |")
         out.append("")
         details = _details(group, units)
         if details:
