@@ -138,16 +138,18 @@ def test_replay_gives_the_runs_estimates_bitwise(rig, profile):
 
 @pytest.mark.parametrize(("rig", "profile"), [("helicopter", "paper"), ("aero", "hardware")])
 def test_the_kalman_record_by_blocks_equals_the_per_step_record(rig, profile, monkeypatch):
-    """The Kalman filter's record (references to its shared arrays, copied per block) equals
-    the generic one read after every step: estimates, variances, innovations and their
-    covariances, across block boundaries."""
-    from testbed.experiment import replay as replay_module
+    """The Kalman filter's block path (its covariance steps first, then the mean's
+    arithmetic, the record copied per block) equals the stage stepped and read after every
+    step: estimates, variances, innovations and their covariances, across block
+    boundaries."""
+    from testbed.experiment import replay_collect
 
     rec = recording_from_result(runner.run(Scenario(rig=rig, profile=profile, duration_s=2.0,
                                                     seed=4, frame_skip=2)))
-    monkeypatch.setattr(replay_module._Collect, "BLOCK", 97)
+    monkeypatch.setattr(replay_collect.Collector, "BLOCK", 97)
     blocks = replay(rec, rig=rig, profile=profile)
-    monkeypatch.setattr(replay_module._Collect, "_kalman", replay_module._Collect._generic)
+    monkeypatch.setattr(replay_collect.Collector, "block",
+                        lambda self, j0, j1: self._generic(j0, j1))
     steps = replay(rec, rig=rig, profile=profile)
     assert blocks.steps == 1000
     for name in ("x_hat", "P_diag", "innovations", "innovation_cov", "nis"):
