@@ -13,8 +13,9 @@ nothing else:
 * the covariance recursion does not depend on the data: each block's innovation covariances,
   gains and posterior covariances come first, from the filter's own step of its shared
   covariance (:meth:`filters.KalmanFilter.shared_covariance_step`: what ``step`` uses, the
-  same arrays); once a step returns the covariance it was given (a fixed point, bitwise),
-  every later step is that step and none is looked up again;
+  same arrays); once a covariance it was given comes back (a fixed point of the
+  floating-point recursion or a short cycle), the later steps repeat the cycle's and none is
+  looked up again;
 * the channels the filter reads are selected from the whole recording once, contiguous
   rows (what the stage's ``select`` gives one row);
 * the mean is the filter's ``step`` of a shared covariance written out: the design's input
@@ -25,7 +26,9 @@ nothing else:
 * the checks run once per block: estimates that are not finite, an input transform that
   does not return the filter's ``(1, k)`` input or anything that raises sends the whole
   replay back to the stage from the reset, step by step, where it fails as the run does
-  (the same error at the same step).
+  (the same error at the same step; numpy's warnings of the failed block's steps after the
+  first non-finite value come first: a block that passes warns where the run warns, the
+  same operations on the same values).
 
 The estimates are the run's bitwise (``tests/experiment/test_replay.py`` compares them with
 a run's, and the block path with the stage's step by step).
@@ -60,6 +63,9 @@ def innermost(est: Any) -> Any:
     while type(inner) in (estimators.EstimatorWrapper, estimators.ChannelSelect):
         inner = inner.inner
     return inner if isinstance(inner, KalmanFilter) else est
+
+
+_Step = tuple[np.ndarray, np.ndarray, np.ndarray]  # (S, K, P) of a covariance step
 
 
 class _Fallback(Exception):
@@ -98,6 +104,8 @@ class Collector:
         self.has_innovation = True
         self.kalman = isinstance(inner, KalmanFilter) and has_P
         self._blocks: _KalmanBlocks | None = None
+        # the record of the covariance's cycle: S (c, p, p) and the variances (c, n)
+        self._cycle: tuple[np.ndarray, np.ndarray] | None = None
 
     def run(self, x0_hat: np.ndarray, P0: Any, progress: Callable[[int], Any]) -> None:
         """Reset the stage on row 0 (primed on its channels), then steps ``1..K``.
@@ -126,7 +134,7 @@ class Collector:
                 self._generic(j0, min(self.K + 1, j0 + self.BLOCK))
 
     def _reset(self, x0_hat: np.ndarray, P0: Any) -> None:
-        self._blocks = None
+        self._blocks = self._cycle = None
         self.restore_taps(0)
         self.stage.reset(self.Y[0].copy(), None, x0_hat, P0)
         self.first()
@@ -165,7 +173,7 @@ class Collector:
         if self._blocks is None:
             self._blocks = _KalmanBlocks(self)
         blocks = self._blocks
-        steps = blocks.covariances(j0, j1)
+        steps, head = blocks.covariances(j0, j1)
         X, nus = blocks.states(j0, j1, steps)
         if not all_finite(X):
             raise _Fallback("a non-finite estimate")
@@ -175,20 +183,22 @@ class Collector:
         if self.nu is None:
             self._allocate(nus[0])
         self.nu[j0 - 1:j1 - 1] = np.concatenate(nus)  # type: ignore[index]
-        # the covariances: those before a fixed point one by one, the fixed point's at once
-        fixed = blocks.fixed
-        head = len(steps) if fixed is None else next(i for i, s in enumerate(steps)
-                                                     if s is fixed)
+        # the covariances: those before the cycle one by one, the cycle's by its index
         end = j0 + head
         if head:
             self.S[j0 - 1:end - 1] = [s[0] for s in steps[:head]]  # type: ignore[index]
-            self.P_diag[j0:end] = np.diagonal(  # type: ignore[index]
-                stage._physical_block(np.stack([s[2] for s in steps[:head]])),
-                axis1=-2, axis2=-1)
+            self.P_diag[j0:end] = self._variances([s[2] for s in steps[:head]])
         if end < j1:
-            self.S[end - 1:j1 - 1] = fixed[0]  # type: ignore[index]
-            self.P_diag[end:j1] = np.diagonal(  # type: ignore[index]
-                stage._physical_block(fixed[2]))  # type: ignore[index]
+            if self._cycle is None:
+                self._cycle = (np.array([s[0] for s in blocks.cycle]),  # type: ignore[union-attr]
+                               self._variances([s[2] for s in blocks.cycle]))  # type: ignore[union-attr]
+            at = (np.arange(end, j1) - blocks.cycle_start) % len(self._cycle[0])
+            self.S[end - 1:j1 - 1] = self._cycle[0][at]  # type: ignore[index]
+            self.P_diag[end:j1] = self._cycle[1][at]  # type: ignore[index]
+
+    def _variances(self, Ps: list[np.ndarray]) -> np.ndarray:
+        """The physical states' variances (len(Ps), n) of covariances (n_full, n_full)."""
+        return np.diagonal(self.stage._physical_block(np.stack(Ps)), axis1=-2, axis2=-1)
 
     def _generic(self, j0: int, j1: int) -> None:
         """Steps ``j0..j1-1`` of any estimator."""
@@ -231,7 +241,17 @@ class Collector:
 class _KalmanBlocks:
     """A Kalman filter's batch of one over the recording after its first step (see the
     module docstring): its state (the estimate and the shared covariance) and the operands
-    its step uses, laid out as the filter lays them out."""
+    its step uses, laid out as the filter lays them out.
+
+    The recursion is a function of the covariance alone: when a covariance it was given
+    comes back as the input of a later step (the same array: the filter's kept step; the
+    filter keeps :data:`filters.kalman._MEMO_STEPS` and more), the steps between repeat for
+    ever (a fixed point of the floating-point recursion, or a short cycle), and are not
+    looked up again.
+    """
+
+    #: Steps whose inputs are remembered for the cycle's detection.
+    HISTORY = 64
 
     def __init__(self, collector: Collector):
         stage, kf = collector.stage, collector.inner
@@ -259,25 +279,54 @@ class _KalmanBlocks:
         # the filter after the stage's first step
         self.x = kf.x
         self.P = kf.shared_P
-        self.fixed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: The steps the recursion repeats (period ``len(cycle)``, 1: a fixed point) from
+        #: step :attr:`cycle_start` on, once a covariance it was given comes back.
+        self.cycle: list[_Step] | None = None
+        self.cycle_start = 0
+        # the last HISTORY steps' inputs (kept: their ids stay theirs) by id, and the steps
+        self._seen: dict[int, int] = {}
+        self._history: list[tuple[np.ndarray, _Step]] = []
+        self._first = 2  # the step of _history[0] (the stage took step 1)
 
-    def covariances(self, j0: int, j1: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def covariances(self, j0: int, j1: int) -> tuple[list[_Step], int]:
         """``(S, K, P)`` of steps ``j0..j1-1``: the innovation covariance, the gain and the
-        posterior covariance the filter's step uses (its arrays; never written)."""
-        if self.fixed is not None:
-            return [self.fixed] * (j1 - j0)
+        posterior covariance the filter's step uses (its arrays; never written).
+
+        Returns
+        -------
+        steps : list of (S, K, P)
+        head : int
+            How many of them precede :attr:`cycle` (the rest are its steps).
+        """
+        if self.cycle is not None:
+            return [self._in_cycle(j) for j in range(j0, j1)], 0
         step_of, P = self.kf.shared_covariance_step, self.P
-        out = []
+        seen, history = self._seen, self._history
+        out: list[_Step] = []
         for j in range(j0, j1):
+            i = seen.get(id(P))
+            if i is not None and history[i - self._first][0] is P:
+                # P is the input of step i again: the steps from i on repeat with period j - i
+                self.cycle = [h[1] for h in history[i - self._first:]]
+                self.cycle_start = i
+                self._seen, self._history = {}, []
+                head = len(out)
+                return out + [self._in_cycle(k) for k in range(j, j1)], head
             step = step_of(P, j)
             out.append(step)
-            if step[2] is P:  # P is a fixed point (its own step's kept result): so are all
-                self.fixed = step  # later steps
-                out.extend([step] * (j1 - j - 1))
-                break
+            seen[id(P)] = j
+            history.append((P, step))
+            if len(history) > self.HISTORY:
+                del seen[id(history.pop(0)[0])]
+                self._first += 1
             P = step[2]
         self.P = P
-        return out
+        return out, len(out)
+
+    def _in_cycle(self, j: int) -> _Step:
+        """Step ``j`` of the recursion's cycle."""
+        cycle = self.cycle
+        return cycle[(j - self.cycle_start) % len(cycle)]  # type: ignore[arg-type]
 
     def _input(self, u: Any) -> None:
         """``ValueError`` unless ``u`` is what the filter's step takes as it is."""

@@ -157,6 +157,64 @@ def test_the_kalman_record_by_blocks_equals_the_per_step_record(rig, profile, mo
     assert blocks.consistency == steps.consistency
 
 
+def test_the_covariance_is_not_stepped_past_its_fixed_point(monkeypatch):
+    """The helicopter's paper design settles into a short cycle of its covariance recursion
+    (bitwise; at 1 kHz a fixed point): the block path stops stepping it once a covariance
+    comes back (and its record still equals the stage's, test above); the yaw-locked Aero's
+    hardware design does not settle, every step is taken."""
+    from filters import KalmanFilter as KF
+
+    calls = []
+    own = KF.shared_covariance_step
+
+    def counted(self, P, steps):
+        calls.append(steps)
+        return own(self, P, steps)
+
+    monkeypatch.setattr(KF, "shared_covariance_step", counted)
+    rec = recording_from_result(runner.run(Scenario(rig="helicopter", duration_s=3.0,
+                                                    seed=4)))
+    settled = replay(rec, rig="helicopter")
+    assert 2 <= len(calls) < 100 and calls == list(range(2, 2 + len(calls)))
+    # past it the innovation covariances and variances repeat with a short period
+    last = calls[-1]
+    period = next(c for c in range(1, 17)
+                  if np.array_equal(settled.P_diag[last - c:-c], settled.P_diag[last:]))
+    np.testing.assert_array_equal(settled.innovation_cov[last - 1 - period:-period],
+                                  settled.innovation_cov[last - 1:])
+    calls.clear()
+    aero = {"rig": "aero", "profile": "hardware", "options": {"yaw_locked": True}}
+    rec = recording_from_result(runner.run(Scenario(rig="aero", profile="hardware",
+                                                    rig_options={"yaw_locked": True},
+                                                    duration_s=1.0, seed=4)))
+    result = replay(rec, **aero)
+    assert calls == list(range(2, result.steps + 1))
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
+                            "ignore:invalid value encountered:RuntimeWarning")
+def test_a_failing_block_is_stepped_again_by_the_stage_and_fails_as_the_run(monkeypatch):
+    """An estimate that escapes (a channel of 1e308 in row 150): the block path hands the
+    replay back to the stage from the reset, which raises what it raises step by step (the
+    same error, at the same step)."""
+    from filters.errors import FiniteEscapeError
+    from testbed.experiment import replay_collect
+
+    rec = recording_from_result(runner.run(Scenario(rig="helicopter", duration_s=3.0,
+                                                    seed=4)))
+    pitch = rec.channels["pitch"].copy()
+    pitch[150:] = 1e308
+    rec = dataclasses.replace(rec, channels=dict(rec.channels, pitch=pitch))
+    with pytest.raises(FiniteEscapeError) as blocks:
+        replay(rec, rig="helicopter")
+    monkeypatch.setattr(replay_collect.Collector, "block",
+                        lambda self, j0, j1: self._generic(j0, j1))
+    with pytest.raises(FiniteEscapeError) as steps:
+        replay(rec, rig="helicopter")
+    assert str(blocks.value) == str(steps.value) and blocks.value.time == steps.value.time
+    assert 1.5 <= blocks.value.time < 3.0
+
+
 def test_an_unbatched_kalman_plugin_replays_member_by_member(paper_run):
     """A factory returning a plain (unbatched) KalmanFilter: stepped as one member
     (estimators.PerMember), its innovations read after each step."""
