@@ -338,11 +338,11 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     loop = Collector(stage, inner, P is not None, Yb, Ub, tap_columns)
     bar = tqdm(total=K, desc=f"replay {cls.name}", unit="step", disable=not progress,
                leave=False)
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     with bar, threadpool_limits(1):
         loop.run(x0_hat, P0, bar.update)
     x_hat, P_diag, nu_arr, S_arr, has_innovation = loop.arrays()
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
 
     notes: list[str] = []
     if fallback:
@@ -387,6 +387,6 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
         innovation_cov=S_arr,
         nis=nis, consistency=consistency, reference=ref, reference_measured=ref_measured,
         reference_predicted=ref_predicted, measured_state=list(suite.measured_state),
-        notes=notes, wall_s=wall, design_meta=design_meta)
+        notes=notes, wall_s=wall, cpu_s=cpu, design_meta=design_meta)
 
 

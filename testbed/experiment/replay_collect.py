@@ -5,10 +5,10 @@ at a time.
 Any estimator is stepped through the :class:`~testbed.experiment.loop.EstimatorStage`, as in
 a run, and read after each step (``P``, ``innovation``, ``innovation_cov``).
 
-A :class:`filters.KalmanFilter` whose batch of one shares its covariance with itself
-(``shared_P``; possibly behind a channel selection) takes the stage on its first step (its
-checks) and then a path of its own, :class:`_KalmanBlocks`, with the filter's arithmetic and
-nothing else:
+A :class:`filters.KalmanFilter` (the class itself, not a subclass) whose batch of one shares
+its covariance with itself (``shared_P``; possibly behind a channel selection) takes the
+stage on its first step (its checks) and then a path of its own, :class:`_KalmanBlocks`,
+with the filter's arithmetic and nothing else:
 
 * the covariance recursion does not depend on the data: each block's innovation covariances,
   gains and posterior covariances come first, from the filter's own step of its shared
@@ -102,7 +102,8 @@ class Collector:
         self.nu: np.ndarray | None = None
         self.S: np.ndarray | None = None
         self.has_innovation = True
-        self.kalman = isinstance(inner, KalmanFilter) and has_P
+        # the class itself: a subclass may step otherwise
+        self.kalman = type(inner) is KalmanFilter and has_P
         self._blocks: _KalmanBlocks | None = None
         # the record of the covariance's cycle: S (c, p, p) and the variances (c, n)
         self._cycle: tuple[np.ndarray, np.ndarray] | None = None
@@ -354,8 +355,8 @@ class _KalmanBlocks:
             u = U[j - 1]
             if transform is not None:
                 u = transform(u, x)
-                if j == j0 and with_u:
-                    self._input(u)
+            if j == j0 and with_u:
+                self._input(u)
             xp = vecmat(x, FT)
             if with_u:
                 xp += vecmat(u, BT)
@@ -365,7 +366,7 @@ class _KalmanBlocks:
             x = xp + matmul(step[1], nu[..., None])[..., 0]
             keep_x(x)
             keep_nu(nu)
-        if with_u and transform is not None:
+        if with_u:
             self._input(u)  # the first and the last of the block
         self.x = x
         return np.concatenate(xs), nus

@@ -71,6 +71,9 @@ class ReplayResult:
     notes : list of str
     wall_s : float
         Seconds of the estimator loop.
+    cpu_s : float
+        The process's CPU seconds in the estimator loop (one thread: what ``wall_s`` is on
+        an idle machine).
     design_meta : dict
     """
 
@@ -102,6 +105,7 @@ class ReplayResult:
     measured_state: list[int | None] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     wall_s: float = 0.0
+    cpu_s: float = 0.0
     design_meta: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -114,6 +118,13 @@ class ReplayResult:
         """Recorded seconds replayed per wall-clock second."""
         span = float(self.time_s[-1] - self.time_s[0])
         return span / self.wall_s if self.wall_s > 0 else math.inf
+
+    @property
+    def cpu_real_time_factor(self) -> float:
+        """Recorded seconds replayed per CPU second of the loop (the factor on an idle
+        machine: the machine's load does not change it)."""
+        span = float(self.time_s[-1] - self.time_s[0])
+        return span / self.cpu_s if self.cpu_s > 0 else math.inf
 
     def estimates_summary(self) -> dict[str, Any]:
         """Per state: the final estimate, its final standard deviation and the mean one."""
@@ -144,6 +155,7 @@ class ReplayResult:
             "estimates": self.estimates_summary(), "design": self.design_meta,
             "notes": list(self.notes), "units": units,
             "wall_s": self.wall_s, "real_time_factor": self.real_time_factor,
+            "cpu_s": self.cpu_s, "cpu_real_time_factor": self.cpu_real_time_factor,
         }
 
 
