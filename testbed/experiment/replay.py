@@ -185,6 +185,89 @@ def _rig(cls: type, params: Any, physics_dt_s: float, profile: str,
         raise ValueError(f"rig {cls.name!r}: {err}") from None
 
 
+def _suite(unit: Any, sensors: Any, sensor_options: dict[str, Any] | None, period: float,
+           reference: str | None, exclude: Sequence[str], recording: Recording) -> Sensor:
+    """The estimator's sensors: the preset (or the suite) at ``period``, with the reference
+    and the excluded channels held out (:class:`_HeldOut`), checked against the
+    recording."""
+    source = recording.source
+    if sensors is None or isinstance(sensors, str):
+        suite = unit.sensors(sensors, dt_s=period, **(sensor_options or {}))
+    elif isinstance(sensors, Sensor):
+        if sensor_options:
+            raise ValueError("sensor_options is only used with a sensor preset name")
+        suite = sensors
+    else:
+        raise ValueError(f"sensors must be a preset name or a Sensor, got {sensors!r}")
+    names = tuple(suite.names)
+    held_names = ([] if reference is None else [reference]) + list(exclude)
+    for name in held_names:
+        what = "reference" if name == reference else "exclude"
+        if name not in names:
+            raise ValueError(f"{what} channel {name!r} is not a channel of the sensors "
+                             f"{list(names)}")
+        if name not in recording.channels:
+            raise ValueError(f"{source}: the recording has no channel {name!r} ({what}); it "
+                             f"has {sorted(recording.channels)}")
+    if held_names:
+        suite = _HeldOut(suite, [names.index(n) for n in held_names])
+    return suite
+
+
+def _consistency(nu_arr: np.ndarray | None, S_arr: np.ndarray | None, names: Sequence[str],
+                 used: np.ndarray, name: str, level: float, notes: list[str]
+                 ) -> tuple[list[str], np.ndarray | None, dict[str, Any] | None]:
+    """The innovations' channel names, NIS and :func:`innovation_consistency` (None, with a
+    note, without innovations or with an innovation covariance that is not positive
+    definite)."""
+    nis = None
+    consistency = None
+    innovation_names: list[str] = []
+    if nu_arr is not None:
+        p = nu_arr.shape[1]
+        innovation_names = ([names[int(i)] for i in used] if len(used) == p
+                            else [f"innovation_{i}" for i in range(p)])
+        try:
+            z = whiten(nu_arr, S_arr)
+        except np.linalg.LinAlgError:
+            notes.append("an innovation covariance is not positive definite: no consistency")
+        else:
+            nis = np.sum(z * z, axis=1)
+            consistency = innovation_consistency(nis, z, p, level)
+    else:
+        notes.append(f"filter {name!r} exposes no innovation and innovation_cov: no "
+                     "consistency statistics")
+    return innovation_names, nis, consistency
+
+
+def _design_meta(est: Any, matched: bool, fallback: str | None) -> dict[str, Any]:
+    """The estimator's ``design_meta`` and, for a matched design, the design profile."""
+    design_meta = dict(getattr(getattr(est, "inner", est), "design_meta", None) or {})
+    if isinstance(est, estimators.PerMember):
+        design_meta = dict(getattr(est.instances[0], "design_meta", None) or {})
+    if matched:
+        design_meta.setdefault("design_profile", "paper (fallback)" if fallback else "matched")
+    return design_meta
+
+
+def _samples(recording: Recording, names: Sequence[str], action_names: Sequence[str],
+             every: int, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows used (every ``every``-th), the channels (K+1, m; NaN for a channel the
+    recording lacks, which the estimator does not use) and the inputs (K+1, nu)."""
+    source = recording.source
+    rows = np.arange(0, recording.n_samples, every)
+    K = len(rows) - 1
+    if K < 1:
+        raise ValueError(f"{source}: {recording.n_samples} samples give no step at period "
+                         f"{period:g} s")
+    Y = np.column_stack([np.asarray(recording.channels[n], float)[rows]
+                         if n in recording.channels else np.full(K + 1, np.nan)
+                         for n in names])
+    U = np.column_stack([np.asarray(recording.inputs[n], float)[rows]
+                         for n in action_names])
+    return rows, Y, U
+
+
 def replay(recording: Recording, *, rig: Any, profile: str = "paper",
            options: dict[str, Any] | None = None, params: Any = None,
            estimator: Any = "kalman", estimator_options: dict[str, Any] | None = None,
@@ -269,27 +352,8 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     unit = _rig(cls, nominal, physics_dt_s, profile, options)
     matched = design_profile == "matched" and profile != cls.profiles[0]
     design_rig = unit if matched else _rig(cls, nominal, physics_dt_s, cls.profiles[0], options)
-    # the sensors
-    if sensors is None or isinstance(sensors, str):
-        suite = unit.sensors(sensors, dt_s=period, **(sensor_options or {}))
-    elif isinstance(sensors, Sensor):
-        if sensor_options:
-            raise ValueError("sensor_options is only used with a sensor preset name")
-        suite = sensors
-    else:
-        raise ValueError(f"sensors must be a preset name or a Sensor, got {sensors!r}")
+    suite = _suite(unit, sensors, sensor_options, period, reference, exclude, recording)
     names = tuple(suite.names)
-    held_names = ([] if reference is None else [reference]) + list(exclude)
-    for name in held_names:
-        what = "reference" if name == reference else "exclude"
-        if name not in names:
-            raise ValueError(f"{what} channel {name!r} is not a channel of the sensors "
-                             f"{list(names)}")
-        if name not in recording.channels:
-            raise ValueError(f"{source}: the recording has no channel {name!r} ({what}); it "
-                             f"has {sorted(recording.channels)}")
-    if held_names:
-        suite = _HeldOut(suite, [names.index(n) for n in held_names])
     disturbance_model = unit.disturbance(disturbance, process_noise, ambient_noise)
     known = disturbance_model if disturbance_model is not None and (
         disturbance_model.active or disturbance_model.has_signal) else None
@@ -317,17 +381,8 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
     if lacking:
         raise ValueError(f"{source}: the recording has no channel {lacking[0]!r}, which "
                          f"filter {name!r} needs (it has {sorted(recording.channels)})")
-    # the samples
-    rows = np.arange(0, recording.n_samples, every)
+    rows, Y, U = _samples(recording, names, cls.action_names, every, period)
     K = len(rows) - 1
-    if K < 1:
-        raise ValueError(f"{source}: {recording.n_samples} samples give no step at period "
-                         f"{period:g} s")
-    Y = np.column_stack([np.asarray(recording.channels[n], float)[rows]
-                         if n in recording.channels else np.full(K + 1, np.nan)
-                         for n in names])
-    U = np.column_stack([np.asarray(recording.inputs[n], float)[rows]
-                         for n in cls.action_names])
     # row j as the (1, m) and (1, nu) the stage takes: views of contiguous rows
     Yb = np.ascontiguousarray(np.nan_to_num(Y)[:, None, :])
     Ub = np.ascontiguousarray(U[:, None, :])
@@ -349,32 +404,13 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
         notes.append(f"designed from the paper model ({fallback})")
     if not has_innovation:
         nu_arr = S_arr = None
-    nis = None
-    consistency = None
-    innovation_names: list[str] = []
-    if nu_arr is not None:
-        p = nu_arr.shape[1]
-        innovation_names = ([names[int(i)] for i in used] if len(used) == p
-                            else [f"innovation_{i}" for i in range(p)])
-        try:
-            z = whiten(nu_arr, S_arr)
-        except np.linalg.LinAlgError:
-            notes.append("an innovation covariance is not positive definite: no consistency")
-        else:
-            nis = np.sum(z * z, axis=1)
-            consistency = innovation_consistency(nis, z, p, level)
-    else:
-        notes.append(f"filter {name!r} exposes no innovation and innovation_cov: no "
-                     "consistency statistics")
+    innovation_names, nis, consistency = _consistency(nu_arr, S_arr, names, used, name,
+                                                      level, notes)
     ref = ref_measured = ref_predicted = None
     if reference is not None:
         ref, ref_measured, ref_predicted = reference_error(
             suite, names.index(reference), reference, Y, U, x_hat, list(unit.state_names))
-    design_meta = dict(getattr(getattr(est, "inner", est), "design_meta", None) or {})
-    if isinstance(est, estimators.PerMember):
-        design_meta = dict(getattr(est.instances[0], "design_meta", None) or {})
-    if matched:
-        design_meta.setdefault("design_profile", "paper (fallback)" if fallback else "matched")
+    design_meta = _design_meta(est, matched, fallback)
     return ReplayResult(
         source=source, sha256=recording.sha256, rig=cls.name, profile=profile,
         estimator=name, sensors=suite.describe(), period_s=float(period), every=every,
