@@ -610,6 +610,34 @@ class KalmanFilter(_SampledFilter):
         K = np.linalg.solve(s.H @ P @ s.H.T + s.R, s.H @ P).T
         return P, K
 
+    def shared_covariance_step(self, P: FloatArray, steps: int) -> _Step:
+        """The innovation covariance, gain and posterior covariance of the :meth:`step` that
+        follows the shared posterior covariance ``P``: the arrays :meth:`step` itself uses
+        (kept and reused as it keeps them; read-only, never written).
+
+        The covariance recursion does not depend on the data: a caller that steps the mean
+        itself (``testbed replay`` over a whole recording) takes them from here.
+
+        Parameters
+        ----------
+        P : numpy.ndarray, shape (n, n)
+            A shared posterior covariance (:attr:`shared_P`, or the ``P`` this returned).
+        steps : int
+            The number of the step (its time ``steps * dt_s`` in a raised error).
+
+        Returns
+        -------
+        S : numpy.ndarray, shape (m, m)
+        K : numpy.ndarray, shape (n, m)
+        P : numpy.ndarray, shape (n, n)
+
+        Raises
+        ------
+        LossOfDefinitenessError, FiniteEscapeError
+            As :meth:`step` at that step.
+        """
+        return self._shared_covariance_step(P, steps)
+
     # -------------------------------------------------------------- internals
     def _shared(self, P: FloatArray) -> FloatArray | None:
         """The member every filter of a batch shares, shape ``(n, n)``, or None.
