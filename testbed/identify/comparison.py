@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from testbed.identify.channels import IdentificationError
-from testbed.identify.fit import fit_percent, predict_channels
+from testbed.identify.predict import predict_channels
+from testbed.identify.result import fit_percent
 from testbed.identify.simulate import RecordingModel, sensor_vectors
 from testbed.identify.twin import Twin
 from testbed.io.recording import Recording

@@ -44,7 +44,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from testbed.identify.fit import Identification
+from testbed.identify.result import Identification
 from testbed.io import atomic_path
 
 FORMAT = "testbed-twin"
