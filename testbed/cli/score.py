@@ -61,7 +61,7 @@ class Progress:
             entries = []
         if args.scenario is not None:
             entries = [e for e in entries if e.name in args.scenario]
-        if getattr(args, "twin", None) is not None:  # the twin's entries (errors: later)
+        if args.twin is not None:  # the twin's entries (errors: later)
             try:
                 entries = harness.twin_entries(entries, args.twin, args.suite,
                                                selected=args.scenario is not None)
@@ -109,7 +109,9 @@ def command(args: argparse.Namespace) -> int:
             search = "worst case" if entry["worst_case"] else ""
             print(f"{entry['name']:<28}{status:<44}{search:<12}{entry['description']}")
         return 0
+    from filters.base import Batched
     from testbed import estimators
+    from testbed.plugins import LabelledFactory
     from testbed.score.suite import LINEUP
 
     if not args.estimator:
@@ -126,9 +128,9 @@ def command(args: argparse.Namespace) -> int:
             raise ValueError(f"{flag}: {exc}") from None
     *chosen, reference = chosen
     for factory in chosen:  # a plug-in class that runs one instance per run, said up front
-        target = factory if isinstance(factory, str) else getattr(factory, "_target", None)
+        target = factory._target if isinstance(factory, LabelledFactory) else None
         cls = target() if callable(target) else None
-        if isinstance(cls, type) and not getattr(cls, "batched", False):
+        if isinstance(cls, type) and not (isinstance(cls, Batched) and cls.batched):
             print(f"note: {factory.__name__} has no batched = True: it runs one instance per "
                   "run (up to the largest entry's runs per step); expect a cost of several "
                   "times a batched estimator's", file=sys.stderr)

@@ -77,14 +77,13 @@ def build_design(rig, sensors: Sensor, dt_s: float, A: np.ndarray, B: np.ndarray
         measurement_names=tuple(sensors.names), measurement_units=tuple(sensors.units),
         measurement_index=index, sensors=model, output_matrix=np.asarray(output_matrix, float),
         disturbance_matrix=disturbance_matrix, input_transform=input_transform,
-        extras={"cubic_model": getattr(type(rig), "cubic_model", None),
+        extras={"cubic_model": type(rig).cubic_model,
                 "parameter_mismatch": _mismatch(rig), **designer_extras(rig), **(extras or {})})
 
 
 def _mismatch(rig) -> Any:
     """The rig's :class:`~testbed.rigs.base.ParameterMismatch` (None without one)."""
-    declared = getattr(rig, "parameter_mismatch", None)
-    return None if declared is None else declared()
+    return rig.parameter_mismatch()
 
 
 def rate_noise(n_states: int, n_joints: int, intensity: float,

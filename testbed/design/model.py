@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from filters import DiscreteLinearSystem, LinearSystem
+from testbed.records import field_values
 from testbed.sensors import SensorModel
 
 
@@ -133,7 +134,7 @@ class InputStates:
         ``(n_e, k_rig)`` and the entries finite."""
         for name, shape in (("from_input", (k_rig, k)), ("from_states", (k_rig, n_e)),
                             ("relative", (n_e, k_rig))):
-            value = np.asarray(getattr(self, name), float)
+            value = np.asarray(field_values(self)[name], float)
             if value.shape != shape or not np.all(np.isfinite(value)):
                 raise ValueError(f"InputStates.{name} must be finite with shape {shape}, got "
                                  f"shape {value.shape}")
@@ -143,8 +144,5 @@ def designer_extras(rig) -> dict[str, Any]:
     """The designer's rig as the nonlinear filters rebuild it: its class, physics step,
     nominal parameters and options (``extras["rig_type"]``, ``["physics_dt_s"]``,
     ``["rig_params"]``, ``["rig_options"]``)."""
-    model = getattr(rig, "model", None)
-    return {"rig_type": type(rig),
-            "physics_dt_s": None if model is None else float(model.opt.timestep),
-            "rig_params": getattr(rig, "params", None),
-            "rig_options": dict(getattr(rig, "options", None) or {})}
+    return {"rig_type": type(rig), "physics_dt_s": float(rig.model.opt.timestep),
+            "rig_params": rig.params, "rig_options": dict(rig.options or {})}

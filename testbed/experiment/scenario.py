@@ -13,6 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from filters.base import Named
+from testbed.plugins import factory_name
+from testbed.records import field_items, field_values
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import Rig, build_rig
 
@@ -71,7 +74,7 @@ def _build_rig(rig_cls: type, spec: Any, dt_s: float, profile: str,
     try:
         return build_rig(rig_cls, params, physics_dt_s=dt_s, profile=profile, options=options)
     except PLUGIN_FAILURES as exc:
-        label = spec if isinstance(spec, str) else getattr(rig_cls, "name", rig_cls.__name__)
+        label = spec if isinstance(spec, str) else rig_cls.name
         raise ScenarioError("rig", str(PluginError(f"rig {label!r}", "build", exc))) from None
 
 
@@ -151,6 +154,11 @@ def _frozen(value: Any) -> Any:
     if value is None or isinstance(value, str | int | float | bool | np.generic):
         return value
     return ("id", id(value))
+
+
+#: The fields that hold dicts (options and parameter tables).
+DICT_FIELDS = ("estimator_options", "sensor_options", "manoeuvre_params", "params",
+               "design_options", "rig_options", "nominal_params")
 
 
 @dataclass(frozen=True)
@@ -283,7 +291,7 @@ class Scenario:
         return {k: v for k, v in self.__dict__.items() if k != "_resolved"}
 
     def _snapshot(self) -> tuple:
-        return tuple(_frozen(getattr(self, f.name)) for f in dataclasses.fields(self))
+        return tuple(_frozen(value) for value in field_values(self).values())
 
     def take_resolved(self) -> Resolved:
         """:meth:`check`'s result for one build: the built rig and sensors belong to the
@@ -354,11 +362,10 @@ class Scenario:
         if not _is_int(self.seed) or not 0 <= self.seed <= MAX_SEED:
             raise ScenarioError("seed", f"seed must be an integer in [0, 2**63), got "
                                 f"{self.seed!r}")
-        for name in ("estimator_options", "sensor_options", "manoeuvre_params", "params",
-                     "design_options", "rig_options", "nominal_params"):
-            if not isinstance(getattr(self, name), dict):
-                raise ScenarioError(name, f"{name} must be a dict, got "
-                                    f"{type(getattr(self, name)).__name__}")
+        fields = field_values(self)
+        for name in DICT_FIELDS:  # (in this order: the first bad one named)
+            if not isinstance(value := fields[name], dict):
+                raise ScenarioError(name, f"{name} must be a dict, got {type(value).__name__}")
         if self.controller is not None and self.controller not in CONTROLLERS:
             raise ScenarioError("controller", f"unknown controller {self.controller!r}; "
                                 f"expected one of {CONTROLLERS}")
@@ -451,14 +458,13 @@ class Scenario:
         :data:`OMITTED_AT_DEFAULT` only when set (so that earlier descriptions, e.g. a score
         suite's hash, stay as they were)."""
         out = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if f.name in OMITTED_AT_DEFAULT and not value:
                 continue
             if isinstance(value, type):
-                value = getattr(value, "name", value.__name__)
+                value = value.name if isinstance(value, Named) else value.__name__
             elif callable(value) and not isinstance(value, str):
-                value = getattr(value, "__name__", repr(value))
+                value = factory_name(value)
             elif hasattr(value, "describe") and not isinstance(value, dict | str):
                 value = value.describe()
             out[f.name] = value

@@ -101,6 +101,7 @@ from testbed.identify.setup import (
     prepare,
 )
 from testbed.io.recording import Recording
+from testbed.records import field_values
 from testbed.rigs.base import Params, Rig
 
 __all__ = ["DRIFT_RATIO", "MAX_CORRELATION", "METHODS", "POLISH_RATIO", "Identification",
@@ -517,8 +518,9 @@ def _estimates(setup: FitSetup, fitted: _Fitted) -> dict[str, ParameterEstimate]
     """Each free parameter's estimate, absolute, with its interval (or held at nominal)."""
     estimates: dict[str, ParameterEstimate] = {}
     names_index = {n: i for i, n in enumerate(fitted.names)}
+    nominal_values = field_values(setup.model.nominal)
     for name in setup.free:
-        nominal = float(getattr(setup.model.nominal, name))
+        nominal = float(nominal_values[name])
         if name in fitted.flagged:
             estimates[name] = ParameterEstimate(name, nominal, None, nominal, 1.0, False,
                                                 fitted.flagged[name])

@@ -22,6 +22,7 @@ from testbed.outputs.axes import (
 )
 from testbed.outputs.names import entity_parts
 from testbed.outputs.units import display
+from testbed.records import field_values
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import rerun as rr
@@ -48,8 +49,9 @@ _FIELDS = ("t_s", "state", "estimate", "covariance", "measurement", "action", "s
 
 def check_finite(traj: Trajectory) -> None:
     """Raise ``ValueError`` naming the first field of ``traj`` holding NaN or inf."""
+    fields = field_values(traj)
     for name in _FIELDS:
-        value = getattr(traj, name)
+        value = fields[name]
         if value is None:
             continue
         arr = np.asarray(value, dtype=float)

@@ -98,7 +98,7 @@ def entry_cost(entry: SuiteEntry) -> float:
     if entry.unavailable():
         return 0.0
     scenario = entry.scenario
-    rig = scenario.rig if isinstance(scenario.rig, str) else getattr(scenario.rig, "name", "")
+    rig = scenario.rig if isinstance(scenario.rig, str) else scenario.rig.name
     dt_s = scenario.physics_dt_s * scenario.frame_skip
     steps = scenario.duration_s / dt_s
     cost = steps * (entry.runs + STEP_OVERHEAD)

@@ -15,6 +15,7 @@ import numpy as np
 from filters import FilterError
 from testbed.estimators import PerMember, paper_design_only
 from testbed.experiment import runner
+from testbed.plugins import factory_name
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import build_rig
 from testbed.rigs.disturbances import SampledDisturbance
@@ -61,10 +62,8 @@ class PairResult:
     cpu_s: dict[str, float] = field(default_factory=dict)
 
 
-def estimator_name(estimator: Any) -> str:
-    """A registered name, or a factory's ``__name__`` (its ``repr`` without one)."""
-    return estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
-                                                                repr(estimator))
+#: A registered name, a factory's ``__name__`` (its ``repr`` without one).
+estimator_name = factory_name
 
 
 def _sampled(entry: SuiteEntry, scenario, num: int, steps: int,
@@ -104,7 +103,7 @@ PRIOR_STREAM = 17
 def _trajectory_x0(entry: SuiteEntry, design: Any, seeds: np.ndarray) -> Any:
     if not entry.x0_from_prior:
         return None
-    i = getattr(design, "physical", np.arange(len(design.x0)))  # the rig's states' prior
+    i = design.physical  # the rig's states' prior
     x0, P0 = design.x0[i], design.P0[np.ix_(i, i)]
     return [{"x0": np.random.default_rng([int(s), PRIOR_STREAM]).multivariate_normal(x0, P0)}
             for s in seeds]

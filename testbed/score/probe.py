@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from filters.base import Innovations
 from testbed.estimators import EstimatorWrapper
 from testbed.score.consistency import whiten
 
@@ -49,8 +50,8 @@ class Probe(EstimatorWrapper):
         x = self.inner.step(y, u)
         self.elapsed_ns += time.perf_counter_ns() - start
         self.calls += 1
-        nu = getattr(self.inner, "innovation", None)
-        S = getattr(self.inner, "innovation_cov", None)
+        nu, S = ((self.inner.innovation, self.inner.innovation_cov)
+                 if isinstance(self.inner, Innovations) else (None, None))
         if nu is None or S is None:
             self.nis_missing = True
         elif not self.nis_missing:

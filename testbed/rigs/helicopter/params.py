@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.records import field_items
 from testbed.rigs.base import GRAVITY_M_S2, Params
 
 PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
@@ -65,8 +65,7 @@ class HelicopterParams(Params):
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not np.isfinite(value):
                 raise ValueError(f"HelicopterParams.{f.name} must be finite, got {value}")
             if f.name in ("K_pp", "K_py", "K_yp", "K_yy"):
