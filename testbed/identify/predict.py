@@ -70,8 +70,23 @@ def predict_raw(model: RecordingModel, params: list[Params], delay: np.ndarray, 
 
 def project(h: np.ndarray, y: np.ndarray, fit_bias: np.ndarray, fit_scale: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares bias and scale per set and channel for ``y ~ b + (1 + s) h``:
-    ``(bias, scale)`` each (P, m)."""
+    """Least-squares bias and scale per set and channel for ``y ~ b + (1 + s) h``.
+
+    Parameters
+    ----------
+    h : ndarray, shape (P, T, m)
+        Raw predictions of P parameter sets (:func:`predict_raw`).
+    y : ndarray, shape (T, m)
+        The recorded channels.
+    fit_bias, fit_scale : ndarray of bool, shape (m,)
+        The channels whose bias, scale are fitted (0 elsewhere).
+
+    Returns
+    -------
+    bias, scale : ndarray, shape (P, m)
+        In the channels' units; ``scale`` a relative error (a set whose prediction is not
+        finite keeps zeros).
+    """
     P, _, m = h.shape
     bias, scale = np.zeros((P, m)), np.zeros((P, m))
     for c in range(m):

@@ -22,7 +22,27 @@ METHODS = ("auto", "output-error", "multiple-shooting")
 
 
 def checked_free(rig_cls: Any, free: Any) -> tuple[dict[str, tuple[float, float]], list[str]]:
-    """The rig's declared identifiable parameters and the free ones (checked, in order)."""
+    """The rig's declared identifiable parameters and the free ones (checked, in order).
+
+    Parameters
+    ----------
+    rig_cls : type
+        A :class:`~testbed.rigs.base.Rig` subclass declaring :attr:`Rig.identifiable`.
+    free : list of str or None
+        The parameters to fit (None: every declared one).
+
+    Returns
+    -------
+    declared : dict of str to (float, float)
+        ``{parameter: (low, high)}``, the bounds as factors of the nominal value.
+    free : list of str
+        Without repeats, in the given order.
+
+    Raises
+    ------
+    IdentificationError
+        Not a rig, no declared parameters, or an unknown or empty ``free`` (one line).
+    """
     if not (isinstance(rig_cls, type) and issubclass(rig_cls, Rig)):
         raise IdentificationError(f"rig must be a testbed Rig subclass, got {rig_cls!r}")
     declared = dict(rig_cls.identifiable)
@@ -44,7 +64,19 @@ def checked_free(rig_cls: Any, free: Any) -> tuple[dict[str, tuple[float, float]
 
 def check_arguments(holdout: Any, fit_scale: Any, method: Any, segment_s: Any,
                      max_delay: Any) -> None:
-    """One-line :class:`IdentificationError` for a bad option, before any simulation."""
+    """One-line :class:`IdentificationError` for a bad option, before any simulation.
+
+    Parameters
+    ----------
+    holdout : float
+        Held-out fraction, in ``[0, 0.9)``.
+    fit_scale : bool or "declared"
+    method : {"auto", "output-error", "multiple-shooting"}
+    segment_s : float
+        Multiple-shooting segment length, s (> 0).
+    max_delay : int or None
+        Whole samples >= 0.
+    """
     if not (isinstance(holdout, int | float) and not isinstance(holdout, bool)
             and 0.0 <= holdout < 0.9):
         raise IdentificationError(f"holdout must be a fraction in [0, 0.9), got {holdout!r}")
@@ -63,7 +95,34 @@ def check_arguments(holdout: Any, fit_scale: Any, method: Any, segment_s: Any,
 @dataclasses.dataclass
 class FitSetup:
     """What every round of one fit shares: the recording's model, the fitted part, the
-    channels' noise levels and what is fitted per channel, the free parameters."""
+    channels' noise levels and what is fitted per channel, the free parameters.
+
+    Attributes
+    ----------
+    model : RecordingModel
+    free : list of str
+    bounds : dict of str to (float, float)
+        The free parameters' bounds, factors of nominal.
+    pdict : mujoco.sysid.ParameterDict
+        The free scale factors (``frozen`` once held at nominal).
+    held : dict of str to float
+        Parameters held at nominal (scale 1), filled as the fit flags them.
+    n_fit, segment_len : int
+        Samples fitted; multiple-shooting segment, samples.
+    sigma : ndarray, shape (m,)
+        Noise levels the residuals are divided by (channel units).
+    fit_bias, fit_scale : ndarray of bool, shape (m,)
+    max_delays : ndarray of int, shape (m,)
+    still : (int, int) or None
+        The still segment's samples ``[a, b)``.
+    still_bias, still_std : ndarray, shape (m,)
+        Its biases and noise (nan without one).
+    x0_bias : ndarray, shape (m,)
+        The bias the initial states are read with at the start.
+    x0_fixed : bool
+        With a still segment: the initial states' bias stays fixed.
+    max_iterations : int
+    """
 
     model: RecordingModel
     free: list[str]
@@ -99,7 +158,31 @@ def prepare(rig_cls: type[Rig], recording: Recording, declared: dict[str, tuple[
              sensors: Any, channels: Any, holdout: float, fit_scale: bool | str,
              max_delay: int | None, segment_s: float, max_iterations: int) -> FitSetup:
     """The recording read through the rig's simulator and sensors, the channels' fit flags,
-    their noise levels (from a still segment where there is one) and the free parameters."""
+    their noise levels (from a still segment where there is one) and the free parameters.
+
+    Parameters
+    ----------
+    rig_cls, recording
+        As in :func:`~testbed.identify.fit.identify`.
+    declared : dict
+        :func:`checked_free`'s declared bounds.
+    free : list of str
+    sysid : module
+        :mod:`mujoco.sysid`.
+    profile, options, sensors, channels, holdout, fit_scale, max_delay, segment_s
+        As in :func:`~testbed.identify.fit.identify` (checked by :func:`check_arguments`).
+    max_iterations : int
+        Largest number of residual evaluations per least-squares round.
+
+    Returns
+    -------
+    FitSetup
+
+    Raises
+    ------
+    IdentificationError
+        Fewer than 20 samples to fit.
+    """
     model = RecordingModel(rig_cls, recording, profile=profile, options=options,
                            sensors=sensors, channels=channels)
     N, m = model.y.shape
@@ -143,8 +226,25 @@ def prepare(rig_cls: type[Rig], recording: Recording, declared: dict[str, tuple[
 
 def still_sensor_model(model: RecordingModel, n_fit: int, fit_bias: np.ndarray
                         ) -> tuple[tuple[int, int] | None, np.ndarray, np.ndarray, np.ndarray]:
-    """The still segment (or None), the channels' noise levels ``sigma`` (m,), and the still
-    segment's biases and noise (m,) each (nan without one)."""
+    """The still segment and the channels' noise levels.
+
+    Parameters
+    ----------
+    model : RecordingModel
+    n_fit : int
+        Samples fitted.
+    fit_bias : ndarray of bool, shape (m,)
+        Channels whose bias is fitted (the still segment's bias kept on those only).
+
+    Returns
+    -------
+    still : (int, int) or None
+        The still segment's samples ``[a, b)``.
+    sigma : ndarray, shape (m,)
+        Noise levels (channel units), a quantized channel's scaled by its level changes.
+    still_bias, still_std : ndarray, shape (m,)
+        The still segment's biases and noise (nan without one).
+    """
     m, steps = model.y.shape[1], model.steps
     still = still_segment(model.u, model.y, model.dt_s, steps, n_fit)
     sigma = np.array([noise_level(model.y[:n_fit, c], steps[c]) for c in range(m)])
