@@ -47,3 +47,9 @@ def given_options(namespace: argparse.Namespace, default: set[str]) -> set[str]:
     """The options typed on the command line (:data:`GIVEN`, set by :func:`fill_deferred`),
     or ``default`` for a namespace parsed without deferred defaults."""
     return getattr(namespace, GIVEN, default)
+
+
+def deferred_defaults(parser: argparse.ArgumentParser) -> dict[str, Any]:
+    """The defaults ``parser`` applies after parsing (:func:`defer_defaults`), by dest (empty
+    for a parser without deferred defaults)."""
+    return dict(_DEFERRED.get(parser, {}))
