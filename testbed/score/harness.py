@@ -25,6 +25,11 @@ Entries are the unit of parallel work, started longest first (:func:`entry_cost`
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
 when asked for).
+
+Its parts: :mod:`testbed.score.pair` (one estimator on one entry, steps 1-4),
+:mod:`testbed.score.probe` (the step-time and innovation wrapper),
+:mod:`testbed.score.shared_designs` (the workers' design directory); this module schedules the
+entries over the workers and checks the arguments.
 """
 
 from __future__ import annotations
