@@ -46,7 +46,7 @@ def _code(text: str) -> str:
 def _default(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
     """The default an option takes when not typed (also a deferred one: testbed.cli.deferred),
     or an empty string when it has none worth showing."""
-    deferred = getattr(parser, _deferred._DEFERRED, {})
+    deferred = _deferred.deferred_defaults(parser)
     default = deferred.get(action.dest, action.default)
     if isinstance(action, argparse._StoreTrueAction | argparse._StoreFalseAction):
         return ""

@@ -14,7 +14,7 @@ import threading
 #: Whether this process is the ``testbed`` command (not a library user, not a test calling
 #: :func:`testbed.cli.entry.main`).
 CLI_PROCESS = os.path.basename(sys.argv[0]) == "testbed" or \
-    list(getattr(sys, "orig_argv", [])[1:3]) == ["-m", "testbed.cli"]
+    sys.orig_argv[1:3] == ["-m", "testbed.cli"]
 
 
 #: Whether a SIGINT arrived while the ``testbed`` command started (see

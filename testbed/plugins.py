@@ -34,6 +34,15 @@ def describe(exc: BaseException) -> str:
     return text
 
 
+def factory_name(factory: Any) -> str:
+    """How messages and results name an estimator or other plug-in given by name or object:
+    the name itself (a string), a factory's ``__name__`` (a :class:`LabelledFactory`'s
+    label), else its ``repr``."""
+    if isinstance(factory, str):
+        return factory
+    return getattr(factory, "__name__", repr(factory))
+
+
 class PluginError(ValueError):
     """A plug-in failed to load or to build (nothing ran): ``what`` names it (``--filter
     'mod:make'``), ``stage`` is ``"load"`` or ``"build"``."""

@@ -132,7 +132,7 @@ def scenario_and_file(args: argparse.Namespace
     """
     source = scenario_file.read(args.scenario) if getattr(args, "scenario", None) else None
     every = set(ARG_FIELDS)
-    given = getattr(args, deferred.GIVEN, every) if source is not None else every
+    given = deferred.given_options(args, every) if source is not None else every
     from_file = source.fields if source is not None else {}
     twin = None
     if getattr(args, "twin", None) is not None:
@@ -156,7 +156,7 @@ def scenario_and_file(args: argparse.Namespace
     defaults = {k: v for k, v in _cli_fields(args, rig, every).items() if k not in from_file}
     values = scenario_file.merge(scenario_file.merge(defaults, from_file), typed)
     if twin is not None:
-        values.update(twin_fields(twin, values, getattr(args, deferred.GIVEN, every)))
+        values.update(twin_fields(twin, values, deferred.given_options(args, every)))
     scenario = Scenario(**values)
 
     def message(field: str, text: str) -> str:
@@ -199,7 +199,7 @@ def study_value(args: argparse.Namespace, source: scenario_file.ScenarioFile | N
            name: str) -> Any:
     """``--runs``/``--grid`` if typed, else the ``--scenario`` file's ``[study]`` value, else
     the option's default."""
-    if source is None or name in getattr(args, deferred.GIVEN, {name}):
+    if source is None or name in deferred.given_options(args, {name}):
         return getattr(args, name)
     return source.study.get(name, getattr(args, name))
 

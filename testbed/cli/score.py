@@ -73,10 +73,10 @@ def planned_pairs(args: argparse.Namespace, chosen: list, reference: Any) -> tup
             entries = []
     if args.runs is not None:
         entries = [e.replace(runs=args.runs) for e in entries]
-    names = [harness._name(f) for f in chosen]
+    names = [harness.estimator_name(f) for f in chosen]
     unbatched = {n for n, f in zip(names, chosen, strict=True)
                  if progress.is_batched(f) is not True}
-    pairs = progress.pair_costs(entries, names, harness._name(reference),
+    pairs = progress.pair_costs(entries, names, harness.estimator_name(reference),
                                 worst_case=not args.no_worst_case, unbatched=unbatched)
     return pairs, unbatched
 
@@ -96,7 +96,7 @@ def unbatched_notes(chosen: list, pairs: list) -> list[str]:
         batched = progress.is_batched(factory)
         if batched:
             continue
-        name = harness._name(factory)
+        name = harness.estimator_name(factory)
         own = sum(p.cost for p in pairs if p.estimator == name) * progress.SECONDS_PER_UNIT
         why = ("has no batched = True: it runs" if batched is False else
                "(a factory function) runs, unless its estimator has batched = True,")

@@ -126,8 +126,8 @@ def rig_held_noise(rig, dt_s: float, A: np.ndarray, Q: np.ndarray) -> np.ndarray
         implicit ones, a period that is not a whole number of physics steps, or a ``Q``
         with position rows (not a force's noise).
     """
-    n, j = rig.n_states, len(getattr(rig, "joints", ()))
-    model = getattr(rig, "model", None)
+    n, j = rig.n_states, len(rig.joints)
+    model = rig.model
     if model is None or not j or not acts_on_velocities(Q[:n, :n], j):
         return None
     implicit = implicit_damping(model)

@@ -7,6 +7,7 @@ state, time and random generator stay as they were).
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -103,10 +104,68 @@ def with_twin(rig: Any, kwargs: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
     from testbed.rigs import resolve_rig
 
     twin = read_twin(path)
-    name = getattr(rig, "name", None) if not isinstance(rig, str) else resolve_rig(rig).name
+    name = rig.name if not isinstance(rig, str) else resolve_rig(rig).name
     if name != twin.rig:
         raise ValueError(f"twin: {path} is a twin of rig {twin.rig!r}, not {name!r}")
     kwargs.setdefault("profile", twin.profile)
     kwargs["rig_options"] = {**twin.options, **(kwargs.get("rig_options") or {})}
     kwargs["nominal_params"] = twin.params()
     return twin.rig, kwargs
+
+
+@dataclass(frozen=True)
+class EnvDeclarations:
+    """What the testbed's wrappers read from the environment they wrap (its ``unwrapped``).
+
+    A testbed environment (:class:`~testbed.envs.rig_env.RigEnv`,
+    :class:`~testbed.envs.plant_env.PlantEnv`) declares them; any other Gymnasium
+    environment may declare some or none: each is then None (or empty).
+
+    Attributes
+    ----------
+    state_names, action_names : list of str or None
+    sensors : object or None
+        The sensor suite (``names``, ``describe()``, ``measured_state`` or a plant's
+        ``measured_state_index``).
+    dt_s : float or None
+        Control period, s.
+    rig : object or None
+        The rig (``name``, ``profile``).
+    sim : object or None
+        The simulator (a :class:`~testbed.envs.rig_env.RigEnv`'s).
+    measured : list of int or None
+        The state each channel measures (empty without sensors).
+    channel_names : tuple of str
+    sensors_text : str
+        ``sensors.describe()`` ("" without).
+    rig_name, profile : str
+        The rig's (or "").
+    """
+
+    state_names: Any
+    action_names: Any
+    sensors: Any
+    dt_s: Any
+    rig: Any
+    sim: Any
+    measured: list[int | None]
+    channel_names: tuple[str, ...]
+    sensors_text: str
+    rig_name: str
+    profile: str
+
+
+def env_declarations(inner: Any) -> EnvDeclarations:
+    """The declarations of an environment (:class:`EnvDeclarations`): the one place the
+    wrappers probe the environment they wrap, which may be any Gymnasium environment."""
+    found = {name: getattr(inner, name, None)
+             for name in ("state_names", "action_names", "sensors", "dt_s", "rig", "sim")}
+    sensors, rig = found["sensors"], found["rig"]
+    describe = getattr(sensors, "describe", None)
+    return EnvDeclarations(
+        **found,
+        measured=list(getattr(sensors, "measured_state", None)
+                      or getattr(sensors, "measured_state_index", [])),
+        channel_names=tuple(getattr(sensors, "names", ())),
+        sensors_text=describe() if describe is not None else "",
+        rig_name=getattr(rig, "name", ""), profile=getattr(rig, "profile", ""))

@@ -27,6 +27,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from testbed.envs.common import env_declarations
 from testbed.io import check_output_path
 from testbed.io.formats import SUFFIXES, check_recording, write_recording
 from testbed.io.recording import Recording, RecordingError
@@ -67,16 +68,16 @@ class RecordLog(gym.Wrapper, gym.utils.RecordConstructorArgs):
             check_output_path(path, "path", suffix)
         self.path = None if path is None else Path(path)
         inner = env.unwrapped
-        sensors = getattr(inner, "sensors", None)
-        self.channel_names = tuple(getattr(sensors, "names", ()))
-        self.action_names = tuple(getattr(inner, "action_names", ()))
+        declared = env_declarations(inner)
+        self.channel_names = declared.channel_names
+        self.action_names = tuple(declared.action_names or ())
         if not self.channel_names or not self.action_names:
             raise ValueError("RecordLog needs a testbed environment (env.unwrapped.sensors."
                              "names and env.unwrapped.action_names)")
-        rig = getattr(inner, "rig", None)
-        self._meta = {"rig": getattr(rig, "name", ""), "profile": getattr(rig, "profile", ""),
-                      "sensors": sensors.describe() if hasattr(sensors, "describe") else "",
-                      "control_dt_s": float(getattr(inner, "dt_s", 0.0)), **(meta or {})}
+        self._meta = {"rig": declared.rig_name, "profile": declared.profile,
+                      "sensors": declared.sensors_text,
+                      "control_dt_s": float(0.0 if declared.dt_s is None else declared.dt_s),
+                      **(meta or {})}
         self._t: list[float] = []
         self._y: list[np.ndarray] = []
         self._u: list[np.ndarray] = []

@@ -10,8 +10,11 @@ import numpy as np
 from gymnasium import spaces
 
 from filters import Estimator
+from filters.base import Batched, Primed
+from testbed.envs.common import env_declarations
 from testbed.experiment.loop import EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
+from testbed.plugins import factory_name
 
 
 class FilterInLoop(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -102,12 +105,12 @@ class FilterInLoop(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.Box(-np.inf, np.inf, (n,), np.float64)
         inner = env.unwrapped
         self._index = None if measurement_index is None else np.asarray(measurement_index)
-        self.state_names = list(getattr(inner, "state_names", [f"x{i}" for i in range(n)]))
-        sensors = getattr(inner, "sensors", None)
-        measured = list(getattr(sensors, "measured_state", None)
-                        or getattr(sensors, "measured_state_index", []))
-        metrics = EpisodeMetrics(self.state_names, float(getattr(inner, "dt_s", 1.0)),
-                                 measured, output_matrix, ratio_weight)
+        declared = env_declarations(inner)
+        self.state_names = list([f"x{i}" for i in range(n)] if declared.state_names is None
+                                else declared.state_names)
+        metrics = EpisodeMetrics(self.state_names,
+                                 float(1.0 if declared.dt_s is None else declared.dt_s),
+                                 declared.measured, output_matrix, ratio_weight)
         self._stage = EstimatorStage(estimator, input_transform, metrics,
                                      (x0, None if P is None else np.array(P, copy=True)),
                                      physical_index=physical_index)
@@ -197,7 +200,8 @@ def _from_design(env: gym.Env, estimator: Any, design: Any,
 
     inner = env.unwrapped
     if design is None:
-        missing = [a for a in ("rig", "sensors", "dt_s", "sim") if not hasattr(inner, a)]
+        declared = vars(env_declarations(inner))
+        missing = [a for a in ("rig", "sensors", "dt_s", "sim") if declared[a] is None]
         if missing:
             raise ValueError(f"FilterInLoop.from_design needs a testbed rig environment "
                              f"(RigEnv: with {', '.join(missing)}); "
@@ -208,11 +212,10 @@ def _from_design(env: gym.Env, estimator: Any, design: Any,
                                         inner.sim.known_disturbance)
     design, _ = estimators.design_for(estimator, design)
     est = estimators.build(estimator, design, **options)
-    name = estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
-                                                                repr(estimator))
+    name = factory_name(estimator)
     check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
     channels = estimators.channels_for(est, design)
-    if getattr(est, "batched", False):
+    if isinstance(est, Batched) and est.batched:
         est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results
     transform = None
     if design.input_transform is not None:
@@ -237,7 +240,8 @@ class _BatchOfOne:
 
     def __init__(self, inner: Any):
         self.inner = inner
-        self.prime = self._prime if hasattr(inner, "prime") else None
+        if isinstance(inner, Primed):  # (else no prime: the loop does not prime it)
+            self.prime = self._prime
 
     @property
     def x(self) -> np.ndarray:

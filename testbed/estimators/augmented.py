@@ -62,6 +62,9 @@ class AugmentedProcessModel:
         The nominal rig's model at ``design.dt_s``.
     """
 
+    #: The constant input-derivative maps (:meth:`_input_maps`; made on first use).
+    _maps: dict[str, np.ndarray] | None = None
+
     def __init__(self, design: DesignModel, process: MujocoProcessModel) -> None:
         rig = process.rig
         self.process, self.rig = process, rig
@@ -272,7 +275,7 @@ class AugmentedProcessModel:
         ``d(E_N + R o)/do = R - Gamma_N,r`` (``,r``: the columns of the rig's inputs);
         ``m_o`` (k_rig, k_rig) = ``I - S_u,r`` (the input of a remembered input ``u``).
         """
-        maps = getattr(self, "_maps", None)
+        maps = self._maps
         if maps is None:
             spec, kr, N = self.input.spec, self.input.kr, self.process.frame_skip
             Su_r = np.asarray(spec.from_input, float)[:, :kr]

@@ -47,6 +47,7 @@ from filters.lmi_hinf import (
     minimal_gamma,
 )
 from testbed.estimators import memo
+from testbed.records import field_values
 
 
 def _factor(M: np.ndarray) -> np.ndarray:
@@ -275,7 +276,8 @@ def verified_estimator(system: StochasticLinearSystem, design: Any, *, gamma: fl
                              f"the modes {[_mode(m) for m in modes]} of F are not stable and "
                              "not seen by the measurements: no gain makes the error system "
                              "stable")
-    digest = memo.key(*(getattr(system, name) for name in _SYSTEM_FIELDS), gamma,
+    fields = field_values(system)
+    digest = memo.key(*(fields[name] for name in _SYSTEM_FIELDS), gamma,
                       gamma_factor, objective, max_steps, plant_block)
     gamma_min, lmi = memo.memoized("lmi-hinf", digest, lambda: _search(
         system, gamma=gamma, gamma_factor=gamma_factor, objective=objective,

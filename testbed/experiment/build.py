@@ -8,12 +8,14 @@ from typing import Any
 
 import numpy as np
 
+from filters.base import Batched
 from testbed import estimators
 from testbed.design import DesignModel
 from testbed.experiment.control import make_controller
 from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.experiment.scenario import Scenario, blame, resolve
+from testbed.plugins import factory_name
 from testbed.rigs.base import build_rig
 from testbed.sim import build_simulator
 
@@ -83,13 +85,12 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
         if design.augmented:
             control_design = design.extras.get("paper_design") or control_rig.design_model(
                 sim.sensors, sim.dt_s, sim.known_disturbance, **scenario.design_options)
-    name = scenario.estimator if isinstance(scenario.estimator, str) else \
-        getattr(scenario.estimator, "__name__", repr(scenario.estimator))
+    name = factory_name(scenario.estimator)
     with blame("estimator"):
         design, fallback = estimators.design_for(scenario.estimator, design)
         est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
         check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
-        if not getattr(est, "batched", False):
+        if not (isinstance(est, Batched) and est.batched):
             est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
                                                                 **scenario.estimator_options)
                                                for _ in range(num - 1))])

@@ -167,7 +167,7 @@ def make_controller(name: str, rig, design, setpoint: Callable[[float], np.ndarr
         raise ValueError(f"unknown controller {name!r}; expected one of {CONTROLLERS}")
     n, k, r = rig.n_states, rig.n_actions, len(rig.tracked_states)
     # the rig's own weights (an instance may change its dimension: the Aero's yaw_locked)
-    weights = getattr(rig, "lqr_weights", None) or LQR_WEIGHTS.get(
+    weights = rig.lqr_weights or LQR_WEIGHTS.get(
         rig.name, {"state_weight": np.ones(n), "input_weight": np.ones(k),
                    "integral_weight": np.ones(r)})
     return LQRTracker(design.continuous.A, design.continuous.B, design.dt_s, rig.tracked_index,

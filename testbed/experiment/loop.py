@@ -17,6 +17,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from filters import all_finite, real_array
+from filters.base import Primed
 from filters.errors import FilterError, FiniteEscapeError
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.plugins import PLUGIN_FAILURES, EstimatorFailed, describe
@@ -179,9 +180,8 @@ class EstimatorStage:
         the physical estimate."""
         try:
             self.estimator.reset(x0, P0)
-            prime = getattr(self.estimator, "prime", None)  # filters that use the first sample
-            if prime is not None:
-                prime(self.select(y))
+            if isinstance(self.estimator, Primed):  # filters that use the first sample
+                self.estimator.prime(self.select(y))
         except FilterError:
             raise
         except ValueError as exc:

@@ -29,6 +29,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from filters.base import Primed
 from filters.errors import FilterError, FiniteEscapeError
 
 
@@ -125,7 +126,7 @@ def rollout(plant: NumpyPlant, x0: np.ndarray, n_steps: int, *,
     hist: dict[str, list] = {}
     covs: dict[str, list] = {}
     for name, (est, select) in ests.items():
-        if hasattr(est, "prime"):
+        if isinstance(est, Primed):
             y0 = plant.observe(x, 0) if y0 is None else y0
             est.prime(y0 if select is None else select(y0))
         hist[name] = [np.array(est.x)]

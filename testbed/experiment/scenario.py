@@ -13,6 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from filters.base import Named
+from testbed.plugins import factory_name
+from testbed.records import field_items
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import Rig, build_rig
 
@@ -71,7 +74,7 @@ def _build_rig(rig_cls: type, spec: Any, dt_s: float, profile: str,
     try:
         return build_rig(rig_cls, params, physics_dt_s=dt_s, profile=profile, options=options)
     except PLUGIN_FAILURES as exc:
-        label = spec if isinstance(spec, str) else getattr(rig_cls, "name", rig_cls.__name__)
+        label = spec if isinstance(spec, str) else rig_cls.name
         raise ScenarioError("rig", str(PluginError(f"rig {label!r}", "build", exc))) from None
 
 
@@ -418,14 +421,13 @@ class Scenario:
         :data:`OMITTED_AT_DEFAULT` only when set (so that earlier descriptions, e.g. a score
         suite's hash, stay as they were)."""
         out = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if f.name in OMITTED_AT_DEFAULT and not value:
                 continue
             if isinstance(value, type):
-                value = getattr(value, "name", value.__name__)
+                value = value.name if isinstance(value, Named) else value.__name__
             elif callable(value) and not isinstance(value, str):
-                value = getattr(value, "__name__", repr(value))
+                value = factory_name(value)
             elif hasattr(value, "describe") and not isinstance(value, dict | str):
                 value = value.describe()
             out[f.name] = value

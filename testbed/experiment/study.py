@@ -88,7 +88,7 @@ def check_study_size(scenario: Scenario, runs: int,
     """
     resolved = scenario.check()
     n = resolved.rig.n_states
-    m = len(getattr(resolved.sensors, "measured_state", None) or []) or n
+    m = len(resolved.sensors.measured_state or []) or n
     needed = study_bytes(n, m, runs, envelope_points)
     available = available_memory()
     if needed > available // 2:

@@ -14,6 +14,7 @@ from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.build import build, described
 from testbed.experiment.scenario import Scenario, with_defaults
 from testbed.experiment.study import TIMING_KEYS, monte_carlo
+from testbed.records import field_values
 from testbed.rigs import resolve_rig
 
 
@@ -74,7 +75,7 @@ def point_scenario(scenario: Scenario, point: dict[str, Any]) -> Scenario:
         prefix, dot, key = name.partition(".")
         if dot:
             field_name = groups[prefix]
-            merged = dict(changes.get(field_name, getattr(scenario, field_name)))
+            merged = dict(changes.get(field_name, field_values(scenario)[field_name]))
             merged[key] = value
             changes[field_name] = merged
         else:

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from testbed.records import field_values
+
 
 @dataclass
 class Trajectory:
@@ -90,14 +92,15 @@ class Trajectory:
     def __post_init__(self) -> None:
         self.t_s = np.asarray(self.t_s, dtype=float)
         n_rows = len(self.t_s)
+        fields = field_values(self)
         for name in ("state", "measurement", "action", "estimate", "setpoint"):
-            value = getattr(self, name)
+            value = fields[name]
             if value is not None:  # (T, k) float; a 1-D series becomes one column
                 value = np.asarray(value, dtype=float)
                 setattr(self, name, value[:, None] if value.ndim == 1 else value)
         for name in ("state", "measurement", "action", "estimate", "covariance", "setpoint",
                      "body_pos", "body_quat_wxyz"):
-            value = getattr(self, name)
+            value = field_values(self)[name]
             if value is not None and len(value) != n_rows:
                 raise ValueError(
                     f"Trajectory.{name} has {len(value)} rows, expected {n_rows} (len(t_s))"

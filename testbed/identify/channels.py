@@ -127,7 +127,7 @@ def _walk(sensor: Sensor, delay: int, hold: int, biased: bool, out: dict[str, Ch
             D=model.D[j].copy(), direct_state=direct, bias=direct is None or biased,
             scale=scaled,
             delay=delay + hold // 2, max_delay=2 * delay + hold, is_input=bool(inputs[j]),
-            reads_act=bool(getattr(sensor, "reads_act", False)))
+            reads_act=bool(sensor.reads_act))
 
 
 def channel_plan(sensors: Sensor) -> dict[str, ChannelInfo]:

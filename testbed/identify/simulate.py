@@ -36,6 +36,7 @@ from testbed.identify.channels import (
 )
 from testbed.identify.sensor_model import quantization_step, still_start
 from testbed.io.recording import Recording
+from testbed.records import field_values
 from testbed.rigs.base import Params, Rig
 from testbed.rigs.base import build_rig as base_build_rig
 from testbed.sensors import NoiseStreams, StateChannel, Suite
@@ -340,8 +341,9 @@ class RecordingModel:
 def _as_scales(nominal: Params, params: Params) -> dict[str, float]:
     """``params`` as scale factors of ``nominal`` (the simulator's reset option)."""
     out = {}
-    for name in nominal.__dataclass_fields__:
-        a, b = getattr(params, name), getattr(nominal, name)
+    values = field_values(params)
+    for name, b in field_values(nominal).items():
+        a = values[name]
         if a != b:
             if b == 0:
                 raise IdentificationError(f"parameter {name!r} has a nominal value of 0: it "

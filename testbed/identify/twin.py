@@ -44,8 +44,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from testbed.identify.fit import Identification
+from testbed.identify.result import Identification
 from testbed.io import atomic_path
+from testbed.records import field_values
 
 FORMAT = "testbed-twin"
 FORMAT_VERSION = 1
@@ -116,8 +117,8 @@ class Twin:
         """Scale factors of the identified parameters relative to the rig's nominal
         :class:`~testbed.rigs.base.Params` (those held at nominal left out): what the rest
         of the project takes (``params``)."""
-        nominal = self.rig_class().params_type()
-        return {name: p.value / getattr(nominal, name) for name, p in self.parameters.items()
+        nominal = field_values(self.rig_class().params_type())
+        return {name: p.value / nominal[name] for name, p in self.parameters.items()
                 if p.identifiable}
 
     def params(self):
@@ -203,7 +204,7 @@ def _get(table: dict, key: str, kind: Any, where: str, path: str, default: Any =
     ok = isinstance(value, kind) and not (kind in (int, float, (int, float))
                                           and isinstance(value, bool))
     if not ok:
-        name = getattr(kind, "__name__", "number")
+        name = kind.__name__ if isinstance(kind, type) else "number"
         raise TwinError(f"{path}: key {where}{key!r} must be a {name}, got {value!r}")
     return value
 

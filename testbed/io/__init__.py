@@ -143,10 +143,11 @@ class OutputError(OSError):
 
     def __init__(self, path: str | os.PathLike, cause: BaseException | str):
         self.path = Path(path)
+        system = cause if isinstance(cause, OSError) else None
         detail = cause if isinstance(cause, str) else \
-            (getattr(cause, "strerror", None) or str(cause) or type(cause).__name__)
+            ((system and system.strerror) or str(cause) or type(cause).__name__)
         super().__init__(f"cannot write {os.fspath(path)!r} ({detail}); nothing was written")
-        self.errno = getattr(cause, "errno", None)
+        self.errno = None if system is None else system.errno
 
     def __reduce__(self) -> tuple[Any, ...]:
         return (_rebuild_output_error, (os.fspath(self.path), str(self), self.errno))
@@ -291,7 +292,7 @@ def reserve(f: Any, size: int, path: str | os.PathLike) -> None:
     if size <= 0 or not hasattr(os, "posix_fallocate"):
         return
     try:
-        os.posix_fallocate(f.fileno() if hasattr(f, "fileno") else f, 0, int(size))
+        os.posix_fallocate(f if isinstance(f, int) else f.fileno(), 0, int(size))
     except OSError as exc:
         if exc.errno in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
             return  # the file system cannot reserve: the writes will say

@@ -113,6 +113,12 @@ class Rig:
     #: ``{Params field: (low, high)}``, the bounds as factors of the nominal value (wide
     #: enough for real units).
     identifiable: ClassVar[dict[str, tuple[float, float]]] = {}
+    #: The LQR tracker's weights (``state_weight``, ``input_weight``, ``integral_weight``);
+    #: None: the built-in table's entry of the rig, else ones (an instance may set its own).
+    lqr_weights: dict[str, Any] | None = None
+    #: The sensor presets :meth:`sensors` takes (empty: the module's ``SENSOR_PRESETS``, else
+    #: the default suite only; :func:`testbed.rigs.describe.sensor_presets`).
+    sensor_presets: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def resolve_options(cls, options: dict[str, Any] | None) -> dict[str, Any]:

@@ -19,6 +19,7 @@ import re
 import sys
 from typing import Any
 
+from testbed.records import field_values
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import Rig, RigOption
 
@@ -43,7 +44,7 @@ def sensor_presets(rig: Any) -> tuple[str | None, ...]:
     rig : str, Rig subclass or Rig
     """
     cls, _ = _rig_class(rig)
-    presets = getattr(cls, "sensor_presets", None) or \
+    presets = cls.sensor_presets or \
         getattr(sys.modules.get(cls.__module__), "SENSOR_PRESETS", None)
     return tuple(presets) if presets else (None,)
 
@@ -198,10 +199,10 @@ def describe_rig(rig: Any, *, profile: str | None = None,
             "default_sensors": _default_preset(built, suites),
             "sensors": suites,
         }
-    nominal = cls.params_type()
+    nominal = field_values(cls.params_type())
     identifiable = []
     for field, (lo, hi) in cls.identifiable.items():
-        value = float(getattr(nominal, field))
+        value = float(nominal[field])
         identifiable.append({"field": field, "nominal": value,
                              "unit": parameter_unit(cls.params_type, field),
                              "low": min(lo * value, hi * value),

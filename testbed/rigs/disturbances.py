@@ -50,8 +50,7 @@ class Disturbance:
     def __post_init__(self) -> None:
         if self.G is not None and self.w is None:
             raise ValueError("G needs the signal w (deterministic disturbance G w(t))")
-        for name in ("G", "b"):
-            M = getattr(self, name)
+        for name, M in (("G", self.G), ("b", self.b)):
             if M is None:
                 continue
             M = np.atleast_2d(np.asarray(M, dtype=float))

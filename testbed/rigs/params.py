@@ -9,6 +9,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from filters import real_array
+from testbed.records import field_items, field_values
 from testbed.rigs.options import build_rig
 
 __all__ = ["ParameterMismatch", "Params", "scaled_copy"]
@@ -35,7 +36,8 @@ def scaled_copy(params: P, scales: dict[str, Any]) -> P:
     if not isinstance(scales, dict):
         raise ValueError(f"params must be a dict {{field: scale factor}}, got "
                          f"{type(scales).__name__}")
-    names = {f.name for f in dataclasses.fields(params)}
+    values = field_values(params)
+    names = set(values)
     changes = {}
     for key, factor in scales.items():
         if key not in names:
@@ -45,10 +47,10 @@ def scaled_copy(params: P, scales: dict[str, Any]) -> P:
         if not np.isfinite(factor) or factor < 0.0:
             raise ValueError(f"params[{key!r}] must be a finite non-negative scale factor, "
                              f"got {factor}")
-        value = getattr(params, key) * factor
+        value = values[key] * factor
         if not np.isfinite(value):
             raise ValueError(f"params[{key!r}] = {factor!r} scales {key} out of range "
-                             f"({getattr(params, key)!r} x {factor!r} is not finite)")
+                             f"({values[key]!r} x {factor!r} is not finite)")
         changes[key] = value
     out = dataclasses.replace(params, **changes)
     with np.errstate(over="raise", invalid="raise"):
@@ -77,8 +79,7 @@ class Params:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter (all must be finite)."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not np.isfinite(value):
                 raise ValueError(f"{type(self).__name__}.{f.name} must be finite, got {value}")
 

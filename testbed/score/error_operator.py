@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from filters.base import Primed
+
 
 # ---------------------------------------------------------------------------- linear model
 def plant_markov(A_d: np.ndarray, G_d: np.ndarray, C: np.ndarray, Hw: np.ndarray,
@@ -341,9 +343,8 @@ def estimator_markov(estimator: Any, input_transform: Any, prior: tuple[np.ndarr
         raise ValueError(f"the estimator batch ({batch}) must exceed the channels ({m})")
     x0, P0 = prior
     estimator.reset(np.tile(x0, (batch, 1)), P0)
-    prime = getattr(estimator, "prime", None)
-    if prime is not None:
-        prime(np.tile(y[0], (batch, 1)))
+    if isinstance(estimator, Primed):
+        estimator.prime(np.tile(y[0], (batch, 1)))
     rows = np.arange(1, m + 1)
     out = np.zeros((K + 1 - k0, x0.shape[0], m))
     for k in range(K):

@@ -25,379 +25,41 @@ Entries are the unit of parallel work, started longest first (:func:`entry_cost`
 The built-in Kalman filter runs on every entry as the timing reference, and the comparison
 reference (``score(..., reference=...)``, default the Kalman filter) too (each reported only
 when asked for).
+
+Its parts: :mod:`testbed.score.pair` (one estimator on one entry, steps 1-4),
+:mod:`testbed.score.probe` (the step-time and innovation wrapper),
+:mod:`testbed.score.shared_designs` (the workers' design directory); this module schedules the
+entries over the workers and checks the arguments.
 """
 
 from __future__ import annotations
 
-import contextlib
-import copy
-import json
-import os
-import shutil
-import stat
-import tempfile
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from filters import FilterError
-from testbed.estimators import EstimatorWrapper, PerMember, memo, paper_design_only
-from testbed.experiment import runner
+from testbed.estimators import memo
 from testbed.experiment.backend import check_backend, map_jobs
-from testbed.io import process_alive
-from testbed.rigs import resolve_rig
-from testbed.rigs.base import build_rig
-from testbed.rigs.disturbances import SampledDisturbance
-from testbed.score import stats
-from testbed.score.consistency import whiten
+from testbed.score.pair import PRIOR_STREAM, PairResult, estimator_name, score_pair
+from testbed.score.probe import Probe
 from testbed.score.progress import pair_channel, pair_reporter
-from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import (
-    RESTARTS,
-    LoopEvaluator,
-    population,
-    search,
-    without_quantization,
+from testbed.score.shared_designs import (
+    DESIGNS_PREFIX,
+    designs_directory,
+    remove_stale_designs,
 )
-from testbed.sim.simulator import SimulationDiverged
+from testbed.score.suite import SuiteEntry
+from testbed.score.worst_case import RESTARTS, population
+
+__all__ = ["DESIGNS_PREFIX", "ENTRY_COST_FACTORS", "PRIOR_STREAM", "REFERENCE", "STEP_OVERHEAD",
+           "PairResult", "Probe", "ScoreRun", "designs_directory", "entry_cost",
+           "remove_stale_designs", "run_entries", "score", "score_entry", "score_pair",
+           "twin_entries"]
 
 #: The timing reference.
 REFERENCE = "kalman"
-
-
-class Probe(EstimatorWrapper):
-    """A transparent wrapper that times ``step`` and collects normalized innovations.
-
-    ``innovation`` (N, m) and ``innovation_cov`` (N, m, m), when the estimator exposes both
-    after a step (the optional members of the estimator protocol), give
-    ``NIS = nu^T S^-1 nu`` per member and the whitened innovation ``L^-1 nu`` (``S = L L^T``)
-    for the whiteness test.
-
-    Parameters
-    ----------
-    inner : batched estimator
-    """
-
-    batched = True
-
-    def __init__(self, inner: Any):
-        super().__init__(inner)
-        self.elapsed_ns = 0
-        self.calls = 0
-        self.nis: list[np.ndarray] = []
-        self.whitened: list[np.ndarray] = []
-        self.nis_dim: int | None = None
-        self.nis_missing = False
-        self.nis_error: str | None = None
-
-    def reset(self, x0: Any, P0: Any) -> None:
-        """Reset the inner estimator and the records."""
-        self.inner.reset(x0, P0)
-        self.elapsed_ns, self.calls, self.nis, self.nis_missing = 0, 0, [], False
-        self.whitened, self.nis_error = [], None
-
-    def step(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """Step the inner estimator (timed), then record its NIS and whitened innovation."""
-        start = time.perf_counter_ns()
-        x = self.inner.step(y, u)
-        self.elapsed_ns += time.perf_counter_ns() - start
-        self.calls += 1
-        nu = getattr(self.inner, "innovation", None)
-        S = getattr(self.inner, "innovation_cov", None)
-        if nu is None or S is None:
-            self.nis_missing = True
-        elif not self.nis_missing:
-            nu = np.asarray(nu, dtype=float).reshape(len(x), -1)
-            S = np.broadcast_to(np.asarray(S, dtype=float), (*nu.shape, nu.shape[1]))
-            try:
-                z = whiten(nu, S)
-            except np.linalg.LinAlgError:
-                self.nis_missing = True
-                self.nis_error = (f"innovation covariance not positive definite at step "
-                                  f"{self.calls}: NIS and whiteness not computed")
-                return x
-            self.whitened.append(z)
-            self.nis.append(np.sum(z * z, axis=-1))
-            self.nis_dim = nu.shape[1]
-        return x
-
-
-@dataclass
-class PairResult:
-    """Raw results of one estimator on one entry (JSON-ready apart from the arrays).
-
-    ``cpu_s``: CPU seconds of the stages (``build``: simulator, design and estimator;
-    ``monte_carlo``: the runs, simulated or replayed, and their statistics; ``worst_case``:
-    the search), where the time of ``testbed score`` goes.
-    """
-
-    estimator: str
-    scenario: str
-    runs: int
-    skipped: str | None = None
-    state_names: list[str] = field(default_factory=list)
-    rmse_per_run: dict[str, np.ndarray] = field(default_factory=dict)
-    nees: np.ndarray | None = None
-    nis: np.ndarray | None = None
-    nis_dim: int | None = None
-    innovations: np.ndarray | None = None
-    step_us: float | None = None
-    certified_gamma: float | None = None
-    gamma_kind: str | None = None
-    worst: Any = None
-    worst_skipped: str | None = None
-    trajectory: dict[str, np.ndarray] | None = None
-    units: dict[str, str] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    cpu_s: dict[str, float] = field(default_factory=dict)
-
-
-def _name(estimator: Any) -> str:
-    return estimator if isinstance(estimator, str) else getattr(estimator, "__name__",
-                                                                repr(estimator))
-
-
-def _sampled(entry: SuiteEntry, scenario, num: int, steps: int,
-             nominal: bool) -> SampledDisturbance | None:
-    """The entry's disturbance as per-member samples (the named signal's values when
-    ``nominal``, else zeros) for ``steps + 1`` control instants, with its white noise."""
-    rig = build_rig(resolve_rig(scenario.rig), physics_dt_s=scenario.physics_dt_s,
-                    options=scenario.rig_options)
-    dt_s = scenario.physics_dt_s * scenario.frame_skip
-    base = rig.disturbance(scenario.disturbance, scenario.process_noise)
-    channel = None if entry.worst_case is None else entry.worst_case.channel
-    if base is not None and base.has_signal:
-        G = base.G
-        t = np.arange(steps + 1) * dt_s
-        values = np.array([base.signal(ti) for ti in t]) if nominal else None
-        s = base.signal(0.0).shape[0]
-    elif channel is not None:
-        G = np.asarray(channel, dtype=float)
-        s = G.shape[1]
-        values = np.zeros((steps + 1, s)) if nominal else None
-    else:
-        return None
-    b = None if base is None else base.b
-    tiled = (np.broadcast_to(values, (num, steps + 1, s)).copy() if values is not None
-             else np.zeros((num, steps + 1, s)))
-    return SampledDisturbance(G, tiled, dt_s, b=b, n_positions=len(rig.joints))
-
-
-#: Spawn key of the stream the true initial states are drawn from: ``default_rng([seed,
-#: PRIOR_STREAM])``. Not ``default_rng(seed)``: that is the simulator's own noise stream of the
-#: run (``gymnasium.utils.seeding.np_random(seed)``), so the initial state would equal a
-#: multiple of the first process and measurement noise draws, and the first steps' NEES of
-#: the Kalman filter would be far above its band (3.1 at step 1 for n = 2).
-PRIOR_STREAM = 17
-
-
-def _trajectory_x0(entry: SuiteEntry, design: Any, seeds: np.ndarray) -> Any:
-    if not entry.x0_from_prior:
-        return None
-    i = getattr(design, "physical", np.arange(len(design.x0)))  # the rig's states' prior
-    x0, P0 = design.x0[i], design.P0[np.ix_(i, i)]
-    return [{"x0": np.random.default_rng([int(s), PRIOR_STREAM]).multivariate_normal(x0, P0)}
-            for s in seeds]
-
-
-def _unwrap(estimator: Any) -> Any:
-    return estimator.instances[0] if isinstance(estimator, PerMember) else estimator
-
-
-def _tape_key(experiment: Any, seeds: np.ndarray, options: Any) -> str:
-    """What a recorded Monte Carlo (:class:`~testbed.experiment.loop.Tape`) depends on
-    besides the estimator: the built scenario (an estimator's scenario defaults may change
-    its sensors or disturbance), the sensors, the seeds and the reset options. The entry's
-    sampled disturbance is named, not hashed: within one entry it is always the same one
-    (:func:`_sampled`)."""
-    scenario = {k: v for k, v in experiment.meta["scenario"].items()
-                if k not in ("estimator", "estimator_options")}
-    if isinstance(scenario.get("disturbance"), SampledDisturbance):
-        scenario["disturbance"] = "the entry's sampled disturbance"
-    x0 = [] if options is None else [np.asarray(o["x0"]).tolist() for o in options]
-    return json.dumps([scenario, experiment.meta["sensors"], np.asarray(seeds).tolist(), x0,
-                       experiment.loop.truth_feedback], sort_keys=True, default=repr)
-
-
-def score_pair(entry: SuiteEntry, estimator: Any, seed: int, *, worst_case: bool = True,
-               num_threads: int | None = None,
-               tapes: dict[str, Any] | None = None) -> PairResult:
-    """One estimator on one entry: Monte Carlo, consistency, cost, worst case.
-
-    Parameters
-    ----------
-    entry : SuiteEntry
-    estimator : str or callable
-        A registered name, ``module:factory`` or a factory.
-    seed : int
-        Base seed (``runner.run_seeds(seed, entry.runs)`` per run).
-    worst_case : bool
-        Run the entry's worst-case search (when it has one).
-    tapes : dict, optional
-        Recorded Monte Carlos of this entry shared between its estimators (filled here):
-        with ``feedback = "truth"`` the simulated episodes do not depend on the estimator,
-        so every estimator after the first is replayed on the first one's episodes
-        (:meth:`~testbed.experiment.loop.ClosedLoop.replay`; the same result, bitwise,
-        without simulating again).
-    """
-    name = _name(estimator)
-    out = PairResult(estimator=name, scenario=entry.name, runs=entry.runs)
-    reason = entry.unavailable()
-    if reason:
-        out.skipped = reason
-        return out
-    clock = time.process_time()
-
-    def lap(stage: str) -> None:
-        nonlocal clock
-        now = time.process_time()
-        out.cpu_s[stage] = out.cpu_s.get(stage, 0.0) + now - clock
-        clock = now
-
-    scenario = entry.resolved_scenario()
-    dt_s = scenario.physics_dt_s * scenario.frame_skip
-    steps = int(round(scenario.duration_s / dt_s))
-    dist = _sampled(entry, scenario, entry.runs, steps, nominal=True)
-    sc = scenario.replace(estimator=estimator)
-    if dist is not None:
-        sc = sc.replace(disturbance=dist, process_noise=0.0)
-
-    try:
-        experiment = runner.build(sc, entry.runs, num_threads=num_threads)
-    except (ValueError, FilterError) as err:
-        out.skipped = f"the factory raised {type(err).__name__}: {err}"
-        return out
-    finally:
-        lap("build")
-    seeds = runner.run_seeds(seed, entry.runs)
-    experiment.loop.truth_feedback = entry.feedback == "truth"
-    profile = str(experiment.meta.get("design_profile", ""))
-    if profile.startswith("paper (fallback: "):  # a family that cannot take the matched model
-        out.notes.append(f"paper design: designed from the rig's paper model, not the entry's "
-                         f"matched one ({profile[len('paper (fallback: '):-1]}); compare it "
-                         "with kalman on the same model (design_profile 'paper')")
-    try:
-        inner = experiment.loop.stage.estimator
-        probe = Probe(inner)
-        experiment.loop.stage.estimator = probe
-        options = _trajectory_x0(entry, experiment.design, seeds)
-        shared = tapes is not None and experiment.loop.truth_feedback
-        key = _tape_key(experiment, seeds, options) if shared else ""
-        try:
-            if shared and key in tapes:
-                result = experiment.loop.replay(tapes[key], options, record=True)
-            else:
-                result = experiment.loop.run(seeds, steps * dt_s, options, record=True,
-                                             tape=shared)
-                if shared:
-                    tapes[key] = result.tape
-        except (FilterError, FloatingPointError, SimulationDiverged) as err:
-            out.skipped = f"failed: {type(err).__name__}: {err}"
-            return out
-        sim = experiment.loop.sim
-        out.state_names = list(sim.rig.state_names)
-        out.units = experiment.meta["units"]
-        rec = result.trajectory
-        out.rmse_per_run = {k: np.asarray(v, float) for k, v in result.metrics.rmse().items()}
-        if "covariance" in rec:
-            error = rec["estimate"][:, 1:] - rec["state"][:, 1:]
-            try:
-                out.nees = stats.nees(error, rec["covariance"][:, 1:])
-            except ValueError as err:
-                out.notes.append(str(err))
-        if probe.nis and not probe.nis_missing:
-            out.nis, out.nis_dim = np.stack(probe.nis, axis=1), probe.nis_dim
-            out.innovations = np.stack(probe.whitened, axis=1)
-        if probe.nis_error:
-            out.notes.append(probe.nis_error)
-        out.step_us = probe.elapsed_ns / 1e3 / max(probe.calls * entry.runs, 1)
-        design_meta = experiment.meta.get("design") or {}
-        gamma = design_meta.get("gamma")
-        if gamma is not None and design_meta.get("gamma_channel") == "scenario":
-            out.certified_gamma = float(gamma)
-            out.gamma_kind = design_meta.get("gamma_kind", "unstated")
-        elif gamma is not None:
-            out.notes.append(f"the design states gamma = {gamma:.4g} for its own disturbance "
-                             "model, not for this scenario's channel (no gamma_channel = "
-                             "'scenario' in design_meta): not compared")
-        out.trajectory = {"t_s": rec["t_s"], "state": rec["state"][0],
-                          "estimate": rec["estimate"][0],
-                          "measurement": rec["measurement"][0], "action": rec["action"][0]}
-        experiment.loop.stage.estimator = inner
-        lap("monte_carlo")
-        if worst_case and entry.worst_case is not None:
-            try:
-                out.worst = _worst_case(entry, scenario, estimator, _unwrap(inner), experiment,
-                                        seeds[0], tapes)
-            except (ValueError, FilterError, FloatingPointError,
-                    SimulationDiverged) as err:
-                out.worst_skipped = f"worst-case search failed: {type(err).__name__}: {err}"
-            lap("worst_case")
-    finally:
-        experiment.close()
-    return out
-
-
-def _worst_case(entry: SuiteEntry, scenario, estimator: Any, template: Any, experiment: Any,
-                seed: int, tapes: dict[str, Any] | None = None):
-    spec = entry.worst_case
-    dt_s = experiment.loop.sim.dt_s
-    K = int(round((spec.horizon_s or scenario.duration_s) / dt_s))
-    members = population(spec.basis - 1) if spec.generations else 0
-    dist = _sampled(entry, scenario, 1, K, nominal=False)
-    if dist is None:
-        raise ValueError("the entry has no disturbance channel")
-    s = dist.values.shape[2]
-    # candidates per closed-loop run: +-v_1 and the random draws, or a DE population; the
-    # run without w is member 0 of the impulse response's (s + 1 members), run once
-    # + the batch's own baseline (member 0); the restarts' populations share a batch
-    num = max(2 + spec.random_draws, RESTARTS * members) + 1
-    dist = _sampled(entry, scenario, num, K, nominal=False)
-    impulse_dist = _sampled(entry, scenario, s + 1, K, nominal=False)
-
-    def copy_factory(design, **options):
-        return copy.deepcopy(template)
-
-    copy_factory.__name__ = _name(estimator)
-    # the copy needs the design the original was built from (a paper-design-only family on
-    # an augmented design: the paper design, not the matched one)
-    reason = paper_design_only(estimator)
-    if reason is not None:
-        copy_factory.paper_design_only = reason  # type: ignore[attr-defined]
-    probe_sensors, removed = without_quantization(experiment.loop.sim.sensors)
-    sc = scenario.replace(estimator=copy_factory, disturbance=dist, process_noise=0.0)
-    if removed:
-        sc = sc.replace(sensors=probe_sensors, sensor_options={})
-    wc = runner.build(sc, num, num_threads=1)
-    impulse = None
-    try:
-        impulse = runner.build(sc.replace(disturbance=impulse_dist), s + 1, num_threads=1)
-        for probe in (wc, impulse):
-            probe.loop.truth_feedback = entry.feedback == "truth"
-        # an augmented (matched) design's physical states: the loop records those
-        evaluator = LoopEvaluator(wc, dist, impulse, impulse_dist, seed, K,
-                                  wc.design.output_matrix[:, wc.design.physical])
-        # impulses of 1e-3 of the candidates' mean amplitude, after a quarter of the horizon
-        eps = 1e-3 * np.sqrt(spec.energy / (K * dt_s * s))
-        k0 = max(1, K // 4)
-        # the impulse run does not depend on the estimator when the controller acts on the
-        # truth: simulated for the entry's first estimator, replayed for the others
-        key = json.dumps(["worst-case impulse", _tape_key(impulse, np.full(s + 1, seed), None),
-                          k0, K, float(eps)])
-        t = evaluator.impulse_response(k0, eps, tapes=tapes, key=key)
-        rng = np.random.default_rng([int(seed), 16])
-        result = search(evaluator, t, energy=spec.energy, random_draws=spec.random_draws,
-                        basis=spec.basis, generations=spec.generations, rng=rng)
-        result.probe_sensors = wc.loop.sim.sensors.describe()
-        result.quantization_removed = removed
-        return result
-    finally:
-        wc.close()
-        if impulse is not None:
-            impulse.close()
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
@@ -405,11 +67,11 @@ def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
                 reference: Any = REFERENCE, on_pair: Any = None) -> dict[str, PairResult]:
     """Every estimator, the Kalman timing reference and the comparison ``reference`` on one
     entry; keys: estimator names. ``on_pair(entry name, estimator name)`` after each pair."""
-    names = [_name(e) for e in estimators]
+    names = [estimator_name(e) for e in estimators]
     todo = list(zip(names, estimators, strict=True))
     for extra in (REFERENCE, reference):
-        if _name(extra) not in [name for name, _ in todo]:
-            todo.append((_name(extra), extra))
+        if estimator_name(extra) not in [name for name, _ in todo]:
+            todo.append((estimator_name(extra), extra))
     tapes: dict[str, Any] = {}  # the entry's simulated episodes, shared (see score_pair)
     out = {}
     for name, est in todo:
@@ -446,7 +108,7 @@ def entry_cost(entry: SuiteEntry) -> float:
     if entry.unavailable():
         return 0.0
     scenario = entry.scenario
-    rig = scenario.rig if isinstance(scenario.rig, str) else getattr(scenario.rig, "name", "")
+    rig = scenario.rig if isinstance(scenario.rig, str) else scenario.rig.name
     dt_s = scenario.physics_dt_s * scenario.frame_skip
     steps = scenario.duration_s / dt_s
     cost = steps * (entry.runs + STEP_OVERHEAD)
@@ -495,57 +157,6 @@ def run_entries(entries: list[SuiteEntry], estimators: list[Any], seed: int, *,
                         costs=[entry_cost(e) for e in entries])
 
 
-#: Name prefix of the temporary directory through which one ``score`` call's workers share
-#: their designs: ``testbed-designs-<pid>-<random>`` (``pid``: the process that made it).
-DESIGNS_PREFIX = "testbed-designs-"
-
-
-@contextlib.contextmanager
-def designs_directory(parent: str | os.PathLike[str] | None = None) -> Iterator[str]:
-    """A new private directory (mode 0700) for the designs the workers of one call share,
-    removed when the block ends (an exception or an interrupt included).
-
-    Its name carries this process's id. A process killed by SIGKILL cannot remove its own;
-    the next call removes it: every ``testbed-designs-<pid>-*`` directory of this user in
-    ``parent`` whose process no longer exists (:func:`remove_stale_designs`).
-
-    Parameters
-    ----------
-    parent : path-like, optional
-        Where to make it (default ``tempfile.gettempdir()``).
-    """
-    parent = tempfile.gettempdir() if parent is None else os.fspath(parent)
-    remove_stale_designs(parent)
-    with tempfile.TemporaryDirectory(prefix=f"{DESIGNS_PREFIX}{os.getpid()}-",
-                                     dir=parent) as designs:
-        yield designs
-
-
-def remove_stale_designs(parent: str | os.PathLike[str] | None = None) -> list[str]:
-    """Remove the design directories (:func:`designs_directory`) of this user in ``parent``
-    (default the temporary directory) left by processes that no longer exist; the removed
-    paths. Directories of other users, of live processes, symbolic links and names
-    without a process id are left alone."""
-    parent = tempfile.gettempdir() if parent is None else os.fspath(parent)
-    removed: list[str] = []
-    try:
-        names = os.listdir(parent)
-    except OSError:
-        return removed
-    for name in names:
-        pid = name[len(DESIGNS_PREFIX):].split("-", 1)[0]
-        if not (name.startswith(DESIGNS_PREFIX) and pid.isdigit()) or process_alive(int(pid)):
-            continue
-        path = os.path.join(parent, name)
-        try:
-            st = os.lstat(path)
-        except OSError:
-            continue
-        if stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid():
-            shutil.rmtree(path, ignore_errors=True)
-            removed.append(path)
-    return removed
-    return True
 
 
 @dataclass
@@ -688,7 +299,7 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
 
     if not estimators:
         raise ValueError("give at least one estimator (a registered name or module:factory)")
-    names = [_name(e) for e in estimators]
+    names = [estimator_name(e) for e in estimators]
     if len(set(names)) != len(names):
         raise ValueError(f"estimators must be distinct, got {names}")
     for est in [*estimators, reference]:
@@ -716,4 +327,4 @@ def score(estimators: list[Any], suite: str = "quick", *, seed: int = 0,
                         reference=reference)
     return ScoreRun(suite=suite, seed=int(seed), estimators=names, entries=entries,
                     pairs=pairs, wall_s=time.perf_counter() - start,
-                    reference=_name(reference))
+                    reference=estimator_name(reference))

@@ -53,7 +53,7 @@ def pair_costs(entries: list[Any], estimators: list[str], reference: str, *,
     ----------
     entries : list of SuiteEntry
     estimators : list of str
-        The names of the estimators asked for (``harness._name``).
+        The names of the estimators asked for (``testbed.score.pair.estimator_name``).
     reference : str
         The comparison reference's name (run on every entry, like the Kalman timing
         reference, without a worst-case search unless asked for).

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from testbed.experiment.scenario import Scenario
+from testbed.records import field_values
 from testbed.rigs import resolve_rig
 from testbed.rigs.helicopter.rig import HelicopterRig
 from testbed.rigs.linear_plant.rig import LinearPlantRig
@@ -83,7 +84,7 @@ class WorstCaseSpec:
                                                and self.horizon_s > 0):
             raise ValueError(f"horizon_s must be positive, got {self.horizon_s}")
         for name in ("random_draws", "basis", "generations"):
-            value = getattr(self, name)
+            value = field_values(self)[name]
             if int(value) != value or value < (1 if name != "generations" else 0):
                 raise ValueError(f"{name} must be a positive integer, got {value}")
 

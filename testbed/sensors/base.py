@@ -295,6 +295,10 @@ class Sensor:
     names: tuple[str, ...] = ()
     units: tuple[str, ...] = ()
     measured_state: tuple[int | None, ...] = ()
+    #: The channel reads MuJoCo's actuator states (``Sample.act``: :func:`reads_actuators`).
+    reads_act: bool = False
+    #: The sensor a decorator wraps (None: not a decorator).
+    inner: Sensor | None = None
 
     @property
     def dim(self) -> int:
@@ -447,13 +451,11 @@ def reads_actuators(sensor: Sensor) -> bool:
     """Whether ``sensor`` (a suite, a decorator or a channel) has a channel reading MuJoCo's
     actuator states (``Sample.act``): a channel declaring ``reads_act = True``, found
     through suites (``sensors``) and wrappers (``inner``)."""
-    if getattr(sensor, "reads_act", False):
+    if sensor.reads_act:
         return True
-    parts = getattr(sensor, "sensors", None)
-    if isinstance(parts, tuple):
-        return any(reads_actuators(s) for s in parts)
-    inner = getattr(sensor, "inner", None)
-    return isinstance(inner, Sensor) and reads_actuators(inner)
+    if isinstance(sensor, Suite):
+        return any(reads_actuators(s) for s in sensor.sensors)
+    return isinstance(sensor.inner, Sensor) and reads_actuators(sensor.inner)
 
 
 def as_array(value: Any, size: int, name: str, *, non_negative: bool = True) -> np.ndarray:

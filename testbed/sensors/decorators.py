@@ -55,6 +55,9 @@ class Decorator(Sensor):
     inner : Sensor
     """
 
+    #: The sampling period the decorator was built for, s (None: it has none).
+    dt_s: float | None = None
+
     def __init__(self, inner: Sensor):
         if not isinstance(inner, Sensor):
             raise ValueError(f"inner must be a Sensor, got {inner!r}")
@@ -97,7 +100,7 @@ class Decorator(Sensor):
 
     def sample_periods_s(self) -> set[float]:
         """The inner sensor's periods plus this decorator's ``dt_s`` (if it has one)."""
-        own = getattr(self, "dt_s", None)
+        own = self.dt_s
         return self.inner.sample_periods_s() | (set() if own is None else {float(own)})
 
     def describe(self) -> str:

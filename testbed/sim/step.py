@@ -65,29 +65,15 @@ class BatchStep:
             common = False
         u = actions if checked else self.check_actions(actions, k)
         rig, physics, info = self.rig, self.physics, self.info
-        has_signal, dist_active, no_manoeuvre = (self.inputs.has_signal, self.inputs.active,
-                                                 self.schedules.none)
+        has_signal, dist_active = self.inputs.has_signal, self.inputs.active
         # every member at one time with the one default profile: the profile from a float
+        no_manoeuvre = self.schedules.none
         one_profile = common and not no_manoeuvre and len(self.schedules.profiles) == 1
         t = None
         if has_signal or not (no_manoeuvre or one_profile):
             t = self.steps[sel] * self.dt_s
-        # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
-        clipped_u = np.minimum(np.maximum(u, low), high)
-        # the whole batch's flags go straight into info (no one else reads them)
-        clipped_out = info["action_clipped"] if members is None else None
-        if no_manoeuvre:  # the profile is zero: clipped + 0 needs no second clip
-            profile = zero_u
-            applied = clipped_u + profile
-            clipped = np.not_equal(clipped_u, u, out=clipped_out)
-        else:
-            # one time for every member: steps * dt_s of the first, a Python float (int64
-            # to double and the product, as numpy's)
-            profile = (self._common_profile(self.steps.item(0) * self.dt_s, k)
-                       if t is None else self._manoeuvre(t, sel, common))
-            total = clipped_u + profile
-            applied = np.minimum(np.maximum(total, low), high)
-            clipped = np.bitwise_or(clipped_u != u, applied != total, out=clipped_out)
+        applied, clipped, clipped_out, profile = self._applied(u, t, sel, k, low, high, zero_u,
+                                                               common, members is None)
         # the step's normals in one draw, in stream order: step noise, disturbance, sensors
         if members is None:  # (every stream: drawn without the view's selection test)
             noise = self._noise_all
@@ -121,6 +107,53 @@ class BatchStep:
         inside = np.less_equal(np.abs(x), envelope)  # NaN compares False
         if warned or np.count_nonzero(inside) != inside.size:
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x, t)
+        ref = self._score(x, t, sel, common, members is None)
+        w_now = self._signal(t, index, common) if has_signal else zero_w
+        self.obs[sel] = self._measure(
+            Sample(x, t, applied, w_now, sel,
+                   physics.actuator_states(sel) if self._reads_act else None), noise, xi)
+        info["state"][sel] = x
+        info["t"][sel] = t
+        info["setpoint"][sel] = ref
+        info["action_applied"][sel] = applied
+        if clipped_out is None:
+            info["action_clipped"][sel] = clipped
+        # the entries below keep what reset wrote without a signal, profile or disturbance
+        if has_signal:
+            info["disturbance"][sel] = w
+        if not no_manoeuvre:
+            info["manoeuvre"][sel] = profile
+        if dist_active:
+            info["process_accel"][sel] = accel
+
+    def _applied(self, u: np.ndarray, t: np.ndarray | None, sel: Any, k: int,
+                 low: np.ndarray, high: np.ndarray, zero_u: np.ndarray, common: bool,
+                 whole: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+        """The applied input (k, nu): the action clipped, plus the input profile, clipped
+        again; the clipped flags, the info array they were written into (the whole batch's)
+        or None, and the profile."""
+        # clip(u, low, high) is min(max(u, low), high), bitwise (u is finite)
+        clipped_u = np.minimum(np.maximum(u, low), high)
+        # the whole batch's flags go straight into info (no one else reads them)
+        clipped_out = self.info["action_clipped"] if whole else None
+        if self.schedules.none:  # the profile is zero: clipped + 0 needs no second clip
+            profile = zero_u
+            applied = clipped_u + profile
+            clipped = np.not_equal(clipped_u, u, out=clipped_out)
+        else:
+            # one time for every member: steps * dt_s of the first, a Python float (int64
+            # to double and the product, as numpy's)
+            profile = (self._common_profile(self.steps.item(0) * self.dt_s, k)
+                       if t is None else self._manoeuvre(t, sel, common))
+            total = clipped_u + profile
+            applied = np.minimum(np.maximum(total, low), high)
+            clipped = np.bitwise_or(clipped_u != u, applied != total, out=clipped_out)
+        return applied, clipped, clipped_out, profile
+
+    def _score(self, x: np.ndarray, t: np.ndarray, sel: Any, common: bool,
+               whole: bool) -> np.ndarray:
+        """The reward (minus the tracked states' squared error) and termination of the
+        members into their arrays; the reference (the setpoint rows) returned."""
         r = self.scoring.count
         one_row = common and len(self.schedules.tables) == 1
         if one_row:  # one row (1, r), broadcast, not repeated
@@ -139,29 +172,13 @@ class BatchStep:
                 total = sq[:, 0] + sq[:, 1]
             else:
                 total = sq[:, 0] if r == 1 else np.add.reduce(sq, axis=1)
-        if members is None:
+        if whole:
             np.negative(total, self.reward)
         else:
             self.reward[sel] = -total
         if self.scoring.terminates:  # the base Rig.terminated never ends an episode
-            self.terminated[sel] = rig.terminated(x)
-        w_now = self._signal(t, index, common) if has_signal else zero_w
-        self.obs[sel] = self._measure(
-            Sample(x, t, applied, w_now, sel,
-                   physics.actuator_states(sel) if self._reads_act else None), noise, xi)
-        info["state"][sel] = x
-        info["t"][sel] = t
-        info["setpoint"][sel] = ref
-        info["action_applied"][sel] = applied
-        if clipped_out is None:
-            info["action_clipped"][sel] = clipped
-        # the entries below keep what reset wrote without a signal, profile or disturbance
-        if has_signal:
-            info["disturbance"][sel] = w
-        if not no_manoeuvre:
-            info["manoeuvre"][sel] = profile
-        if dist_active:
-            info["process_accel"][sel] = accel
+            self.terminated[sel] = self.rig.terminated(x)
+        return ref
 
     def _forces(self, t: np.ndarray | None, index: np.ndarray, sel: Any, common: bool,
                 xi: np.ndarray | None, zero_accel: np.ndarray

@@ -61,29 +61,14 @@ class OneMemberStep:
         list, the operations the sample's measurement runs, without the sample.
         """
         rig, physics, info = self.rig, self.physics, self.info
-        limits, schedules, scoring, inputs = self.limits, self.schedules, self.scoring, self.inputs
-        has_signal, dist_active, no_manoeuvre = inputs.has_signal, inputs.active, schedules.none
+        limits, inputs = self.limits, self.inputs
+        has_signal, dist_active = inputs.has_signal, inputs.active
+        no_manoeuvre = self.schedules.none
         index, sel = self.rows.all, _ALL
-        # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
-        # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
         t = None
         if has_signal or not no_manoeuvre:  # the times as the batch step has them
             t = np.array((self.steps.item(0) * self.dt_s,))
-        if no_manoeuvre:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0), in the
-            # clip's pass; the flags compare it with the action: c + 0.0 != v is c != v
-            # (only a zero's sign changes, and -0.0 == 0.0)
-            profile = None
-            applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
-                       for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
-            clipped = list(map(_ne, applied, ul))
-        else:
-            clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
-                         for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
-            profile = self._manoeuvre(t, sel, True)
-            total = list(map(operator.add, clipped_u, profile.tolist()[0]))
-            applied = list(map(min, map(max, total, limits.low_list), limits.high_list))
-            clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
-                                                               strict=True)]
+        applied, clipped, profile = self._single_applied(ul, t)
         # (1, nu): a view of the new (nu,) array (one numpy call less than ((applied,)))
         applied_rows = np.array(applied)[None]
         xi = self._noise_all.normal(self.draws.step) if self.draws.step else None
@@ -112,42 +97,8 @@ class OneMemberStep:
             inside = np.less_equal(np.abs(x), limits.envelope)
             self._diverged(index, physics.unstable[sel], ~inside.all(axis=1), x,
                            np.array((t_now,)))
-        lo, hi, table_row = schedules.row_cache
-        if lo <= t_now < hi and len(schedules.tables) == 1:  # the default table's row as before
-            ref = schedules.table_lists[table_row]  # (read only: the info list is built anew)
-        else:
-            ref = self._single_reference(t_now)
-        r = scoring.count
-        if r == 2:  # (the batch step's e * e summed, in the same order)
-            c0, c1 = scoring.columns
-            e0, e1 = xl[c0] - ref[0], xl[c1] - ref[1]
-            total = e0 * e0 + e1 * e1
-        elif r == 1:
-            e0 = xl[scoring.columns[0]] - ref[0]
-            total = e0 * e0
-        else:  # (numpy's sum of the squares, as the batch step)
-            e = x[:, scoring.cols] - np.array((ref,)).reshape(1, r)
-            total = np.add.reduce(e * e, axis=1).item(0)
-        self.reward[0] = -total
-        if scoring.terminates:
-            self.terminated[0] = (rig.terminated_row(xl) if scoring.terminated_row
-                                  else rig.terminated(x)[0])
-        row_plan = self._row_plan
-        y = None
-        if row_plan is not None and not has_signal:  # sensors that read the state only: the
-            # plan's steps on the state list, without the sample (times, signal) made for them
-            drawn = None if xi is None else xi.tolist()[0][self.draws.sensor_offset:]
-            y = row_plan.measure_state_row(self.sensors, xl, drawn, sel)
-        if y is None:
-            t = np.array((t_now,))
-            w_now = self._signal(t, index, True) if has_signal else self.rows.zero_w
-            act = physics.actuator_states(sel) if self._reads_act else None
-            y = self._measure(Sample(x, t, applied_rows, w_now, sel, act), self._noise_all, xi,
-                              one=True)
-            if row_plan is not None and not has_signal:  # (the suite was fused again)
-                plan = state_row_plan(self.sensors)
-                self._row_plan = (plan if plan is not None and plan.draws == self.draws.sensors
-                                  else None)
+        ref = self._single_score(x, xl, t_now)
+        y = self._single_measure(x, xl, xi, t_now, applied_rows)
         row_views = self.views
         if type(y) is list:  # (the plan's row of floats, into the 1-D view of the row)
             row_views.obs[...] = y
@@ -169,6 +120,77 @@ class OneMemberStep:
             info["manoeuvre"][sel] = profile
         if dist_active:
             info["process_accel"][sel] = accel
+
+    def _single_applied(self, ul: list[float], t: np.ndarray | None
+                        ) -> tuple[list[float], list[bool], np.ndarray | None]:
+        """The applied input (nu,) as Python floats, the clipped flags, and the input
+        profile (1, nu) (None when it is zero)."""
+        limits = self.limits
+        # min(max(v, lo), hi) as the builtins compare: max(v, lo) is lo only if lo > v,
+        # min(m, hi) is hi only if hi < m (the same objects, without two calls per entry)
+        if self.schedules.none:  # the profile is zero: clipped + 0 (which makes -0.0 +0.0),
+            # in the clip's pass; the flags compare it with the action: c + 0.0 != v is
+            # c != v (only a zero's sign changes, and -0.0 == 0.0)
+            applied = [(hi if hi < (m := (lo if lo > v else v)) else m) + 0.0
+                       for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
+            return applied, list(map(_ne, applied, ul)), None
+        clipped_u = [hi if hi < (m := (lo if lo > v else v)) else m
+                     for v, lo, hi in zip(ul, limits.low_list, limits.high_list, strict=True)]
+        profile = self._manoeuvre(t, _ALL, True)
+        total = list(map(operator.add, clipped_u, profile.tolist()[0]))
+        applied = list(map(min, map(max, total, limits.low_list), limits.high_list))
+        clipped = [c != v or a != s for c, v, a, s in zip(clipped_u, ul, applied, total,
+                                                           strict=True)]
+        return applied, clipped, profile
+
+    def _single_score(self, x: np.ndarray, xl: list[float], t_now: float) -> list[float]:
+        """The member's reward and termination into their arrays; its reference returned
+        (a list of floats, read only)."""
+        schedules, scoring = self.schedules, self.scoring
+        lo, hi, table_row = schedules.row_cache
+        if lo <= t_now < hi and len(schedules.tables) == 1:  # the default table's row as before
+            ref = schedules.table_lists[table_row]  # (read only: the info list is built anew)
+        else:
+            ref = self._single_reference(t_now)
+        r = scoring.count
+        if r == 2:  # (the batch step's e * e summed, in the same order)
+            c0, c1 = scoring.columns
+            e0, e1 = xl[c0] - ref[0], xl[c1] - ref[1]
+            total = e0 * e0 + e1 * e1
+        elif r == 1:
+            e0 = xl[scoring.columns[0]] - ref[0]
+            total = e0 * e0
+        else:  # (numpy's sum of the squares, as the batch step)
+            e = x[:, scoring.cols] - np.array((ref,)).reshape(1, r)
+            total = np.add.reduce(e * e, axis=1).item(0)
+        self.reward[0] = -total
+        if scoring.terminates:
+            self.terminated[0] = (self.rig.terminated_row(xl) if scoring.terminated_row
+                                  else self.rig.terminated(x)[0])
+        return ref
+
+    def _single_measure(self, x: np.ndarray, xl: list[float], xi: np.ndarray | None,
+                        t_now: float, applied_rows: np.ndarray) -> list[float] | np.ndarray:
+        """The member's measurement: a row of floats from a state-only plan, else the
+        sensors' (1, m) from a :class:`~testbed.sensors.Sample`."""
+        has_signal, sel = self.inputs.has_signal, _ALL
+        row_plan = self._row_plan
+        y = None
+        if row_plan is not None and not has_signal:  # sensors that read the state only: the
+            # plan's steps on the state list, without the sample (times, signal) made for them
+            drawn = None if xi is None else xi.tolist()[0][self.draws.sensor_offset:]
+            y = row_plan.measure_state_row(self.sensors, xl, drawn, sel)
+        if y is None:
+            t = np.array((t_now,))
+            w_now = self._signal(t, self.rows.all, True) if has_signal else self.rows.zero_w
+            act = self.physics.actuator_states(sel) if self._reads_act else None
+            y = self._measure(Sample(x, t, applied_rows, w_now, sel, act), self._noise_all, xi,
+                              one=True)
+            if row_plan is not None and not has_signal:  # (the suite was fused again)
+                plan = state_row_plan(self.sensors)
+                self._row_plan = (plan if plan is not None and plan.draws == self.draws.sensors
+                                  else None)
+        return y
 
     def _single_reference(self, t: float) -> list[float]:
         """The reference of the one member at ``t``, a list of floats (r,) (read only: the

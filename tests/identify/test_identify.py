@@ -22,7 +22,7 @@ from identify_units import (
 )
 
 from testbed.identify import IdentificationError, fit_percent, identify
-from testbed.identify.fit import _hac_inflation
+from testbed.identify.hac import hac_inflation as _hac_inflation
 from testbed.identify.sensor_model import quantization_step
 from testbed.rigs.aero import AeroRig
 from testbed.rigs.helicopter.rig import HelicopterRig

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.records import field_values
 from testbed.rigs.aero.motors import AeroMotor
 
 
@@ -76,18 +77,19 @@ class AeroHardware:
     def __post_init__(self) -> None:
         if not isinstance(self.motor, AeroMotor):
             raise ValueError(f"AeroHardware.motor must be an AeroMotor, got {self.motor!r}")
+        fields = field_values(self)
         for f in dataclasses.fields(self):
             if f.name == "motor":
                 continue
-            value = np.asarray(getattr(self, f.name), dtype=float)
+            value = np.asarray(fields[f.name], dtype=float)
             if f.name == "voltage_limit_v" and value.shape != (2,):
                 raise ValueError(f"AeroHardware.{f.name} must be two numbers (pitch, yaw), "
-                                 f"got {getattr(self, f.name)!r}")
+                                 f"got {fields[f.name]!r}")
             if not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise ValueError(f"AeroHardware.{f.name} must be finite and >= 0, got "
-                                 f"{getattr(self, f.name)!r}")
+                                 f"{fields[f.name]!r}")
         for name in ("voltage_limit_v", "gyro_step", "accel_step", "rotor_speed_step",
                      "current_step"):
-            if np.any(np.asarray(getattr(self, name)) <= 0):
+            if np.any(np.asarray(fields[name]) <= 0):
                 raise ValueError(f"AeroHardware.{name} must be positive, got "
-                                 f"{getattr(self, name)!r}")
+                                 f"{fields[name]!r}")

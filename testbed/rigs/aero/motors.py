@@ -29,11 +29,11 @@ as channels an input is computed from (``SensorModel.inputs``), which the design
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.records import field_items
 from testbed.sensors import Noise, Sample, Sensor, SensorModel
 
 #: Channel names: rotor speeds (rad/s) and motor currents (A), pitch (front) motor first.
@@ -65,8 +65,7 @@ class AeroMotor:
                                / (8.4 * (1.0 - STEADY_TO_PEAK_CURRENT)))
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"AeroMotor.{f.name} must be finite and positive, got "
                                  f"{value!r}")

@@ -24,13 +24,13 @@ pitch with the Coulomb friction left out (it has no derivative at rest):
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from testbed.records import field_items
 from testbed.rigs.aero.hardware import AeroHardware
 from testbed.rigs.base import GRAVITY_M_S2, Params, Rig, RigOption
 
@@ -140,8 +140,7 @@ class AeroParams(Params):
         """Raise ``ValueError`` naming the first unphysical parameter."""
         non_negative = ("pitch_stiffness", "pitch_damping", "yaw_damping", "pitch_coulomb_Nm",
                         "yaw_coulomb_Nm")
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not np.isfinite(value):
                 raise ValueError(f"AeroParams.{f.name} must be finite, got {value}")
             if f.name in ("K_pp", "K_py", "K_yp", "K_yy"):

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.records import field_values
+
 
 @dataclass(frozen=True)
 class HelicopterHardware:
@@ -81,19 +83,20 @@ class HelicopterHardware:
     imu_rate_hz: float = 100.0
 
     def __post_init__(self) -> None:
+        fields = field_values(self)
         for f in dataclasses.fields(self):
-            value = np.asarray(getattr(self, f.name), dtype=float)
+            value = np.asarray(fields[f.name], dtype=float)
             if f.type.startswith("tuple") and value.shape != (2,):
                 raise ValueError(f"HelicopterHardware.{f.name} must be two numbers (pitch, yaw), "
-                                 f"got {getattr(self, f.name)!r}")
+                                 f"got {fields[f.name]!r}")
             if not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise ValueError(f"HelicopterHardware.{f.name} must be finite and >= 0, got "
-                                 f"{getattr(self, f.name)!r}")
+                                 f"{fields[f.name]!r}")
         for name in ("motor_time_constant_s", "voltage_limit_v", "current_limit_a",
                      "resistance_ohm", "imu_rate_hz"):
-            if np.any(np.asarray(getattr(self, name)) <= 0):
+            if np.any(np.asarray(fields[name]) <= 0):
                 raise ValueError(f"HelicopterHardware.{name} must be positive, got "
-                                 f"{getattr(self, name)!r}")
+                                 f"{fields[name]!r}")
         if np.any(np.asarray(self.back_emf_fraction) >= 1):
             raise ValueError("HelicopterHardware.back_emf_fraction must be below 1, got "
                              f"{self.back_emf_fraction!r}")

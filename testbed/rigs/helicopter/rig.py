@@ -23,212 +23,43 @@ slope, so the linearization with gravity compensated by the input (``u_op`` from
 
 from __future__ import annotations
 
-import dataclasses
-import functools
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
-from testbed.rigs.base import GRAVITY_M_S2, Params, Rig
-from testbed.rigs.disturbances import Disturbance
+from testbed.rigs.base import GRAVITY_M_S2, Rig
+from testbed.rigs.helicopter import design as _design
+from testbed.rigs.helicopter.design import (
+    DESIGN_RATE_RAD_S,
+    MOTOR_PRIOR_STD_V,
+    MOTOR_STATE_NOISE_V,
+    STOP_TOLERANCE_RAD,
+    YAW_GYRO_PITCH_RAD,
+)
 from testbed.rigs.helicopter.hardware import HelicopterHardware, current_limited, deadband
+from testbed.rigs.helicopter.paper import (
+    PAPER_GAMMA,
+    PAPER_INITIAL_WEIGHT,
+    LinearModel,
+    basin_helicopter_disturbance,
+    basin_helicopter_w,
+    basin_signal,
+    paper_model,
+)
+from testbed.rigs.helicopter.params import PITCH_LIMIT_RAD, HelicopterParams, gravity_voltage
 
-PITCH_LIMIT_RAD = float(np.deg2rad(40.5))
+__all__ = ["ACTION_NAMES", "AMBIENT_NOISE_RAD_S15", "DEFAULT_SETPOINTS", "DESIGN_RATE_RAD_S",
+           "ENCODER_COUNTS", "GRAVITY_M_S2", "MOTOR_PRIOR_STD_V", "MOTOR_STATE_NOISE_V",
+           "PAPER_GAMMA", "PAPER_INITIAL_WEIGHT", "PITCH_LIMIT_RAD", "SENSOR_PRESETS",
+           "STATE_NAMES", "STOP_TOLERANCE_RAD", "VOLTAGE_LIMIT_V", "X0_YAW_RATE_STD_RAD_S",
+           "X0_YAW_STD_RAD", "YAW_GYRO_PITCH_RAD", "HelicopterParams", "HelicopterRig",
+           "LinearModel", "basin_helicopter_disturbance", "basin_helicopter_w",
+           "gravity_voltage", "hardware_imu", "paper_model"]
+
 STATE_NAMES = ("pitch", "yaw", "pitch_rate", "yaw_rate")
 ACTION_NAMES = ("V_pitch", "V_yaw")
 VOLTAGE_LIMIT_V = 24.0
 
 
-@dataclass(frozen=True)
-class HelicopterParams(Params):
-    """Physical parameters of the Quanser 2-DOF helicopter (SI units).
-
-    The inertias are not printed in Basin et al.; they are the values for which the damping and
-    torque gains below reproduce its ``A`` and ``B`` exactly: ``J_p = B_p / 9.2751``,
-    ``J_y = B_y / 3.4955`` (total inertias at level pitch), and ``K_ij = B_ij J``.
-
-    Attributes
-    ----------
-    mass_kg : float
-        Moving mass (helicopter body, motors, shrouds).
-    com_m : float
-        Distance of the centre of mass in front of the pitch axis.
-    pitch_damping : float
-        Viscous damping about the pitch axis, N m s/rad.
-    yaw_damping : float
-        Viscous damping about the yaw axis, N m s/rad.
-    pitch_inertia : float
-        Total inertia about the pitch axis, kg m^2 (includes ``m l^2``).
-    yaw_inertia : float
-        Total inertia about the yaw axis at level pitch, kg m^2.
-    roll_inertia_com : float
-        Body inertia about its long axis through the centre of mass, kg m^2 (sets how the
-        yaw inertia changes with pitch).
-    stage_inertia : float
-        Inertia of the yaw stage (shaft and yoke) about the vertical axis, kg m^2.
-    K_pp, K_py, K_yp, K_yy : float
-        Torque gains, N m/V: pitch torque from the pitch motor (thrust), pitch torque from the
-        yaw motor (reaction torque), yaw torque from the pitch motor (reaction torque), yaw
-        torque from the yaw motor (thrust).
-    r_pitch_rotor_m, r_yaw_rotor_m : float
-        Arms of the front and back rotors from the pitch axis.
-    """
-
-    mass_kg: float = 1.3872
-    com_m: float = 0.186
-    pitch_damping: float = 0.800
-    yaw_damping: float = 0.318
-    pitch_inertia: float = 0.800 / 9.2751
-    yaw_inertia: float = 0.318 / 3.4955
-    roll_inertia_com: float = 0.010
-    stage_inertia: float = 0.002
-    K_pp: float = 2.3667 * 0.800 / 9.2751
-    K_py: float = 0.0790 * 0.800 / 9.2751
-    K_yp: float = 0.2410 * 0.318 / 3.4955
-    K_yy: float = 0.7913 * 0.318 / 3.4955
-    r_pitch_rotor_m: float = 0.157
-    r_yaw_rotor_m: float = 0.178
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first unphysical parameter."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if not np.isfinite(value):
-                raise ValueError(f"HelicopterParams.{f.name} must be finite, got {value}")
-            if f.name in ("K_pp", "K_py", "K_yp", "K_yy"):
-                continue
-            if value <= 0:
-                raise ValueError(f"HelicopterParams.{f.name} must be positive, got {value}")
-        pitch_com = self.pitch_inertia - self.mass_kg * self.com_m**2
-        if pitch_com <= 0:
-            raise ValueError("HelicopterParams.pitch_inertia must exceed mass_kg * com_m**2 "
-                             f"({self.mass_kg * self.com_m ** 2:.6g}), got "
-                             f"{self.pitch_inertia:.6g}")
-        yaw_com = self.yaw_inertia - self.mass_kg * self.com_m**2 - self.stage_inertia
-        if yaw_com <= 0:
-            raise ValueError("HelicopterParams.yaw_inertia must exceed mass_kg * com_m**2 + "
-                             f"stage_inertia, got {self.yaw_inertia}")
-
-    @property
-    def body_inertia_com(self) -> np.ndarray:
-        """Principal inertias of the moving body about its centre of mass, shape (3,).
-
-        Order: about the long axis (x), the pitch axis (y), the body normal (z), kg m^2.
-        """
-        ml2 = self.mass_kg * self.com_m**2
-        return np.array([self.roll_inertia_com, self.pitch_inertia - ml2,
-                         self.yaw_inertia - ml2 - self.stage_inertia])
-
-    @property
-    def torque_gains(self) -> np.ndarray:
-        """Matrix mapping volts to torques at level pitch, shape (2, 2), N m/V.
-
-        Rows: pitch torque, yaw torque; columns: V_pitch, V_yaw.
-        """
-        return np.array([[self.K_pp, self.K_py], [self.K_yp, self.K_yy]])
-
-
-@dataclass(frozen=True)
-class LinearModel:
-    """Continuous-time linear model ``x' = A x + B u`` (+ noise/disturbance inputs).
-
-    Attributes
-    ----------
-    A : ndarray, shape (4, 4)
-    B : ndarray, shape (4, 2)
-    b : ndarray, shape (4, 2) or None
-        White-noise input matrix (``b dW``), intensity ``b b^T``.
-    G : ndarray, shape (4, s) or None
-        Deterministic disturbance input matrix.
-    C1, C2, L, h, H : ndarray or None
-        Observation, output and noise matrices of Basin et al. (12)-(15).
-    """
-
-    A: np.ndarray
-    B: np.ndarray
-    b: np.ndarray | None = None
-    G: np.ndarray | None = None
-    C1: np.ndarray | None = None
-    C2: np.ndarray | None = None
-    L: np.ndarray | None = None
-    h: np.ndarray | None = None
-    H: np.ndarray | None = None
-
-
-def paper_model() -> LinearModel:
-    """The linear helicopter model of Basin et al., eqs. (12)-(15), as printed.
-
-    Corrected misprints (docs/references.md):
-
-    - ``B`` is printed with three rows; the missing first row is ``[0, 0]`` (pitch angle
-      row), giving ``B = [[0,0],[0,0],[2.3667,0.0790],[0.2410,0.7913]]``.
-    - The constant matrix of (17)/(18) is ``G G^T`` (= ``b b^T``) whose first two rows are
-      zero; the ``1`` entries printed there are not used (we compute ``G G^T``).
-
-    Returns
-    -------
-    LinearModel
-        ``A`` (4, 4), ``B`` (4, 2), ``b`` (4, 2), ``G`` (4, 4), ``C1 = C2 = L`` (2, 4),
-        ``h`` (2, 2), ``H`` (2, 4).
-    """
-    A = np.array([[0.0, 0.0, 1.0, 0.0],
-                  [0.0, 0.0, 0.0, 1.0],
-                  [0.0, 0.0, -9.2751, 0.0],
-                  [0.0, 0.0, 0.0, -3.4955]])
-    B = np.array([[0.0, 0.0], [0.0, 0.0], [2.3667, 0.0790], [0.2410, 0.7913]])
-    b = np.array([[0.0, 0.0], [0.0, 0.0], [0.9024, 0.0876], [0.0919, 0.8772]])
-    G = np.zeros((4, 4))
-    G[2:, :2] = b[2:]
-    C = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
-    H = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
-    return LinearModel(A=A, B=B, b=b, G=G, C1=C.copy(), C2=C.copy(), L=C.copy(),
-                       h=np.eye(2), H=H)
-
-
-def gravity_voltage(params: HelicopterParams, pitch_rad: float | np.ndarray) -> np.ndarray:
-    """Motor voltages whose torques cancel gravity at a pitch angle.
-
-    Solves ``K [V_p, V_y]^T = [m g l cos(pitch), 0]^T`` with the torque-gain matrix ``K``
-    (:attr:`HelicopterParams.torque_gains`); the yaw torque is kept zero.
-
-    Parameters
-    ----------
-    params : HelicopterParams
-        Parameters assumed by whoever compensates (a controller or an estimator uses its
-        nominal model, not the simulated truth).
-    pitch_rad : float or ndarray, shape (...)
-
-    Returns
-    -------
-    ndarray, shape (..., 2)
-        Voltages in V. At level pitch with nominal parameters this is ``[12.53, -3.82]`` V,
-        close to the constant ``u = [12.495, -3.835]`` V of Basin et al.'s example: on this
-        rig, with gravity, that ``u`` about holds level pitch. The paper's linear model
-        leaves gravity out; there the same ``u`` drives pitch without bound (about 250 rad
-        after 80 s, ``testbed reproduce basin-ms-hinf-helicopter``), so the example is the
-        rig hovering only on the MuJoCo rig.
-    """
-    torque = params.mass_kg * GRAVITY_M_S2 * params.com_m * np.cos(np.asarray(pitch_rad, float))
-    return torque[..., None] * _volts_per_pitch_newton_metre(params)
-
-
-@functools.lru_cache(maxsize=32)
-def _volts_per_pitch_newton_metre(params: HelicopterParams) -> np.ndarray:
-    """Voltages giving 1 N m of pitch torque and no yaw torque, shape (2,), read-only."""
-    volts = np.linalg.solve(params.torque_gains, np.array([1.0, 0.0]))
-    volts.flags.writeable = False
-    return volts
-
-
-#: The mean-square H-infinity example's attenuation level and initial-condition weight ``R``
-#: of (6) (``S(0) = R^-1``), as printed.
-PAPER_GAMMA = 1.1
-PAPER_INITIAL_WEIGHT = np.array([[0.8, 0.5, 0.2, 0.1],
-                                 [0.5, 0.8, 0.7, 0.2],
-                                 [0.2, 0.7, 0.9, 0.4],
-                                 [0.1, 0.2, 0.4, 0.9]])
-PAPER_INITIAL_WEIGHT.flags.writeable = False
 #: Default setpoint schedule: (start time s, pitch rad, yaw rad).
 DEFAULT_SETPOINTS: tuple[tuple[float, float, float], ...] = (
     (0.0, 0.0, 0.0),
@@ -248,55 +79,6 @@ AMBIENT_NOISE_RAD_S15 = 0.093
 #: Encoder resolutions (pitch, yaw), counts per revolution (Quanser's).
 ENCODER_COUNTS = (4096, 8192)
 SENSOR_PRESETS = ("encoders", "encoders+gyros", "paper", "hardware")
-#: Matched ``hardware`` design: white-noise intensity of the rotor states, as the rms
-#: change over one time constant (V): the deadband and current limit are modelled at the
-#: estimate, the rotor torque's small nonlinearity is not (assumption).
-MOTOR_STATE_NOISE_V = 0.1
-#: Matched ``hardware`` design: prior std of the rotor states at rest, V.
-MOTOR_PRIOR_STD_V = 0.01
-#: Matched ``hardware`` design: a typical rate for the gyros' sensitivity error in ``R``,
-#: rad/s (the rig's rates under the default setpoints stay below about 0.5 rad/s).
-DESIGN_RATE_RAD_S = 0.3
-#: Matched ``hardware`` design: the pitch at which the yaw gyro's ``yaw_rate cos(pitch)`` is
-#: linearized, rad (level: where the rig flies its setpoints).
-YAW_GYRO_PITCH_RAD = 0.0
-#: Matched ``hardware`` design: an estimated pitch within this of the lower stop rests on it
-#: (the stop's reaction cancels a downward acceleration), rad (two pitch-encoder counts).
-STOP_TOLERANCE_RAD = 2 * 2 * np.pi / 4096
-
-
-def basin_helicopter_w(t_s: float) -> np.ndarray:
-    """Basin et al.'s (helicopter example) deterministic disturbance ``w(t)``, shape (4,).
-
-    ``w1 = 1/(1+t)``, ``w2 = 0.1 (1 - exp(-0.3 t))``, ``w3 = 0.1745/(1+t)``,
-    ``w4 = 0.0873 (1 - exp(-0.3 t))``. ``w2`` and ``w4`` do not decay, so ``||w||_2`` grows
-    with the horizon (docs/references.md).
-    """
-    rise = 1.0 - np.exp(-0.3 * t_s)
-    return np.array([1.0 / (1.0 + t_s), 0.1 * rise, 0.1745 / (1.0 + t_s), 0.0873 * rise])
-
-
-def basin_helicopter_disturbance(noise_scale: float = 1.0,
-                                 deterministic: bool = True) -> Disturbance:
-    """Basin et al.'s helicopter disturbance: printed ``G w(t)`` and ``b dW``.
-
-    Parameters
-    ----------
-    noise_scale : float
-        Multiplies the printed ``b`` (0 removes the white noise).
-    deterministic : bool
-        Include ``G w(t)``.
-    """
-    pm = paper_model()
-    if not (np.isfinite(noise_scale) and noise_scale >= 0):
-        raise ValueError(f"noise_scale must be finite and >= 0, got {noise_scale}")
-    return Disturbance(G=pm.G if deterministic else None,
-                       w=basin_helicopter_w if deterministic else None,
-                       b=pm.b * noise_scale if noise_scale > 0 else None)
-
-
-def _basin_signal():
-    return paper_model().G, basin_helicopter_w
 
 
 class HelicopterRig(Rig):
@@ -335,7 +117,7 @@ class HelicopterRig(Rig):
     action_high = (VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V)
     tracked_states = ("pitch", "yaw")
     default_setpoints = DEFAULT_SETPOINTS
-    disturbance_signals = {"basin-helicopter": lambda: _basin_signal()}
+    disturbance_signals = {"basin-helicopter": lambda: basin_signal()}
     scenario_options = {"process_noise_floor": 0.05}
     #: +-20 %: the moving mass (the gravity torque the designer compensates is off) and the
     #: viscous dampings. Scaling the torque gains or the inertias with the mass would cancel
@@ -560,193 +342,22 @@ class HelicopterRig(Rig):
 
     @classmethod
     def cubic_model(cls, design, pitch0_rad: float = 0.0):
-        """Third-order expansion of the gravity torque in pitch (nominal parameters).
-
-        The design model's ``A, B`` leave gravity out: its input is the voltage minus the
-        gravity-compensating voltage at the estimate. The expansion restores the absolute
-        voltage (``input_offset`` = :func:`gravity_voltage` at the estimate, so
-        ``E u_p = B u + [0, 0, c cos(pitch_hat), 0]``) and models the gravity torque itself::
-
-            pitch'' += -c cos(pitch),   c = m g l / J_p  (29.3 rad/s^2 nominal)
-            cos(pitch) ~ cos p0 - sin p0 d - cos p0 d^2 / 2 + sin p0 d^3 / 6,  d = pitch - p0
-
-        about ``p0 = pitch0_rad`` (default 0, the design model's linearization point, where
-        the cubic term vanishes: the model is quadratic). The pitch-dependent yaw inertia,
-        the ``cos(pitch)`` on the yaw torque and the centrifugal and Coriolis terms stay
-        out (as in the design model).
-
-        Parameters
-        ----------
-        design : testbed.design.DesignModel
-        pitch0_rad : float
-            Expansion point, rad.
-
-        Returns
-        -------
-        testbed.design.cubic.CubicExpansion
-        """
-        from testbed.design.cubic import CubicExpansion
-
-        if not (np.isfinite(pitch0_rad) and abs(pitch0_rad) <= PITCH_LIMIT_RAD):
-            raise ValueError(f"pitch0_rad must lie within the stops +-{PITCH_LIMIT_RAD:.4f} "
-                             f"rad, got {pitch0_rad!r}")
-        nominal = HelicopterParams()
-        c = nominal.mass_kg * GRAVITY_M_S2 * nominal.com_m / nominal.pitch_inertia
-        s0, c0 = np.sin(pitch0_rad), np.cos(pitch0_rad)
-        # -c cos(pitch) as a polynomial in d, then in pitch = d + p0
-        in_d = np.polynomial.Polynomial([-c * c0, c * s0, c * c0 / 2.0, -c * s0 / 6.0])
-        coef = in_d(np.polynomial.Polynomial([-pitch0_rad, 1.0])).coef
-        coef = np.concatenate([coef, np.zeros(4 - len(coef))])
-        a0, a1 = np.zeros(4), np.array(design.continuous.A, float)
-        a2, a3 = np.zeros((4, 4, 4)), np.zeros((4, 4, 4, 4))
-        a0[2] = coef[0]
-        a1[2, 0] += coef[1]
-        a2[2, 0, 0] = coef[2]
-        a3[2, 0, 0, 0] = coef[3]
-        return CubicExpansion(
-            a0=a0, a1=a1, a2=a2 if np.any(a2) else None, a3=a3 if np.any(a3) else None,
-            E=np.array(design.continuous.B, float),
-            input_offset=lambda x_hat: gravity_voltage(nominal, x_hat[:, 0]),
-            description=f"gravity torque -m g l cos(pitch) / J_p to third order about pitch "
-                        f"= {pitch0_rad:g} rad; absolute voltage as input")
+        """Third-order expansion of the gravity torque in pitch (nominal parameters):
+        :func:`testbed.rigs.helicopter.design.cubic_model`."""
+        return _design.cubic_model(design, pitch0_rad)
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
                      process_noise_floor: float = 0.05):
         """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor; in the
-        ``hardware`` profile augmented with what it declares (:meth:`_matched_design`).
-
-        Parameters
-        ----------
-        sensors : Sensor
-        dt_s : float
-        disturbance : testbed.rigs.disturbances.Disturbance, optional
-            Its white-noise intensity ``b b^T`` enters ``Q``, its ``G`` the design.
-        process_noise_floor : float
-            Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
-        """
-        from testbed.design import build_design, rate_noise
-
-        if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
-            raise ValueError(f"process_noise_floor must be finite and >= 0, got "
-                             f"{process_noise_floor}")
-        model = paper_model()
-        Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
-        nominal = self.params  # what the designer knows (nominal or a twin's): never the truth
-
-        unbalanced_input = _UnbalancedInput(nominal)
-        paper = build_design(self, sensors, dt_s, model.A, model.B, Q, self.default_x0(),
-                             np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
-                             input_transform=unbalanced_input,
-                             held_noise=self.hardware is None,
-                             extras={"paper_model": model, "gamma": PAPER_GAMMA,
-                                     "initial_weight": PAPER_INITIAL_WEIGHT})
-        if self.hardware is None:
-            return paper
-        return self._matched_design(paper, sensors, dt_s, Q, G)
+        ``hardware`` profile augmented with what it declares (:meth:`_matched_design`):
+        :func:`testbed.rigs.helicopter.design.design_model`."""
+        return _design.design_model(self, sensors, dt_s, disturbance,
+                                    process_noise_floor=process_noise_floor)
 
     def _matched_design(self, paper, sensors, dt_s: float, Q: np.ndarray, G):
-        """The ``hardware`` profile's design: the paper design plus what the rig declares.
-
-        State ``[pitch, yaw, pitch_rate, yaw_rate, dact_pitch, dact_yaw, biases...,
-        delays...]`` (:func:`testbed.design.build_matched_design`):
-
-        - rotor lag: ``dact = act - V_g(pitch)``, the volt-equivalent rotor speeds above the
-          gravity-compensating voltage, from :meth:`linearize` ``(motor_states=True)`` at
-          level pitch (poles ``-1/tau``: -16.7 and -40 rad/s); prior: motors at rest;
-        - the input: the command past the declared deadband and current limit (at the
-          estimated rotor speed) minus ``V_g`` at the estimated pitch, and a third input,
-          the pitch stops' reaction: with the estimated pitch on a stop (within
-          :data:`STOP_TOLERANCE_RAD`) it cancels the model's pitch acceleration into the
-          stop (the rig starts resting on the lower stop, motors at rest);
-        - IMU: gyro bias states (declared random walk and reset spread) and delay states
-          for each IMU channel's declared whole-sample delay; ``gyro_yaw`` measures
-          ``yaw_rate cos(pitch)``, linearized at the operating pitch (level, where the rig
-          flies its setpoints; 24 % off only on the stop at the start, at zero yaw rate);
-          the sensitivity error's variance at :data:`DESIGN_RATE_RAD_S` is added to ``R``;
-          the accelerometer (``g sin(pitch)``: its reset offset of 0.05 m/s^2 is 0.3 deg
-          of pitch, 12 times the encoder's resolution noise) is left out;
-        - encoders: quantization ``q^2 / 12`` in ``R`` (the sensors' linear model).
-        """
-        from testbed.design import InputStates, build_matched_design, channel_effects
-
-        hw = self.hardware
-        nominal = self.params
-        A, B = self.linearize(motor_states=True)
-        tau = np.asarray(hw.motor_time_constant_s, float)
-        Qm = np.zeros((6, 6))
-        Qm[:4, :4] = Q
-        Qm[4:, 4:] = np.diag((MOTOR_STATE_NOISE_V * np.ones(2)) ** 2 / tau)
-        x0 = np.concatenate([self.default_x0(),
-                             -gravity_voltage(nominal, self.default_x0()[0])])
-        P0 = np.diag([1e-4] * 4 + [MOTOR_PRIOR_STD_V**2] * 2)
-        consts = hw.constants()
-        names = tuple(sensors.names)
-        effects = channel_effects(sensors)
-        channels = [i for i in np.flatnonzero(sensors.linear_model().stochastic
-                                              & ~sensors.linear_model().inputs)
-                    if names[i] != "accel_x"]
-        extra_R = {i: (effects[i].scale_std * DESIGN_RATE_RAD_S) ** 2
-                   for i in channels if names[i].startswith("gyro_")}
-        rows = {}
-        if "gyro_yaw" in names:  # yaw_rate cos(pitch) at the operating pitch
-            rows[names.index("gyro_yaw")] = np.array([0.0, 0.0, 0.0,
-                                                      np.cos(YAW_GYRO_PITCH_RAD)])
-
-        B = np.hstack([B, np.eye(6)[:, 2:3]])  # the pitch stops' reaction, rad/s^2
-        accel_row = A[2].copy()
-        resting = PITCH_LIMIT_RAD - STOP_TOLERANCE_RAD
-
-        gravity = _UnbalancedInput(nominal).voltage
-
-        def matched_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-            pitch = x_hat[:, 0]
-            v_g = gravity(pitch)
-            volts = current_limited(deadband(u, consts[:2]), x_hat[:, 4:6] + v_g,
-                                    consts[2:4], consts[4:6])
-            accel = x_hat[:, :6] @ accel_row  # the model's pitch acceleration now
-            into_stop = ((pitch <= -resting) & (accel < 0)) | ((pitch >= resting) & (accel > 0))
-            return np.column_stack([volts - v_g, np.where(into_stop, -accel, 0.0)])
-
-        return build_matched_design(
-            self, sensors, dt_s, A, B, Qm, x0, P0,
-            extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
-            rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
-            input_transform=matched_input, disturbance_matrix=G,
-            extra_inputs=(("stop_reaction", "rad/s^2"),),
-            extras={"paper_model": paper.extras["paper_model"],
-                    # the nonlinear filters: the rotor states drive the motors in place of the
-                    # voltages, relative to the gravity voltage like the input
-                    "input_states": InputStates(from_input=np.zeros((2, 3)),
-                                                from_states=np.eye(2), relative=np.eye(2))})
-
-
-class _UnbalancedInput:
-    """The design's input transform: the applied voltages minus :func:`gravity_voltage` at
-    the estimated pitch, with the parameters' constants (``m g l`` and the volts per N m)
-    computed once instead of on every step (the same operations on the same numbers: the
-    same values bitwise); picklable.
-
-    Parameters
-    ----------
-    nominal : HelicopterParams
-        The designer's parameters.
-    """
-
-    def __init__(self, nominal: HelicopterParams):
-        self.nominal = nominal
-        self._torque_n_m = nominal.mass_kg * GRAVITY_M_S2 * nominal.com_m  # times cos(pitch)
-        self._volts_per_n_m = _volts_per_pitch_newton_metre(nominal)
-
-    def voltage(self, pitch_rad: np.ndarray) -> np.ndarray:
-        """:func:`gravity_voltage` ``(nominal, pitch_rad)``, shape (..., 2), V."""
-        torque = self._torque_n_m * np.cos(np.asarray(pitch_rad, float))
-        return torque[..., None] * self._volts_per_n_m
-
-    def __call__(self, u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
-        """``u`` (N, 2) V minus the gravity voltage at ``x_hat[:, 0]`` (N,) rad (the
-        operations of :meth:`voltage`, inline: this runs every step)."""
-        torque = self._torque_n_m * np.cos(np.asarray(x_hat[:, 0], float))
-        return u - torque[..., None] * self._volts_per_n_m
+        """The ``hardware`` profile's design, the paper design plus what the rig declares:
+        :func:`testbed.rigs.helicopter.design.matched_design`."""
+        return _design.matched_design(self, paper, sensors, dt_s, Q, G)
 
 
 def hardware_imu(hardware: HelicopterHardware, dt_s: float):

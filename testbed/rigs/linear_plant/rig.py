@@ -15,13 +15,13 @@ State ``x = [position, velocity]`` (m, m/s); input ``u = [force]`` (N).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from filters import DiscreteLinearSystem
+from testbed.records import field_items
 from testbed.rigs.base import Params, Rig
 
 #: White acceleration noise input ``b`` (velocity row), m/s^2 per sqrt(Hz) at process_noise 1.
@@ -53,8 +53,7 @@ class LinearPlantParams(Params):
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not np.isfinite(value) or value < 0 or (f.name == "mass_kg" and value == 0):
                 raise ValueError(f"LinearPlantParams.{f.name} must be finite and "
                                  f"{'positive' if f.name == 'mass_kg' else 'non-negative'}, "

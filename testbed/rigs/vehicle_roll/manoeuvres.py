@@ -25,6 +25,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from testbed.records import field_items
+
 TimeLike = float | np.ndarray
 
 
@@ -32,8 +34,7 @@ def _check(obj: object, *, positive: tuple[str, ...] = (), non_negative: tuple[s
            ) -> None:
     """Validate the fields of a manoeuvre dataclass: all finite, some (strictly) positive."""
     cls = type(obj).__name__
-    for f in dataclasses.fields(obj):
-        value = getattr(obj, f.name)
+    for f, value in field_items(obj):
         if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
             raise ValueError(f"{cls}.{f.name} must be a number, got {value!r}")
         if not np.isfinite(value):

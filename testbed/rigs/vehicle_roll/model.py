@@ -41,11 +41,11 @@ departures from it (docs/references.md):
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from testbed.records import field_items
 from testbed.rigs.base import GRAVITY_M_S2, Params
 
 STATE_NAMES = ("roll", "roll_rate")
@@ -87,8 +87,7 @@ class VehicleRollParams(Params):
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first unphysical parameter."""
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if not np.isfinite(value):
                 raise ValueError(f"VehicleRollParams.{f.name} must be finite, got {value}")
             strict = f.name in ("sprung_mass_kg", "com_height_m", "roll_inertia")

@@ -146,7 +146,7 @@ def results(run: ScoreRun) -> dict[str, Any]:
     from testbed.score.suite import suite_identity
 
     by_name = {e.name: pairs for e, pairs in zip(run.entries, run.pairs, strict=True)}
-    reference = getattr(run, "reference", REFERENCE)
+    reference = run.reference
     entries_out, units = [], {}
     for entry, pairs in zip(run.entries, run.pairs, strict=True):
         nominal_pairs = by_name.get(entry.nominal) if entry.nominal else None
