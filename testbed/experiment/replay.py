@@ -268,6 +268,31 @@ def _samples(recording: Recording, names: Sequence[str], action_names: Sequence[
     return rows, Y, U
 
 
+def _checked(recording: Recording, rig: Any, profile: str, design_profile: str,
+             period_s: float | None) -> tuple[type, int, float]:
+    """:func:`replay`'s checks of the recording, the rig and its profiles: the rig class,
+    every how many samples the estimator steps and its period, s."""
+    dt_rec = _check_recording(recording)
+    source = recording.source
+    every = _every(period_s, dt_rec, source)
+    period = dt_rec * every if period_s is None else float(period_s)
+    cls = resolve_rig(rig)
+    if profile not in cls.profiles:
+        raise ValueError(f"unknown profile {profile!r} for rig {cls.name!r}; expected one of "
+                         f"{cls.profiles}")
+    from testbed.design import DESIGN_PROFILES
+
+    if design_profile not in DESIGN_PROFILES:
+        raise ValueError(f"design_profile must be one of {DESIGN_PROFILES}, got "
+                         f"{design_profile!r}")
+    missing = [n for n in cls.action_names if n not in recording.inputs]
+    if missing:
+        raise ValueError(f"{source}: the recording has no input {missing[0]!r} (rig "
+                         f"{cls.name!r} needs {list(cls.action_names)}; it has "
+                         f"{sorted(recording.inputs)})")
+    return cls, every, period
+
+
 def replay(recording: Recording, *, rig: Any, profile: str = "paper",
            options: dict[str, Any] | None = None, params: Any = None,
            estimator: Any = "kalman", estimator_options: dict[str, Any] | None = None,
@@ -330,24 +355,8 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
         its period, a reference or excluded channel not in the suite or the recording, a
         bad option (named by the estimator's factory or the rig).
     """
-    dt_rec = _check_recording(recording)
+    cls, every, period = _checked(recording, rig, profile, design_profile, period_s)
     source = recording.source
-    every = _every(period_s, dt_rec, source)
-    period = dt_rec * every if period_s is None else float(period_s)
-    cls = resolve_rig(rig)
-    if profile not in cls.profiles:
-        raise ValueError(f"unknown profile {profile!r} for rig {cls.name!r}; expected one of "
-                         f"{cls.profiles}")
-    from testbed.design import DESIGN_PROFILES
-
-    if design_profile not in DESIGN_PROFILES:
-        raise ValueError(f"design_profile must be one of {DESIGN_PROFILES}, got "
-                         f"{design_profile!r}")
-    missing = [n for n in cls.action_names if n not in recording.inputs]
-    if missing:
-        raise ValueError(f"{source}: the recording has no input {missing[0]!r} (rig "
-                         f"{cls.name!r} needs {list(cls.action_names)}; it has "
-                         f"{sorted(recording.inputs)})")
     nominal = _params(cls, params)
     unit = _rig(cls, nominal, physics_dt_s, profile, options)
     matched = design_profile == "matched" and profile != cls.profiles[0]

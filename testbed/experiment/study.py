@@ -254,8 +254,19 @@ def _local_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None, pr
     if stream is not None:
         stream.finish(_npz_extra(per_run, seeds, n_steps, dt_s, state_names,
                                  list(first.loop.sim.sensors.names)))  # removes temporaries
-    wall_s = time.perf_counter() - start_time
-    result = {
+    result = _study_result(scenario, first, seeds, per_run, n_steps, batch_size, lanes,
+                           time.perf_counter() - start_time, save_npz)
+    if envelope is not None:
+        result["error_envelope"] = envelope.result()
+    return result
+
+
+def _study_result(scenario: Scenario, first: Experiment, seeds: np.ndarray,
+                  per_run: dict[str, Any], n_steps: int, batch_size: int, lanes: int,
+                  wall_s: float, save_npz: str | Path | None) -> dict[str, Any]:
+    """The JSON-ready result of a local study (:func:`_local_monte_carlo`)."""
+    runs, dt_s = len(seeds), first.loop.sim.dt_s
+    return {
         "filter": scenario.describe()["estimator"],
         "runs": runs,
         "duration_s": n_steps * dt_s,
@@ -273,9 +284,6 @@ def _local_monte_carlo(scenario: Scenario, runs: int, batch_size: int | None, pr
         "scenario": first.meta["scenario"],
         "meta": {k: v for k, v in first.meta.items() if k != "scenario"},
     }
-    if envelope is not None:
-        result["error_envelope"] = envelope.result()
-    return result
 
 
 def _sharing(experiment: Experiment, memo: CovarianceMemo) -> Experiment:
