@@ -69,3 +69,29 @@ def test_helicopter_reference_kalman_is_consistent_and_its_noise_is_the_simulato
     P = rec["covariance"][:, 1:]
     nees = np.einsum("rti,rtij,rtj->rt", error, np.linalg.inv(P), error).mean()
     assert nees == pytest.approx(4.0, rel=0.1)  # 3.30 with the continuous noise's Q
+
+
+@pytest.mark.parametrize("rig", ["helicopter", "aero", "vehicle-roll"])
+def test_the_process_noise_model_option_chooses_the_papers_q(rig) -> None:
+    """``process_noise_model``: "auto" is "held" on the paper profile (bitwise), "continuous"
+    the papers' Van Loan Q (another matrix); on the hardware profile "auto" is "continuous"."""
+    def Q(profile: str, model: str | None) -> np.ndarray:
+        options = {} if model is None else {"process_noise_model": model}
+        scenario = Scenario(rig=rig, profile=profile, duration_s=0.1, design_options=options)
+        experiment = runner.build(scenario)
+        try:
+            return np.array(experiment.design.discrete.Q)
+        finally:
+            experiment.close()
+
+    auto = Q("paper", None)
+    np.testing.assert_array_equal(auto, Q("paper", "held"))
+    assert not np.allclose(auto, Q("paper", "continuous"), rtol=1e-3, atol=0)
+    np.testing.assert_array_equal(Q("hardware", None), Q("hardware", "continuous"))
+
+
+def test_an_unknown_process_noise_model_is_one_line_naming_the_option() -> None:
+    scenario = Scenario(rig="helicopter", duration_s=0.1,
+                        design_options={"process_noise_model": "white"})
+    with pytest.raises(ValueError, match=r"process_noise_model must be one of .*'white'"):
+        runner.build(scenario)

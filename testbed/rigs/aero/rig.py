@@ -252,7 +252,7 @@ class AeroRig(Rig):
     action_high = (VOLTAGE_LIMIT_V, VOLTAGE_LIMIT_V)
     tracked_states = ("pitch", "yaw")
     default_setpoints = DEFAULT_SETPOINTS
-    scenario_options = {"process_noise_floor": 0.01}
+    scenario_options = {"process_noise_floor": 0.01, "process_noise_model": "auto"}
     #: +-20 % on the pitch stiffness and the viscous dampings, the constants Quanser's script
     #: calls "found experimentally" (a real unit's stiffness is more than twice nominal:
     #: an identification, not a robust design, covers that; see :attr:`identifiable`).
@@ -468,7 +468,7 @@ class AeroRig(Rig):
                         "pitch")
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
-                     process_noise_floor: float = 0.01):
+                     process_noise_floor: float = 0.01, process_noise_model: str = "auto"):
         """Quanser's ``(A, B)`` at the designer's parameters (this rig's: nominal or a
         twin's, never the simulated truth), the sensors' model, ``Q`` = disturbance + floor;
         in the ``hardware`` profile augmented with the rotor lag and the IMU's biases
@@ -483,8 +483,11 @@ class AeroRig(Rig):
         process_noise_floor : float
             Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics: the
             Coulomb friction, the stiffness a real unit shows).
+        process_noise_model : {"auto", "held", "continuous"}
+            How ``Q`` is discretized (:func:`testbed.design.held_noise.uses_held_noise`).
         """
         from testbed.design import build_design, rate_noise
+        from testbed.design.held_noise import uses_held_noise
 
         if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
             raise ValueError(f"process_noise_floor must be finite and >= 0, got "
@@ -495,7 +498,8 @@ class AeroRig(Rig):
         P0 = X0_STD**2 * np.eye(n)
         paper = build_design(self, sensors, dt_s, A, B, Q, self.default_x0(), P0,
                              disturbance_matrix=G, extras={"quanser_model": (A, B)},
-                             held_noise=self.hardware is None)
+                             held_noise=uses_held_noise(process_noise_model,
+                                                        self.hardware is None))
         if self.hardware is None:
             return paper
         return self._matched_design(paper, sensors, dt_s, Q, G)

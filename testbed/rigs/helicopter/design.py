@@ -87,7 +87,7 @@ def cubic_model(design, pitch0_rad: float = 0.0):
 
 
 def design_model(rig, sensors, dt_s: float, disturbance=None, *,
-                 process_noise_floor: float = 0.05):
+                 process_noise_floor: float = 0.05, process_noise_model: str = "auto"):
     """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor; in the
     ``hardware`` profile augmented with what it declares (:func:`matched_design`).
 
@@ -99,8 +99,12 @@ def design_model(rig, sensors, dt_s: float, disturbance=None, *,
         Its white-noise intensity ``b b^T`` enters ``Q``, its ``G`` the design.
     process_noise_floor : float
         Extra intensity (rad^2/s^3) on each acceleration row (unmodelled dynamics).
+    process_noise_model : {"auto", "held", "continuous"}
+        How ``Q`` is discretized (:func:`testbed.design.held_noise.uses_held_noise`;
+        ``"continuous"`` on the paper profile: the papers' ``Q``).
     """
     from testbed.design import build_design, rate_noise
+    from testbed.design.held_noise import uses_held_noise
 
     if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
         raise ValueError(f"process_noise_floor must be finite and >= 0, got "
@@ -113,7 +117,8 @@ def design_model(rig, sensors, dt_s: float, disturbance=None, *,
     paper = build_design(rig, sensors, dt_s, model.A, model.B, Q, rig.default_x0(),
                          np.diag([1e-4, 1e-4, 1e-4, 1e-4]), disturbance_matrix=G,
                          input_transform=unbalanced_input,
-                         held_noise=rig.hardware is None,
+                         held_noise=uses_held_noise(process_noise_model,
+                                                    rig.hardware is None),
                          extras={"paper_model": model, "gamma": PAPER_GAMMA,
                                  "initial_weight": PAPER_INITIAL_WEIGHT})
     if rig.hardware is None:

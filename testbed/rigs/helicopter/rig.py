@@ -118,7 +118,7 @@ class HelicopterRig(Rig):
     tracked_states = ("pitch", "yaw")
     default_setpoints = DEFAULT_SETPOINTS
     disturbance_signals = {"basin-helicopter": lambda: basin_signal()}
-    scenario_options = {"process_noise_floor": 0.05}
+    scenario_options = {"process_noise_floor": 0.05, "process_noise_model": "auto"}
     #: +-20 %: the moving mass (the gravity torque the designer compensates is off) and the
     #: viscous dampings. Scaling the torque gains or the inertias with the mass would cancel
     #: in the hover voltage and in ``m g l / J``. The scoring suite's mismatch entries scale
@@ -347,12 +347,13 @@ class HelicopterRig(Rig):
         return _design.cubic_model(design, pitch0_rad)
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *,
-                     process_noise_floor: float = 0.05):
+                     process_noise_floor: float = 0.05, process_noise_model: str = "auto"):
         """Basin et al.'s ``(A, B)``, the sensors' model, ``Q`` = disturbance + floor; in the
         ``hardware`` profile augmented with what it declares (:meth:`_matched_design`):
         :func:`testbed.rigs.helicopter.design.design_model`."""
         return _design.design_model(self, sensors, dt_s, disturbance,
-                                    process_noise_floor=process_noise_floor)
+                                    process_noise_floor=process_noise_floor,
+                                    process_noise_model=process_noise_model)
 
     def _matched_design(self, paper, sensors, dt_s: float, Q: np.ndarray, G):
         """The ``hardware`` profile's design, the paper design plus what the rig declares:

@@ -88,7 +88,8 @@ class VehicleRollRig(Rig):
     tracked_states = ("roll",)
     step_noise_dim = 1
     disturbance_signals = {"zhang-decay": lambda: (None, _zhang_decay)}
-    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2, "a_y_source": "auto"}
+    scenario_options = {"a_y_std": 0.1, "design_roll_rate": 0.2, "a_y_source": "auto",
+                        "process_noise_model": "auto"}
     scenario_defaults = {"controller": "open-loop", "manoeuvre": "double-lane-change"}
     #: +-20 % on the suspension's roll stiffness and damping (worn dampers, spring
     #: tolerances, temperature): the least known parameters of the roll model. Mass and
@@ -246,7 +247,8 @@ class VehicleRollRig(Rig):
                         "roll = 0; a_y cos(roll) kept linear")
 
     def design_model(self, sensors, dt_s: float, disturbance=None, *, a_y_std: float = 0.1,
-                     design_roll_rate: float = 0.2, a_y_source: str = "auto"):
+                     design_roll_rate: float = 0.2, a_y_source: str = "auto",
+                     process_noise_model: str = "auto"):
         """The physical linearization (with ``g``), nominal parameters, exact ZOH.
 
         ``Q`` from :func:`process_noise_intensity`; prior ``0``,
@@ -261,8 +263,11 @@ class VehicleRollRig(Rig):
             measured_lateral_acceleration`, the ``imu`` and ``hardware`` presets have them);
             ``oracle`` = the applied ``a_y`` exactly; ``auto`` = measured when the sensors
             have the channels, else oracle. ``extras["a_y_source"]`` records the choice.
+        process_noise_model : {"auto", "held", "continuous"}
+            How ``Q`` is discretized (:func:`testbed.design.held_noise.uses_held_noise`).
         """
         from testbed.design import build_design
+        from testbed.design.held_noise import uses_held_noise
         from testbed.rigs.vehicle_roll.sensors import find_tap
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
@@ -290,7 +295,8 @@ class VehicleRollRig(Rig):
                               np.diag(np.deg2rad([0.5, 1.0]) ** 2),
                               output_matrix=paper_model().M, input_transform=transform,
                               input_noise_cov=input_noise_cov,
-                              held_noise=self.profile == "paper")
+                              held_noise=uses_held_noise(process_noise_model,
+                                                         self.profile == "paper"))
         design.extras["input_noise_cov"] = input_noise_cov
         from testbed.rigs.vehicle_roll.stochastic_system import vehicle_lmi_system
 
