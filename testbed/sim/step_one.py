@@ -5,7 +5,7 @@ A second implementation of the step, kept for its speed (docs/architecture.md gi
 measured cost of the batch step at N = 1): a change to
 :meth:`testbed.sim.step.BatchStep.step` must be made in :meth:`OneMemberStep._step_single`
 too; ``tests/sim/test_batch_physics.py::test_one_member_step_equals_a_member_of_a_batch`` and
-``tests/test_state_row_plan.py`` fail when they drift.
+``tests/sensors/test_state_row_plan.py`` fail when they drift.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ from testbed.outputs import view
 from testbed.outputs.viz import write_rrd
 
 RERUN = Path(sys.executable).with_name("rerun")
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "RERUN_ANALYTICS": "off", "PYTHONPATH": str(ROOT)}
 
 needs_rerun = pytest.mark.skipif(not RERUN.exists(),

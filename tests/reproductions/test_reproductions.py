@@ -96,7 +96,7 @@ def test_registry_and_doc_sections_from_claims(monkeypatch):
     assert f"[`basin-ms-hinf-helicopter`](#{ms.PAPER.example.lower().replace(' ', '-')})" in text
 
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "reproductions.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "reproductions.md"
 
 
 def test_committed_doc_is_for_readers():
@@ -124,7 +124,7 @@ def test_committed_doc_is_for_readers():
 
 
 def test_names_follow_the_papers_and_are_documented():
-    references = (Path(__file__).resolve().parents[1] / "docs" / "references.md").read_text()
+    references = (Path(__file__).resolve().parents[2] / "docs" / "references.md").read_text()
     for name, module in REPRODUCTIONS.items():
         assert name.split("-")[0] in {"basin", "zhang", "wang", "liu"}  # first author
         family = module.split(".")[2]  # one folder per filter family

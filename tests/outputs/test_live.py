@@ -159,7 +159,7 @@ def test_cli_run_serve_prints_a_url_and_serves_the_run(tmp_path):
     from testbed.outputs.rrd_inspect import inspect_rrd
 
     grpc, web = _free_port(), _free_port()
-    env = {**ENV, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    env = {**ENV, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     cli = subprocess.Popen([sys.executable, "-m", "testbed.cli", "run", "helicopter",
                             "--duration", "0.5", "--no-progress", "--serve", "--grpc-port",
                             str(grpc), "--web-port", str(web)], stdout=subprocess.PIPE,

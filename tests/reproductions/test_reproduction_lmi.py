@@ -163,7 +163,7 @@ def test_claims_mechanism(figure_checks):
 
 
 def test_bench_lmi_keys():
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     from bench_lmi import bench_lmi
 
     out = bench_lmi(repeats=1, bisections=1)

@@ -19,7 +19,7 @@ import tomli_w
 from testbed.cli import main
 from testbed.experiment import runner
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = sorted((ROOT / "docs" / "examples").glob("*.toml"))
 
 

@@ -16,7 +16,7 @@ from testbed.cli import main
 from testbed.experiment import scenario_file
 from testbed.experiment.scenario_file import MAX_FILE_BYTES, MAX_NESTING, ScenarioFileError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _fifo(tmp_path: Path) -> Path:
