@@ -62,11 +62,7 @@ class MatchedMismatch:
         -------
         ndarray, shape (n, n)
         """
-        from testbed.rigs.options import build_rig
-
-        m = self.mismatch
-        rig = build_rig(m.rig_type, m.params.scaled(scales or {}), physics_dt_s=m.physics_dt_s,
-                        profile=m.profile, options=m.options)
+        rig = self.mismatch.rebuilt(scales)
         return np.asarray(rig.design_model(self.sensors, self.dt_s).discrete.F, float)
 
     def discrete_derivatives(self, F: np.ndarray, step: float = 1e-3

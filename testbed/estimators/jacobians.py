@@ -26,12 +26,26 @@ held steps times their length (first order in the period for ``points = 1``);
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from testbed.estimators.mujoco_model import MujocoProcessModel
+
+class SteppedModel(Protocol):
+    """What the Jacobians read of a process model
+    (:class:`~testbed.estimators.mujoco_model.MujocoProcessModel` is one)."""
+
+    n: int  # rig states
+    k: int  # rig inputs
+    eps: float
+    centered: bool
+    frame_skip: int
+    linearization: np.ndarray  # the physics steps the linearization is taken at
+    _gather: np.ndarray  # the rig states' columns of a full physics state
+    _template: np.ndarray  # a full physics state the rig states are written into
+
+    def roll(self, state0: np.ndarray, w: np.ndarray, nstep: int) -> np.ndarray:
+        """Full physics states of ``nstep`` physics steps from ``state0`` under ``w``."""
 
 #: ``eps I_d`` by ``(d, eps)`` (read-only).
 _STEPS: dict[tuple[int, float], np.ndarray] = {}
@@ -110,7 +124,7 @@ def linearization_steps(frame_skip: int, points: int) -> np.ndarray:
     return ((2 * np.arange(points) + 1) * frame_skip - points) // (2 * points)
 
 
-def step_derivatives(process: MujocoProcessModel, states: np.ndarray, w: np.ndarray,
+def step_derivatives(process: SteppedModel, states: np.ndarray, w: np.ndarray,
                      inputs: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """``A = ds'/ds`` and ``B = ds'/dw`` of one physics step at full physics states.
 
@@ -150,7 +164,7 @@ def step_derivatives(process: MujocoProcessModel, states: np.ndarray, w: np.ndar
     return J[:, :, :nr], (J[:, :, nr:] if inputs else None)
 
 
-def period_tangent(process: MujocoProcessModel, p: np.ndarray, W: np.ndarray,
+def period_tangent(process: SteppedModel, p: np.ndarray, W: np.ndarray,
                    dW: np.ndarray | None, d: int) -> tuple[np.ndarray, np.ndarray]:
     """The state after one control period and its Jacobian by the tangent recursion.
 

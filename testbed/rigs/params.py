@@ -112,6 +112,13 @@ class ParameterMismatch:
     profile: str = "paper"
     options: dict[str, Any] = dataclasses.field(default_factory=dict)
 
+    def rebuilt(self, scales: dict[str, float] | None = None) -> Any:
+        """The rig rebuilt with its nominal parameters' fields scaled by ``scales`` (None: at
+        the nominal parameters), of the same profile, options and physics step."""
+        return build_rig(self.rig_type, self.params.scaled(scales or {}),
+                         physics_dt_s=self.physics_dt_s, profile=self.profile,
+                         options=self.options)
+
     def derivatives(self, step: float = 1e-3) -> dict[str, np.ndarray]:
         """``dA/ds_i`` of :meth:`testbed.rigs.base.Rig.linearize` with respect to the scale
         factor ``s_i`` of each field in :attr:`ranges`, at ``s = 1``.
@@ -128,8 +135,7 @@ class ParameterMismatch:
             raise ValueError(f"step must be in (0, 0.5), got {step}")
         out = {}
         for name in self.ranges:
-            A = [build_rig(self.rig_type, self.params.scaled({name: 1.0 + sign * step}),
-                           physics_dt_s=self.physics_dt_s, profile=self.profile,
-                           options=self.options).linearize()[0] for sign in (1.0, -1.0)]
+            A = [self.rebuilt({name: 1.0 + sign * step}).linearize()[0]
+                 for sign in (1.0, -1.0)]
             out[name] = (A[0] - A[1]) / (2.0 * step)
         return out

@@ -42,7 +42,8 @@ import numpy as np
 
 from testbed.estimators import memo
 from testbed.experiment.backend import check_backend, map_jobs
-from testbed.score.pair import PRIOR_STREAM, PairResult, estimator_name, score_pair
+from testbed.score.cost import ENTRY_COST_FACTORS, STEP_OVERHEAD, entry_cost
+from testbed.score.pair import PRIOR_STREAM, REFERENCE, PairResult, estimator_name, score_pair
 from testbed.score.probe import Probe
 from testbed.score.progress import pair_channel, pair_reporter
 from testbed.score.shared_designs import (
@@ -51,15 +52,12 @@ from testbed.score.shared_designs import (
     remove_stale_designs,
 )
 from testbed.score.suite import SuiteEntry
-from testbed.score.worst_case import RESTARTS, population
 
 __all__ = ["DESIGNS_PREFIX", "ENTRY_COST_FACTORS", "PRIOR_STREAM", "REFERENCE", "STEP_OVERHEAD",
            "PairResult", "Probe", "ScoreRun", "designs_directory", "entry_cost",
            "remove_stale_designs", "run_entries", "score", "score_entry", "score_pair",
            "twin_entries"]
 
-#: The timing reference.
-REFERENCE = "kalman"
 
 
 def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
@@ -80,45 +78,6 @@ def score_entry(entry: SuiteEntry, estimators: list[Any], seed: int, *,
         if on_pair is not None:
             on_pair(entry.name, name)
     return out
-
-
-#: Fixed cost of one step of a batched closed loop, in member-steps (measured on the
-#: helicopter with the Kalman filter, one thread: 0.56 ms per step of 1 member, 0.91 ms of
-#: 7, 3.5 ms of 100: about 0.5 ms plus 35 us per member).
-STEP_OVERHEAD = 15
-#: Cost per member-step of an entry's estimators relative to the paper helicopter's, where it
-#: differs (measured on the standard suite with all eight built-in estimators, 2026-11-26,
-#: from the pairs' ``cpu_s`` per estimated member-step: the hardware helicopter 1.5 times
-#: (its augmented design gives the ekf and ukf 10 states instead of 4), the vehicle roll
-#: 0.55, the linear calibration plant 0.4; the open-loop basin-ms-hinf entry, 0.5, is not
-#: told apart from the helicopter's other paper entries).
-ENTRY_COST_FACTORS = {("helicopter", "hardware"): 1.5, ("vehicle-roll", "paper"): 0.55,
-                      ("vehicle-roll", "hardware"): 0.55, ("linear-plant", None): 0.4}
-
-
-def entry_cost(entry: SuiteEntry) -> float:
-    """A rough estimate of an entry's run time, relative to the other entries', for
-    scheduling the entries over workers longest first (:func:`run_entries`).
-
-    Member-steps of the Monte Carlo and of the worst-case search's closed-loop runs (the
-    impulse response over ``K / 4 + K`` steps with the baseline and, typically, one channel,
-    then ``2 + generations`` runs of ``K`` steps of the candidates) plus
-    :data:`STEP_OVERHEAD` per step, times :data:`ENTRY_COST_FACTORS`.
-    """
-    if entry.unavailable():
-        return 0.0
-    scenario = entry.scenario
-    rig = scenario.rig if isinstance(scenario.rig, str) else scenario.rig.name
-    dt_s = scenario.physics_dt_s * scenario.frame_skip
-    steps = scenario.duration_s / dt_s
-    cost = steps * (entry.runs + STEP_OVERHEAD)
-    spec = entry.worst_case
-    if spec is not None:
-        K = (spec.horizon_s or scenario.duration_s) / dt_s
-        members = max(2 + spec.random_draws, RESTARTS * population(spec.basis - 1)) + 1
-        cost += K * (1.25 * (2 + STEP_OVERHEAD)
-                     + (2 + spec.generations) * (members + STEP_OVERHEAD))
-    return cost * ENTRY_COST_FACTORS.get((rig, entry.profile), 1.0)
 
 
 def _job(args: tuple) -> dict[str, PairResult]:

@@ -31,6 +31,9 @@ from testbed.score.worst_case import (
 )
 from testbed.sim.simulator import SimulationDiverged
 
+#: The timing reference (and the default comparison reference) of ``testbed score``.
+REFERENCE = "kalman"
+
 
 @dataclass
 class PairResult:

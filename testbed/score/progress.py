@@ -1,5 +1,5 @@
 """Where ``testbed score`` is: the expected cost of each (entry, estimator) pair from the
-harness's cost model (:func:`testbed.score.harness.entry_cost`) and the channel through which
+harness's cost model (:func:`testbed.score.cost.entry_cost`) and the channel through which
 the harness's jobs report each pair as it ends (:func:`pair_channel`).
 
 A pair's cost is its entry's Monte-Carlo member-steps (every pair of the entry) plus the
@@ -18,6 +18,9 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from typing import Any
 
+from testbed.score.cost import entry_cost
+from testbed.score.pair import REFERENCE
+
 #: Cost per member-step of an estimator without ``batched = True`` (one Python instance per
 #: run, stepped one by one) relative to a batched one's. Measured on ``testbed score --suite
 #: quick`` (calibration, helicopter, vehicle-dlc; one worker, 2026-12-02, two cores under
@@ -26,7 +29,7 @@ from typing import Any
 #: ekf 1.7-3.0 for comparison; the geometric middle of the plug-ins', rounded.
 UNBATCHED_FACTOR = 3.0
 #: Seconds of one unit of cost (a member-step of a batched estimator's closed loop) on one
-#: core: the harness's measurement (:data:`testbed.score.harness.STEP_OVERHEAD`: about 35 us
+#: core: the harness's measurement (:data:`testbed.score.cost.STEP_OVERHEAD`: about 35 us
 #: per member); the same run: kalman took 4.1 s of CPU for the 1.2e5 units of its three
 #: pairs (34 us).
 SECONDS_PER_UNIT = 35e-6
@@ -62,7 +65,6 @@ def pair_costs(entries: list[Any], estimators: list[str], reference: str, *,
     unbatched : set of str
         Names of estimators that run one instance per run (:data:`UNBATCHED_FACTOR`).
     """
-    from testbed.score.harness import REFERENCE, entry_cost
 
     names = list(estimators)
     todo = names + [n for n in dict.fromkeys((REFERENCE, reference)) if n not in names]
