@@ -87,7 +87,8 @@ def _mismatch(rig) -> Any:
 
 
 def rate_noise(n_states: int, n_joints: int, intensity: float,
-               disturbance: Any = None) -> tuple[np.ndarray, np.ndarray | None]:
+               disturbance: Any = None, *, name: str = "process_noise_floor"
+               ) -> tuple[np.ndarray, np.ndarray | None]:
     """A design's process noise: ``intensity`` on each velocity row (unmodelled
     accelerations), plus the disturbance's white-noise intensity; and its ``G``.
 
@@ -96,14 +97,23 @@ def rate_noise(n_states: int, n_joints: int, intensity: float,
     n_states, n_joints : int
         The state ``[positions (n_joints), velocities]``.
     intensity : float
-        Per velocity row, (unit/s)^2 / s.
+        Per velocity row, (unit/s)^2 / s: finite and >= 0.
     disturbance : testbed.rigs.disturbances.Disturbance, optional
+    name : str
+        The design option ``intensity`` comes from (named by the error).
 
     Returns
     -------
     Q : ndarray, shape (n, n)
     G : ndarray, shape (n, s), or None
+
+    Raises
+    ------
+    ValueError
+        ``intensity`` negative or not finite.
     """
+    if not (np.isfinite(intensity) and intensity >= 0):
+        raise ValueError(f"{name} must be finite and >= 0, got {intensity}")
     Q = np.zeros((n_states, n_states))
     Q[n_joints:, n_joints:] += intensity * np.eye(n_states - n_joints)
     G = None
@@ -129,7 +139,8 @@ def design_from_linearization(rig, sensors: Sensor, dt_s: float, disturbance=Non
             raise ValueError(f"{name} must be finite and >= 0, got {value}")
     nominal = rig.params  # the designer's rig: nominal, or a twin's values
     A, B = rig.linearize()
-    Q, G = rate_noise(rig.n_states, len(rig.joints), process_noise, disturbance)
+    Q, G = rate_noise(rig.n_states, len(rig.joints), process_noise, disturbance,
+                      name="process_noise")
 
     def relative_input(u: np.ndarray, x_hat: np.ndarray) -> np.ndarray:
         return u - rig.operating_input(nominal, x_hat)

@@ -489,9 +489,6 @@ class AeroRig(Rig):
         from testbed.design import build_design, rate_noise
         from testbed.design.held_noise import uses_held_noise
 
-        if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
-            raise ValueError(f"process_noise_floor must be finite and >= 0, got "
-                             f"{process_noise_floor}")
         n = self.n_states
         A, B = quanser_model(self.params, self.yaw_locked)  # the designer's, never the truth
         Q, G = rate_noise(n, len(self.joints), process_noise_floor, disturbance)

@@ -106,9 +106,6 @@ def design_model(rig, sensors, dt_s: float, disturbance=None, *,
     from testbed.design import build_design, rate_noise
     from testbed.design.held_noise import uses_held_noise
 
-    if not (np.isfinite(process_noise_floor) and process_noise_floor >= 0):
-        raise ValueError(f"process_noise_floor must be finite and >= 0, got "
-                         f"{process_noise_floor}")
     model = paper_model()
     Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
     nominal = rig.params  # what the designer knows (nominal or a twin's): never the truth
