@@ -10,8 +10,9 @@ a twin with a recording's inputs and scores the fit; :func:`plot_identification`
 
 from testbed.identify.channels import IdentificationError
 from testbed.identify.comparison import compare, compare_json
-from testbed.identify.fit import Identification, ParameterEstimate, fit_percent, identify
+from testbed.identify.fit import identify
 from testbed.identify.plots import plot_compare, plot_identification
+from testbed.identify.result import Identification, ParameterEstimate, fit_percent
 from testbed.identify.simulate import simulate_recording
 from testbed.identify.twin import Twin, TwinError, read_twin, write_twin
 

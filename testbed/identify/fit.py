@@ -104,8 +104,10 @@ from testbed.io.recording import Recording
 from testbed.records import field_values
 from testbed.rigs.base import Params, Rig
 
-__all__ = ["DRIFT_RATIO", "MAX_CORRELATION", "METHODS", "POLISH_RATIO", "Identification",
-           "ParameterEstimate", "fit_percent", "identify", "predict_channels", "sensor_model_of"]
+# (Identification, ParameterEstimate and fit_percent are testbed.identify.result's, imported
+# here for the fit; the package re-exports them from there: one canonical page each)
+__all__ = ["DRIFT_RATIO", "MAX_CORRELATION", "METHODS", "POLISH_RATIO", "identify",
+           "predict_channels", "sensor_model_of"]
 
 #: ``auto``: the nominal free run drifts when its residual exceeds the multiple-shooting
 #: residual by this factor.
