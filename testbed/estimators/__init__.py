@@ -55,6 +55,7 @@ import numpy as np
 from filters import DiscreteLinearSystem, KalmanBucyFilter, KalmanFilter, MeanSquareHInfFilter
 from testbed import plugins
 from testbed.design import DesignModel
+from testbed.estimators import optional
 from testbed.estimators.wrappers import (  # noqa: F401 - the public names stay here
     ChannelSelect,
     EstimatorWrapper,
@@ -418,7 +419,7 @@ def labelled(spec: str | Factory) -> str | Factory:
 def label(spec: str | Factory) -> str:
     """The label of an estimator (see :func:`labelled`)."""
     out = labelled(spec)
-    return out if isinstance(out, str) else str(getattr(out, "__name__", repr(out)))
+    return plugins.factory_name(out)
 
 
 def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
@@ -438,7 +439,7 @@ def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
     names = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
     unknown = set(options) - names
     if unknown:
-        label = name if isinstance(name, str) else getattr(name, "__name__", repr(name))
+        label = plugins.factory_name(name)
         raise ValueError(f"filter {label!r} has no option(s) {sorted(unknown)}; its options: "
                          f"{sorted(names) or 'none'}")
 
@@ -446,7 +447,7 @@ def check_options(factory: Factory, name: Any, options: dict[str, Any]) -> None:
 def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
     """``resolve(name)(design, **options)``, checked against the protocol."""
     factory = resolve(name)
-    label = name if isinstance(name, str) else getattr(name, "__name__", repr(name))
+    label = plugins.factory_name(name)
     try:
         est = factory(design, **options)
     except TypeError as err:
@@ -487,7 +488,7 @@ class PerMember:
 
     def __init__(self, instances: list[Any]):
         self.instances = instances
-        channels = getattr(instances[0], "channels", None)
+        channels = optional.requested_channels(instances[0])
         if channels is not None:
             self.channels = channels
 
@@ -507,7 +508,7 @@ class PerMember:
     @property
     def P(self) -> np.ndarray | None:
         """Covariances (N, n, n), or None when the estimator has none."""
-        Ps = [getattr(e, "P", None) for e in self.instances]
+        Ps = [optional.covariance(e) for e in self.instances]
         return None if any(P is None for P in Ps) else np.stack([np.asarray(P) for P in Ps])
 
     def reset(self, x0: np.ndarray, P0: np.ndarray | None) -> None:
@@ -520,7 +521,7 @@ class PerMember:
     def prime(self, y: np.ndarray) -> None:
         """Prime the instances that use the first sample."""
         for e, yi in zip(self.instances, y, strict=True):
-            prime = getattr(e, "prime", None)
+            prime = optional.primer(e)
             if prime is not None:
                 prime(yi)
 
@@ -528,7 +529,7 @@ class PerMember:
     def innovation(self) -> np.ndarray | None:
         """The instances' innovations (N, m), or None when one has none
         (:class:`filters.base.Innovations`)."""
-        values = [getattr(e, "innovation", None) for e in self.instances]
+        values = [optional.innovations(e)[0] for e in self.instances]
         if any(v is None for v in values):
             return None
         return np.stack([np.asarray(v, float).reshape(-1) for v in values])
@@ -536,7 +537,7 @@ class PerMember:
     @property
     def innovation_cov(self) -> np.ndarray | None:
         """The instances' innovation covariances (N, m, m), or None when one has none."""
-        values = [getattr(e, "innovation_cov", None) for e in self.instances]
+        values = [optional.innovations(e)[1] for e in self.instances]
         if any(v is None for v in values):
             return None
         return np.stack([np.atleast_2d(np.asarray(v, float)) for v in values])

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from testbed.design import DesignModel
+from testbed.estimators import optional
 
 
 class EstimatorWrapper:
@@ -75,7 +76,7 @@ class ChannelSelect(EstimatorWrapper):
         super().__init__(inner)
         self.index = np.asarray(index, dtype=int)
         self.m = int(self.index.max()) + 1 if m is None else int(m)
-        self.batched = getattr(inner, "batched", False)
+        self.batched = optional.is_batched(inner)
         if request:
             self.channels = self.index
 
@@ -100,7 +101,7 @@ def channels_for(estimator: Any, design: DesignModel) -> np.ndarray | None:
     """The channels of the sensor vector the loop gives ``estimator``: its own
     ``channels`` attribute (indices, or ``"all"``) or ``design.measurement_index``
     (None: every channel)."""
-    asked = getattr(estimator, "channels", None)
+    asked = optional.requested_channels(estimator)
     if isinstance(asked, str):
         if asked != "all":
             raise ValueError(f"estimator channels must be indices or 'all', got {asked!r}")

@@ -11,6 +11,7 @@ import numpy as np
 from filters.base import Batched
 from testbed import estimators
 from testbed.design import DesignModel
+from testbed.estimators import optional
 from testbed.experiment.control import make_controller
 from testbed.experiment.loop import ClosedLoop, EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
@@ -89,12 +90,12 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     with blame("estimator"):
         design, fallback = estimators.design_for(scenario.estimator, design)
         est = estimators.build(scenario.estimator, design, **scenario.estimator_options)
-        check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
+        check_estimate(name, est.x, optional.covariance(est), design.n, "after the factory")
         if not (isinstance(est, Batched) and est.batched):
             est = estimators.PerMember([est, *(estimators.build(scenario.estimator, design,
                                                                 **scenario.estimator_options)
                                                for _ in range(num - 1))])
-    P = getattr(est, "P", None)
+    P = optional.covariance(est)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
     metrics = EpisodeMetrics(list(rig.state_names), sim.dt_s, list(sim.sensors.measured_state),
                              design.output_matrix[:, design.physical])
@@ -108,7 +109,7 @@ def build(scenario: Scenario, num: int = 1, *, num_threads: int | None = None) -
     if matched:
         meta["design_profile"] = "paper (fallback: " + fallback + ")" if fallback else "matched"
         meta["design_states"] = list(design.state_names)
-    design_meta = getattr(getattr(est, "inner", est), "design_meta", None)
+    design_meta = optional.design_facts(est)
     if design_meta:
         meta["design"] = design_meta
     return Experiment(scenario, ClosedLoop(sim, stage, controller), design, meta)

@@ -57,6 +57,7 @@ from tqdm import tqdm
 
 from testbed import estimators
 from testbed.design import DesignModel
+from testbed.estimators import optional
 from testbed.experiment.loop import EstimatorStage, check_estimate, sensor_taps
 from testbed.experiment.replay_collect import Collector, innermost
 from testbed.experiment.replay_result import (
@@ -71,6 +72,7 @@ from testbed.experiment.sim_recording import (
     simulate_recording,
 )
 from testbed.io.recording import Recording
+from testbed.plugins import factory_name
 from testbed.rigs import resolve_rig
 from testbed.rigs.base import build_rig
 from testbed.sensors import Sensor, SensorModel, Suite
@@ -242,9 +244,9 @@ def _consistency(nu_arr: np.ndarray | None, S_arr: np.ndarray | None, names: Seq
 
 def _design_meta(est: Any, matched: bool, fallback: str | None) -> dict[str, Any]:
     """The estimator's ``design_meta`` and, for a matched design, the design profile."""
-    design_meta = dict(getattr(getattr(est, "inner", est), "design_meta", None) or {})
+    design_meta = dict(optional.design_facts(est) or {})
     if isinstance(est, estimators.PerMember):
-        design_meta = dict(getattr(est.instances[0], "design_meta", None) or {})
+        design_meta = dict(optional.design_facts(est.instances[0]) or {})
     if matched:
         design_meta.setdefault("design_profile", "paper (fallback)" if fallback else "matched")
     return design_meta
@@ -368,17 +370,16 @@ def replay(recording: Recording, *, rig: Any, profile: str = "paper",
         disturbance_model.active or disturbance_model.has_signal) else None
     # the design and the estimator, as the runner builds them
     design: DesignModel = design_rig.design_model(suite, period, known, **(design_options or {}))
-    name = estimator if isinstance(estimator, str) else \
-        getattr(estimator, "__name__", repr(estimator))
+    name = factory_name(estimator)
     design, fallback = estimators.design_for(estimator, design)
     est = estimators.build(estimator, design, **(estimator_options or {}))
-    check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
-    batched = bool(getattr(est, "batched", False))
+    check_estimate(name, est.x, optional.covariance(est), design.n, "after the factory")
+    batched = optional.is_batched(est)
     if not batched:
         est = estimators.PerMember([est])
     # one member (a Kalman filter's batch of one shares its covariance with itself: its
     # recursion is computed once, ahead, and reused where it has settled; filters.KalmanFilter)
-    P = getattr(est, "P", None)
+    P = optional.covariance(est)
     prior = (np.array(design.x0, copy=True), None if P is None else np.array(design.P0))
     stage = EstimatorStage(est, design.input_transform, _NoTruth(period), prior,
                            channels=estimators.channels_for(est, design),

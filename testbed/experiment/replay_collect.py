@@ -43,6 +43,7 @@ import numpy as np
 
 from filters import KalmanFilter, all_finite
 from testbed import estimators
+from testbed.estimators import optional
 from testbed.experiment.loop import EstimatorStage
 
 
@@ -212,8 +213,7 @@ class Collector:
                 self.P_diag[j] = stage.P[0].diagonal()
             if not self.has_innovation:
                 continue
-            nu = getattr(inner, "innovation", None)
-            S = getattr(inner, "innovation_cov", None)
+            nu, S = optional.innovations(inner)
             if self.nu is None and nu is not None and S is not None:
                 self._allocate(nu)
             try:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from typing import Any
 
+from testbed.estimators import optional
 from testbed.score.cost import entry_cost
 from testbed.score.pair import REFERENCE
 
@@ -93,7 +94,7 @@ def is_batched(factory: Any) -> bool | None:
     if any(obj is builtin for builtin in ESTIMATORS.values()):  # a built-in under a label
         return True
     if isinstance(obj, type):
-        return bool(getattr(obj, "batched", False))
+        return optional.is_batched(obj)
     return None
 
 
