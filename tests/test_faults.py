@@ -807,3 +807,23 @@ def test_score_has_no_progress(monkeypatch, capsys):
         cmd_score(build_parser().parse_args(["score", "--estimator", "kalman",
                                              "--no-progress"]))
     assert seen["progress"] is None
+
+
+@pytest.mark.parametrize("at", [1, 2])
+def test_an_interrupt_right_after_a_rename_takes_it_back(tmp_path, monkeypatch, at):
+    """The commit's window between a rename and its record: an interrupt there leaves
+    neither output (the renamed one is taken back), never one of the two."""
+    real, calls = os.replace, []
+
+    def replace_then_interrupt(src, dst):
+        real(src, dst)
+        calls.append(dst)
+        if len(calls) == at:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(tio.os, "replace", replace_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        with tio.outputs_together():
+            tio.write_json(tmp_path / "d" / "a.json", {"a": 1})
+            tio.write_json(tmp_path / "d" / "b.json", {"b": 2})
+    assert sorted(p.name for p in tmp_path.rglob("*")) == []

@@ -191,8 +191,14 @@ def test_a_command_that_returns_after_catching_a_signal_is_still_interrupted(
         return 0
 
     args = argparse.Namespace(command="run", debug=False)
-    with cli_main._sigterm_raises():
-        assert cli_main._run_command(command, args) == code
+    # Python's own Ctrl-C handler, whatever this process inherited (a job started in the
+    # background of a shell ignores SIGINT, and the signal would never arrive)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with cli_main._sigterm_raises():
+            assert cli_main._run_command(command, args) == code
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert capsys.readouterr().err.strip() == f"testbed: stopped ({name})"
     assert list(tmp_path.iterdir()) == []
 

@@ -228,6 +228,11 @@ class _Transaction:
                 done.append(final)
                 self.pending.pop(0)
         except BaseException as exc:  # all or nothing: take back what was renamed
+            if self.pending:  # renamed but not yet recorded (an interrupt between the two)?
+                tmp, final = self.pending[0]
+                if not os.path.lexists(tmp) and final not in done:
+                    done.append(final)
+                    self.pending.pop(0)
             failed = self.pending[0][1] if self.pending else Path("output")
             for final in done:
                 with contextlib.suppress(OSError):
