@@ -63,16 +63,15 @@ def command(args: argparse.Namespace) -> int:
     runs = study_value(args, source, "runs")
     if args.save_scenario:
         return save_scenario(args, scenario, runs=runs)
-    if args.backend is None and args.address is not None:
-        args.backend = "ray"  # a cluster address means Ray
-    elif args.backend is None and args.workers is not None:
-        args.backend = "local"  # worker processes mean the local backend
-    if args.backend is not None and (args.save_npz or args.plot):
+    backend = args.backend  # alone, a cluster address means Ray, worker processes local ones
+    if backend is None and (args.address is not None or args.workers is not None):
+        backend = "ray" if args.address is not None else "local"
+    if backend is not None and (args.save_npz or args.plot):
         raise ValueError("--backend/--workers shard the runs: without --save-npz and --plot")
     if args.address is not None:
         from testbed.experiment.backend import check_ray_address
 
-        if args.backend != "ray":
+        if backend != "ray":
             raise ValueError("--address is only used with --backend ray")
         try:
             check_ray_address(args.address)  # unreachable: ConnectionError, exit code 5
@@ -80,7 +79,7 @@ def command(args: argparse.Namespace) -> int:
             raise ValueError(f"--address: {exc}") from None
     result = monte_carlo(scenario, runs, batch_size=args.batch_size,
                          progress=show_progress(args), save_npz=args.save_npz,
-                         envelope_points=200 if args.plot else None, backend=args.backend,
+                         envelope_points=200 if args.plot else None, backend=backend,
                          workers=args.workers, address=args.address)
     _print_mc(result)
     if args.save_npz:
