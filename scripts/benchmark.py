@@ -41,8 +41,9 @@ shared):
   rollouts of the nonlinear filters grow with the batch, the Kalman filter's matrix products
   hardly); ``ekf_physics_fraction`` (target >= 0.8) and ``ukf_physics_fraction``: the share
   of those batched steps spent inside ``mujoco.rollout.rollout`` (the distance to the
-  physics limit); ``ukf_simplex_*`` the same for the ukf with Julier's ``n + 2`` spherical
-  simplex sigma points (``sigma_points="simplex"``, diagnostic); ``--only-nonlinear`` runs
+  physics limit); the ``ukf`` is the built-in's default, Julier's ``n + 2`` spherical simplex
+  sigma points; ``ukf_scaled_*`` the same for the ukf with the ``2n + 1`` scaled points
+  (``sigma_points="scaled"``, diagnostic); ``--only-nonlinear`` runs
   these alone;
 - ``inverted_pendulum_v5_steps_per_s``: Gymnasium's ``InvertedPendulum-v5`` for reference;
 - Monte Carlo (``scripts/bench_mc.py``, both rigs): ``raw_rollout_traj_steps_per_s``,
@@ -124,10 +125,10 @@ METRICS: dict[str, tuple[str, str]] = {
     "ukf_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters"),
     "ekf_physics_fraction": ("", "share of the batch-32 ekf step spent in mujoco.rollout"),
     "ukf_physics_fraction": ("", "share of the batch-32 ukf step spent in mujoco.rollout"),
-    "ukf_simplex_vs_kalman": ("", "ukf with the n + 2 simplex sigma points / kalman step"),
-    "ukf_simplex_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters"),
-    "ukf_simplex_physics_fraction": ("", "share of the batch-32 simplex ukf step in "
-                                         "mujoco.rollout"),
+    "ukf_scaled_vs_kalman": ("", "ukf with the 2n + 1 scaled sigma points / kalman step"),
+    "ukf_scaled_batch32_vs_kalman": ("", "the same ratio for batches of 32 filters"),
+    "ukf_scaled_physics_fraction": ("", "share of the batch-32 scaled-set ukf step in "
+                                        "mujoco.rollout"),
     "inverted_pendulum_v5_steps_per_s": ("1/s", "Gymnasium InvertedPendulum-v5 (reference)"),
     "raw_rollout_traj_steps_per_s": ("1/s", "bare mujoco.rollout, helicopter (N x steps)"),
     "mc_traj_steps_per_s": ("1/s", "monte_carlo helicopter, Kalman + LQR, same size"),
@@ -367,7 +368,7 @@ def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
         ys = (design.discrete.H @ x_hover + 1e-3 * rng.standard_normal((1024, batch, m)))
         filters = {}
         for name, options in (("kalman", {}), ("ekf", {}), ("ukf", {}),
-                              ("ukf_simplex", {"sigma_points": "simplex"})):
+                              ("ukf_scaled", {"sigma_points": "scaled"})):
             est = estimators.build(name.partition("_")[0], design, **options)
             est.reset(np.tile(x_hover, (batch, 1)), design.P0)
             filters[name] = est
@@ -397,12 +398,12 @@ def bench_nonlinear(calls: int, repeats: int) -> dict[str, float]:
                         "ekf_hw_step_us": t["ekf"] * 1e6, "ukf_hw_step_us": t["ukf"] * 1e6,
                         "ekf_vs_kalman": t["ekf"] / t["kalman"],
                         "ukf_vs_kalman": t["ukf"] / t["kalman"],
-                        "ukf_simplex_vs_kalman": t["ukf_simplex"] / t["kalman"]})
+                        "ukf_scaled_vs_kalman": t["ukf_scaled"] / t["kalman"]})
         else:
             out.update({"ekf_batch32_vs_kalman": t["ekf"] / t["kalman"],
                         "ukf_batch32_vs_kalman": t["ukf"] / t["kalman"],
-                        "ukf_simplex_batch32_vs_kalman": t["ukf_simplex"] / t["kalman"]})
-            for name in ("ekf", "ukf", "ukf_simplex"):
+                        "ukf_scaled_batch32_vs_kalman": t["ukf_scaled"] / t["kalman"]})
+            for name in ("ekf", "ukf", "ukf_scaled"):
                 out[f"{name}_physics_fraction"] = physics_fraction(steppers[name], n_calls,
                                                                    repeats)
     return out

@@ -15,10 +15,13 @@ numbers to a relative tolerance (:data:`RTOL`). Why a tolerance: on the same mac
 library versions the numbers are bitwise equal, but another OpenBLAS kernel
 (``OPENBLAS_CORETYPE=Haswell``) rounds matrix products differently; through the LMI and
 Riccati solvers and the quantized sensors of the closed loop that moves an RMSE by up to
-4e-4 relative (measured: the vehicle roll ``lmi-hinf`` roll-rate RMSE, 3.6e-4). The numbers
-are printed to 4 significant digits (rounding alone: up to 5e-4 relative between two values
-that straddle a rounding boundary), so ``RTOL = 2e-3`` holds with a margin of two and still
-fails on any change of a design or of the loop, which moves the numbers by percents.
+4e-4 relative (measured: the vehicle roll ``lmi-hinf`` roll-rate RMSE, 3.6e-4), and on the
+hardware helicopter, whose closed loop through quantized encoders and the stops amplifies a
+rounding difference into 0.1-2.5 % of one run's RMSE under the ``ukf``'s simplex sigma
+points, a 5/95 % quantile of 20 runs by up to 2.8e-3 (its mean by 9e-4). The numbers are
+printed to 4 significant digits (rounding alone: up to 5e-4 relative between two values that
+straddle a rounding boundary), so ``RTOL = 5e-3`` holds with a margin of almost two and
+still fails on a change of a design or of the loop, which moves the numbers by percents.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from testbed.outputs.units import display
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Relative tolerance of ``--check`` (see the module docstring).
-RTOL = 2e-3
+RTOL = 5e-3
 #: A block's start marker; group 1 is its name.
 _START = re.compile(r"<!-- numbers:([A-Za-z0-9_-]+):start -->")
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

@@ -95,12 +95,12 @@ def test_only_nonlinear_reports_the_filter_step_metrics(tmp_path):
     result = json.loads(path.read_text())
     metrics = result["metrics"]
     assert result["settings"]["only"] == "nonlinear"
-    assert {"ukf_batch32_vs_kalman", "ukf_physics_fraction", "ukf_simplex_batch32_vs_kalman",
-            "ukf_simplex_physics_fraction", "ekf_physics_fraction"} <= set(metrics)
+    assert {"ukf_batch32_vs_kalman", "ukf_physics_fraction", "ukf_scaled_batch32_vs_kalman",
+            "ukf_scaled_physics_fraction", "ekf_physics_fraction"} <= set(metrics)
     assert set(metrics) <= set(benchmark.METRICS)
-    for key in ("ukf_physics_fraction", "ukf_simplex_physics_fraction"):
+    for key in ("ukf_physics_fraction", "ukf_scaled_physics_fraction"):
         assert 0 < metrics[key]["value"] < 1  # the rollouts are timed (a share, not zero)
-    assert metrics["ukf_simplex_batch32_vs_kalman"]["value"] > 0
+    assert metrics["ukf_scaled_batch32_vs_kalman"]["value"] > 0
 
 
 def test_performance_doc_has_the_table_markers():

@@ -270,12 +270,17 @@ def ekf(design: DesignModel, eps: float = 1e-6, centered: bool = False,
 
 
 def ukf(design: DesignModel, alpha: float = 1e-3, beta: float = 2.0,
-        kappa: float = 0.0, sigma_points: str = "scaled", w0: float = 0.0,
+        kappa: float = 0.0, sigma_points: str = "simplex", w0: float = 0.0,
         nthread: int = 0) -> Any:
-    """Unscented Kalman filter (scaled sigma points ``alpha, beta, kappa``, or
-    ``sigma_points="simplex"``: Julier's ``n + 2`` spherical simplex points, centre weight
-    ``w0``) on the rig's nominal MuJoCo model (with a matched design's extra states, as
-    :func:`ekf`), ``Q``/``R`` of ``design.discrete`` (:mod:`testbed.estimators.nonlinear`)."""
+    """Unscented Kalman filter on the rig's nominal MuJoCo model (with a matched design's
+    extra states, as :func:`ekf`), ``Q``/``R`` of ``design.discrete``
+    (:mod:`testbed.estimators.nonlinear`).
+
+    Its sigma points are Julier's ``n + 2`` spherical simplex points (default,
+    ``sigma_points="simplex"``, centre weight ``w0``, scaled by ``alpha, beta``), or the
+    ``2n + 1`` scaled points of Wan & van der Merwe (``sigma_points="scaled"``, ``alpha,
+    beta, kappa``). The simplex set needs about 0.6 of the standard set's physics for the
+    same accuracy (docs/scoring.md, "The ukf's sigma points")."""
     from testbed.estimators.nonlinear import nonlinear_estimator
 
     return _select(nonlinear_estimator(design, "ukf", alpha=alpha, beta=beta, kappa=kappa,

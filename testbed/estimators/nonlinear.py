@@ -275,7 +275,7 @@ def nonlinear_models(design: DesignModel, *, eps: float = FD_EPS, centered: bool
 
 def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
                         centered: bool = False, alpha: float = 1e-3, beta: float = 2.0,
-                        kappa: float = 0.0, sigma_points: str = "scaled", w0: float = 0.0,
+                        kappa: float = 0.0, sigma_points: str = "simplex", w0: float = 0.0,
                         jacobian: str = "step", jacobian_points: int = 1,
                         nthread: int = 0) -> AbsoluteInput:
     """An EKF (``kind="ekf"``) or UKF (``"ukf"``) on the rig's nominal MuJoCo model.
@@ -296,10 +296,10 @@ def nonlinear_estimator(design: DesignModel, kind: str, *, eps: float = FD_EPS,
     alpha, beta, kappa : float
         The UKF's sigma-point parameters (Wan & van der Merwe's defaults).
     sigma_points : {"scaled", "simplex"}
-        The UKF's sigma-point set: the ``2n + 1`` scaled points (default) or Julier's (2003)
-        ``n + 2`` spherical simplex points (on a matched design ``d + 2`` distinct MuJoCo
-        rollouts per member instead of ``2 d + 1``, ``d`` the rig and actuator states:
-        :class:`filters.UnscentedKalmanFilter`); ``w0`` the simplex set's centre weight.
+        The UKF's sigma-point set: Julier's (2003) ``n + 2`` spherical simplex points
+        (default; on a matched design ``d + 2`` distinct MuJoCo rollouts per member instead
+        of ``2 d + 1``, ``d`` the rig and actuator states) or the ``2n + 1`` scaled points
+        (:class:`filters.UnscentedKalmanFilter`); ``w0`` the simplex set's centre weight.
     jacobian : {"step", "rollout", "transition"}
         The EKF's Jacobian method (:class:`MujocoProcessModel`); ``jacobian_points`` its
         linearization points per period (``"step"``).

@@ -1,5 +1,6 @@
-"""The ``ukf``'s spherical simplex sigma points on the rigs' MuJoCo models
-(``--filter-option sigma_points=simplex``; :mod:`filters.ukf`, :mod:`testbed.estimators`)."""
+"""The ``ukf``'s spherical simplex sigma points (its default) and the standard scaled set
+(``--filter-option sigma_points=scaled``) on the rigs' MuJoCo models (:mod:`filters.ukf`,
+:mod:`testbed.estimators`)."""
 
 from __future__ import annotations
 
@@ -56,13 +57,17 @@ def test_one_rollout_of_the_distinct_points_of_every_member(hardware_design, poi
 
 def test_simplex_ukf_on_the_hardware_helicopter_matches_the_standard_set():
     """3 s, 2 runs (seed 0): RMSE per state within 2 % of the standard set's and NEES
-    within 5 % (32 runs x 10 s: docs/scoring.md); the option reaches the filter
-    (``mc --filter-option sigma_points=simplex``) and a batch member equals its single run."""
+    within 5 % (32 runs x 10 s: docs/scoring.md); the simplex set is the default, the option
+    reaches the filter (``mc --filter-option sigma_points=scaled``) and a batch member
+    equals its single run."""
     sc = Scenario(rig="helicopter", profile="hardware", estimator="ukf", duration_s=3.0,
                   seed=0)
-    scaled = runner.monte_carlo(sc, runs=2, progress=False)
+    scaled = runner.monte_carlo(sc.replace(estimator_options={"sigma_points": "scaled"}),
+                                runs=2, progress=False)
     simplex_sc = sc.replace(estimator_options={"sigma_points": "simplex"})
     simplex = runner.monte_carlo(simplex_sc, runs=2, progress=False)
+    assert runner.monte_carlo(sc, runs=2, progress=False)["rmse_per_run"] == \
+        simplex["rmse_per_run"]  # the default
     assert simplex["rmse_per_run"] != scaled["rmse_per_run"]  # a different filter ran
     for state, value in scaled["rmse"].items():
         assert simplex["rmse"][state]["mean"] == pytest.approx(value["mean"], rel=0.02), state
@@ -81,9 +86,9 @@ def test_a_bad_sigma_point_set_is_a_value_error_naming_it(hardware_design):
         estimators.build("ukf", hardware_design, sigma_points="simplex", w0=1.5)
 
 
-def test_cli_takes_the_simplex_set(capsys):
+def test_cli_takes_the_standard_set(capsys):
     from testbed.cli import main
 
     assert main(["run", "helicopter", "--filter", "ukf", "--filter-option",
-                 "sigma_points=simplex", "--duration", "1", "--seed", "0"]) == 0
+                 "sigma_points=scaled", "--duration", "1", "--seed", "0"]) == 0
     assert "pitch" in capsys.readouterr().out
