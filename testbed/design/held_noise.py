@@ -151,8 +151,10 @@ def uses_held_noise(process_noise_model: str, paper_profile: bool) -> bool:
         (:func:`rig_held_noise`, what the simulator applies); ``"continuous"``: Van Loan's
         integral of the continuous intensity (the papers' ``Q``: the reference filter as
         the papers design it); ``"auto"``: held on the ``paper`` profile, continuous on the
-        ``hardware`` profile (where the held covariance, measured, made the hardware
-        helicopter's reference filter overconfident: NEES 30 of 4).
+        ``hardware`` profile for all of ``Q`` (where the held covariance, measured, made the
+        hardware helicopter's reference filter overconfident: NEES 30 of 4); the matched
+        design of the ``hardware`` profile holds the rig's white noise alone
+        (:func:`matched_held_noise`).
     paper_profile : bool
         The rig runs its ``paper`` profile.
 
@@ -167,3 +169,29 @@ def uses_held_noise(process_noise_model: str, paper_profile: bool) -> bool:
     if process_noise_model == "auto":
         return paper_profile
     return process_noise_model == "held"
+
+
+def matched_held_noise(disturbance, process_noise_model: str) -> np.ndarray | None:
+    """The part of a matched (``hardware``) design's ``Q`` the simulator holds over its
+    physics steps (``build_matched_design(held_intensity=...)``).
+
+    Parameters
+    ----------
+    disturbance : testbed.rigs.disturbances.Disturbance or None
+        The scenario's disturbance; its white noise ``b b^T`` is what the simulator holds.
+    process_noise_model : {"auto", "held", "continuous"}
+        ``"continuous"``: None (Van Loan's covariance for all of ``Q``, as the papers).
+
+    Returns
+    -------
+    ndarray, shape (n_rig, n_rig), or None
+        ``b b^T`` (None without white noise). The process-noise floor stays continuous: on
+        the hardware profile it stands for the accelerations the linear model leaves out
+        (friction, stops, deadband), which are not white noise held over the period.
+    """
+    if process_noise_model not in PROCESS_NOISE_MODELS:
+        raise ValueError(f"process_noise_model must be one of {PROCESS_NOISE_MODELS}, got "
+                         f"{process_noise_model!r}")
+    if process_noise_model == "continuous" or disturbance is None:
+        return None
+    return disturbance.intensity

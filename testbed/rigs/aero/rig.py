@@ -487,7 +487,7 @@ class AeroRig(Rig):
             How ``Q`` is discretized (:func:`testbed.design.held_noise.uses_held_noise`).
         """
         from testbed.design import build_design, rate_noise
-        from testbed.design.held_noise import uses_held_noise
+        from testbed.design.held_noise import matched_held_noise, uses_held_noise
 
         n = self.n_states
         A, B = quanser_model(self.params, self.yaw_locked)  # the designer's, never the truth
@@ -499,9 +499,11 @@ class AeroRig(Rig):
                                                         self.hardware is None))
         if self.hardware is None:
             return paper
-        return self._matched_design(paper, sensors, dt_s, Q, G)
+        return self._matched_design(paper, sensors, dt_s, Q, G,
+                                    matched_held_noise(disturbance, process_noise_model))
 
-    def _matched_design(self, paper, sensors, dt_s: float, Q: np.ndarray, G):
+    def _matched_design(self, paper, sensors, dt_s: float, Q: np.ndarray, G,
+                        held_intensity: np.ndarray | None = None):
         """The ``hardware`` profile's design: Quanser's model plus the rotor lag and the IMU.
 
         State ``[physical..., rotor_pitch, rotor_yaw, biases...]``
@@ -522,7 +524,7 @@ class AeroRig(Rig):
         x0 = np.concatenate([self.default_x0(), np.zeros(2)])
         P0 = block_diag(np.asarray(paper.P0), MOTOR_PRIOR_STD_V**2 * np.eye(2))
         return build_matched_design(
-            self, sensors, dt_s, A, B, Qm, x0, P0,
+            self, sensors, dt_s, A, B, Qm, x0, P0, held_intensity=held_intensity,
             extra_states=(("rotor_pitch", "V"), ("rotor_yaw", "V")), paper_design=paper,
             disturbance_matrix=G,
             extras={"quanser_model": paper.extras["quanser_model"],

@@ -104,7 +104,7 @@ def design_model(rig, sensors, dt_s: float, disturbance=None, *,
         ``"continuous"`` on the paper profile: the papers' ``Q``).
     """
     from testbed.design import build_design, rate_noise
-    from testbed.design.held_noise import uses_held_noise
+    from testbed.design.held_noise import matched_held_noise, uses_held_noise
 
     model = paper_model()
     Q, G = rate_noise(4, 2, process_noise_floor, disturbance)
@@ -120,9 +120,13 @@ def design_model(rig, sensors, dt_s: float, disturbance=None, *,
                                  "initial_weight": PAPER_INITIAL_WEIGHT})
     if rig.hardware is None:
         return paper
-    return matched_design(rig, paper, sensors, dt_s, Q, G)
+    return matched_design(rig, paper, sensors, dt_s, Q, G,
+                          held_intensity=matched_held_noise(disturbance,
+                                                            process_noise_model))
 
-def matched_design(rig, paper, sensors, dt_s: float, Q: np.ndarray, G):
+
+def matched_design(rig, paper, sensors, dt_s: float, Q: np.ndarray, G,
+                   held_intensity: np.ndarray | None = None):
     """The ``hardware`` profile's design: the paper design plus what the rig declares.
 
     State ``[pitch, yaw, pitch_rate, yaw_rate, dact_pitch, dact_yaw, biases...,
@@ -186,7 +190,7 @@ def matched_design(rig, paper, sensors, dt_s: float, Q: np.ndarray, G):
         return np.column_stack([volts - v_g, np.where(into_stop, -accel, 0.0)])
 
     return build_matched_design(
-        rig, sensors, dt_s, A, B, Qm, x0, P0,
+        rig, sensors, dt_s, A, B, Qm, x0, P0, held_intensity=held_intensity,
         extra_states=(("dact_pitch", "V"), ("dact_yaw", "V")), channels=np.array(channels),
         rows=rows, scale_R=extra_R, effects=effects, paper_design=paper,
         input_transform=matched_input, disturbance_matrix=G,
