@@ -31,13 +31,15 @@ DEFAULTS: dict[str, Any] = {
 }
 #: What every estimator has (:class:`filters.base.Estimator`, its covariance optional).
 REQUIRED = ("x", "reset", "step")
+#: ``_part``'s default: the table's.
+_TABLE = object()
 #: A member that is not there.
 _ABSENT = object()
 
 
-def _part(est: Any, name: str, default: Any = _ABSENT) -> Any:
+def _part(est: Any, name: str, default: Any = _TABLE) -> Any:
     """``est``'s member ``name``, or ``default`` (the table's, :data:`DEFAULTS`) without."""
-    return getattr(est, name, DEFAULTS[name] if default is _ABSENT else default)
+    return getattr(est, name, DEFAULTS[name] if default is _TABLE else default)
 
 
 def lacks(est: Any, names: Sequence[str] = REQUIRED) -> list[str]:
