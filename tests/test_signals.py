@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from testbed.cli.parser import COMMON_DEFAULTS
 from testbed.experiment import backend
 from testbed.score import harness
 
@@ -190,7 +191,7 @@ def test_a_command_that_returns_after_catching_a_signal_is_still_interrupted(
             pass
         return 0
 
-    args = argparse.Namespace(command="run", debug=False)
+    args = argparse.Namespace(command="run", debug=False, **COMMON_DEFAULTS)
     # Python's own Ctrl-C handler, whatever this process inherited (a job started in the
     # background of a shell ignores SIGINT, and the signal would never arrive)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)

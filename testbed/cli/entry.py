@@ -98,15 +98,15 @@ def _fail(code: int, message: str) -> int:
 
 def _debug(args: argparse.Namespace | None) -> bool:
     """``--debug`` or ``TESTBED_DEBUG=1``: show the traceback of a failure."""
-    return bool(getattr(args, "debug", False)) or os.environ.get("TESTBED_DEBUG", "") not in (
-        "", "0")
+    return (args is not None and bool(args.debug)) or os.environ.get("TESTBED_DEBUG", "") \
+        not in ("", "0")
 
 
 def _plugin_flag(args: argparse.Namespace) -> str:
     """How messages name the estimator of the command (``--filter 'x'``, ``--estimator``)."""
     if args.command == "score":
         return "--estimator"
-    return f"--filter {getattr(args, 'filter', '')!r}"
+    return f"--filter {args.filter!r}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

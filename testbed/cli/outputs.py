@@ -51,7 +51,7 @@ def output_paths(args: argparse.Namespace) -> dict[str, str]:
     for attr in OUTPUTS:
         if attr == "twin" and args.command != "identify":
             continue  # elsewhere --twin is read, not written
-        path = getattr(args, attr, None)
+        path = getattr(args, attr)  # every command's namespace has it (COMMON_DEFAULTS)
         if path is not None:
             paths["--" + attr.replace("_", "-")] = path
     if args.command == "score" and args.json is not None:
@@ -74,7 +74,7 @@ def check_outputs(args: argparse.Namespace) -> None:
                 "--json (its .worst_case.npz)": ".npz", "--out-dir": None, "--doc": ".md"}
     for flag, path in output_paths(args).items():
         check_output_path(path, flag, suffixes[flag])
-    if getattr(args, "video", None) is not None:
+    if args.video is not None:
         from testbed.outputs.render import check_rendering, check_video_path
 
         try:
@@ -82,7 +82,7 @@ def check_outputs(args: argparse.Namespace) -> None:
             check_rendering()
         except ValueError as exc:
             raise ValueError(f"--video: {exc}") from None
-    if getattr(args, "save_scenario", None) is not None:
+    if args.save_scenario is not None:
         scenario_file.check_destination(args.save_scenario)
 
 

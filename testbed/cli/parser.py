@@ -32,6 +32,14 @@ COMMANDS = {
 
 DEBUG_HELP = ("on a failure, also print the Python traceback (or set TESTBED_DEBUG=1)")
 
+#: The options the shared code (output checks, the scenario options, failure messages)
+#: reads of every command, and their value for a command without the option: the top
+#: parser's defaults, so that every command's namespace has them (``args.NAME``).
+COMMON_DEFAULTS: dict[str, Any] = {
+    "json": None, "plot": None, "rrd": None, "save_npz": None, "video": None,
+    "markdown": None, "save_log": None, "twin": None, "scenario": None, "save_scenario": None,
+    "filter": ""}
+
 
 class _Parser(argparse.ArgumentParser):
     """``parser.error`` as one line ``testbed: error: --NAME ...`` and exit code 2."""
@@ -68,6 +76,7 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
     parser.add_argument("--version", action="version", version=f"testbed {__version__}")
     add_completion(parser)
     parser.add_argument("--debug", action="store_true", default=False, help=DEBUG_HELP)
+    parser.set_defaults(**COMMON_DEFAULTS)
     sub = parser.add_subparsers(dest="command", required=True)
     wanted = set(COMMANDS if commands is None else commands)
     for name, text in COMMANDS.items():

@@ -130,12 +130,12 @@ def scenario_and_file(args: argparse.Namespace
         A bad value or an option the rig does not have, the message starting with the flag
         (or with the file and its key).
     """
-    source = scenario_file.read(args.scenario) if getattr(args, "scenario", None) else None
+    source = scenario_file.read(args.scenario) if args.scenario else None
     every = set(ARG_FIELDS)
     given = deferred.given_options(args, every) if source is not None else every
     from_file = source.fields if source is not None else {}
     twin = None
-    if getattr(args, "twin", None) is not None:
+    if args.twin is not None:
         from testbed.identify.twin import read_twin
 
         twin = read_twin(args.twin)

@@ -65,7 +65,7 @@ def planned_pairs(args: argparse.Namespace, chosen: list, reference: Any) -> tup
         entries = []
     if args.scenario is not None:
         entries = [e for e in entries if e.name in args.scenario]
-    if getattr(args, "twin", None) is not None:  # the twin's entries (errors: later)
+    if args.twin is not None:  # the twin's entries (errors: later)
         try:
             entries = harness.twin_entries(entries, args.twin, args.suite,
                                            selected=args.scenario is not None)

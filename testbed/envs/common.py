@@ -6,9 +6,9 @@ state, time and random generator stay as they were).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -113,6 +113,24 @@ def with_twin(rig: Any, kwargs: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
     return twin.rig, kwargs
 
 
+class EnvSensors(Protocol):
+    """The sensor contract the wrappers read (:class:`testbed.sensors.Sensor` and
+    :class:`~testbed.envs.plant_env.PlantSensors` have it): channel names, the state each
+    channel measures (None: none directly), and a short description."""
+
+    names: Sequence[str]
+    measured_state: Sequence[int | None]
+
+    def describe(self) -> str: ...
+
+
+class EnvRig(Protocol):
+    """The rig contract the wrappers read (:class:`testbed.rigs.base.Rig` has it)."""
+
+    name: str
+    profile: str
+
+
 @dataclass(frozen=True)
 class EnvDeclarations:
     """What the testbed's wrappers read from the environment they wrap (its ``unwrapped``).
@@ -124,12 +142,11 @@ class EnvDeclarations:
     Attributes
     ----------
     state_names, action_names : list of str or None
-    sensors : object or None
-        The sensor suite (``names``, ``describe()``, ``measured_state`` or a plant's
-        ``measured_state_index``).
+    sensors : EnvSensors or None
+        The sensor suite (``names``, ``measured_state``, ``describe()``).
     dt_s : float or None
         Control period, s.
-    rig : object or None
+    rig : EnvRig or None
         The rig (``name``, ``profile``).
     sim : object or None
         The simulator (a :class:`~testbed.envs.rig_env.RigEnv`'s).
@@ -157,15 +174,16 @@ class EnvDeclarations:
 
 def env_declarations(inner: Any) -> EnvDeclarations:
     """The declarations of an environment (:class:`EnvDeclarations`): the one place the
-    wrappers probe the environment they wrap, which may be any Gymnasium environment."""
+    wrappers probe the environment they wrap, which may be any Gymnasium environment. What
+    it declares follows the contracts: its ``sensors`` an :class:`EnvSensors`, its ``rig``
+    an :class:`EnvRig`."""
     found = {name: getattr(inner, name, None)
              for name in ("state_names", "action_names", "sensors", "dt_s", "rig", "sim")}
-    sensors, rig = found["sensors"], found["rig"]
-    describe = getattr(sensors, "describe", None)
+    sensors: EnvSensors | None = found["sensors"]
+    rig: EnvRig | None = found["rig"]
     return EnvDeclarations(
         **found,
-        measured=list(getattr(sensors, "measured_state", None)
-                      or getattr(sensors, "measured_state_index", [])),
-        channel_names=tuple(getattr(sensors, "names", ())),
-        sensors_text=describe() if describe is not None else "",
-        rig_name=getattr(rig, "name", ""), profile=getattr(rig, "profile", ""))
+        measured=[] if sensors is None else list(sensors.measured_state),
+        channel_names=() if sensors is None else tuple(sensors.names),
+        sensors_text="" if sensors is None else sensors.describe(),
+        rig_name="" if rig is None else rig.name, profile="" if rig is None else rig.profile)

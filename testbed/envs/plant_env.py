@@ -53,6 +53,16 @@ class PlantSensors:
             out.append(int(nz[0]) if nz.size == 1 and row[nz[0]] == 1.0 else None)
         return out
 
+    @property
+    def measured_state(self) -> list[int | None]:
+        """:attr:`measured_state_index` under the sensors' contract's name
+        (:class:`testbed.envs.common.EnvSensors`)."""
+        return self.measured_state_index
+
+    def describe(self) -> str:
+        """A description for outputs: empty (a plant's measurement is its ``C`` and ``R``)."""
+        return ""
+
     def linear_model(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """``C`` (p, n) and the per-sample noise covariance ``R`` (p, p) for a filter design."""
         return self.C.copy(), self.R.copy() if self.per_sample else self.R / dt_s

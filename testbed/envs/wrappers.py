@@ -12,6 +12,7 @@ from gymnasium import spaces
 from filters import Estimator
 from filters.base import Batched, Primed
 from testbed.envs.common import env_declarations
+from testbed.estimators import optional
 from testbed.experiment.loop import EstimatorStage, check_estimate
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.plugins import factory_name
@@ -84,7 +85,7 @@ class FilterInLoop(gym.Wrapper, gym.utils.RecordConstructorArgs):
             output_matrix=output_matrix, ratio_weight=ratio_weight, design=design,
             estimator_options=estimator_options)
         if isinstance(estimator, str) or (callable(estimator)
-                                          and not hasattr(estimator, "step")):
+                                          and optional.lacks(estimator, ("step",))):
             if input_transform is not None or output_matrix is not None:
                 raise ValueError("input_transform and output_matrix come from the design "
                                  "when the estimator is given by name or factory")
@@ -213,7 +214,7 @@ def _from_design(env: gym.Env, estimator: Any, design: Any,
     design, _ = estimators.design_for(estimator, design)
     est = estimators.build(estimator, design, **options)
     name = factory_name(estimator)
-    check_estimate(name, est.x, getattr(est, "P", None), design.n, "after the factory")
+    check_estimate(name, est.x, optional.covariance(est), design.n, "after the factory")
     channels = estimators.channels_for(est, design)
     if isinstance(est, Batched) and est.batched:
         est = _BatchOfOne(est)  # the runner's batched arithmetic: bitwise its results

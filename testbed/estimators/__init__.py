@@ -465,10 +465,10 @@ def build(name: str | Factory, design: DesignModel, **options: Any) -> Any:
         raise plugins.PluginError(f"filter {label!r}", "build", sys.exc_info()[1]) from None
     except plugins.PLUGIN_FAILURES as err:
         raise plugins.PluginError(f"filter {label!r}", "build", err) from None
-    for attr in ("x", "reset", "step"):
-        if not hasattr(est, attr):
-            raise ValueError(f"filter {name!r}: the factory returned {type(est).__name__}, "
-                             f"which has no {attr!r} (see testbed.estimators)")
+    lacking = optional.lacks(est)
+    if lacking:
+        raise ValueError(f"filter {name!r}: the factory returned {type(est).__name__}, "
+                         f"which has no {lacking[0]!r} (see testbed.estimators)")
     return est
 
 

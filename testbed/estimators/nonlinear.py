@@ -68,7 +68,8 @@ These modules import no rig module: the designer's rig class comes with the desi
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -89,8 +90,19 @@ from testbed.estimators.mujoco_model import (
 if TYPE_CHECKING:  # the designer's rig: its class comes with the design (extras["rig_type"])
     from testbed.rigs.base import Rig
 
+
+@runtime_checkable
+class MujocoRigType(Protocol):
+    """What the nonlinear family needs of the designer's rig class (a
+    :class:`testbed.rigs.base.Rig` subclass has it): its MuJoCo model file and its operating
+    input. Checked on the class with ``issubclass``."""
+
+    def resolved_xml_path(self) -> Path: ...
+
+    def operating_input(self, params: Any, x: np.ndarray) -> np.ndarray: ...
+
 __all__ = ["FD_EPS", "JACOBIAN_METHODS", "AbsoluteInput", "AugmentedProcessModel",
-           "MeasurementModel", "MujocoProcessModel", "PhysicalInput", "can_touch",
+           "MeasurementModel", "MujocoProcessModel", "MujocoRigType", "PhysicalInput", "can_touch",
            "differences", "gravity", "nominal_rig", "nonlinear_estimator", "nonlinear_models",
            "perturbed"]
 
@@ -229,8 +241,7 @@ def nominal_rig(design: DesignModel) -> Rig:
         The design names no MuJoCo rig.
     """
     rig_type, physics_dt_s = design.extras.get("rig_type"), design.extras.get("physics_dt_s")
-    if not (isinstance(rig_type, type) and hasattr(rig_type, "xml_path")
-            and callable(getattr(rig_type, "operating_input", None))):
+    if not (isinstance(rig_type, type) and issubclass(rig_type, MujocoRigType)):
         raise ValueError("the nonlinear filters need the rig's MuJoCo model: the design names "
                          "no rig (design.extras['rig_type'], set by "
                          "testbed.design.build_design)")

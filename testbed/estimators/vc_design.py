@@ -303,8 +303,8 @@ class VCDesign:
 
 
 def _key(plant: UncertainPlant, *options: Any) -> str:
-    return memo.key(*(getattr(plant, name) for name in ("A", "C", "D1", "D2", "M1", "M2", "N",
-                                                         "L")), *options)
+    return memo.key(plant.A, plant.C, plant.D1, plant.D2, plant.M1, plant.M2, plant.N,
+                    plant.L, *options)
 
 
 def design_vc_discrete(design: Any, *, gamma: float | None = None, gamma_factor: float = 2.0,

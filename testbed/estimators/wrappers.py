@@ -37,7 +37,7 @@ class EstimatorWrapper:
     @property
     def shared_P(self) -> np.ndarray | None:
         """The covariance the inner batch's members share (its ``shared_P``), or None."""
-        return getattr(self.inner, "shared_P", None)
+        return optional.shared_covariance(self.inner)
 
     def reset(self, x0: Any, P0: Any) -> None:
         """Reset the inner estimator."""

@@ -322,7 +322,6 @@ def _stop_signals_held(block: bool = True) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    block = block and hasattr(signal, "pthread_sigmask")
     arrived: list[int] = []
 
     def remember(signum: int, frame: Any) -> None:
@@ -352,8 +351,7 @@ def _worker_started(parent_pid: int) -> None:
     caller dies (:func:`die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     die_with_parent(parent_pid)
 
 

@@ -19,6 +19,7 @@ from tqdm import tqdm
 from filters import all_finite, real_array
 from filters.base import Primed
 from filters.errors import FilterError, FiniteEscapeError
+from testbed.estimators import optional
 from testbed.experiment.metrics import EpisodeMetrics
 from testbed.plugins import PLUGIN_FAILURES, EstimatorFailed, describe
 from testbed.sim.simulator import Simulator
@@ -224,7 +225,7 @@ class EstimatorStage:
         x_phys = self.x
         # a covariance the batch's members share (a Kalman filter's: filters.KalmanFilter.
         # shared_P): the metrics factor it once for every member (the same values)
-        shared = getattr(est, "shared_P", None)
+        shared = optional.shared_covariance(est)
         P = self.P if shared is None else self._physical_block(shared)
         self.metrics.update(x_true, x_phys, P, y, w if w is not None and w.size else None)
         return x_phys

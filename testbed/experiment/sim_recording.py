@@ -10,7 +10,7 @@ replay.replay` of such a recording gives the run's estimates bitwise.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from testbed.experiment.loop import LoopResult, Tape
 from testbed.experiment.trajectory import Trajectory
 from testbed.io.recording import Recording
 from testbed.sensors import Sensor
+
+if TYPE_CHECKING:
+    from testbed.rigs.base import Rig
 
 #: How the rows of a recording pair inputs and channels (in the recording's ``meta``).
 INPUT_CONVENTION = "inputs[k] held over [t_k, t_k+1); channels[k] sampled at t_k"
@@ -216,15 +219,16 @@ def episode_recording(measurement: np.ndarray, applied: np.ndarray, dt_s: float,
                                input_convention=INPUT_CONVENTION))
 
 
-def _meta(run_meta: dict[str, Any], rig: Any, sensors: Sensor | None,
+def _meta(run_meta: dict[str, Any], rig: Rig | None, sensors: Sensor | None,
           seed: Any) -> dict[str, Any]:
-    """A recording's ``meta`` from a run's: settings, no truth."""
+    """A recording's ``meta`` from a run's: settings, no truth (the rig's name, profile and
+    options when there is a rig)."""
     scenario = {k: v for k, v in (run_meta.get("scenario") or {}).items()
                 if k in _SCENARIO_META}
     meta: dict[str, Any] = {
-        "rig": run_meta.get("rig", getattr(rig, "name", None)),
-        "profile": getattr(rig, "profile", scenario.get("profile", "paper")),
-        "options": dict(getattr(rig, "options", {}) or {}),
+        "rig": run_meta.get("rig", None if rig is None else rig.name),
+        "profile": scenario.get("profile", "paper") if rig is None else rig.profile,
+        "options": {} if rig is None else dict(rig.options),
         "seed": None if seed is None else int(seed),
         "sensors": scenario.get("sensors"),
         "sensors_description": run_meta.get("sensors"),

@@ -17,6 +17,7 @@ from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from filters.kalman import CovarianceMemo
+from testbed.estimators import optional
 from testbed.experiment.backend import check_backend, map_jobs
 from testbed.experiment.build import Experiment, build, run_seeds
 from testbed.experiment.envelope import ErrorEnvelope
@@ -289,9 +290,7 @@ def _study_result(scenario: Scenario, first: Experiment, seeds: np.ndarray,
 def _sharing(experiment: Experiment, memo: CovarianceMemo) -> Experiment:
     """``experiment``, its estimator given the study's covariance memo if it takes one
     (:meth:`filters.kalman.KalmanFilter.share_covariance_memo`)."""
-    share = getattr(experiment.loop.stage.estimator, "share_covariance_memo", None)
-    if callable(share):
-        share(memo)
+    optional.share_covariance_memo(experiment.loop.stage.estimator, memo)
     return experiment
 
 

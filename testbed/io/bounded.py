@@ -45,8 +45,7 @@ def read_bounded(path: str | os.PathLike, limit: int, *, what: str,
         file, or is larger than ``limit``.
     """
     name = os.fspath(path)
-    flags = (os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
-             | getattr(os, "O_CLOEXEC", 0))
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC  # POSIX
     try:
         fd = os.open(name, flags)
     except FileNotFoundError:

@@ -19,8 +19,18 @@ RIGS: dict[str, Any] = {
 
 
 def register_rig(cls: type) -> type:
-    """Add a :class:`~testbed.rigs.base.Rig` subclass to :data:`RIGS` under ``cls.name``."""
-    if not getattr(cls, "name", ""):
+    """Add a :class:`~testbed.rigs.base.Rig` subclass to :data:`RIGS` under ``cls.name``.
+
+    Raises
+    ------
+    ValueError
+        ``cls`` is not a ``Rig`` subclass, or its ``name`` is not a non-empty string.
+    """
+    from testbed.rigs.base import Rig  # a rig being registered has imported it already
+
+    if not (isinstance(cls, type) and issubclass(cls, Rig)):
+        raise ValueError(f"register_rig: expected a Rig subclass, got {cls!r}")
+    if not (isinstance(cls.name, str) and cls.name):
         raise ValueError(f"{cls.__name__}.name must be a non-empty string")
     RIGS[cls.name] = cls
     return cls

@@ -116,8 +116,8 @@ class Rig:
     #: The LQR tracker's weights (``state_weight``, ``input_weight``, ``integral_weight``);
     #: None: the built-in table's entry of the rig, else ones (an instance may set its own).
     lqr_weights: dict[str, Any] | None = None
-    #: The sensor presets :meth:`sensors` takes (empty: the module's ``SENSOR_PRESETS``, else
-    #: the default suite only; :func:`testbed.rigs.describe.sensor_presets`).
+    #: The sensor presets :meth:`sensors` takes (empty: the default suite only;
+    #: :func:`testbed.rigs.describe.sensor_presets`).
     sensor_presets: ClassVar[tuple[str, ...]] = ()
 
     @classmethod

@@ -6,8 +6,8 @@ identifiable parameters (nominal value, unit, bounds) and state names and units,
 dict (JSON-ready); :func:`format_description` prints it as tables. :func:`sensor_channels`
 lists every channel name a recording of the rig may hold.
 
-Sensor presets: a rig's ``sensor_presets`` attribute when it declares one, else the
-``SENSOR_PRESETS`` tuple of the module defining it, else only its default preset.
+Sensor presets: a rig's ``sensor_presets`` class attribute (:attr:`Rig.sensor_presets`),
+else only its default preset.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import dataclasses
 import functools
 import math
 import re
-import sys
 from typing import Any
 
 from testbed.records import field_values
@@ -44,9 +43,7 @@ def sensor_presets(rig: Any) -> tuple[str | None, ...]:
     rig : str, Rig subclass or Rig
     """
     cls, _ = _rig_class(rig)
-    presets = cls.sensor_presets or \
-        getattr(sys.modules.get(cls.__module__), "SENSOR_PRESETS", None)
-    return tuple(presets) if presets else (None,)
+    return tuple(cls.sensor_presets) if cls.sensor_presets else (None,)
 
 
 def _build(cls: type[Rig], profile: str, options: dict[str, Any] | None) -> Rig:

@@ -16,9 +16,10 @@ import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing import get_context
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from testbed.estimators import optional
+from testbed.plugins import LabelledFactory
 from testbed.score.cost import entry_cost
 from testbed.score.pair import REFERENCE
 
@@ -89,8 +90,7 @@ def is_batched(factory: Any) -> bool | None:
 
     if isinstance(factory, str):
         return True if factory in ESTIMATORS else None
-    target = getattr(factory, "_target", None)
-    obj = target() if callable(target) else factory
+    obj = factory._target() if isinstance(factory, LabelledFactory) else factory
     if any(obj is builtin for builtin in ESTIMATORS.values()):  # a built-in under a label
         return True
     if isinstance(obj, type):
@@ -122,6 +122,14 @@ class _Direct:
         self.callback(*pair)
 
 
+@runtime_checkable
+class PairProgress(Protocol):
+    """A progress whose ``pair(entry, estimator)`` is called as each pair ends (besides its
+    call per entry; :func:`pair_channel`)."""
+
+    def pair(self, entry: str, estimator: str) -> None: ...
+
+
 @contextlib.contextmanager
 def pair_channel(progress: Any, backend: str, workers: int) -> Iterator[Any]:
     """What the harness's jobs ``put((entry, estimator))`` into as each pair ends, so that
@@ -133,10 +141,10 @@ def pair_channel(progress: Any, backend: str, workers: int) -> Iterator[Any]:
     ``multiprocessing`` manager's queue, drained by a thread of this process while the block
     runs (the manager is shut down when it ends, an interrupt included).
     """
-    pair = getattr(progress, "pair", None)
-    if pair is None or backend != "local":
+    if not isinstance(progress, PairProgress) or backend != "local":
         yield None
         return
+    pair = progress.pair
     if workers <= 1:
         yield _Direct(pair)
         return
@@ -164,5 +172,5 @@ def pair_channel(progress: Any, backend: str, workers: int) -> Iterator[Any]:
         manager.shutdown()
 
 
-__all__ = ["SECONDS_PER_UNIT", "UNBATCHED_FACTOR", "PairCost", "is_batched", "pair_channel",
-           "pair_costs", "pair_reporter"]
+__all__ = ["SECONDS_PER_UNIT", "UNBATCHED_FACTOR", "PairCost", "PairProgress", "is_batched",
+           "pair_channel", "pair_costs", "pair_reporter"]

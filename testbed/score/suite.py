@@ -331,30 +331,45 @@ def suite_names() -> list[str]:
     return [*SUITES, *(n for n in discovery.names("suite") if n not in SUITES)]
 
 
-def _suite_function(name: str) -> Any:
-    """The function that makes suite ``name``'s entries: a built-in one, or an installed
-    package's ``testbed.suites`` entry point (a callable with an optional ``version``, an
-    int >= 1, default 1)."""
+@dataclass(frozen=True)
+class SuiteSpec:
+    """A suite as the registry knows it: the function making its entries and its version.
+
+    Attributes
+    ----------
+    function : callable () -> list of SuiteEntry
+    version : int
+        >= 1; :data:`SUITE_VERSIONS` for a built-in suite, an installed suite's ``version``
+        attribute (default 1).
+    """
+
+    function: Any
+    version: int
+
+
+def _suite_spec(name: str) -> SuiteSpec:
+    """Suite ``name``: a built-in one, or an installed package's ``testbed.suites`` entry
+    point (a callable with an optional ``version``, an int >= 1, default 1: read here,
+    once)."""
     if name in SUITES:
-        return SUITES[name]
+        return SuiteSpec(SUITES[name], SUITE_VERSIONS[name])
     from testbed import discovery
 
     function = None if not isinstance(name, str) else discovery.load("suite", name)
     if function is None:
         raise ValueError(f"unknown suite {name!r}; expected one of {sorted(suite_names())}")
-    version = getattr(function, "version", 1)
+    version = getattr(function, "version", 1)  # the plug-in's declaration
     if not callable(function) or isinstance(version, bool) or not isinstance(version, int) \
             or version < 1:
         raise ValueError(f"{discovery.describe(discovery.find('suite', name))}: expected a "
                          "callable () -> list of SuiteEntry with an optional int version >= 1")
-    return function
+    return SuiteSpec(function, version)
 
 
 def suite_version(name: str) -> int:
     """The version of suite ``name``: :data:`SUITE_VERSIONS`, or an installed suite's
     ``version`` attribute (default 1)."""
-    return SUITE_VERSIONS[name] if name in SUITES else getattr(_suite_function(name),
-                                                               "version", 1)
+    return _suite_spec(name).version
 
 
 def get_suite(name: str) -> list[SuiteEntry]:
@@ -366,7 +381,7 @@ def get_suite(name: str) -> list[SuiteEntry]:
         Unknown suite (the known ones listed), or an installed suite that does not load or
         does not give a list of :class:`SuiteEntry` (its entry point named).
     """
-    function = _suite_function(name)
+    function = _suite_spec(name).function
     if function is SUITES.get(name):
         entries = function()
     else:

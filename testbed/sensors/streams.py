@@ -62,7 +62,7 @@ def child_generator(parent: np.random.Generator | None, key: int, member: int
     member : int
         The member's index (used only without a parent).
     """
-    seq = getattr(getattr(parent, "bit_generator", None), "seed_seq", None)
+    seq = None if parent is None else parent.bit_generator.seed_seq
     if isinstance(seq, np.random.SeedSequence):
         child = np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, int(key)))
     else:
@@ -108,7 +108,8 @@ class OwnStream(Sensor):
     def reset(self, sample: Sample, noise: Noise) -> None:
         """(Re)derive the members' streams from their parents' generators, then reset the
         inner sensor with them."""
-        parents = getattr(getattr(noise, "streams", None), "generators", None)
+        # a simulator's streams (Noise) or a stream decorator's (_View): the members' own
+        parents = noise.streams.generators if isinstance(noise, Noise | _View) else None
         for i in self._members(sample).tolist():
             parent = parents[i] if parents is not None else None
             if self._streams.generators[i] is None or parent is not self._parents[i]:

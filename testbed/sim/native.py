@@ -127,7 +127,7 @@ def private_directory(path: Path) -> int | None:
             os.mkdir(path, 0o700)
         except FileExistsError:
             pass
-        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY | getattr(os, "O_NOFOLLOW", 0))
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
     except OSError:
         return None
     try:
@@ -154,7 +154,7 @@ def _open_private(name: str, dir_fd: int) -> int | None:
     """A descriptor of the regular file ``name`` of ``dir_fd`` when it is this user's and
     nobody else may write to it (not following a symlink); else None."""
     try:
-        fd = os.open(name, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0), dir_fd=dir_fd)
+        fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW, dir_fd=dir_fd)
     except OSError:
         return None
     st = os.fstat(fd)
@@ -192,7 +192,7 @@ def _write_private(name: str, data: bytes, mode: int, dir_fd: int) -> None:
     """``data`` as the file ``name`` of ``dir_fd`` with ``mode``: a new temporary file
     renamed (concurrent processes build the same file)."""
     tmp = f".{name}.{os.getpid()}.{threading.get_ident()}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW,
                  mode, dir_fd=dir_fd)
     try:
         with os.fdopen(fd, "wb") as file:

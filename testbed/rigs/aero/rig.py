@@ -241,6 +241,7 @@ class AeroRig(Rig):
     """
 
     name = "aero"
+    sensor_presets = SENSOR_PRESETS
     xml_path = "models/aero.xml"
     params_type = AeroParams
     joints = ("pitch", "yaw")

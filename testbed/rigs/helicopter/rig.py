@@ -106,6 +106,7 @@ class HelicopterRig(Rig):
     """
 
     name = "helicopter"
+    sensor_presets = SENSOR_PRESETS
     xml_path = "models/helicopter_2dof.xml"
     params_type = HelicopterParams
     joints = ("pitch", "yaw")

@@ -76,6 +76,7 @@ class VehicleRollRig(Rig):
     """
 
     name = "vehicle-roll"
+    sensor_presets = SENSOR_PRESETS
     xml_path = "models/vehicle_roll.xml"
     params_type = VehicleRollParams
     joints = ("roll",)
@@ -268,7 +269,7 @@ class VehicleRollRig(Rig):
         """
         from testbed.design import build_design
         from testbed.design.held_noise import uses_held_noise
-        from testbed.rigs.vehicle_roll.sensors import find_tap
+        from testbed.rigs.vehicle_roll.sensors import PaperRollChannel, find_tap
 
         for key, value in (("a_y_std", a_y_std), ("design_roll_rate", design_roll_rate)):
             if not (np.isfinite(value) and value >= 0):
@@ -302,7 +303,8 @@ class VehicleRollRig(Rig):
 
         design.extras.update(paper_model=paper_model(), a_y_std=a_y_std, a_y_source=source,
                              lmi_system=vehicle_lmi_system,
-                             lmi_amplitude=getattr(sensors, "lmi_amplitude", None))
+                             lmi_amplitude=(sensors.lmi_amplitude
+                                            if isinstance(sensors, PaperRollChannel) else None))
         if self.profile == "paper":
             return design
         return self._matched_design(design, sensors, dt_s, A, B, Q, tap if transform else None,
