@@ -104,6 +104,11 @@ def test_readme_check_tolerates_rounding_only():
     assert module.differences("| kalman | 0.04947 deg |", "| kalman | 0.04997 deg |")
     assert module.differences("| kalman | 0.04947 deg |", "| kalman | 0.04947 rad |")
     assert module.differences("1.94", "1.94e-3")
+    # quantiles in parentheses to QTOL: one run's RMSE (the hardware helicopter's ukf)
+    row = "| pitch | 0.01331 ({} / 0.02314) deg | 3.11 |"
+    assert module.differences(row.format("0.009996"), row.format("0.01017")) == []
+    assert module.differences(row.format("0.009996"), row.format("0.0105"))
+    assert module.differences("| 0.01331 (0.01 / 0.02) |", "| 0.01345 (0.01 / 0.02) |")
 
 
 def _readme_numbers():
