@@ -5,6 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+# testbed first, whatever module pytest collects first: its start-up sets MUJOCO_GL for a
+# headless machine, which MuJoCo reads when it is imported (a test module importing mujoco
+# before testbed would otherwise leave rendering without an OpenGL backend)
+import testbed  # noqa: F401
+
 
 @pytest.fixture
 def rng() -> np.random.Generator:

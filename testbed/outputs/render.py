@@ -66,25 +66,37 @@ class RigRenderer:
         self._renderer.close()
 
 
+#: The first failure of :func:`check_rendering` in this process: MuJoCo cannot be asked for an
+#: OpenGL context again after one failed (its second ``mjr_makeContext`` aborts the process).
+_RENDER_FAILURE: str | None = None
+
+
 def check_rendering() -> None:
     """Check that an offscreen image can be rendered here (an OpenGL context is created and
     freed), before any work.
+
+    A failure is remembered: later checks in the process raise it again without asking
+    OpenGL (MuJoCo aborts the process on a second failed context).
 
     Raises
     ------
     ValueError
         One line naming ``MUJOCO_GL`` and the cause (an unknown backend, OSMesa or GLFW not
-        available, no display...).
+        available, no display, MuJoCo imported before ``testbed`` with ``MUJOCO_GL``
+        unset...).
     """
     import os
     import warnings
 
     from testbed import _startup
 
+    global _RENDER_FAILURE
     hint = ("set MUJOCO_GL=egl (a GPU or Mesa's EGL) or MUJOCO_GL=osmesa (software; needs "
             "libOSMesa)")
     if _startup.BAD_MUJOCO_GL is not None:
         raise ValueError(f"{_startup.BAD_MUJOCO_GL}; {hint}")
+    if _RENDER_FAILURE is not None:
+        raise ValueError(_RENDER_FAILURE)
     current = os.environ.get("MUJOCO_GL", "")
     try:
         with warnings.catch_warnings():
@@ -95,8 +107,9 @@ def check_rendering() -> None:
     except Exception as err:  # GL context creation fails in many ways
         from testbed.plugins import describe
 
-        raise ValueError(f"cannot render offscreen with MUJOCO_GL={current!r} "
-                         f"({describe(err)}); {hint}") from None
+        _RENDER_FAILURE = (f"cannot render offscreen with MUJOCO_GL={current!r} "
+                           f"({describe(err)}); {hint}")
+        raise ValueError(_RENDER_FAILURE) from None
 
 
 def frame_stride(dt_s: float, fps: float = VIDEO_FPS) -> int:

@@ -82,3 +82,28 @@ def test_cli_video(tmp_path, capsys):
                  str(tmp_path / "v.gif")]) == 2
     assert "--video must be a .mp4 file" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+def test_a_failed_opengl_context_is_one_line_every_time_not_an_abort():
+    """MuJoCo imported before testbed on a headless machine (MUJOCO_GL unset): rendering
+    fails with the one-line message, and so does a second env (MuJoCo aborts the process
+    on a second failed context: the first failure is remembered)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import mujoco, gymnasium as gym, testbed\n"
+            "for _ in range(3):\n"
+            "    try:\n"
+            "        gym.make('testbed/Helicopter2DOF-v0', render_mode='rgb_array')\n"
+            "    except ValueError as exc:\n"
+            "        print(str(exc).splitlines()[0][:80])\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY",
+                                                            "PYOPENGL_PLATFORM")}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-500:]
+    lines = done.stdout.splitlines()
+    assert len(lines) == 3 and len(set(lines)) == 1
+    assert lines[0].startswith("render_mode='rgb_array': cannot render offscreen with "
+                               "MUJOCO_GL=''")
