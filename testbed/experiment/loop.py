@@ -223,8 +223,7 @@ class EstimatorStage:
             self.check("after the first step")
             self._checked = True
         x_phys = self.x
-        # a covariance the batch's members share (a Kalman filter's: filters.KalmanFilter.
-        # shared_P): the metrics factor it once for every member (the same values)
+        # a covariance the members share (KalmanFilter.shared_P): the metrics factor it once
         shared = optional.shared_covariance(est)
         P = self.P if shared is None else self._physical_block(shared)
         self.metrics.update(x_true, x_phys, P, y, w if w is not None and w.size else None)
