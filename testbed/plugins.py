@@ -191,7 +191,8 @@ class LabelledFactory:
     def __name__(self) -> str:  # noqa: PLW3201 - what the harness and messages read
         return self.label
 
-    def _target(self) -> Any:
+    def target(self) -> Any:
+        """The factory the spec names, loaded on first use (and kept)."""
         target = self.__dict__.get("_loaded")
         if target is None:
             target = (load(self.spec, f"filter {self.spec!r}") if self.resolve is None
@@ -204,17 +205,17 @@ class LabelledFactory:
         import inspect
 
         try:
-            return inspect.signature(self._target())
+            return inspect.signature(self.target())
         except (TypeError, ValueError):
             return None
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        return self._target()(*args, **kwargs)
+        return self.target()(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name in ("spec", "label", "resolve", "_loaded"):
             raise AttributeError(name)
-        return getattr(self._target(), name)
+        return getattr(self.target(), name)
 
     def __reduce__(self) -> tuple[Any, ...]:
         return (LabelledFactory, (self.spec, self.label, self.resolve))

@@ -141,6 +141,12 @@ def rig_held_noise(rig, dt_s: float, A: np.ndarray, Q: np.ndarray) -> np.ndarray
 PROCESS_NOISE_MODELS = ("auto", "held", "continuous")
 
 
+def _check_model(process_noise_model: str) -> None:
+    if process_noise_model not in PROCESS_NOISE_MODELS:
+        raise ValueError(f"process_noise_model must be one of {PROCESS_NOISE_MODELS}, got "
+                         f"{process_noise_model!r}")
+
+
 def uses_held_noise(process_noise_model: str, paper_profile: bool) -> bool:
     """Whether a rig's design discretizes its process noise as the simulator holds it.
 
@@ -163,9 +169,7 @@ def uses_held_noise(process_noise_model: str, paper_profile: bool) -> bool:
     ValueError
         An unknown ``process_noise_model``.
     """
-    if process_noise_model not in PROCESS_NOISE_MODELS:
-        raise ValueError(f"process_noise_model must be one of {PROCESS_NOISE_MODELS}, got "
-                         f"{process_noise_model!r}")
+    _check_model(process_noise_model)
     if process_noise_model == "auto":
         return paper_profile
     return process_noise_model == "held"
@@ -189,9 +193,7 @@ def matched_held_noise(disturbance, process_noise_model: str) -> np.ndarray | No
         the hardware profile it stands for the accelerations the linear model leaves out
         (friction, stops, deadband), which are not white noise held over the period.
     """
-    if process_noise_model not in PROCESS_NOISE_MODELS:
-        raise ValueError(f"process_noise_model must be one of {PROCESS_NOISE_MODELS}, got "
-                         f"{process_noise_model!r}")
+    _check_model(process_noise_model)
     if process_noise_model == "continuous" or disturbance is None:
         return None
     return disturbance.intensity

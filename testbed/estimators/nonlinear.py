@@ -101,6 +101,7 @@ class MujocoRigType(Protocol):
 
     def operating_input(self, params: Any, x: np.ndarray) -> np.ndarray: ...
 
+
 __all__ = ["FD_EPS", "JACOBIAN_METHODS", "AbsoluteInput", "AugmentedProcessModel",
            "MeasurementModel", "MujocoProcessModel", "MujocoRigType", "PhysicalInput", "can_touch",
            "differences", "gravity", "nominal_rig", "nonlinear_estimator", "nonlinear_models",

@@ -90,7 +90,7 @@ def is_batched(factory: Any) -> bool | None:
 
     if isinstance(factory, str):
         return True if factory in ESTIMATORS else None
-    obj = factory._target() if isinstance(factory, LabelledFactory) else factory
+    obj = factory.target() if isinstance(factory, LabelledFactory) else factory
     if any(obj is builtin for builtin in ESTIMATORS.values()):  # a built-in under a label
         return True
     if isinstance(obj, type):
